@@ -1,0 +1,254 @@
+"""`view` (live meshcat server) and `export_html` (one standalone page).
+
+Both draw the same scene with `draw`: under the meshcat path `/mwbx`, shifted
+so that the region of interest sits at the origin (meshcat's orbit controls
+always orbit the origin):
+
+  /mwbx/worlds   playback of the chosen worlds (animated, recorded rate)
+  /mwbx/paths    COM paths: faint / match (green) / exclude (red)
+  /mwbx/queries  query frustums q0, q1, ... with their cameras
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+from typing import Any, NamedTuple, Sequence
+
+import meshcat
+import mujoco
+import numpy as np
+
+from mwbx.viewer.errors import ViewerError
+from mwbx.viewer.frustums import QueryVolume, as_volume, draw_volume
+from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS, pose_matrix, scene_visuals
+from mwbx.viewer.paths import PathClasses, classify_worlds, draw_paths
+from mwbx.viewer.playback import LAYOUTS, draw_playback, grid_offsets
+from mwbx.viewer.recorder import SceneRecorder
+
+ROOT = "mwbx"
+# Field of view (degrees) used when the model has no MJCF camera to copy.
+DEFAULT_FOVY = 50.0
+# Viewing direction (from the scene towards the eye) without an MJCF camera.
+DEFAULT_VIEW_DIR = np.array([1.0, -1.4, 0.9])
+
+
+class DrawInfo(NamedTuple):
+  """What `draw` put in the scene.
+
+  centre: f64[3] world point shown at the display origin (metres).
+  worlds: i64[n] bank indices of the played-back worlds.
+  offsets: f64[n, 3] grid translation of each played-back world.
+  path_segments: {"faint" | "match" | "exclude": number of segments drawn}.
+  n_queries: number of frustums drawn.
+  eye: f64[3] world position of the initial viewing camera.
+  """
+
+  centre: np.ndarray
+  worlds: np.ndarray
+  offsets: np.ndarray
+  path_segments: dict
+  n_queries: int
+  eye: np.ndarray
+
+
+def resolve_worlds(bank, worlds: Sequence[int] | None) -> np.ndarray:
+  """i64[n] validated world indices; None picks the first valid world."""
+  valid = np.asarray(bank.valid, bool)
+  if worlds is None:
+    first = np.flatnonzero(valid)[:1]
+    return first.astype(np.int64)
+  out = np.asarray(list(worlds), np.int64).reshape(-1)
+  for w in out:
+    if not 0 <= w < bank.n_worlds:
+      raise ViewerError(f"worlds: index {int(w)} is out of range for a bank of {bank.n_worlds} worlds")
+    if not valid[w]:
+      raise ViewerError(f"worlds: world {int(w)} is flagged unstable and cannot be shown")
+  if len(set(out.tolist())) != out.size:
+    raise ViewerError(f"worlds: {out.tolist()} lists a world more than once")
+  return out
+
+
+def resolve_bodies(bank, paths: Any) -> np.ndarray | None:
+  """Indices into the bank's B axis for `paths` (True: all tracked bodies;
+  a body/object/group name or a list of them); None when no paths."""
+  if paths is None or paths is False:
+    return None
+  if paths is True:
+    return np.arange(len(bank.body_names), dtype=np.int64)
+  return np.asarray(bank.select_bodies(paths), np.int64).reshape(-1)
+
+
+def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
+                 path_classes: PathClasses | None, bodies: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+  """(lo f64[3], hi f64[3]) box around what is shown: COM paths of the
+  played-back worlds (all bodies) and of the drawn paths, and static geoms
+  other than planes."""
+  com = np.asarray(bank.com)
+  pts = [com[worlds].reshape(-1, 3)]
+  if path_classes is not None and bodies is not None:
+    drawn = np.concatenate(list(path_classes))
+    pts.append(com[drawn][:, :, bodies].reshape(-1, 3))
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  static = (model.body_weldid[model.geom_bodyid] == 0) & (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE)
+  pts.append(data.geom_xpos[static])
+  pts = np.concatenate(pts, axis=0)
+  pts = pts[np.all(np.isfinite(pts), axis=1)]
+  if pts.shape[0] == 0:
+    centre = np.asarray(model.stat.center, np.float64)
+    half = max(float(model.stat.extent), 0.5)
+    return centre - half, centre + half
+  return pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64)
+
+
+def place_camera(vis, model: mujoco.MjModel, lo: np.ndarray, hi: np.ndarray,
+                 camera: str | None, fit: bool = False) -> tuple[np.ndarray, np.ndarray]:
+  """Aims meshcat's camera. Returns (centre f64[3], eye f64[3]) in world
+  coordinates; the caller shifts the scene by -centre.
+
+  camera: an MJCF camera name, or None for the model's first camera (or an
+  oblique view fitting the bounds when the model has none).
+  fit: with camera None, ignore MJCF cameras and fit the bounds.
+  """
+  box_centre = (lo + hi) / 2
+  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
+  if camera is not None and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+    names = [model.camera(i).name for i in range(model.ncam)]
+    raise ViewerError(f"camera: no MJCF camera named {camera!r} (cameras: {names})")
+  cam_id = 0 if camera is None else mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+  if model.ncam > 0 and (camera is not None or not fit):
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_camlight(model, data)
+    eye = data.cam_xpos[cam_id].copy()
+    forward = -data.cam_xmat[cam_id].reshape(3, 3)[:, 2]  # cameras look along -z
+    fovy = float(model.cam_fovy[cam_id])
+    # Orbit about the point on the camera's axis nearest the scene, so the
+    # first view looks exactly where the MJCF camera does.
+    depth = max(float(np.dot(box_centre - eye, forward)), 0.1)
+    centre = eye + depth * forward
+  else:
+    fovy = DEFAULT_FOVY
+    direction = DEFAULT_VIEW_DIR / np.linalg.norm(DEFAULT_VIEW_DIR)
+    centre = box_centre
+    # The bounding sphere is loose for box-like scenes: come in a little closer.
+    eye = centre + direction * radius / np.sin(np.radians(fovy) / 2) * 0.8
+  d = eye - centre
+  cam = vis["/Cameras/default/rotated/<object>"]
+  # The camera's parent is rotated +90 deg about x (three.js is y-up):
+  # world (x, y, z) = local (x, -z, y).
+  cam.set_property("position", [float(d[0]), float(d[2]), float(-d[1])])
+  cam.set_property("fov", fovy)
+  cam.set_property("far", float(max(100.0, 20 * (radius + np.linalg.norm(d)))))
+  return centre, eye
+
+
+def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
+         path_worlds: Sequence[int] | None = None, match: np.ndarray | None = None,
+         exclude: np.ndarray | None = None, queries: Sequence[Any] | None = None,
+         layout: str = "overlay", camera: str | None = None, play: bool = True,
+         frustum_depth: float | None = None,
+         visible_groups: tuple[int, ...] = DEFAULT_VISIBLE_GROUPS) -> DrawInfo:
+  """Draws a bank's worlds, paths and queries into a meshcat visualizer.
+
+  bank: a sampled bank (mwbx.bank contract).
+  worlds: indices of worlds to play back; None = the first valid world, [] = none.
+  paths: COM paths to draw for every valid world (or `path_worlds`): True for
+    all tracked bodies, or body/object/group name(s); None = no paths.
+  match, exclude: bool[W] worlds whose paths are green / red (others faint);
+    when `queries` are mwbx.queries objects and both are None they come from
+    evaluating the queries.
+  queries: frustums to draw: QueryVolume, (corners f[8, 3], include) pairs or
+    mwbx.queries query objects.
+  layout: "overlay" (ghosted, tinted) or "grid" (side by side).
+  camera: MJCF camera to view from (None: the first one, if any, in overlay
+    layout; a view fitting the whole grid in grid layout).
+  frustum_depth: longest frustum side edge drawn, metres (None: 3x scene size).
+  """
+  if layout not in LAYOUTS:
+    raise ViewerError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+  model = bank.model()
+  worlds = resolve_worlds(bank, worlds)
+  bodies = resolve_bodies(bank, paths)
+  queries = list(queries or [])
+  if queries and match is None and exclude is None:
+    match, exclude = query_classes(bank, queries)
+  classes = None
+  if bodies is not None:
+    classes = classify_worlds(np.asarray(bank.valid), path_worlds, match, exclude)
+  volumes = [as_volume(q, i) for i, q in enumerate(queries)]
+  lo, hi = scene_bounds(bank, model, worlds, classes, bodies)
+  size = hi - lo
+  cell_centre = (lo + hi) / 2
+  radius = max(float(np.linalg.norm(size)) / 2, 0.2)
+  visuals = scene_visuals(model, visible_groups, plane_extent=2.0 * radius + float(np.max(np.abs(hi))))
+
+  cell = np.maximum(size[:2], 0.2) * 1.25
+  if layout == "grid":
+    # Frame the whole grid, not only the first cell.
+    grid = grid_offsets(worlds.size, cell) if worlds.size else np.zeros((1, 3))
+    lo, hi = lo + grid.min(axis=0), hi + grid.max(axis=0)
+  root = vis[ROOT]
+  root.delete()
+  centre, eye = place_camera(vis, model, lo, hi, camera, fit=layout == "grid")
+  root.set_transform(pose_matrix(-centre, np.array([1.0, 0.0, 0.0, 0.0])))
+  # meshcat's grid and axes sit at the display origin, no longer the world's.
+  vis["/Grid"].set_property("visible", False)
+  vis["/Axes"].set_property("visible", False)
+
+  offsets = draw_playback(root["worlds"], bank, model, visuals, list(worlds), layout, cell,
+                          cell_centre, play)
+  counts = {"faint": 0, "match": 0, "exclude": 0}
+  if classes is not None:
+    counts = draw_paths(root["paths"], np.asarray(bank.com), np.asarray(bank.com_count), bodies, classes)
+  depth = 3.0 * radius if frustum_depth is None else frustum_depth
+  for i, volume in enumerate(volumes):
+    draw_volume(root["queries"][f"q{i}"], volume, i, max_depth=depth, eye_radius=0.015 * radius)
+  return DrawInfo(centre, worlds, offsets, counts, len(volumes), eye)
+
+
+def query_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray | None, np.ndarray | None]:
+  """(match bool[W], exclude bool[W]) from mwbx.queries query objects: match
+  = satisfies every query; exclude = hit by a negative query. (None, None)
+  when the queries are plain frustums without an evaluator."""
+  if all(isinstance(q, (QueryVolume, tuple)) for q in queries):
+    return None, None
+  from mwbx.viewer.query_adapter import evaluate_classes  # mwbx.queries is optional here
+  return evaluate_classes(bank, queries)
+
+
+def view(bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
+         queries: Sequence[Any] | None = None, layout: str = "overlay", open: bool = False,
+         vis: meshcat.Visualizer | None = None, zmq_url: str | None = None,
+         **draw_kwargs) -> meshcat.Visualizer:
+  """Shows a bank in a live meshcat viewer and returns the visualizer.
+
+  A new meshcat server is started unless `vis` or `zmq_url` (of a running
+  server) is given; its page is `vis.url()`. open: also open a browser tab.
+  Stop a server this started with `vis.window.server_proc.kill()`.
+  Other keyword arguments: see `draw` (path_worlds, match, exclude, camera,
+  play, frustum_depth, visible_groups).
+  """
+  if vis is None:
+    vis = meshcat.Visualizer(zmq_url=zmq_url)
+  draw(vis, bank, worlds, paths=paths, queries=queries, layout=layout, **draw_kwargs)
+  if open:
+    vis.open()
+  return vis
+
+
+def export_html(bank, path: str | os.PathLike, worlds: Sequence[int] | None = None, *,
+                paths: Any = None, queries: Sequence[Any] | None = None,
+                layout: str = "overlay", title: str = "mwbx", **draw_kwargs) -> pathlib.Path:
+  """Writes one self-contained HTML page (meshcat viewer + scene + animation)
+  showing a bank; needs no server. Same arguments as `view`/`draw`.
+  Returns the path written."""
+  path = pathlib.Path(path)
+  if path.parent and not path.parent.exists():
+    raise ViewerError(f"export_html: directory {str(path.parent)!r} does not exist")
+  recorder = SceneRecorder(title=title)
+  vis = meshcat.Visualizer(window=recorder)
+  draw(vis, bank, worlds, paths=paths, queries=queries, layout=layout, **draw_kwargs)
+  path.write_text(vis.static_html(), encoding="utf-8")
+  return path

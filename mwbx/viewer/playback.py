@@ -1,0 +1,198 @@
+"""Animated playback of chosen worlds: one meshcat node per moving body, its
+pose per recorded frame as an animation track at the recording rate.
+
+Layouts: "overlay" puts every world in the same place, the first opaque in its
+MJCF colours and the others as tinted, translucent ghosts; "grid" lays worlds
+out side by side, each with its own copy of the static scene.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import meshcat.animation as manim
+import meshcat.geometry as mg
+import mujoco
+import numpy as np
+
+from mwbx.viewer.errors import ViewerError
+from mwbx.viewer.geometry import (PLANE_THICKNESS, GeomVisual, Rgba, body_node_name, material,
+                                  moving_body_ids, pose_matrix)
+from mwbx.viewer.kinematics import body_trajectories, pad_frames
+
+LAYOUTS = ("overlay", "grid")
+# Tints for ghost worlds in overlay layout, cycled.
+GHOST_TINTS = (
+    Rgba(0.1, 0.45, 1.0, 1.0), Rgba(1.0, 0.55, 0.0, 1.0), Rgba(0.6, 0.2, 0.9, 1.0),
+    Rgba(0.0, 0.75, 0.75, 1.0), Rgba(0.9, 0.2, 0.55, 1.0), Rgba(0.45, 0.3, 0.15, 1.0),
+)
+GHOST_TINT_WEIGHT = 0.55
+GHOST_OPACITY = 0.45
+
+
+class WorldStyle(NamedTuple):
+  """How one world is drawn: tint colour (None = MJCF colours) and opacity."""
+
+  tint: Rgba | None
+  opacity: float
+
+
+class WorldTracks(NamedTuple):
+  """Recorded body poses of one world, padded to a common length.
+
+  world: index into the bank's world axis.
+  body_ids: i32[K] MuJoCo ids of the moving bodies drawn.
+  pos: f64[T, K, 3] metres; quat: f64[T, K, 4] wxyz.
+  """
+
+  world: int
+  body_ids: np.ndarray
+  pos: np.ndarray
+  quat: np.ndarray
+
+
+def world_styles(n_worlds: int, layout: str) -> list[WorldStyle]:
+  """Style per displayed world for a layout."""
+  if layout not in LAYOUTS:
+    raise ViewerError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+  if layout == "grid" or n_worlds == 1:
+    return [WorldStyle(None, 1.0)] * n_worlds
+  return [WorldStyle(None, 1.0)] + [
+      WorldStyle(GHOST_TINTS[(k - 1) % len(GHOST_TINTS)], GHOST_OPACITY) for k in range(1, n_worlds)]
+
+
+def grid_offsets(n_worlds: int, cell: np.ndarray) -> np.ndarray:
+  """f64[n, 3] translations of grid cells (row-major, rows along -y, about
+  square), cell: f64[2] cell size in metres along x and y."""
+  cols = int(np.ceil(np.sqrt(n_worlds)))
+  k = np.arange(n_worlds)
+  return np.stack([(k % cols) * cell[0], -(k // cols) * cell[1], np.zeros(n_worlds)], axis=1)
+
+
+def tile_planes(visuals: Sequence[GeomVisual], centre: np.ndarray,
+                tile: np.ndarray) -> list[GeomVisual]:
+  """Grid layout: horizontal static planes become one floor tile per cell.
+
+  centre: f64[3] world point the tile is centred under (metres).
+  tile: f64[2] tile size along x and y (metres), a bit less than the cell so
+  neighbouring worlds are visibly apart and their floors never overlap.
+  """
+  out = []
+  for v in visuals:
+    normal = v.local[:3, 2]
+    is_plane = isinstance(v.geometry, mg.Box) and v.geometry.lengths[2] == PLANE_THICKNESS
+    if v.static and is_plane and abs(abs(normal[2]) - 1.0) < 1e-9:
+      local = np.eye(4)
+      local[:3, 3] = [centre[0], centre[1], v.local[2, 3]]
+      v = v._replace(geometry=mg.Box([float(tile[0]), float(tile[1]), PLANE_THICKNESS]), local=local)
+    out.append(v)
+  return out
+
+
+def world_tracks(bank, model: mujoco.MjModel, worlds: Sequence[int],
+                 body_ids: np.ndarray) -> list[WorldTracks]:
+  """Decodes each world's qpos and runs forward kinematics; all tracks are
+  padded to the longest recording (shorter worlds hold their last pose)."""
+  decoded = []
+  for w in worlds:
+    qpos = np.asarray(bank.qpos_frames(int(w)), np.float64)
+    if qpos.shape[0] == 0:
+      raise ViewerError(f"world {int(w)} has no recorded frames (frame_count is 0)")
+    if not np.all(np.isfinite(qpos)):
+      raise ViewerError(f"world {int(w)} has non-finite recorded coordinates; it cannot be played back")
+    decoded.append((int(w), qpos))
+  n_frames = max(q.shape[0] for _, q in decoded)
+  tracks = []
+  for w, qpos in decoded:
+    pos, quat = body_trajectories(model, qpos, body_ids)
+    tracks.append(WorldTracks(w, body_ids, pad_frames(pos, n_frames), pad_frames(quat, n_frames)))
+  return tracks
+
+
+def draw_static(vis, visuals: Sequence[GeomVisual], style: WorldStyle = WorldStyle(None, 1.0)) -> None:
+  """Static geoms at their world poses under `vis`, once."""
+  for v in visuals:
+    if not v.static:
+      continue
+    node = vis[v.name]
+    node.set_object(v.geometry, material(v.rgba, v.shininess, style.tint, GHOST_TINT_WEIGHT,
+                                         None if style.opacity >= 1.0 else style.opacity))
+    node.set_transform(v.local)
+
+
+def draw_bodies(vis, model: mujoco.MjModel, visuals: Sequence[GeomVisual],
+                style: WorldStyle) -> dict[int, object]:
+  """Moving bodies under `vis`: one node per body with its geoms as children
+  at their body-frame poses. Returns {body id: body node visualizer}."""
+  nodes = {}
+  for v in visuals:
+    if v.static:
+      continue
+    if v.body_id not in nodes:
+      nodes[v.body_id] = vis[body_node_name(model, v.body_id)]
+    geom = nodes[v.body_id][v.name]
+    geom.set_object(v.geometry, material(v.rgba, v.shininess, style.tint, GHOST_TINT_WEIGHT,
+                                         None if style.opacity >= 1.0 else style.opacity))
+    geom.set_transform(v.local)
+  return nodes
+
+
+def add_clip(animation: manim.Animation, node, pos: np.ndarray, quat: np.ndarray, fps: float) -> None:
+  """Adds one body's position/orientation tracks to `animation`.
+
+  pos: f64[T, 3] metres, quat: f64[T, 4] wxyz; frame t plays at t / fps s.
+  Tracks are filled directly (meshcat wants xyzw quaternions and Python
+  floats), which is much faster than per-frame `at_frame(...).set_transform`.
+  """
+  frames = list(range(pos.shape[0]))
+  xyzw = np.asarray(quat, np.float64)[:, [1, 2, 3, 0]]
+  animation.clips[node.path] = manim.AnimationClip(
+      tracks={
+          "position": manim.AnimationTrack("position", "vector3", frames,
+                                           np.asarray(pos, np.float64).tolist()),
+          "quaternion": manim.AnimationTrack("quaternion", "quaternion", frames, xyzw.tolist()),
+      },
+      fps=float(fps),
+  )
+
+
+def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual],
+                  worlds: Sequence[int], layout: str, cell: np.ndarray | None = None,
+                  centre: np.ndarray | None = None, play: bool = True) -> np.ndarray:
+  """Draws `worlds` of `bank` under `vis` and sets the animation.
+
+  Nodes: `static` (overlay: once), `w{world_id}/static` (grid), and
+  `w{world_id}/{body}/{geom}`. cell: f64[2] grid cell size in metres and
+  centre: f64[3] world point at the middle of a cell (grid only).
+  Returns f64[n, 3] the translation of each world's node (zeros for overlay).
+  """
+  styles = world_styles(len(worlds), layout)
+  body_ids = moving_body_ids(list(visuals))
+  offsets = np.zeros((len(worlds), 3))
+  if layout == "grid":
+    cell = np.asarray(cell if cell is not None else (1.0, 1.0), np.float64)
+    offsets = grid_offsets(len(worlds), cell)
+    visuals = tile_planes(visuals, np.zeros(3) if centre is None else centre, 0.97 * cell)
+  else:
+    draw_static(vis["static"], visuals)
+  if not worlds:
+    return offsets
+  tracks = world_tracks(bank, model, worlds, body_ids)
+  animation = manim.Animation(default_framerate=float(bank.record_fps))
+  world_ids = np.asarray(bank.world_ids)
+  for k, (track, style) in enumerate(zip(tracks, styles)):
+    node = vis[f"w{int(world_ids[track.world])}"]
+    shift = np.eye(4)
+    shift[:3, 3] = offsets[k]
+    node.set_transform(shift)
+    if layout == "grid":
+      draw_static(node["static"], visuals)
+    nodes = draw_bodies(node, model, visuals, style)
+    for j, body in enumerate(track.body_ids):
+      body_node = nodes[int(body)]
+      body_node.set_transform(pose_matrix(track.pos[0, j], track.quat[0, j]))
+      add_clip(animation, body_node, track.pos[:, j], track.quat[:, j], bank.record_fps)
+  if animation.clips:
+    vis.set_animation(animation, play=play, repetitions=float("inf") if play else 1)
+  return offsets
+
