@@ -78,28 +78,32 @@ def capsule_mesh(radius: float, half_length: float, n_around: int = 24,
   """Triangle mesh of a capsule along z (meshcat has no capsule primitive).
 
   Returns (vertices f32[N, 3] in metres, faces u32[F, 3] counter-clockwise seen
-  from outside). Rings run from the bottom pole to the top pole; each
-  hemisphere has `n_cap` latitude steps.
+  from outside), a closed surface: one vertex per pole, `n_cap` rings per
+  hemisphere (the two equator rings, shifted by -/+ half_length, bound the
+  cylindrical middle), `n_around` vertices per ring.
   """
-  # Latitudes from -pi/2 to pi/2; the equator ring appears twice, shifted
-  # down and up by half_length, which makes the cylindrical middle.
-  lat = np.linspace(-np.pi / 2, 0.0, n_cap + 1)
-  lats = np.concatenate([lat, -lat[::-1]])
-  shift = np.concatenate([np.full(n_cap + 1, -half_length), np.full(n_cap + 1, half_length)])
+  # Ring latitudes in (-pi/2, pi/2), bottom to top; the poles are single vertices.
+  lat_bottom = np.linspace(-np.pi / 2, 0.0, n_cap + 1)[1:]
+  lats = np.concatenate([lat_bottom, -lat_bottom[::-1]])
+  shift = np.concatenate([np.full(n_cap, -half_length), np.full(n_cap, half_length)])
   lon = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
   ring_r = radius * np.cos(lats)[:, None]
-  x = ring_r * np.cos(lon)[None, :]
-  y = ring_r * np.sin(lon)[None, :]
-  z = (radius * np.sin(lats) + shift)[:, None] * np.ones_like(lon)[None, :]
-  verts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+  ring_z = np.broadcast_to((radius * np.sin(lats) + shift)[:, None], (lats.size, n_around))
+  rings = np.stack([ring_r * np.cos(lon)[None, :], ring_r * np.sin(lon)[None, :], ring_z],
+                   axis=-1).reshape(-1, 3)
+  bottom = np.array([[0.0, 0.0, -half_length - radius]])
+  top = np.array([[0.0, 0.0, half_length + radius]])
+  verts = np.concatenate([bottom, rings, top])
   n_rings = lats.size
+  ring = lambda i, j: 1 + i * n_around + j % n_around  # noqa: E731
+  top_id = verts.shape[0] - 1
   faces = []
-  for i in range(n_rings - 1):
-    for j in range(n_around):
-      a = i * n_around + j
-      b = i * n_around + (j + 1) % n_around
-      c = (i + 1) * n_around + j
-      d = (i + 1) * n_around + (j + 1) % n_around
+  for j in range(n_around):
+    faces.append((0, ring(0, j + 1), ring(0, j)))
+    faces.append((top_id, ring(n_rings - 1, j), ring(n_rings - 1, j + 1)))
+    for i in range(n_rings - 1):
+      a, b = ring(i, j), ring(i, j + 1)
+      c, d = ring(i + 1, j), ring(i + 1, j + 1)
       faces.append((a, b, d))
       faces.append((a, d, c))
   return verts.astype(np.float32), np.asarray(faces, np.uint32)

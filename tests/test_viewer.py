@@ -1,0 +1,425 @@
+"""Viewer kernels against slow, obvious references, and the drawing API on a
+small bank (no browser here: see test_viewer_browser.py)."""
+
+from __future__ import annotations
+
+import base64
+import re
+import warnings
+
+import hypothesis.extra.numpy as hnp
+import mujoco
+import numpy as np
+import pytest
+import umsgpack
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+with warnings.catch_warnings():
+  warnings.simplefilter("ignore", DeprecationWarning)
+  import meshcat
+
+import mwbx.viewer as mv
+from mwbx.viewer import frustums, geometry, kinematics, paths, playback
+from viewer_standin import STANDIN_XML, make_standin_bank
+
+FAST = settings(max_examples=40, deadline=None)
+
+
+@pytest.fixture(scope="module")
+def bank():
+  return make_standin_bank(n_worlds=6, unstable=[5])
+
+
+@pytest.fixture(scope="module")
+def model():
+  return mujoco.MjModel.from_xml_string(STANDIN_XML)
+
+
+# ---------------------------------------------------------------- geometry
+
+
+def _point_segment_distance(p, a, b):
+  t = np.clip(np.dot(p - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
+  return np.linalg.norm(p - (a + t * (b - a)))
+
+
+@FAST
+@given(radius=st.floats(0.005, 2.0), half=st.floats(0.001, 3.0),
+       n_around=st.integers(3, 32), n_cap=st.integers(1, 10))
+def test_capsule_mesh_is_a_closed_outward_capsule(radius, half, n_around, n_cap):
+  verts, faces = geometry.capsule_mesh(radius, half, n_around, n_cap)
+  a, b = np.array([0, 0, -half]), np.array([0, 0, half])
+  for v in verts.astype(np.float64):
+    assert abs(_point_segment_distance(v, a, b) - radius) <= 1e-5 * max(radius, half)
+  # Closed 2-manifold: every undirected edge is used by exactly two faces,
+  # once in each direction (consistent orientation).
+  directed = {}
+  for f in faces:
+    for i in range(3):
+      e = (int(f[i]), int(f[(i + 1) % 3]))
+      directed[e] = directed.get(e, 0) + 1
+  for (i, j), n in directed.items():
+    if i == j:
+      continue
+    assert n == 1 and directed.get((j, i)) == 1
+  # Outward: positive signed volume, below the true volume (inscribed).
+  tri = verts.astype(np.float64)[faces]
+  volume = np.sum(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2]))) / 6
+  exact = np.pi * radius**2 * (4 / 3 * radius + 2 * half)
+  assert 0 < volume <= exact * (1 + 1e-5)
+
+
+def test_geom_rgba_follows_mujoco_material_rule(model):
+  for g in range(model.ngeom):
+    rgba = np.asarray(model.geom_rgba[g])
+    mat = model.geom_matid[g]
+    expected = model.mat_rgba[mat] if mat >= 0 and np.allclose(rgba, [0.5, 0.5, 0.5, 1]) else rgba
+    np.testing.assert_allclose(geometry.geom_rgba(model, g), expected, rtol=0, atol=1e-7)
+  assert geometry.geom_rgba(model, model.geom("floor").id)[:3] == pytest.approx((0.85, 0.85, 0.8))
+
+
+def test_scene_visuals_cover_every_type_and_pose(model):
+  visuals = geometry.scene_visuals(model)
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  by_geom = {v.geom_id: v for v in visuals}
+  hidden = model.geom("hidden_collider").id
+  assert hidden not in by_geom  # group 3 is not drawn
+  assert {int(model.geom_type[g]) for g in by_geom} == {int(t) for t in (
+      mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE,
+      mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER,
+      mujoco.mjtGeom.mjGEOM_ELLIPSOID, mujoco.mjtGeom.mjGEOM_MESH)}
+  for g, v in by_geom.items():
+    body = model.geom_bodyid[g]
+    assert v.static == (body == 0)
+    # Geom frame in the world = body pose (identity for static) @ local @ inverse fix.
+    body_pose = np.eye(4)
+    if not v.static:
+      body_pose = geometry.pose_matrix(data.xpos[body], data.xquat[body])
+    world = body_pose @ v.local
+    # The meshcat primitive's symmetry axis (+y for cylinders, +z otherwise)
+    # must land on the MuJoCo geom's z axis.
+    axis = np.array([0, 1, 0]) if isinstance(v.geometry, meshcat.geometry.Cylinder) else np.array([0, 0, 1])
+    np.testing.assert_allclose(world[:3, :3] @ axis, data.geom_xmat[g].reshape(3, 3)[:, 2], atol=1e-9)
+    offset = np.zeros(3)
+    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+      offset[2] = -geometry.PLANE_THICKNESS / 2
+    np.testing.assert_allclose(world[:3, 3], data.geom_xpos[g] + data.geom_xmat[g].reshape(3, 3) @ offset,
+                               atol=1e-9)
+  moving = geometry.moving_body_ids(visuals)
+  assert set(moving.tolist()) == {model.body(n).id for n in
+                                  ("box", "ball", "pill", "can", "egg", "tetra", "arm_base", "arm_tip")}
+
+
+def test_material_tint_and_opacity():
+  rgba = geometry.Rgba(1.0, 0.0, 0.0, 1.0)
+  opaque = geometry.material(rgba)
+  assert opaque.color == 0xFF0000 and not opaque.transparent
+  ghost = geometry.material(rgba, tint=geometry.Rgba(0.0, 0.0, 1.0, 1.0), tint_weight=0.5, opacity=0.4)
+  assert ghost.color == 0x800080 and ghost.transparent and ghost.opacity == pytest.approx(0.4)
+
+
+# ---------------------------------------------------------------- kinematics
+
+
+def test_body_trajectories_match_mj_forward(bank, model):
+  qpos = bank.qpos_frames(0)
+  body_ids = np.asarray(bank.body_ids)
+  pos, quat = kinematics.body_trajectories(model, qpos, body_ids)
+  data = mujoco.MjData(model)
+  for t in range(0, qpos.shape[0], 7):
+    data.qpos[:] = qpos[t]
+    mujoco.mj_forward(model, data)
+    np.testing.assert_allclose(pos[t], data.xpos[body_ids], atol=1e-9)
+    dots = np.abs(np.sum(quat[t] * data.xquat[body_ids], axis=-1))
+    np.testing.assert_allclose(dots, 1.0, atol=1e-9)  # same rotation, maybe other sign
+  with pytest.raises(mv.ViewerError, match="nq"):
+    kinematics.body_trajectories(model, qpos[:, :-1], body_ids)
+
+
+@FAST
+@given(hnp.arrays(np.float64, st.tuples(st.integers(1, 30), st.integers(1, 3), st.just(4)),
+                  elements=st.floats(-1, 1)))
+def test_continuous_quaternions_only_flip_signs(quat):
+  out = kinematics.continuous_quaternions(quat)
+  for t in range(quat.shape[0]):
+    for k in range(quat.shape[1]):
+      assert np.array_equal(out[t, k], quat[t, k]) or np.array_equal(out[t, k], -quat[t, k])
+  assert np.all(np.sum(out[1:] * out[:-1], axis=-1) >= 0)
+
+
+def test_pad_frames_holds_last():
+  x = np.arange(6.0).reshape(3, 2)
+  np.testing.assert_array_equal(kinematics.pad_frames(x, 5)[3:], [[4, 5], [4, 5]])
+  np.testing.assert_array_equal(kinematics.pad_frames(x, 2), x[:2])
+
+
+# ---------------------------------------------------------------- paths
+
+
+def _segments_reference(com, count):
+  out = []
+  for n in range(com.shape[0]):
+    for k in range(com.shape[2]):
+      for p in range(int(count[n]) - 1):
+        a, b = com[n, p, k], com[n, p + 1, k]
+        if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+          out.append((tuple(a), tuple(b)))
+  return sorted(out)
+
+
+@FAST
+@given(st.data())
+def test_polyline_segments_match_loop(data):
+  n, p, k = data.draw(st.integers(1, 5)), data.draw(st.integers(1, 9)), data.draw(st.integers(1, 3))
+  com = data.draw(hnp.arrays(np.float32, (n, p, k, 3),
+                             elements=st.one_of(st.floats(-5, 5, width=32), st.just(np.nan))))
+  count = data.draw(hnp.arrays(np.int32, (n,), elements=st.integers(0, p)))
+  seg = paths.polyline_segments(com, count)
+  assert seg.dtype == np.float32 and seg.shape[0] == 3 and seg.shape[1] % 2 == 0
+  got = sorted((tuple(seg[:, 2 * s]), tuple(seg[:, 2 * s + 1])) for s in range(seg.shape[1] // 2))
+  assert got == _segments_reference(com, count)
+
+
+@FAST
+@given(st.data())
+def test_classify_worlds_partitions(data):
+  w = data.draw(st.integers(1, 12))
+  valid = np.asarray(data.draw(st.lists(st.booleans(), min_size=w, max_size=w)))
+  match = np.asarray(data.draw(st.lists(st.booleans(), min_size=w, max_size=w)))
+  exclude = np.asarray(data.draw(st.lists(st.booleans(), min_size=w, max_size=w)))
+  worlds = data.draw(st.none() | st.lists(st.integers(0, w - 1), max_size=w))
+  c = paths.classify_worlds(valid, worlds, match, exclude)
+  drawn = np.concatenate(list(c))
+  assert len(set(drawn.tolist())) == drawn.size  # disjoint
+  chosen = set(range(w)) if worlds is None else set(worlds)
+  assert set(drawn.tolist()) == {i for i in chosen if valid[i]}
+  assert all(exclude[i] for i in c.exclude) and all(match[i] and not exclude[i] for i in c.match)
+  assert all(not (match[i] and not exclude[i]) and not exclude[i] for i in c.faint)
+
+
+def test_classify_worlds_rejects_bad_input():
+  with pytest.raises(mv.ViewerError, match="match must be bool\\[3\\]"):
+    paths.classify_worlds(np.ones(3, bool), None, np.ones(4, bool), None)
+  with pytest.raises(mv.ViewerError, match="index 7"):
+    paths.classify_worlds(np.ones(3, bool), [7], None, None)
+
+
+def test_thin_out_caps_polylines():
+  worlds = np.arange(1000)
+  kept = paths.thin_out(worlds, n_bodies=4, cap=100)
+  assert kept.size == 25 and kept[0] == 0 and kept[-1] == 999 and np.all(np.diff(kept) > 0)
+  np.testing.assert_array_equal(paths.thin_out(worlds[:10], 4, 100), worlds[:10])
+
+
+# ---------------------------------------------------------------- frustums
+
+
+def _frustum(eye, forward_angles, near, far, half_w, half_h):
+  """Corners of a perspective frustum, reference construction."""
+  yaw, pitch = forward_angles
+  f = np.array([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
+  right = np.cross(f, [0, 0, 1.0])
+  right /= np.linalg.norm(right)
+  up = np.cross(right, f)
+  out = []
+  for depth in (near, far):
+    for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+      out.append(eye + depth * (f + sx * half_w * right + sy * half_h * up))
+  return np.asarray(out)
+
+
+frustum_params = st.tuples(
+    hnp.arrays(np.float64, 3, elements=st.floats(-5, 5)),
+    st.tuples(st.floats(-3.1, 3.1), st.floats(-1.2, 1.2)),
+    st.floats(0.05, 2.0), st.floats(1.0, 10.0), st.floats(0.05, 1.0), st.floats(0.05, 1.0))
+
+
+@FAST
+@given(frustum_params)
+def test_hull_mesh_and_eye_of_random_frustums(params):
+  eye, angles, near, extra, hw, hh = params
+  corners = _frustum(eye, angles, near, near + extra, hw, hh)
+  verts, faces, edges = frustums.hull_mesh(corners)
+  assert faces.shape == (12, 3) and edges.shape == (12, 2)
+  centre = corners.mean(axis=0)
+  for f in faces:
+    a, b, c = corners[f]
+    normal = np.cross(b - a, c - a)
+    assert np.dot(normal, a - centre) > 0  # outward
+    assert np.all((corners - a) @ normal <= 1e-7 * np.linalg.norm(normal) * 10)  # supporting plane
+  # The 12 frustum edges: 4 near, 4 far, 4 sides (near i - far i).
+  expected = {tuple(sorted(e)) for e in [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7),
+                                         (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]}
+  assert {tuple(e) for e in edges.tolist()} == expected
+  np.testing.assert_allclose(frustums.frustum_eye(corners), eye, atol=1e-6 * (1 + np.abs(eye).max()))
+
+
+def test_orthographic_box_has_no_eye_and_flat_frustum_is_an_error():
+  box = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
+                  [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+  assert frustums.frustum_eye(box) is None
+  flat = box.copy()
+  flat[:, 2] = 0
+  with pytest.raises(mv.ViewerError, match="query 3: frustum is empty or flat"):
+    frustums.hull_mesh(flat, index=3)
+
+
+@FAST
+@given(frustum_params, st.floats(0.01, 5.0))
+def test_truncate_keeps_far_face_parallel(params, depth):
+  eye, angles, near, extra, hw, hh = params
+  corners = _frustum(eye, angles, near, near + extra, hw, hh)
+  cut = frustums.truncate(corners, depth)
+  np.testing.assert_array_equal(cut[:4], corners[:4])
+  longest = np.linalg.norm(corners[4:] - corners[:4], axis=1).max()
+  if longest <= depth:
+    np.testing.assert_array_equal(cut, corners)
+  else:
+    assert np.linalg.norm(cut[4:] - cut[:4], axis=1).max() == pytest.approx(depth, rel=1e-9)
+  # Still a frustum of the same camera: side edges meet at the eye.
+  np.testing.assert_allclose(frustums.frustum_eye(cut), eye, atol=1e-5 * (1 + np.abs(eye).max()))
+
+
+def test_as_volume_accepts_pairs_and_query_like_objects():
+  corners = _frustum(np.zeros(3), (0.0, 0.0), 0.5, 2.0, 0.2, 0.1)
+  assert frustums.as_volume((corners, False)).include is False
+
+  class Cam:
+    position = np.array([0.0, 0.0, 0.0])
+
+  class Query:
+    frustum = type("F", (), {"corners": corners})()
+    negative = True
+    camera = Cam()
+
+  vol = frustums.as_volume(Query())
+  assert not vol.include and np.array_equal(vol.eye, np.zeros(3))
+  with pytest.raises(mv.ViewerError, match="query 2: frustum corners must be 8"):
+    frustums.as_volume((corners[:7], True), index=2)
+  with pytest.raises(mv.ViewerError, match="query 0: expected"):
+    frustums.as_volume("not a query")
+
+
+# ---------------------------------------------------------------- recorder and API
+
+
+def _recorded(vis):
+  """{(type, path): decoded command} of everything recorded in an offline window."""
+  out = {}
+  for blob in vis.window.command_blobs():
+    cmd = umsgpack.unpackb(blob)
+    out[(cmd["type"], cmd["path"])] = cmd
+  return out
+
+
+def _draw_offline(bank, **kw):
+  vis = meshcat.Visualizer(window=mv.SceneRecorder())
+  info = mv.draw(vis, bank, **kw)
+  return vis, info
+
+
+def test_animation_tracks_replay_forward_kinematics(bank, model):
+  worlds = [0, 1]  # world 1 has a shorter recording
+  vis, info = _draw_offline(bank, worlds=worlds, layout="overlay")
+  cmds = _recorded(vis)
+  anim = cmds[("set_animation", "")]
+  clips = {a["path"]: a["clip"] for a in anim["animations"]}
+  n_frames = int(np.max(bank.frame_count[worlds]))
+  body = model.body("arm_tip").id
+  for w in worlds:
+    clip = clips[f"/meshcat/mwbx/worlds/w{w}/arm_tip"]
+    assert clip["fps"] == bank.record_fps
+    tracks = {t["name"]: t for t in clip["tracks"]}
+    keys_pos, keys_quat = tracks[".position"]["keys"], tracks[".quaternion"]["keys"]
+    assert len(keys_pos) == n_frames and [k["time"] for k in keys_pos] == list(range(n_frames))
+    data = mujoco.MjData(model)
+    qpos = bank.qpos_frames(w)
+    for t in (0, 5, n_frames - 1):
+      data.qpos[:] = qpos[min(t, qpos.shape[0] - 1)]
+      mujoco.mj_kinematics(model, data)
+      np.testing.assert_allclose(keys_pos[t]["value"], data.xpos[body], atol=1e-9)
+      x, y, z, w_ = keys_quat[t]["value"]
+      assert abs(np.dot([w_, x, y, z], data.xquat[body])) == pytest.approx(1.0, abs=1e-9)
+  # Static scene drawn once in overlay layout; ghost worlds translucent.
+  assert ("set_object", "/meshcat/mwbx/worlds/static/g0_floor") in cmds
+  ghost = cmds[("set_object", "/meshcat/mwbx/worlds/w1/box/g3")]["object"]["materials"][0]
+  assert ghost["transparent"] and ghost["opacity"] < 1
+  np.testing.assert_array_equal(info.offsets, 0)
+
+
+def test_grid_layout_separates_worlds(bank):
+  vis, info = _draw_offline(bank, worlds=[0, 2, 3, 4], layout="grid")
+  cmds = _recorded(vis)
+  assert info.offsets.shape == (4, 3)
+  gaps = np.linalg.norm(info.offsets[:, None, :2] - info.offsets[None, :, :2], axis=-1)
+  span = np.ptp(np.asarray(bank.com)[[0, 2, 3, 4]].reshape(-1, 3)[:, :2], axis=0)
+  assert np.all(gaps[~np.eye(4, dtype=bool)] >= span.max() * 0.99)
+  for w in (0, 2, 3, 4):
+    assert ("set_object", f"/meshcat/mwbx/worlds/w{w}/static/g0_floor") in cmds
+    assert ("set_transform", f"/meshcat/mwbx/worlds/w{w}") in cmds
+
+
+def test_paths_queries_and_shift(bank):
+  corners = _frustum(np.array([0, -2.0, 0.5]), (np.pi / 2, 0.0), 0.5, 3.0, 0.2, 0.2)
+  match = np.array([1, 1, 0, 0, 0, 1], bool)  # world 5 is unstable: never drawn
+  exclude = np.array([0, 0, 1, 0, 0, 0], bool)
+  vis, info = _draw_offline(bank, worlds=[], paths="round", match=match, exclude=exclude,
+                            queries=[(corners, True), mv.QueryVolume(corners + 0.1, False)])
+  n_bodies = bank.select_bodies("round").size
+  seg = lambda ws: sum((int(bank.com_count[w]) - 1) * n_bodies for w in ws)  # noqa: E731
+  assert info.path_segments == {"faint": seg([3, 4]), "match": seg([0, 1]), "exclude": seg([2])}
+  assert info.n_queries == 2 and info.worlds.size == 0
+  cmds = _recorded(vis)
+  for q, hexcol in (("q0", frustums.INCLUDE.hex()), ("q1", frustums.EXCLUDE.hex())):
+    mat = cmds[("set_object", f"/meshcat/mwbx/queries/{q}/volume")]["object"]["materials"][0]
+    assert mat["color"] == hexcol and mat["transparent"]
+    assert ("set_object", f"/meshcat/mwbx/queries/{q}/camera/eye") in cmds
+  root = np.asarray(cmds[("set_transform", "/meshcat/mwbx")]["matrix"]).reshape(4, 4).T
+  np.testing.assert_allclose(root[:3, 3], -info.centre)
+
+
+def test_draw_errors_name_the_value(bank):
+  vis = meshcat.Visualizer(window=mv.SceneRecorder())
+  with pytest.raises(mv.ViewerError, match="layout must be one of .*'side'"):
+    mv.draw(vis, bank, layout="side")
+  with pytest.raises(mv.ViewerError, match="index 99 is out of range"):
+    mv.draw(vis, bank, worlds=[99])
+  with pytest.raises(mv.ViewerError, match="world 5 is flagged unstable"):
+    mv.draw(vis, bank, worlds=[5])
+  with pytest.raises(mv.ViewerError, match="no MJCF camera named 'nope'"):
+    mv.draw(vis, bank, camera="nope")
+  with pytest.raises(ValueError, match="'wheel'"):
+    mv.draw(vis, bank, paths=["wheel"])
+
+
+def test_export_html_is_standalone(bank, tmp_path):
+  out = mv.export_html(bank, tmp_path / "scene.html", worlds=[0, 2], paths=True)
+  html = out.read_text()
+  assert "MeshCat.Viewer" in html and "mwbx_loaded" in html
+  assert "http://" not in html.split("<script>", 1)[0]  # no external resources in the head
+  blobs = re.findall(r'"([A-Za-z0-9+/=]{40,})"', html)
+  types = [umsgpack.unpackb(base64.b64decode(b))["type"] for b in blobs]
+  assert types[-1] == "set_animation" and types.count("set_animation") == 1
+  with pytest.raises(mv.ViewerError, match="does not exist"):
+    mv.export_html(bank, tmp_path / "missing" / "scene.html")
+
+
+def test_recorder_replays_what_the_meshcat_server_stores(bank):
+  """The offline recorder keeps the same commands as a live meshcat server."""
+  live = mv.view(bank, worlds=[0], paths="box")
+  try:
+    server_html = live.static_html()
+  finally:
+    live.window.server_proc.kill()
+    live.window.server_proc.wait()
+  assert live.url().startswith("http")
+  offline, _ = _draw_offline(bank, worlds=[0], paths="box")
+  server_blobs = re.findall(r'base64,([A-Za-z0-9+/=]+)"', server_html)
+  decoded = lambda blobs: sorted(  # noqa: E731
+      (umsgpack.unpackb(b)["type"], umsgpack.unpackb(b)["path"]) for b in blobs)
+  ours = decoded(offline.window.command_blobs())
+  theirs = decoded(base64.b64decode(b) for b in server_blobs)
+  # meshcat's own viewer adds nothing on the Python side; uuids differ per draw.
+  assert ours == theirs
