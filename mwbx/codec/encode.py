@@ -1,0 +1,242 @@
+"""Encoder: jitted fit over all worlds x channels, then per-world streams, verified.
+
+The fit runs in float32 with a small safety margin on the bound; every stream
+is then decoded with the real decoder and compared with the input, frame by
+frame. A channel that misses its bound (float32 rounding on huge coordinates,
+non-finite values from an unstable world) is stored raw instead, so the bound is
+a guarantee checked on the decoded data.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from mwbx.codec import fit as fit_lib
+from mwbx.codec.decode import decode_code, normalize, quat_mul
+from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
+from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode, parse,
+                               serialize)
+
+# Fraction of each bound kept back for float32 rounding inside the fit.
+FIT_MARGIN = 2.0**-6
+DEFAULT_GRAVITY = -9.81
+
+
+class EncodedBatch(NamedTuple):
+  """streams: one bytes per world; max_error: f64[W, 3] largest decoded error per
+  world (translation metres, rotation radians, scalar joint units), measured on
+  the decoded data; raw_channels: i64[W] channels stored uncompressed."""
+
+  streams: list
+  max_error: np.ndarray
+  raw_channels: np.ndarray
+
+
+def default_quanta(fps: float, gravity: float = DEFAULT_GRAVITY) -> Quanta:
+  """Quantization for a recording rate; ``gravity``: vertical component, m/s**2."""
+  return Quanta(quad=0.5 * float(gravity) / float(fps) ** 2)
+
+
+def _bucket(n: int, multiple: int) -> int:
+  """Pad sizes to few distinct values so the jitted fit compiles rarely."""
+  if n <= multiple:
+    return multiple
+  size = multiple
+  while size < n:
+    size *= 2
+  return size
+
+
+def _paths(qpos: np.ndarray, adrs: tuple[int, ...], width: int) -> np.ndarray:
+  """f32[W * len(adrs), T, width], world-major."""
+  w, t, _ = qpos.shape
+  if not adrs:
+    return np.zeros((0, t, width), np.float32)
+  cols = np.asarray(adrs)[:, None] + np.arange(width)[None, :]
+  return qpos[:, :, cols].transpose(0, 2, 1, 3).reshape(w * len(adrs), t, width)
+
+
+def _run_fit(kind: str, paths: np.ndarray, n: np.ndarray, e: float, step: float, quad: float):
+  """Returns (ends bool[N, T], vel i64[N, T, D], flag bool[N, T]) as numpy."""
+  num, t, width = paths.shape
+  if num == 0 or t == 0:
+    d = 3 if kind == "rot" else width
+    return np.zeros((num, t), bool), np.zeros((num, t, d), np.int64), np.zeros((num, t), bool)
+  n_pad, t_pad = _bucket(num, 8), _bucket(t, 64)
+  buf = np.zeros((n_pad, t_pad, width), np.float32)
+  if kind == "rot":
+    buf[:, :, 0] = 1.0
+  buf[:num, :t] = paths
+  n_buf = np.zeros(n_pad, np.int32)
+  n_buf[:num] = n
+  e_buf = np.full(n_pad, e, np.float32)
+  if kind == "rot":
+    res = fit_lib.fit_rotation_batch(buf, n_buf, e_buf, np.float32(step))
+    flag = np.zeros((num, t), bool)
+  else:
+    res = fit_lib.fit_linear_batch(buf, n_buf, e_buf, np.float32(step), np.float32(quad),
+                                   gravity=kind == "pos")
+    flag = np.asarray(res.flag)[:num, :t]
+  return (np.asarray(res.ends)[:num, :t], np.asarray(res.vel)[:num, :t].astype(np.int64), flag)
+
+
+def _errors(kind: str, decoded: np.ndarray, true: np.ndarray) -> np.ndarray:
+  """Per channel largest error over frames; decoded/true: f[C, n, width]; NaN-equal."""
+  if decoded.shape[1] == 0:
+    return np.zeros(decoded.shape[0])
+  d = decoded.astype(np.float64)
+  x = true.astype(np.float64)
+  if kind == "rot":
+    rel = quat_mul(d * np.array([1.0, -1.0, -1.0, -1.0]), normalize(x))
+    err = 2.0 * np.arctan2(np.linalg.norm(rel[..., 1:], axis=-1), np.abs(rel[..., 0]))
+  else:
+    err = np.abs(d - x).max(axis=-1)
+  same_nan = np.isnan(d).all(axis=-1) & np.isnan(x).any(axis=-1)
+  err = np.where(same_nan, 0.0, np.where(np.isnan(err), np.inf, err))
+  return err.max(axis=1)
+
+
+def _measure(code: WorldCode, stream: bytes, qpos_w: np.ndarray):
+  """Decode ``stream`` and return per-channel errors (f64[C]) in channel order."""
+  decoded = decode_code(parse(stream))
+  errs = []
+  for kind, adrs in (("pos", code.layout.pos_adr), ("rot", code.layout.rot_adr),
+                     ("scalar", code.layout.scalar_adr)):
+    if adrs:
+      cols = np.asarray(adrs)[:, None] + np.arange(WIDTH[kind])[None, :]
+      errs.append(_errors(kind, decoded[:, cols].transpose(1, 0, 2),
+                          qpos_w[:, cols].transpose(1, 0, 2)))
+  return np.concatenate(errs) if errs else np.zeros(0)
+
+
+def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: ChannelLayout,
+                         bounds: CodecBounds, fps: float = 120.0,
+                         gravity: float = DEFAULT_GRAVITY,
+                         quanta: Quanta | None = None) -> EncodedBatch:
+  """Encode many worlds and report the largest decoded error of each.
+
+  Args:
+    qpos: f32[W, T, nq] padded recordings (frames >= frame_count[w] ignored).
+    frame_count: i32[W] frames recorded per world.
+    layout, bounds: channels and error bounds.
+    fps: recording rate (frames per second).
+    gravity: vertical gravity (m/s**2) for the global quadratic term.
+    quanta: quantization override (defaults from ``fps`` and ``gravity``).
+  """
+  qpos = np.asarray(qpos, np.float32)
+  frame_count = np.asarray(frame_count, np.int64).reshape(-1)
+  if qpos.ndim != 3 or qpos.shape[2] != layout.nq:
+    raise CodecError(f"qpos must be f32[W, T, nq={layout.nq}], got shape {qpos.shape}")
+  num_w, num_t, _ = qpos.shape
+  if frame_count.shape != (num_w,):
+    raise CodecError(f"frame_count must have shape ({num_w},), got {frame_count.shape}")
+  if np.any(frame_count < 0) or np.any(frame_count > num_t):
+    raise CodecError(f"frame_count entries must be in [0, {num_t}]")
+  if not (np.isfinite(fps) and fps > 0):
+    raise CodecError(f"fps must be a finite number > 0, got {fps!r}")
+  quanta = quanta or default_quanta(fps, gravity)
+  steps = dict(zip(("pos", "rot", "scalar"), quanta.steps(bounds)))
+  fit_bound = {"pos": bounds.e_pos, "rot": bounds.e_rot / np.sqrt(3.0),
+               "scalar": bounds.e_scalar}
+  bound = {"pos": bounds.e_pos, "rot": bounds.e_rot, "scalar": bounds.e_scalar}
+  kinds = (("pos", layout.pos_adr), ("rot", layout.rot_adr), ("scalar", layout.scalar_adr))
+  valid = np.arange(num_t)[None, :] < frame_count[:, None]  # [W, T]
+  per_kind = {}
+  for kind, adrs in kinds:
+    width = WIDTH[kind]
+    paths = _paths(qpos, adrs, width)
+    n = np.repeat(frame_count, len(adrs))
+    mask = np.repeat(valid, len(adrs), axis=0)[:, :, None]
+    finite = np.all(np.isfinite(paths) | ~mask, axis=(1, 2))
+    fit_in = np.where(mask & finite[:, None, None], paths, 0.0).astype(np.float32)
+    if kind != "rot":
+      fit_in = fit_in - fit_in[:, :1]
+    ends, vel, flag = _run_fit(kind, fit_in, n, fit_bound[kind] * (1 - FIT_MARGIN),
+                               steps[kind], quanta.quad)
+    p_idx, f_idx = np.nonzero(ends)
+    seg_per_path = np.bincount(p_idx, minlength=paths.shape[0])
+    first = np.ones(p_idx.size, bool)
+    first[1:] = p_idx[1:] != p_idx[:-1]
+    prev = np.where(first, 0, np.concatenate([[0], f_idx[:-1]]))
+    per_kind[kind] = dict(paths=paths, finite=finite, seg=seg_per_path,
+                          seg_off=np.concatenate([[0], np.cumsum(seg_per_path)]),
+                          lengths=f_idx - prev, vel=vel[p_idx, f_idx], flag=flag[p_idx, f_idx],
+                          n_ch=len(adrs))
+  streams, max_err = [], np.zeros((num_w, 3))
+  raw_count = np.zeros(num_w, np.int64)
+  bound_vec = np.concatenate([np.full(k["n_ch"], bound[name]) for name, k in per_kind.items()])
+  for w in range(num_w):
+    n_w = int(frame_count[w])
+    raw_ok = np.concatenate([per_kind[name]["finite"][w * k["n_ch"]:(w + 1) * k["n_ch"]]
+                             for name, k in per_kind.items()])
+    modes = np.where(raw_ok, MODE_FIT, MODE_RAW).astype(np.uint8)
+    if n_w <= 1:
+      modes[:] = MODE_FIT
+    for _ in range(2):
+      code = _world_code(w, n_w, layout, bounds, fps, quanta, per_kind, modes)
+      stream = serialize(code)
+      errs = _measure(code, stream, qpos[w, :n_w])
+      bad = ~(errs <= bound_vec)
+      if not np.any(bad):
+        break
+      modes = np.where(bad, MODE_RAW, modes).astype(np.uint8)
+    else:
+      raise CodecError(f"world {w}: raw channels still exceed the bound")  # pragma: no cover
+    streams.append(stream)
+    raw_count[w] = int(np.sum(modes == MODE_RAW))
+    off = 0
+    for j, (name, k) in enumerate(per_kind.items()):
+      part = errs[off:off + k["n_ch"]]
+      off += k["n_ch"]
+      max_err[w, j] = float(part.max()) if part.size else 0.0
+  return EncodedBatch(streams, max_err, raw_count)
+
+
+def _world_code(w, n_w, layout, bounds, fps, quanta, per_kind, modes) -> WorldCode:
+  n_ch = layout.n_channels
+  initial = np.zeros((n_ch, 4), np.float32)
+  raw, segs = {}, {}
+  c = 0
+  for kind, k in per_kind.items():
+    width, n_k = WIDTH[kind], k["n_ch"]
+    data = k["paths"][w * n_k:(w + 1) * n_k, :n_w]
+    if n_w:
+      initial[c:c + n_k, :width] = data[:, 0]
+    kind_modes = modes[c:c + n_k]
+    for j in np.flatnonzero(kind_modes == MODE_RAW):
+      raw[c + int(j)] = data[j]
+    fitted = np.flatnonzero(kind_modes == MODE_FIT) + w * n_k
+    if n_w >= 2:
+      lo, hi = k["seg_off"][fitted], k["seg_off"][fitted + 1]
+      seg_count = hi - lo
+      idx = np.repeat(lo - np.cumsum(seg_count) + seg_count, seg_count) + np.arange(
+          int(seg_count.sum()))
+    else:
+      seg_count = np.zeros(fitted.size, np.int64)
+      idx = np.zeros(0, np.int64)
+    segs[kind] = Segments(seg_count.astype(np.int64), k["lengths"][idx].astype(np.int64),
+                          k["vel"][idx].reshape(idx.size, DIM[kind]),
+                          k["flag"][idx].astype(bool))
+    c += n_k
+  if any(np.any(s.lengths < 1) for s in segs.values()):
+    raise CodecError(f"world {w}: the fit produced an empty segment")  # pragma: no cover
+  return WorldCode(n_frames=n_w, layout=layout, bounds=bounds, fps=float(fps), quanta=quanta,
+                   modes=modes, initial=initial, raw=raw, segs=segs)
+
+
+def encode_batch(qpos: np.ndarray, frame_count: np.ndarray, layout: ChannelLayout,
+                 bounds: CodecBounds, fps: float = 120.0,
+                 gravity: float = DEFAULT_GRAVITY) -> list[bytes]:
+  """One verified stream per world; see ``encode_batch_checked``."""
+  return encode_batch_checked(qpos, frame_count, layout, bounds, fps, gravity).streams
+
+
+def encode_world(qpos: np.ndarray, layout: ChannelLayout, bounds: CodecBounds,
+                 fps: float = 120.0, gravity: float = DEFAULT_GRAVITY) -> bytes:
+  """Encode one world's recording ``qpos: f32[T, nq]`` into a verified stream."""
+  qpos = np.asarray(qpos, np.float32)
+  if qpos.ndim != 2:
+    raise CodecError(f"qpos must be f32[T, nq], got shape {qpos.shape}")
+  return encode_batch(qpos[None], np.array([qpos.shape[0]]), layout, bounds, fps, gravity)[0]

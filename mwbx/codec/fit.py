@@ -1,0 +1,268 @@
+"""Greedy error-bounded segment fit (paper Fig. 4), as jitted JAX kernels.
+
+Each kernel fits ONE path and is ``jax.vmap``-ped over many paths (all worlds x
+channels of a kind) at the edge.
+
+Model of a segment that starts at frame ``s`` with the *decoded* value ``p_s``
+(the previous segment's quantized end, so errors never accumulate) and lasts
+``L`` frames, at ``tau = 0..L`` frames into the segment:
+
+- linear channels (free-joint translation, hinge/slide scalars):
+  ``x(tau) = p_s + tau * v * step + flag * quad * tau**2`` on the vertical
+  coordinate only; ``v`` is an integer vector (units ``step`` per frame), ``quad``
+  one global constant (gravity * h**2 / 2), ``flag`` one bit per segment;
+- rotations: ``q(tau) = exp(tau * w * step) (x) q_s`` with ``w`` an integer
+  angular velocity in the log map (units ``step`` radians per frame).
+
+Instead of least squares followed by quantization, the fit keeps, per
+coordinate, the interval of velocities that keep every frame seen so far within
+the bound (each frame adds one linear constraint on ``v``), and extends the
+segment while that interval still contains an integer velocity. This is the
+greedy algorithm of Fig. 4 made exact for quantized coefficients, O(1) per
+frame. Among the feasible integers the one closest to the prediction (previous
+velocity, plus the gravity increment) is kept, which makes the coded residual
+small.
+
+For rotations the bound on the rotation angle is enforced through
+``angle(exp(a), exp(b)) <= |a - b|`` (the exponential map of SO(3) does not
+expand distances), with a box of half-width ``e_rot / sqrt(3)`` inside that ball.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+# Velocities are kept in int32; windows are clipped to this magnitude first.
+_INT_CAP = 2.0**30
+
+
+class LinearFit(NamedTuple):
+  """Segments of linear-channel paths; entries are meaningful where ``ends``.
+
+  ends: bool[N, T], frame f closes a segment.
+  vel: i32[N, T, D], integer velocity of the segment closing at f.
+  flag: bool[N, T], vertical quadratic term on for that segment.
+  """
+
+  ends: jax.Array
+  vel: jax.Array
+  flag: jax.Array
+
+
+class RotationFit(NamedTuple):
+  """Segments of rotation paths; ``ends: bool[N, T]``, ``vel: i32[N, T, 3]``."""
+
+  ends: jax.Array
+  vel: jax.Array
+
+
+def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
+  """Hamilton product of (w, x, y, z) quaternions, f32[..., 4]."""
+  aw, ax, ay, az = jnp.moveaxis(a, -1, 0)
+  bw, bx, by, bz = jnp.moveaxis(b, -1, 0)
+  return jnp.stack([
+      aw * bw - ax * bx - ay * by - az * bz,
+      aw * bx + ax * bw + ay * bz - az * by,
+      aw * by - ax * bz + ay * bw + az * bx,
+      aw * bz + ax * by - ay * bx + az * bw,
+  ], axis=-1)
+
+
+def quat_exp(omega: jax.Array) -> jax.Array:
+  """Unit quaternion of rotation vector ``omega: f32[..., 3]`` (radians)."""
+  theta = jnp.linalg.norm(omega, axis=-1, keepdims=True)
+  safe = jnp.where(theta > 1e-12, theta, 1.0)
+  factor = jnp.where(theta > 1e-12, jnp.sin(0.5 * theta) / safe, 0.5)
+  return jnp.concatenate([jnp.cos(0.5 * theta), factor * omega], axis=-1)
+
+
+def rel_log(q: jax.Array, q_start: jax.Array) -> jax.Array:
+  """Rotation vector of ``q (x) q_start^-1``, angle in [0, pi]; f32[3]."""
+  conj = q_start * jnp.array([1.0, -1.0, -1.0, -1.0], q_start.dtype)
+  rel = quat_mul(q, conj)
+  rel = jnp.where(rel[0] < 0, -rel, rel)  # q and -q are the same rotation
+  s = jnp.linalg.norm(rel[1:])
+  angle = 2.0 * jnp.arctan2(s, rel[0])
+  factor = jnp.where(s > 1e-12, angle / jnp.where(s > 1e-12, s, 1.0),
+                     2.0 / jnp.maximum(rel[0], 1e-12))
+  return factor * rel[1:]
+
+
+def _grid(lo: jax.Array, hi: jax.Array):
+  """Integer candidates of the window [lo, hi]: (ceil(lo), floor(hi), non-empty)."""
+  lo_i = jnp.ceil(jnp.clip(lo, -_INT_CAP, _INT_CAP))
+  hi_i = jnp.floor(jnp.clip(hi, -_INT_CAP, _INT_CAP))
+  return lo_i, hi_i, lo_i <= hi_i
+
+
+def gravity_increment(flag_prev, len_prev, quad, step):
+  """Predicted change of the vertical velocity after a ballistic segment (integer)."""
+  return jnp.where(flag_prev, jnp.round(2.0 * quad * len_prev / step), 0.0).astype(jnp.int32)
+
+
+def _fit_linear_path(x, n, e, step, quad, gravity: bool) -> LinearFit:
+  """Fit one linear-channel path.
+
+  Args:
+    x: f32[T, D] positions relative to x[0] (metres or joint units).
+    n: i32, number of valid frames (frames >= n are padding).
+    e: f32, bound used for the fit (same units as x).
+    step: f32, velocity quantum (units of x per frame).
+    quad: f32, vertical quadratic coefficient (units of x per frame**2).
+    gravity: static; if True the last coordinate may switch on ``quad``.
+  """
+  num_t, dim = x.shape
+  # Windows: one per coordinate, plus the vertical one with the quadratic term on.
+  dims = list(range(dim)) + ([dim - 1] if gravity else [])
+  coef = jnp.array([0.0] * dim + ([1.0] if gravity else []), x.dtype) * quad
+  dims = jnp.array(dims)
+
+  def constraint(x_t, p_s, tau):
+    r = x_t[dims] - p_s[dims] - coef * tau * tau
+    inv = 1.0 / (tau * step)
+    return (r - e) * inv, (r + e) * inv
+
+  def feasible(ok):
+    if gravity:
+      return jnp.all(ok[:dim - 1]) & (ok[dim - 1] | ok[dim])
+    return jnp.all(ok)
+
+  def choose(lo, hi, v_pred):
+    lo_i, hi_i, ok = _grid(lo, hi)
+    pred = v_pred[dims].astype(x.dtype)
+    v = jnp.clip(pred, lo_i, hi_i)
+    if not gravity:
+      return v.astype(jnp.int32), jnp.array(False)
+    r0 = jnp.abs(v[dim - 1] - pred[dim - 1])
+    r1 = jnp.abs(v[dim] - pred[dim])
+    use_quad = ok[dim] & (~ok[dim - 1] | (r1 < r0))
+    vz = jnp.where(use_quad, v[dim], v[dim - 1])
+    return jnp.concatenate([v[:dim - 1], vz[None]]).astype(jnp.int32), use_quad
+
+  def predict(v_prev, flag_prev, len_prev):
+    if not gravity:
+      return v_prev
+    return v_prev.at[dim - 1].add(gravity_increment(flag_prev, len_prev, quad, step))
+
+  def end_value(p_s, vel, flag, length):
+    lf = length.astype(x.dtype)
+    p = p_s + lf * vel.astype(x.dtype) * step
+    if gravity:
+      p = p.at[dim - 1].add(jnp.where(flag, quad * lf * lf, 0.0))
+    return p
+
+  def body(carry, inp):
+    t_s, p_s, lo, hi, v_prev, flag_prev, len_prev = carry
+    t, x_t = inp
+    tau = (t - t_s).astype(x.dtype)
+    clo, chi = constraint(x_t, p_s, tau)
+    nlo, nhi = jnp.maximum(lo, clo), jnp.minimum(hi, chi)
+    cont = feasible(_grid(nlo, nhi)[2])
+    valid = t < n
+    end = valid & ~cont
+    # The segment [t_s, t - 1] closes; the next one starts at its decoded end.
+    length = t - 1 - t_s
+    vel, flag = choose(lo, hi, predict(v_prev, flag_prev, len_prev))
+    p_end = end_value(p_s, vel, flag, length)
+    rlo, rhi = constraint(x_t, p_end, jnp.asarray(1.0, x.dtype))
+    closed = (t - 1, p_end, rlo, rhi, vel, flag, length)
+    extended = (t_s, p_s, nlo, nhi, v_prev, flag_prev, len_prev)
+    new = jax.tree.map(lambda c, e_, o: jnp.where(end, c, jnp.where(valid, e_, o)),
+                       closed, extended, carry)
+    return new, (end, vel, flag)
+
+  n_win = dims.shape[0]
+  init = (jnp.int32(0), jnp.zeros(dim, x.dtype), jnp.full(n_win, -jnp.inf, x.dtype),
+          jnp.full(n_win, jnp.inf, x.dtype), jnp.zeros(dim, jnp.int32), jnp.array(False),
+          jnp.int32(0))
+  ts = jnp.arange(1, num_t, dtype=jnp.int32)
+  carry, (ends, vel, flag) = jax.lax.scan(body, init, (ts, x[1:]))
+  t_s, p_s, lo, hi, v_prev, flag_prev, len_prev = carry
+  last_vel, last_flag = choose(lo, hi, predict(v_prev, flag_prev, len_prev))
+  # ys[i] describes the segment closing at frame i; append the final segment.
+  ends = jnp.concatenate([ends, jnp.zeros(1, bool)])
+  vel = jnp.concatenate([vel, jnp.zeros((1, dim), jnp.int32)])
+  flag = jnp.concatenate([flag, jnp.zeros(1, bool)])
+  last = jnp.maximum(n - 1, 0)
+  has_last = n >= 2
+  ends = ends.at[last].set(jnp.where(has_last, True, ends[last]))
+  vel = vel.at[last].set(jnp.where(has_last, last_vel, vel[last]))
+  flag = flag.at[last].set(jnp.where(has_last, last_flag, flag[last]))
+  return LinearFit(ends, vel, flag)
+
+
+def _fit_rotation_path(q, n, e, step) -> RotationFit:
+  """Fit one rotation path.
+
+  Args:
+    q: f32[T, 4] unit quaternions (w, x, y, z); signs may flip between frames.
+    n: i32 valid frames.
+    e: f32 half-width of the per-component box on the log-map error (radians).
+    step: f32 angular velocity quantum (radians per frame).
+  """
+  num_t = q.shape[0]
+
+  def constraint(q_t, q_s, tau):
+    omega = rel_log(q_t, q_s)
+    inv = 1.0 / (tau * step)
+    return (omega - e) * inv, (omega + e) * inv
+
+  def choose(lo, hi, w_prev):
+    lo_i, hi_i, _ = _grid(lo, hi)
+    return jnp.clip(w_prev.astype(q.dtype), lo_i, hi_i).astype(jnp.int32)
+
+  def end_value(q_s, w, length):
+    q_e = quat_mul(quat_exp(length.astype(q.dtype) * w.astype(q.dtype) * step), q_s)
+    return q_e / jnp.linalg.norm(q_e)
+
+  def body(carry, inp):
+    t_s, q_s, lo, hi, w_prev = carry
+    t, q_t = inp
+    tau = (t - t_s).astype(q.dtype)
+    clo, chi = constraint(q_t, q_s, tau)
+    nlo, nhi = jnp.maximum(lo, clo), jnp.minimum(hi, chi)
+    cont = jnp.all(_grid(nlo, nhi)[2])
+    valid = t < n
+    end = valid & ~cont
+    length = t - 1 - t_s
+    w = choose(lo, hi, w_prev)
+    q_e = end_value(q_s, w, length)
+    rlo, rhi = constraint(q_t, q_e, jnp.asarray(1.0, q.dtype))
+    closed = (t - 1, q_e, rlo, rhi, w)
+    extended = (t_s, q_s, nlo, nhi, w_prev)
+    new = jax.tree.map(lambda c, e_, o: jnp.where(end, c, jnp.where(valid, e_, o)),
+                       closed, extended, carry)
+    return new, (end, w)
+
+  init = (jnp.int32(0), q[0], jnp.full(3, -jnp.inf, q.dtype), jnp.full(3, jnp.inf, q.dtype),
+          jnp.zeros(3, jnp.int32))
+  ts = jnp.arange(1, num_t, dtype=jnp.int32)
+  carry, (ends, vel) = jax.lax.scan(body, init, (ts, q[1:]))
+  _, _, lo, hi, w_prev = carry
+  last_w = choose(lo, hi, w_prev)
+  ends = jnp.concatenate([ends, jnp.zeros(1, bool)])
+  vel = jnp.concatenate([vel, jnp.zeros((1, 3), jnp.int32)])
+  last = jnp.maximum(n - 1, 0)
+  has_last = n >= 2
+  ends = ends.at[last].set(jnp.where(has_last, True, ends[last]))
+  vel = vel.at[last].set(jnp.where(has_last, last_w, vel[last]))
+  return RotationFit(ends, vel)
+
+
+@functools.partial(jax.jit, static_argnames=("gravity",))
+def fit_linear_batch(x, n, e, step, quad, gravity: bool) -> LinearFit:
+  """Vmapped linear fit. x: f32[N, T, D] relative to x[:, 0]; n: i32[N]; e: f32[N]."""
+  fit = functools.partial(_fit_linear_path, gravity=gravity)
+  return jax.vmap(fit, in_axes=(0, 0, 0, None, None))(x, n, e, step, quad)
+
+
+@jax.jit
+def fit_rotation_batch(q, n, e, step) -> RotationFit:
+  """Vmapped rotation fit. q: f32[N, T, 4] (normalized inside); n: i32[N]; e: f32[N]."""
+  norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
+  q = q / jnp.where(norm > 0, norm, 1.0)
+  return jax.vmap(_fit_rotation_path, in_axes=(0, 0, 0, None))(q, n, e, step)

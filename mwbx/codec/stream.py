@@ -1,0 +1,310 @@
+"""The per-world byte stream: a self-describing container around the segments.
+
+Layout (little-endian):
+
+  magic b"MWQC" | version u8 | n_frames varint | nq varint | n_pos, n_rot,
+  n_scalar varint | fps, e_pos, e_rot, e_scalar, quad f64 | vel_shift,
+  rot_shift, scalar_shift u8 | qpos address per channel varint | mode per
+  channel u8 (0 fitted, 1 raw) | frame-0 value of every channel f32 | raw
+  channels f32[n_frames, width] | one Rice blob of integers: segments per
+  fitted channel, then per segment its length code (translation: 2 * (L - 1)
+  + vertical-quadratic flag; others: L - 1), then the velocity residuals
+  (translation, rotation, scalar) | CRC32 u32 of everything before it.
+
+Residual of segment k of a channel: ``v_k - v_{k-1} - g_k`` (``v_{-1} = 0``),
+with ``g_k`` the gravity increment predicted from the previous segment's flag
+and length, so constant-velocity and ballistic motion code to zeros. Channel
+order is all translations, then rotations, then scalars, each in layout order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+import zlib
+from typing import NamedTuple
+
+import numpy as np
+
+from mwbx.codec import rice
+from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
+
+MAGIC = b"MWQC"
+VERSION = 1
+MODE_FIT = 0
+MODE_RAW = 1
+WIDTH = {"pos": 3, "rot": 4, "scalar": 1}
+# Sanity caps: corrupt headers must not make the decoder allocate without limit.
+MAX_FRAMES = 1 << 24
+_FLOATS = struct.Struct("<5d")
+
+
+@dataclasses.dataclass(frozen=True)
+class Quanta:
+  """Quantization of one stream; every step is ``bound * 2**-shift``.
+
+  quad: vertical quadratic coefficient of translation (metres per frame**2).
+  """
+
+  quad: float
+  vel_shift: int = 6
+  rot_shift: int = 6
+  scalar_shift: int = 6
+
+  def steps(self, bounds: CodecBounds) -> tuple[float, float, float]:
+    """(translation, rotation, scalar) velocity steps per frame, float64."""
+    return (bounds.e_pos * 2.0**-self.vel_shift, bounds.e_rot * 2.0**-self.rot_shift,
+            bounds.e_scalar * 2.0**-self.scalar_shift)
+
+
+class Segments(NamedTuple):
+  """Segments of the fitted channels of one kind, channels in layout order.
+
+  seg_count: i64[Cf] segments per fitted channel.
+  lengths: i64[S] segment lengths in frames (>= 1).
+  vel: i64[S, D] integer velocities (D = 3, or 1 for scalars).
+  flags: bool[S] vertical quadratic term on (translation only, else False).
+  """
+
+  seg_count: np.ndarray
+  lengths: np.ndarray
+  vel: np.ndarray
+  flags: np.ndarray
+
+
+def empty_segments(dim: int) -> Segments:
+  return Segments(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, dim), np.int64),
+                  np.zeros(0, bool))
+
+
+@dataclasses.dataclass
+class WorldCode:
+  """Everything one stream holds, as arrays.
+
+  initial: f32[C, 4], frame-0 value of each channel (first ``width`` used).
+  modes: u8[C] per channel (MODE_FIT or MODE_RAW), channel order pos, rot, scalar.
+  raw: dict channel index -> f32[n_frames, width].
+  segs: kind -> Segments of that kind's fitted channels.
+  """
+
+  n_frames: int
+  layout: ChannelLayout
+  bounds: CodecBounds
+  fps: float
+  quanta: Quanta
+  modes: np.ndarray
+  initial: np.ndarray
+  raw: dict
+  segs: dict
+
+  def kinds(self) -> list[str]:
+    lay = self.layout
+    return ["pos"] * len(lay.pos_adr) + ["rot"] * len(lay.rot_adr) + ["scalar"] * len(
+        lay.scalar_adr)
+
+  def addresses(self) -> list[int]:
+    lay = self.layout
+    return list(lay.pos_adr) + list(lay.rot_adr) + list(lay.scalar_adr)
+
+
+KINDS = ("pos", "rot", "scalar")
+DIM = {"pos": 3, "rot": 3, "scalar": 1}
+
+
+def channel_starts(seg_count: np.ndarray) -> np.ndarray:
+  """bool[S]: segment k is the first of its channel."""
+  total = int(seg_count.sum())
+  first = np.zeros(total, bool)
+  starts = np.cumsum(seg_count) - seg_count
+  first[starts[seg_count > 0]] = True
+  return first
+
+
+def gravity_increment(flags: np.ndarray, lengths: np.ndarray, first: np.ndarray,
+                      quad: float, step: float) -> np.ndarray:
+  """i64[S]: predicted vertical velocity change entering each translation segment."""
+  prev_flag = np.concatenate([[False], flags[:-1]]) & ~first
+  prev_len = np.concatenate([[0], lengths[:-1]]).astype(np.float64)
+  return np.where(prev_flag, np.round(2.0 * quad * prev_len / step), 0.0).astype(np.int64)
+
+
+def _residuals(vel: np.ndarray, first: np.ndarray, increment: np.ndarray | None) -> np.ndarray:
+  prev = np.concatenate([np.zeros((1, vel.shape[1]), np.int64), vel[:-1]])
+  prev[first] = 0
+  res = vel - prev
+  if increment is not None:
+    res[:, -1] -= increment
+  return res
+
+
+def _velocities(res: np.ndarray, first: np.ndarray, increment: np.ndarray | None) -> np.ndarray:
+  res = res.copy()
+  if increment is not None:
+    res[:, -1] += increment
+  if np.abs(res.astype(np.float64)).sum() >= 2.0**62:
+    raise CodecError("corrupt stream: velocity residuals out of range")
+  total = np.cumsum(res, axis=0)
+  # Segmented cumulative sum: subtract the running total before each channel.
+  chan_start = np.maximum.accumulate(np.where(first, np.arange(first.size), 0))
+  return total - (total - res)[chan_start]
+
+
+_HEAD = struct.Struct("<4sB")
+
+
+def serialize(code: WorldCode) -> bytes:
+  lay = code.layout
+  q = code.quanta
+  out = bytearray(_HEAD.pack(MAGIC, VERSION))
+  for v in (code.n_frames, lay.nq, len(lay.pos_adr), len(lay.rot_adr), len(lay.scalar_adr)):
+    out += rice.write_varint(int(v))
+  out += _FLOATS.pack(code.fps, code.bounds.e_pos, code.bounds.e_rot, code.bounds.e_scalar,
+                      q.quad)
+  out += bytes([q.vel_shift, q.rot_shift, q.scalar_shift])
+  for adr in code.addresses():
+    out += rice.write_varint(int(adr))
+  out += np.asarray(code.modes, np.uint8).tobytes()
+  kinds = code.kinds()
+  widths = np.array([WIDTH[k] for k in kinds], np.int64)
+  mask = np.arange(4)[None, :] < widths[:, None]
+  out += np.asarray(code.initial, "<f4")[mask].tobytes()
+  for c, kind in enumerate(kinds):
+    if code.modes[c] == MODE_RAW:
+      out += np.asarray(code.raw[c], "<f4").reshape(code.n_frames, WIDTH[kind]).tobytes()
+  step_pos = q.steps(code.bounds)[0]
+  counts, length_codes, residuals = [], [], []
+  for kind in KINDS:
+    seg = code.segs[kind]
+    counts.append(seg.seg_count)
+    first = channel_starts(seg.seg_count)
+    if kind == "pos":
+      length_codes.append(2 * (seg.lengths - 1) + seg.flags)
+      inc = gravity_increment(seg.flags, seg.lengths, first, q.quad, step_pos)
+    else:
+      length_codes.append(seg.lengths - 1)
+      inc = None
+    residuals.append(_residuals(np.asarray(seg.vel, np.int64), first, inc).reshape(-1))
+  out += rice.encode_ints(np.concatenate(counts + length_codes + residuals))
+  out += struct.pack("<I", zlib.crc32(out))
+  return bytes(out)
+
+
+def _take(buf, pos, size, what):
+  if pos + size > len(buf):
+    raise CodecError(f"truncated stream while reading {what}")
+  return pos + size
+
+
+def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
+  """Parse and validate a stream; raises CodecError on anything inconsistent."""
+  if isinstance(stream, np.ndarray):
+    stream = stream.tobytes()
+  buf = bytes(stream)
+  if len(buf) < _HEAD.size + 4:
+    raise CodecError(f"stream too short ({len(buf)} bytes) to be a codec stream")
+  magic, version = _HEAD.unpack_from(buf, 0)
+  if magic != MAGIC:
+    raise CodecError(f"not a codec stream (magic {magic!r}, expected {MAGIC!r})")
+  (crc,) = struct.unpack_from("<I", buf, len(buf) - 4)
+  if zlib.crc32(memoryview(buf)[:-4]) != crc:
+    raise CodecError("corrupt stream: CRC32 mismatch")
+  buf = buf[:-4]
+  if version != VERSION:
+    raise CodecError(f"unsupported codec stream version {version} (this build reads {VERSION})")
+  pos = _HEAD.size
+  header = []
+  for what in ("n_frames", "nq", "n_pos", "n_rot", "n_scalar"):
+    v, pos = rice.read_varint(buf, pos, what)
+    header.append(v)
+  n_frames, nq, n_pos, n_rot, n_scalar = header
+  if n_frames > MAX_FRAMES or nq > 65535 or n_pos + n_rot + n_scalar > nq:
+    raise CodecError(f"corrupt stream header (n_frames={n_frames}, nq={nq})")
+  end = _take(buf, pos, _FLOATS.size + 3, "header")
+  fps, e_pos, e_rot, e_scalar, quad = _FLOATS.unpack_from(buf, pos)
+  shifts = buf[pos + _FLOATS.size:end]
+  pos = end
+  if not all(map(np.isfinite, (fps, e_pos, e_rot, e_scalar, quad))) or fps <= 0 or max(
+      shifts) > 40:
+    raise CodecError("corrupt stream header (fps, bounds or quanta out of range)")
+  n_ch = n_pos + n_rot + n_scalar
+  adrs = []
+  for _ in range(n_ch):
+    v, pos = rice.read_varint(buf, pos, "channel address")
+    adrs.append(v)
+  try:
+    layout = ChannelLayout(nq=nq, pos_adr=tuple(adrs[:n_pos]),
+                           rot_adr=tuple(adrs[n_pos:n_pos + n_rot]),
+                           scalar_adr=tuple(adrs[n_pos + n_rot:]))
+    bounds = CodecBounds(e_pos, e_rot, e_scalar)
+  except CodecError as err:
+    raise CodecError(f"corrupt stream header: {err}") from None
+  end = _take(buf, pos, n_ch, "channel modes")
+  modes = np.frombuffer(buf, np.uint8, n_ch, pos).copy()
+  pos = end
+  if np.any(modes > MODE_RAW):
+    raise CodecError("corrupt stream: unknown channel mode")
+  kinds = ["pos"] * n_pos + ["rot"] * n_rot + ["scalar"] * n_scalar
+  n_init = 3 * n_pos + 4 * n_rot + n_scalar
+  end = _take(buf, pos, 4 * n_init, "initial values")
+  widths = np.array([WIDTH[k] for k in kinds], np.int64)
+  initial = np.zeros((n_ch, 4), np.float32)
+  initial[np.arange(4)[None, :] < widths[:, None]] = np.frombuffer(buf, "<f4", n_init, pos)
+  pos = end
+  raw = {}
+  for c in np.flatnonzero(modes == MODE_RAW).tolist():
+    size = n_frames * WIDTH[kinds[c]]
+    end = _take(buf, pos, 4 * size, "raw channel")
+    raw[c] = np.frombuffer(buf, "<f4", size, pos).reshape(n_frames, WIDTH[kinds[c]])
+    pos = end
+  fit = modes == MODE_FIT
+  n_fit = {"pos": int(fit[:n_pos].sum()), "rot": int(fit[n_pos:n_pos + n_rot].sum()),
+           "scalar": int(fit[n_pos + n_rot:].sum())}
+  cf = sum(n_fit.values())
+  expect = max(n_frames - 1, 0)
+  values, pos = rice.decode_ints(buf, pos, "segment data",
+                                 max_count=cf + 7 * expect * cf)
+  if pos != len(buf):
+    raise CodecError("corrupt stream: trailing bytes after the segment data")
+  if values.size < cf:
+    raise CodecError("corrupt stream: missing segment counts")
+  counts = values[:cf]
+  if np.any(counts < 0) or np.any(counts > expect) or (expect > 0 and np.any(counts == 0)):
+    raise CodecError("corrupt stream: segment count out of range")
+  n_seg = {}
+  off = 0
+  for kind in KINDS:
+    n_seg[kind] = int(counts[off:off + n_fit[kind]].sum())
+    off += n_fit[kind]
+  total = sum(n_seg.values())
+  n_res = sum(DIM[k] * n_seg[k] for k in KINDS)
+  if values.size != cf + total + n_res:
+    raise CodecError("corrupt stream: segment data size does not match segment counts")
+  quanta = Quanta(quad=quad, vel_shift=shifts[0], rot_shift=shifts[1], scalar_shift=shifts[2])
+  step_pos = quanta.steps(bounds)[0]
+  segs = {}
+  c_off, l_off, r_off = 0, cf, cf + total
+  for kind in KINDS:
+    seg_count = counts[c_off:c_off + n_fit[kind]]
+    c_off += n_fit[kind]
+    codes = values[l_off:l_off + n_seg[kind]]
+    l_off += n_seg[kind]
+    if kind == "pos":
+      lengths, flags = (codes >> 1) + 1, (codes & 1).astype(bool)
+    else:
+      lengths, flags = codes + 1, np.zeros(codes.size, bool)
+    res = values[r_off:r_off + DIM[kind] * n_seg[kind]].reshape(n_seg[kind], DIM[kind])
+    r_off += DIM[kind] * n_seg[kind]
+    if np.any(lengths < 1):
+      raise CodecError("corrupt stream: segment length out of range")
+    first = channel_starts(seg_count)
+    if lengths.size:
+      per_channel = np.add.reduceat(lengths, np.flatnonzero(first))
+      if np.any(per_channel != expect):
+        raise CodecError(f"corrupt stream: segment lengths do not add up to {expect} frames")
+    inc = gravity_increment(flags, lengths, first, quad, step_pos) if kind == "pos" else None
+    vel = _velocities(res, first, inc) if lengths.size else res
+    if np.any(np.abs(vel) >= rice.VALUE_CAP):
+      raise CodecError("corrupt stream: velocity out of range")
+    segs[kind] = Segments(seg_count, lengths, vel, flags)
+  return WorldCode(n_frames=n_frames, layout=layout, bounds=bounds, fps=fps, quanta=quanta,
+                   modes=modes, initial=initial, raw=raw, segs=segs)
