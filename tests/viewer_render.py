@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import io
 import os
-import shutil
 from typing import Sequence
 
 import numpy as np
@@ -29,8 +28,6 @@ def chromium_unavailable_reason() -> str | None:
     import playwright.sync_api  # noqa: F401
   except ImportError as err:
     return f"playwright is not importable: {err}"
-  if shutil.which("xvfb-run") is None and False:  # headless needs no display
-    return "unreachable"
   return None
 
 
@@ -88,6 +85,11 @@ def hue_fraction(image: np.ndarray, rgb: Sequence[float], min_chroma: float = 60
   target = _hue(t)[0, 0]
   dh = np.abs((hue - target + 180.0) % 360.0 - 180.0)
   return float(np.mean((chroma >= min_chroma) & (dh <= hue_tol_deg)))
+
+
+def hue_of(rgb: Sequence[float]) -> float:
+  """Hue in degrees of one colour (components 0-1)."""
+  return float(_hue(np.asarray(rgb, np.float64).reshape(1, 1, 3) * 255.0)[0, 0])
 
 
 def _hue(img: np.ndarray) -> np.ndarray:
