@@ -1,0 +1,340 @@
+"""The bank: every sampled world of one scene, as arrays plus metadata.
+
+Per world it stores the id and key, status flags, the recorded ``qpos`` frames
+(through a pluggable store: raw float32 here, compressed by ``mwbx.codec``),
+the tracked bodies' COM polylines at the query rate, the metric table and the
+perturbation count; per bank the config, the MJCF text and a hash of both.
+Banks are saved with orbax-checkpoint; appending worlds writes a new
+checkpoint step, so an interrupted save never loses the previous one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import shutil
+from typing import Sequence
+
+import numpy as np
+
+from mwbx.errors import MwbxError
+
+FLAG_FINISHED = 1
+FLAG_AT_REST = 2
+FLAG_UNSTABLE = 4
+
+BANK_FORMAT = 1
+
+
+class RawQposStore:
+  """``qpos`` frames of every world as one float32 array plus offsets.
+
+  Implements the qpos-store protocol the bank uses (``append``, ``extend``,
+  ``copy``, ``frames``, ``n_worlds``, ``nbytes``, ``stats``, ``state``,
+  ``restore``).
+  """
+
+  kind = "raw"
+
+  def __init__(self, nq: int, data: np.ndarray | None = None, offsets: np.ndarray | None = None):
+    self.nq = nq
+    self.data = np.zeros((0, nq), np.float32) if data is None else np.asarray(data, np.float32)
+    self.offsets = np.zeros(1, np.int64) if offsets is None else np.asarray(offsets, np.int64)
+
+  def append(self, qpos: np.ndarray, frame_count: np.ndarray) -> None:
+    """Adds worlds: qpos f32[W, T, nq] (padded), frame_count i32[W]."""
+    pieces = [qpos[w, :n] for w, n in enumerate(frame_count)]
+    self.data = np.concatenate([self.data, *pieces]).astype(np.float32)
+    self.offsets = np.concatenate([self.offsets, self.offsets[-1] + np.cumsum(frame_count)])
+
+  def extend(self, other: "RawQposStore") -> None:
+    """Adds every world of another store of the same kind, as stored."""
+    self.data = np.concatenate([self.data, other.data])
+    self.offsets = np.concatenate([self.offsets, self.offsets[-1] + other.offsets[1:]])
+
+  def copy(self) -> "RawQposStore":
+    return RawQposStore(self.nq, self.data.copy(), self.offsets.copy())
+
+  def frames(self, world: int, start: int = 0, stop: int | None = None) -> np.ndarray:
+    lo, hi = self.offsets[world], self.offsets[world + 1]
+    return self.data[lo:hi][start:stop]
+
+  @property
+  def n_worlds(self) -> int:
+    return len(self.offsets) - 1
+
+  @property
+  def nbytes(self) -> int:
+    return int(self.data.nbytes + self.offsets.nbytes)
+
+  def stats(self) -> dict:
+    frames = int(self.offsets[-1])
+    return {"codec": "raw float32", "bytes": self.nbytes,
+            "bytes_per_world": self.nbytes / max(1, self.n_worlds), "frames": frames}
+
+  def state(self) -> tuple[dict, dict]:
+    return {"data": self.data, "offsets": self.offsets}, {"kind": self.kind, "nq": self.nq}
+
+  @classmethod
+  def restore(cls, arrays: dict, meta: dict) -> "RawQposStore":
+    return cls(meta["nq"], arrays["data"], arrays["offsets"])
+
+
+QPOS_STORES = {RawQposStore.kind: RawQposStore}
+
+
+@dataclasses.dataclass
+class Bank:
+  """Sampled worlds of one scene.
+
+  Attributes:
+    world_ids: i64[W] world index within the run (determines its randomness).
+    keys: u32[W, 2] raw key data of each world.
+    flags: u8[W] FLAG_FINISHED | FLAG_AT_REST | FLAG_UNSTABLE.
+    frame_count: i32[W] recorded qpos frames per world (at ``record_fps``).
+    com: f32[W, P, B, 3] tracked COM polylines at ``query_fps``, m; points
+      past ``com_count`` repeat the last one.
+    com_count: i32[W] valid polyline points.
+    metrics: f32[W, B, M] per-body metrics named by ``metric_names``.
+    perturbations: i32[W] perturbations applied.
+    steps: i32[W] physics steps simulated.
+    parent_world: i64[W] world this one was refined from (-1: sampled).
+    refine_time: f32[W] time the refinement started from, s (NaN: sampled).
+    qpos_store: the recorded qpos frames (raw or compressed).
+    body_names, body_ids, objects, groups, metric_names: scene layout.
+    record_fps, query_fps, timestep: rates (Hz) and physics step (s).
+    config: resolved config (dict); mjcf_text: the MJCF; digest: sha256 of both.
+    lineage: per refined world, the objects asked for and the final active set.
+    run: how the worlds were drawn (e.g. ``{"seed": 0}``).
+  """
+
+  world_ids: np.ndarray
+  keys: np.ndarray
+  flags: np.ndarray
+  frame_count: np.ndarray
+  com: np.ndarray
+  com_count: np.ndarray
+  metrics: np.ndarray
+  perturbations: np.ndarray
+  steps: np.ndarray
+  parent_world: np.ndarray
+  refine_time: np.ndarray
+  qpos_store: object
+  body_names: tuple[str, ...]
+  body_ids: np.ndarray
+  objects: dict[str, tuple[str, ...]]
+  groups: dict[str, tuple[str, ...]]
+  metric_names: tuple[str, ...]
+  record_fps: float
+  query_fps: float
+  timestep: float
+  config: dict
+  mjcf_text: str
+  digest: str
+  lineage: dict = dataclasses.field(default_factory=dict)
+  run: dict = dataclasses.field(default_factory=dict)
+  _model: object = dataclasses.field(default=None, repr=False, compare=False)
+
+  # -- views --------------------------------------------------------------------
+
+  @property
+  def n_worlds(self) -> int:
+    return int(len(self.world_ids))
+
+  @property
+  def valid(self) -> np.ndarray:
+    """bool[W]: worlds that did not go unstable (the only ones queries see)."""
+    return (self.flags & FLAG_UNSTABLE) == 0
+
+  @property
+  def at_rest(self) -> np.ndarray:
+    return (self.flags & FLAG_AT_REST) != 0
+
+  @property
+  def next_world_id(self) -> int:
+    sampled = self.world_ids[self.parent_world < 0]
+    return int(sampled.max()) + 1 if len(sampled) else 0
+
+  def qpos_frames(self, world: int, start: int = 0, stop: int | None = None) -> np.ndarray:
+    """f32[T, nq] decoded qpos of bank row ``world`` (frame f at f / record_fps s)."""
+    if not 0 <= world < self.n_worlds:
+      raise MwbxError(f"world {world}: out of range (bank has {self.n_worlds} worlds)")
+    return self.qpos_store.frames(world, start, stop)
+
+  def select_bodies(self, names: str | Sequence[str]) -> np.ndarray:
+    """i32[k] indices into the tracked-body axis for body, object or group names."""
+    from mwbx.scene import select_bodies
+    return select_bodies(names, self.body_names, self.objects, self.groups, "selection", "bank")
+
+  def model(self):
+    """The scene's ``MjModel`` (with the mwbx observation sensors)."""
+    if self._model is None:
+      from mwbx.scene import build_model
+      self._model = build_model(self.mjcf_text, self.body_names)
+      self._model.opt.timestep = self.timestep
+    return self._model
+
+  def metric(self, name: str) -> np.ndarray:
+    """f32[W, B] one metric column."""
+    if name not in self.metric_names:
+      raise MwbxError(f"metric: unknown metric {name!r} (have: {', '.join(self.metric_names)})")
+    return self.metrics[..., self.metric_names.index(name)]
+
+  def summary(self) -> dict:
+    """Counts for ``mwbx info`` and the sampling summary."""
+    valid = self.valid
+    return {
+        "worlds": self.n_worlds,
+        "valid": int(valid.sum()),
+        "unstable": int((~valid).sum()),
+        "at_rest_fraction": float(self.at_rest.mean()) if self.n_worlds else 0.0,
+        "mean_collisions": float(self.metric("collisions").sum(-1)[valid].mean()) if valid.any() else 0.0,
+        "perturbations": int(self.perturbations.sum()),
+        "storage_bytes": int(self.nbytes),
+        "qpos": self.qpos_store.stats(),
+    }
+
+  @property
+  def nbytes(self) -> int:
+    arrays = (self.world_ids, self.keys, self.flags, self.frame_count, self.com, self.com_count,
+              self.metrics, self.perturbations, self.steps, self.parent_world, self.refine_time)
+    return int(sum(a.nbytes for a in arrays) + self.qpos_store.nbytes)
+
+  # -- growth -------------------------------------------------------------------
+
+  def append(self, other: "Bank") -> "Bank":
+    """A bank with ``other``'s worlds after this one's (same scene and config)."""
+    if other.digest != self.digest:
+      raise MwbxError("append: the banks come from different configs or MJCF (digest mismatch)")
+    if other.com.shape[1:] != self.com.shape[1:]:
+      raise MwbxError("append: polyline shapes differ")
+    if type(other.qpos_store) is not type(self.qpos_store):
+      raise MwbxError("append: the banks store qpos differently (raw vs compressed)")
+    store = self.qpos_store.copy()
+    store.extend(other.qpos_store)
+    cat = lambda a, b: np.concatenate([a, b])
+    lineage = {**self.lineage, **other.lineage}
+    return dataclasses.replace(
+        self, world_ids=cat(self.world_ids, other.world_ids), keys=cat(self.keys, other.keys),
+        flags=cat(self.flags, other.flags), frame_count=cat(self.frame_count, other.frame_count),
+        com=cat(self.com, other.com), com_count=cat(self.com_count, other.com_count),
+        metrics=cat(self.metrics, other.metrics), perturbations=cat(self.perturbations, other.perturbations),
+        steps=cat(self.steps, other.steps), parent_world=cat(self.parent_world, other.parent_world),
+        refine_time=cat(self.refine_time, other.refine_time), qpos_store=store, lineage=lineage)
+
+  # -- persistence --------------------------------------------------------------
+
+  _ARRAYS = ("world_ids", "keys", "flags", "frame_count", "com", "com_count", "metrics",
+             "perturbations", "steps", "parent_world", "refine_time")
+
+  def save(self, path: str | pathlib.Path) -> pathlib.Path:
+    """Writes the bank to directory ``path`` (a new orbax checkpoint step).
+
+    Also writes ``path/config.resolved.json`` and ``path/scene.xml`` for people.
+    """
+    import orbax.checkpoint as ocp
+    path = pathlib.Path(path).absolute()
+    path.mkdir(parents=True, exist_ok=True)
+    store_arrays, store_meta = self.qpos_store.state()
+    tree = {name: np.asarray(getattr(self, name)) for name in self._ARRAYS}
+    tree["body_ids"] = np.asarray(self.body_ids)
+    tree.update({f"qpos_{k}": np.asarray(v) for k, v in store_arrays.items()})
+    meta = {
+        "format": BANK_FORMAT, "qpos_store": store_meta, "body_names": list(self.body_names),
+        "objects": {k: list(v) for k, v in self.objects.items()},
+        "groups": {k: list(v) for k, v in self.groups.items()},
+        "metric_names": list(self.metric_names), "record_fps": self.record_fps,
+        "query_fps": self.query_fps, "timestep": self.timestep, "config": self.config,
+        "mjcf_text": self.mjcf_text, "digest": self.digest, "lineage": self.lineage, "run": self.run,
+    }
+    with _manager(path) as manager:
+      step = (manager.latest_step() or 0) + 1
+      manager.save(step, args=ocp.args.Composite(bank=ocp.args.StandardSave(tree),
+                                                 meta=ocp.args.JsonSave(meta)))
+      manager.wait_until_finished()
+    (path / "config.resolved.json").write_text(json.dumps(self.config, indent=2))
+    (path / "scene.xml").write_text(self.mjcf_text)
+    return path
+
+  @classmethod
+  def load(cls, path: str | pathlib.Path) -> "Bank":
+    """Reads a bank written by :meth:`save`; MwbxError if missing or corrupt."""
+    import orbax.checkpoint as ocp
+    path = pathlib.Path(path).absolute()
+    if not path.is_dir():
+      raise MwbxError(f"{path}: no bank here (not a directory)")
+    try:
+      with _manager(path) as manager:
+        step = manager.latest_step()
+        if step is None:
+          raise MwbxError(f"{path}: no bank here (no checkpoint)")
+        restored = manager.restore(step, args=ocp.args.Composite(
+            bank=ocp.args.StandardRestore(), meta=ocp.args.JsonRestore()))
+      tree, meta = restored["bank"], restored["meta"]
+      if meta.get("format") != BANK_FORMAT:
+        raise MwbxError(f"{path}: unsupported bank format {meta.get('format')!r}")
+      store_meta = meta["qpos_store"]
+      store_cls = _store_class(store_meta["kind"])
+      store = store_cls.restore(
+          {k[len("qpos_"):]: np.asarray(v) for k, v in tree.items() if k.startswith("qpos_")}, store_meta)
+      bank = cls(
+          **{name: np.asarray(tree[name]) for name in cls._ARRAYS},
+          qpos_store=store, body_names=tuple(meta["body_names"]), body_ids=np.asarray(tree["body_ids"]),
+          objects={k: tuple(v) for k, v in meta["objects"].items()},
+          groups={k: tuple(v) for k, v in meta["groups"].items()},
+          metric_names=tuple(meta["metric_names"]), record_fps=meta["record_fps"],
+          query_fps=meta["query_fps"], timestep=meta["timestep"], config=meta["config"],
+          mjcf_text=meta["mjcf_text"], digest=meta["digest"], lineage=meta.get("lineage", {}),
+          run=meta.get("run", {}))
+    except MwbxError:
+      raise
+    except Exception as err:  # orbax/tensorstore/json errors: a corrupt or foreign directory.
+      raise MwbxError(f"{path}: corrupt or unreadable bank: {type(err).__name__}: {err}") from None
+    bank.check()
+    return bank
+
+  def check(self) -> None:
+    """Raises MwbxError if the arrays disagree with each other."""
+    w = self.n_worlds
+    for name in self._ARRAYS:
+      if len(getattr(self, name)) != w:
+        raise MwbxError(f"bank: {name} has {len(getattr(self, name))} rows, expected {w}")
+    if self.qpos_store.n_worlds != w:
+      raise MwbxError(f"bank: qpos store has {self.qpos_store.n_worlds} worlds, expected {w}")
+    if self.com.ndim != 4 or self.com.shape[2] != len(self.body_names):
+      raise MwbxError(f"bank: com has shape {self.com.shape}, expected [W, P, {len(self.body_names)}, 3]")
+
+
+def _store_class(kind: str):
+  if kind not in QPOS_STORES:
+    try:  # the compressed store registers itself on import
+      import mwbx.codec  # noqa: F401
+    except ImportError:
+      pass
+  if kind not in QPOS_STORES:
+    raise MwbxError(f"bank: unknown qpos store {kind!r}")
+  return QPOS_STORES[kind]
+
+
+class _manager:
+  """An orbax CheckpointManager over a bank directory, closed on exit."""
+
+  def __init__(self, path: pathlib.Path):
+    import orbax.checkpoint as ocp
+    self.manager = ocp.CheckpointManager(
+        path / "checkpoints",
+        options=ocp.CheckpointManagerOptions(max_to_keep=1, enable_async_checkpointing=False),
+        item_handlers={"bank": ocp.StandardCheckpointHandler(), "meta": ocp.JsonCheckpointHandler()},
+    )
+
+  def __enter__(self):
+    return self.manager
+
+  def __exit__(self, *exc):
+    self.manager.close()
+
+
+def remove(path: str | pathlib.Path) -> None:
+  """Deletes a bank directory."""
+  shutil.rmtree(path, ignore_errors=True)

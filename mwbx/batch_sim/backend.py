@@ -1,0 +1,81 @@
+"""The backend protocol and how ``backend: auto`` picks one.
+
+A backend steps a batch of worlds of one scene, applying a wrench at each
+tracked body's centre of mass, and reports the tracked bodies' sensor block
+(see :data:`mwbx.scene.SENSORS`). The lockstep loops live with each backend
+(``mjx_backend.run_chunk`` as one jitted scan per block of frames,
+``native_backend.run_chunk`` as a host loop around ``mujoco.rollout``); both
+call :func:`mwbx.batch_sim.world.post_frame` and return a :class:`ChunkResult`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from mwbx.errors import MwbxError
+
+
+class ChunkResult(NamedTuple):
+  """What one lockstep batch of C worlds produced (host arrays).
+
+  Attributes:
+    qpos: f32[C, F, nq] frames at the record rate; rows past ``frame_count``
+      repeat the last recorded frame.
+    com: f32[C, F, B, 3] tracked COM positions at the record rate, m.
+    frame_count: i32[C] frames recorded.
+    status: i32[C] world.RUNNING / AT_REST / END_TIME / UNSTABLE.
+    metrics: f32[C, B, M] per-body metric table.
+    perturbations: i32[C] perturbations applied.
+    steps: i32[C] physics steps taken.
+    compile_seconds: time spent compiling, s.
+    run_seconds: time spent stepping (excluding compilation), s.
+  """
+
+  qpos: np.ndarray
+  com: np.ndarray
+  frame_count: np.ndarray
+  status: np.ndarray
+  metrics: np.ndarray
+  perturbations: np.ndarray
+  steps: np.ndarray
+  compile_seconds: float
+  run_seconds: float
+
+
+def resolve_backend(name: str) -> str:
+  """``auto`` → ``mjx`` on a GPU/TPU, ``native`` on CPU."""
+  if name == "auto":
+    return "mjx" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "native"
+  if name not in ("mjx", "native"):
+    raise MwbxError(f"backend: unknown backend {name!r} (use auto, mjx or native)")
+  return name
+
+
+def resolve_mjx_impl(name: str) -> str:
+  """``auto`` → ``warp`` when MuJoCo Warp imports and a GPU is present, else ``jax``."""
+  if name != "auto":
+    return name
+  if jax.default_backend() not in ("gpu", "cuda"):
+    return "jax"
+  try:
+    import mujoco_warp  # noqa: F401
+    import warp  # noqa: F401
+  except ImportError:
+    return "jax"
+  return "warp"
+
+
+def fill_tail(frames: np.ndarray, frame_count: np.ndarray) -> np.ndarray:
+  """Repeats each world's last recorded frame over the unrecorded tail (in place).
+
+  Args:
+    frames: [C, F, ...] frame buffers.
+    frame_count: i32[C].
+  """
+  for w, n in enumerate(frame_count):
+    if 0 < n < frames.shape[1]:
+      frames[w, n:] = frames[w, n - 1]
+  return frames

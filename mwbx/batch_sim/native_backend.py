@@ -1,0 +1,169 @@
+"""The native backend: MuJoCo C through ``mujoco.rollout``'s thread pool.
+
+One ``rollout`` call per frame (steps_per_frame physics steps) advances every
+running world of the batch (finished worlds are left out), with the
+perturbation wrenches of each step passed as ``xfrc_applied`` controls; the
+bookkeeping kernel runs jitted on the batch between calls. This is the fast
+path on CPUs.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import rollout as mj_rollout
+
+from mwbx.batch_sim import world
+from mwbx.batch_sim.backend import ChunkResult, fill_tail
+
+_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_CONTROL = mujoco.mjtState.mjSTATE_XFRC_APPLIED
+
+
+class NativeBackend:
+  """A persistent rollout thread pool and per-thread ``MjData`` for one model.
+
+  Args:
+    model: the scene model (with mwbx sensors).
+    threads: pool size; 0 means one per CPU core.
+  """
+
+  def __init__(self, model: mujoco.MjModel, threads: int = 0):
+    self.model = model
+    self.threads = threads or os.cpu_count() or 1
+    self.pool = mj_rollout.Rollout(nthread=self.threads)
+    self.datas = [mujoco.MjData(model) for _ in range(self.threads)]
+    self.nstate = mujoco.mj_stateSize(model, _STATE)
+    self._kernels: dict = {}
+    self._models: list = []  # rollout wants one model per world with skip_checks
+
+  def close(self) -> None:
+    self.pool.close()
+
+  def initial_states(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+    """f64[W, nstate] full physics states (time 0) from qpos f32[W, nq], qvel f32[W, nv]."""
+    m = self.model
+    data = mujoco.MjData(m)
+    states = np.zeros((len(qpos), self.nstate))
+    for w in range(len(qpos)):
+      mujoco.mj_resetData(m, data)
+      data.qpos[:] = qpos[w]
+      data.qvel[:] = qvel[w]
+      mujoco.mj_getState(m, data, states[w], _STATE)
+    return states
+
+  def step(self, states: np.ndarray, wrench: np.ndarray, warmstart: np.ndarray):
+    """The S physics steps of one frame for a batch.
+
+    Args:
+      states: f64[n, nstate] full physics states s_k.
+      wrench: f64[n, S, nbody * 6] ``xfrc_applied`` during each step.
+      warmstart: f64[n, nv] solver warm start.
+
+    Returns:
+      (f64[n, S, nstate] states s_{k+1} … s_{k+S},
+       f64[n, S, nsensordata] sensors of steps k … k+S-1).
+    """
+    n, n_steps = wrench.shape[:2]
+    out_state = np.empty((n, n_steps, self.nstate))
+    out_sensor = np.empty((n, n_steps, self.model.nsensordata))
+    if len(self._models) < n:
+      self._models = [self.model] * n
+    self.pool.rollout(
+        self._models[:n], self.datas, states, wrench, control_spec=_CONTROL, nstep=n_steps,
+        initial_warmstart=warmstart, state=out_state, sensordata=out_sensor, skip_checks=True,
+        chunk_size=max(1, n // (4 * self.threads)))
+    return out_state, out_sensor
+
+  def kernel(self, params: world.WorldParams):
+    """The jitted, vmapped bookkeeping kernel for these params (cached)."""
+    key = id(params)
+    if key not in self._kernels:
+      def run(carry, sensordata, keys):
+        obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensordata)
+        carry, out = world.frame_update(carry, obs, keys, params)
+        return carry, out.wrench, out.record, out.running, obs.com_pos[:, 0]
+      self._kernels[key] = (params, jax.jit(run))
+    return self._kernels[key][1]
+
+  def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
+                n_frames: int, progress=None) -> ChunkResult:
+    """Runs C worlds in lockstep until all have finished.
+
+    Args:
+      scene: the :class:`mwbx.scene.Scene`.
+      params: bookkeeping constants.
+      qpos0: f32[C, nq]; qvel0: f32[C, nv] initial states.
+      step_keys: key[C] per-world step key roots.
+      active: bool[C] false for padding slots.
+      n_frames: frames per world at most (end_frame + 1).
+      progress: optional callback(world_steps_done, worlds_finished).
+    """
+    m = self.model
+    c = len(qpos0)
+    body_ids = scene.body_ids
+    nq, nv = m.nq, m.nv
+    qpos_adr = slice(1, 1 + nq)
+    qvel_adr = slice(1 + nq, 1 + nq + nv)
+    kernel = self.kernel(params)
+
+    spf = params.steps_per_frame
+    dt = m.opt.timestep
+    states = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
+    warmstart = np.zeros((c, nv))
+    wrench_full = np.zeros((c, spf, m.nbody, 6))
+    sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
+    qpos_buf = np.zeros((c, n_frames, nq), np.float32)
+    com_buf = np.zeros((c, n_frames, len(body_ids), 3), np.float32)
+    fresh_carry = jax.vmap(world.init_carry, in_axes=(None, 0))(len(body_ids), jnp.asarray(active))
+    active = np.asarray(active)
+    running = active.copy()
+
+    t0 = time.perf_counter()
+    jax.block_until_ready(kernel(fresh_carry, jnp.asarray(sensordata), step_keys))  # compile
+    compile_seconds = time.perf_counter() - t0
+    carry = fresh_carry
+
+    t0 = time.perf_counter()
+    frame = 0
+    world_steps = 0
+    while running.any():
+      idx = np.flatnonzero(running)
+      before = states[idx]
+      after, sensors = self.step(before, wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx])
+      # mj_step resets a diverging world to time 0: treat as unstable.
+      bad = ~np.isclose(after[:, -1, 0], before[:, 0] + spf * dt, rtol=0, atol=1e-6)
+      sensors[bad] = np.nan
+      sensordata[idx] = sensors
+      previous = after[:, -2] if spf > 1 else before
+      warmstart[idx] = (after[:, -1, qvel_adr] - previous[:, qvel_adr]) / dt
+      states[idx] = after[:, -1]
+      world_steps += len(idx) * spf
+
+      carry, wrench, record, still_running, com = kernel(carry, jnp.asarray(sensordata), step_keys)
+      record = np.asarray(record)
+      if record.any():
+        recorded = np.flatnonzero(record)
+        # s_k of the recorded worlds: rows of `before`, found through idx.
+        qpos_buf[recorded, frame] = before[np.searchsorted(idx, recorded), qpos_adr]
+        com_buf[recorded, frame] = np.asarray(com)[recorded]
+      wrench_full[:, :, body_ids] = np.asarray(wrench)
+      running = np.asarray(still_running)
+      frame += 1
+      if progress is not None and frame % 16 == 0:
+        progress(world_steps, int((~running & active).sum()))
+    run_seconds = time.perf_counter() - t0
+    if progress is not None:
+      progress(world_steps, int(active.sum()))
+
+    frame_count = np.asarray(carry.frame_count)
+    return ChunkResult(
+        qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),
+        frame_count=frame_count, status=np.asarray(carry.status),
+        metrics=world.finalize_metrics(carry), perturbations=np.asarray(carry.perturbations),
+        steps=np.asarray(carry.step), compile_seconds=compile_seconds, run_seconds=run_seconds)

@@ -1,0 +1,223 @@
+"""The sampling loop: worlds in lockstep batches, recorded into a bank.
+
+World ``i`` of a run draws all its randomness from ``fold_in(run_key, i)``:
+its initial state from one half of that key, the perturbation of step ``k``
+from ``fold_in(other half, k)``. So a world does not depend on the batch size,
+the chunking or the order worlds run in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mwbx import bank as bank_lib
+from mwbx.batch_sim import world
+from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_impl
+from mwbx.config import Config
+from mwbx.errors import MwbxError
+from mwbx.scene import Scene
+
+
+@dataclasses.dataclass
+class SampleStats:
+  """Timing of a sampling run (compile time kept apart from run time).
+
+  Attributes:
+    backend: backend used (``native``, ``mjx:jax``, ``mjx:warp``).
+    world_steps: physics steps summed over worlds.
+    run_seconds: stepping time, s.
+    compile_seconds: compilation time, s.
+    wall_seconds: everything, s.
+  """
+
+  backend: str = ""
+  world_steps: int = 0
+  run_seconds: float = 0.0
+  compile_seconds: float = 0.0
+  wall_seconds: float = 0.0
+
+  @property
+  def world_steps_per_second(self) -> float:
+    return self.world_steps / self.run_seconds if self.run_seconds > 0 else 0.0
+
+
+def frame_rates(config: Config, timestep: float) -> tuple[int, int, int]:
+  """(steps per frame, frames per query point, last frame index), validated."""
+  source = config.source or "<config>"
+  sim = config.sim
+  steps_per_frame = 1.0 / (sim.record_fps * timestep)
+  if abs(steps_per_frame - round(steps_per_frame)) > 1e-6 * steps_per_frame:
+    raise MwbxError(
+        f"{source}: sim.timestep: {timestep} s does not divide the frame time 1/record_fps"
+        f" = {1 / sim.record_fps} s (try {1 / (sim.record_fps * max(1, round(steps_per_frame)))})")
+  stride = sim.record_fps / sim.query_fps
+  if abs(stride - round(stride)) > 1e-6 * stride:
+    raise MwbxError(f"{source}: sim.query_fps: {sim.query_fps} must divide record_fps = {sim.record_fps}")
+  end_frame = int(round(sim.end_time * sim.record_fps))
+  return int(round(steps_per_frame)), int(round(stride)), end_frame
+
+
+def world_keys(key: jax.Array, world_ids: np.ndarray) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """(world keys, init keys, step key roots), each key[W], from the run key."""
+  if not jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+    key = jax.random.wrap_key_data(jnp.asarray(key, jnp.uint32))
+  keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.asarray(world_ids, jnp.uint32))
+  split = jax.vmap(jax.random.split)(keys)
+  return keys, split[:, 0], split[:, 1]
+
+
+class Sampler:
+  """A scene bound to a backend, reusable across runs (compiled once).
+
+  Args:
+    scene: the loaded scene (or a config, loaded here).
+    backend: ``auto``, ``mjx`` or ``native`` (default: the config's).
+    chunk_size: worlds per lockstep batch (default: the config's).
+  """
+
+  def __init__(self, scene: Scene | Config, backend: str | None = None, chunk_size: int | None = None):
+    self.scene = scene if isinstance(scene, Scene) else Scene(scene)
+    cfg = self.scene.config
+    self.backend_name = resolve_backend(backend or cfg.sim.backend)
+    self.chunk_size = int(chunk_size or cfg.sim.chunk_size)
+    model = self.scene.model
+    model.opt.timestep = cfg.sim.timestep
+    spf, self.query_stride, end_frame = frame_rates(cfg, model.opt.timestep)
+    self.n_frames = end_frame + 1
+    self.params = world.world_params(self.scene, spf, end_frame)
+    if self.backend_name == "mjx":
+      from mwbx.batch_sim.mjx_backend import MjxBackend
+      impl = resolve_mjx_impl(cfg.sim.mjx_impl)
+      self.backend = MjxBackend(model, impl)
+      self.backend_label = f"mjx:{impl}"
+    else:
+      from mwbx.batch_sim.native_backend import NativeBackend
+      self.backend = NativeBackend(model, cfg.sim.threads)
+      self.backend_label = "native"
+    self._init = jax.jit(jax.vmap(self.scene.initial_state))
+
+  def close(self) -> None:
+    self.backend.close()
+
+  def __enter__(self):
+    return self
+
+  def __exit__(self, *exc):
+    self.close()
+
+  def run(self, n_worlds: int, key: jax.Array, *, first_world: int = 0,
+          progress: Callable[[int, int, int], None] | None = None) -> tuple[bank_lib.Bank, SampleStats]:
+    """Samples worlds ``first_world … first_world + n_worlds - 1``.
+
+    Args:
+      n_worlds: how many worlds.
+      key: the run key (``jax.random.key(seed)``).
+      first_world: id of the first world (to continue an existing bank).
+      progress: optional callback(world_steps, worlds_finished, n_worlds).
+
+    Returns:
+      (the bank of these worlds, timing stats).
+    """
+    if n_worlds < 1:
+      raise MwbxError(f"n_worlds: must be at least 1, got {n_worlds}")
+    start_wall = time.perf_counter()
+    stats = SampleStats(backend=self.backend_label)
+    ids = np.arange(first_world, first_world + n_worlds, dtype=np.int64)
+    keys, init_keys, step_keys = world_keys(key, ids)
+    results: list[ChunkResult] = []
+    c = self.chunk_size
+    done_worlds = 0
+    for lo in range(0, n_worlds, c):
+      n = min(c, n_worlds - lo)
+      # Pad to the fixed chunk shape: one compiled program for any n_worlds,
+      # and the same per-world arithmetic whatever the batch holds.
+      pad = np.concatenate([np.arange(lo, lo + n), np.full(c - n, lo)])
+      active = np.arange(c) < n
+      qpos0, qvel0 = self._init(init_keys[pad])
+      base_steps = stats.world_steps
+
+      def report(world_steps, finished, _base=base_steps, _done=done_worlds, _n=n):
+        if progress is not None:
+          progress(_base + world_steps, _done + finished, n_worlds)
+
+      result = self.backend.run_chunk(
+          self.scene, self.params, np.asarray(qpos0), np.asarray(qvel0), step_keys[pad],
+          active, self.n_frames, progress=report)
+      result = ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in result))
+      results.append(result)
+      stats.world_steps += int(result.steps.sum())
+      stats.run_seconds += result.run_seconds
+      stats.compile_seconds += result.compile_seconds
+      done_worlds += n
+    bank = self._assemble(ids, keys, results)
+    stats.wall_seconds = time.perf_counter() - start_wall
+    return bank, stats
+
+  def _assemble(self, ids, keys, results: list[ChunkResult]) -> bank_lib.Bank:
+    scene = self.scene
+    cat = lambda name: np.concatenate([getattr(r, name) for r in results])
+    frame_count = cat("frame_count").astype(np.int32)
+    status = cat("status")
+    qpos = [r.qpos for r in results]
+    # Last guard of the promise that no NaN enters the bank: a world with a
+    # non-finite recorded frame is cut before it and flagged unstable.
+    for block, counts, stat in zip(qpos, np.split(frame_count, np.cumsum([len(q) for q in qpos])[:-1]),
+                                   np.split(status, np.cumsum([len(q) for q in qpos])[:-1])):
+      for w in range(len(block)):
+        bad = ~np.isfinite(block[w, :counts[w]]).all(axis=-1)
+        if bad.any():
+          counts[w] = int(np.argmax(bad))
+          stat[w] = world.UNSTABLE
+    store = bank_lib.RawQposStore(scene.model.nq)
+    for block, counts in zip(qpos, np.split(frame_count, np.cumsum([len(q) for q in qpos])[:-1])):
+      store.append(block, counts)
+    com = np.concatenate([r.com for r in results])[:, ::self.query_stride]
+    com_count = np.where(frame_count > 0, (frame_count - 1) // self.query_stride + 1, 0).astype(np.int32)
+    com = np.nan_to_num(com)
+    flags = np.full(len(ids), bank_lib.FLAG_FINISHED, np.uint8)
+    flags[status == world.AT_REST] |= bank_lib.FLAG_AT_REST
+    flags[status == world.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
+    metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
+    cfg = scene.config
+    return bank_lib.Bank(
+        world_ids=ids, keys=np.asarray(jax.random.key_data(keys)), flags=flags,
+        frame_count=frame_count, com=com, com_count=com_count, metrics=metrics,
+        perturbations=cat("perturbations").astype(np.int32), steps=cat("steps").astype(np.int32),
+        parent_world=np.full(len(ids), -1, np.int64), refine_time=np.full(len(ids), np.nan, np.float32),
+        qpos_store=store, body_names=scene.body_names, body_ids=scene.body_ids,
+        objects=dict(scene.objects), groups=dict(scene.groups), metric_names=world.METRIC_NAMES,
+        record_fps=cfg.sim.record_fps, query_fps=cfg.sim.query_fps, timestep=float(scene.model.opt.timestep),
+        config=cfg.resolved(), mjcf_text=scene.mjcf_text, digest=cfg.digest(scene.mjcf_text),
+    )
+
+
+def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str | None = None,
+           chunk_size: int | None = None, first_world: int = 0, progress=None) -> bank_lib.Bank:
+  """Samples ``n_worlds`` plausible worlds of a scene into a :class:`~mwbx.Bank`.
+
+  Args:
+    scene: a :class:`~mwbx.Config` (from :func:`mwbx.load_config`) or a loaded scene.
+    n_worlds: number of worlds.
+    key: run key, e.g. ``jax.random.key(0)``; world i uses ``fold_in(key, i)``.
+    backend: ``auto`` | ``mjx`` | ``native`` (default: the config's ``sim.backend``).
+    chunk_size: worlds per lockstep batch (default: ``sim.chunk_size``).
+    first_world: id of the first world, to continue a bank.
+    progress: optional callback(world_steps, worlds_finished, n_worlds).
+
+  Returns:
+    the bank. Unstable worlds are kept, flagged, and never contain NaN.
+
+  Example::
+
+    scene = mwbx.load_config("configs/quickstart.yaml")
+    bank = mwbx.sample(scene, n_worlds=1024, key=jax.random.key(0))
+  """
+  with Sampler(scene, backend, chunk_size) as sampler:
+    bank, _ = sampler.run(n_worlds, key, first_world=first_world, progress=progress)
+  return bank

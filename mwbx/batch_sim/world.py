@@ -1,0 +1,336 @@
+"""The bookkeeping of ONE world: perturbations, metrics, rest and
+instability detection, and when to record a frame.
+
+Physics runs in frames of S = steps_per_frame steps. Both backends step a
+whole frame, then call :func:`post_frame` with the S observations of the
+tracked bodies; it is written for one world and vmapped over the batch. It
+never touches MuJoCo types.
+
+Step k takes state s_k to s_{k+1}. Its observation describes s_k (positions,
+orientations, velocities) and the accelerations that turned s_k into s_{k+1},
+so impacts are detected on the very step they happen. The perturbation drawn
+for an impact at step k is applied as a wrench during step k + S, one frame
+later (8 ms at 120 fps, far below what a viewer notices): that lets the native
+backend hand a whole frame to ``mujoco.rollout`` in one call, and both
+backends share the same semantics.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mwbx import perturb
+from mwbx.scene import SENSOR_WIDTH
+
+METRIC_NAMES = (
+    "angular_travel",     # rad: integral of angular speed
+    "rest_time",          # s: last time the body moved faster than the rest speeds
+    "collisions",         # count: impacts (rising edges of the perturbation threshold)
+    "orientation_error",  # rad: angle between final and initial orientation
+    "path_length",        # m: length travelled by the COM
+    "max_height",         # m: highest COM z
+)
+
+# Status codes: errors as data, never exceptions inside the loop.
+RUNNING = 0
+AT_REST = 1
+END_TIME = 2
+UNSTABLE = 3
+
+
+class Observation(NamedTuple):
+  """What the backend reports of ONE world's tracked bodies at one step.
+
+  Attributes:
+    com_pos: f32[B, 3] centre of mass, m, world frame.
+    quat: f32[B, 4] inertial-frame orientation (w, x, y, z).
+    lin_vel: f32[B, 3] COM velocity, m/s.
+    ang_vel: f32[B, 3] angular velocity, rad/s, world frame.
+    lin_acc: f32[B, 3] COM acceleration over the step, m/s².
+    ang_acc: f32[B, 3] angular acceleration over the step, rad/s².
+  """
+
+  com_pos: jax.Array
+  quat: jax.Array
+  lin_vel: jax.Array
+  ang_vel: jax.Array
+  lin_acc: jax.Array
+  ang_acc: jax.Array
+
+  @classmethod
+  def from_sensordata(cls, sensordata: jax.Array) -> "Observation":
+    """Splits ``f32[B * SENSOR_WIDTH]`` sensor data (mwbx.scene.SENSORS order)."""
+    s = sensordata.reshape(-1, SENSOR_WIDTH).astype(jnp.float32)
+    return cls(s[:, 0:3], s[:, 3:7], s[:, 7:10], s[:, 10:13], s[:, 13:16], s[:, 16:19])
+
+
+class WorldParams(NamedTuple):
+  """Static-shaped constants of a scene, shared by all worlds.
+
+  Attributes:
+    gravity: f32[3] m/s².
+    mass: f32[B] kg.
+    inertia: f32[B, 3] principal moments, kg·m².
+    perturbable: bool[B].
+    perturb: thresholds, α, lobe exponent.
+    enabled: perturbations on (False: plain simulation).
+    rest_linear_speed, rest_angular_speed: m/s, rad/s.
+    rest_steps: steps all bodies must stay below the rest speeds.
+    max_speed: m/s; faster means unstable.
+    collision_gap_steps: impacts closer than this many steps are one collision.
+    steps_per_frame: physics steps per recorded frame.
+    end_frame: last frame index (end time · record fps).
+  """
+
+  gravity: jax.Array
+  mass: jax.Array
+  inertia: jax.Array
+  perturbable: jax.Array
+  perturb: perturb.PerturbParams
+  enabled: bool
+  dt: float
+  rest_linear_speed: float
+  rest_angular_speed: float
+  rest_steps: int
+  max_speed: float
+  collision_gap_steps: int
+  steps_per_frame: int
+  end_frame: int
+
+
+class WorldCarry(NamedTuple):
+  """Per-world state of the bookkeeping (leading axis W once vmapped).
+
+  Attributes:
+    step: i32 index k of the first physics step of the next frame.
+    status: i32 RUNNING, AT_REST, END_TIME or UNSTABLE.
+    frame_count: i32 frames recorded so far.
+    still_steps: i32 consecutive steps with every body below the rest speeds.
+    since_impact: i32[B] steps since the body's last impact.
+    perturbations: i32 body perturbations applied.
+    metrics: f32[B, M] accumulators in METRIC_NAMES order.
+    prev_com: f32[B, 3] COM at the previous step.
+    init_quat: f32[B, 4] orientation at step 0.
+  """
+
+  step: jax.Array
+  status: jax.Array
+  frame_count: jax.Array
+  still_steps: jax.Array
+  since_impact: jax.Array
+  perturbations: jax.Array
+  metrics: jax.Array
+  prev_com: jax.Array
+  init_quat: jax.Array
+
+
+def init_carry(n_bodies: int, active: bool | jax.Array = True) -> WorldCarry:
+  """Bookkeeping for a world about to take step 0 (``active=False``: a padding slot)."""
+  b = n_bodies
+  return WorldCarry(
+      step=jnp.int32(0),
+      status=jnp.where(active, RUNNING, END_TIME).astype(jnp.int32),
+      frame_count=jnp.int32(0),
+      still_steps=jnp.int32(0),
+      since_impact=jnp.full(b, 1 << 30, jnp.int32),
+      perturbations=jnp.int32(0),
+      metrics=jnp.zeros((b, len(METRIC_NAMES)), jnp.float32).at[:, 5].set(-jnp.inf),
+      prev_com=jnp.zeros((b, 3), jnp.float32),
+      init_quat=jnp.tile(jnp.array([1.0, 0.0, 0.0, 0.0], jnp.float32), (b, 1)),
+  )
+
+
+class FrameOutput(NamedTuple):
+  """Per world: the wrenches for the next frame and what to record now.
+
+  Attributes:
+    wrench: f32[S, B, 6] force and torque at each tracked COM for each step
+      of the next frame.
+    record: bool, store the frame's first state s_k (frame k / S) now.
+    running: bool, the world needs the next frame.
+    dv: f32[S, B, 3] linear velocity perturbations applied next frame, m/s.
+    dw: f32[S, B, 3] angular velocity perturbations applied next frame, rad/s.
+    linear_impact: bool[S, B] steps whose ‖Δv‖/dt exceeded C_v.
+    angular_impact: bool[S, B] steps whose ‖Δω‖/dt exceeded C_ω.
+  """
+
+  wrench: jax.Array
+  record: jax.Array
+  running: jax.Array
+  dv: jax.Array
+  dw: jax.Array
+  linear_impact: jax.Array
+  angular_impact: jax.Array
+
+
+def frame_impacts(obs: Observation, params: WorldParams):
+  """Contact-induced velocity changes and impact flags of ONE world's frame.
+
+  Args:
+    obs: observations with leading axis S.
+
+  Returns:
+    (delta_v f32[S, B, 3], delta_w f32[S, B, 3], linear_impact bool[S, B],
+     angular_impact bool[S, B]).
+  """
+  delta_v, delta_w = perturb.velocity_change(obs.lin_acc, obs.ang_acc, params.gravity, params.dt)
+  linear_impact = jnp.linalg.norm(delta_v, axis=-1) > params.perturb.linear_threshold * params.dt
+  angular_impact = jnp.linalg.norm(delta_w, axis=-1) > params.perturb.angular_threshold * params.dt
+  return delta_v, delta_w, linear_impact, angular_impact
+
+
+def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: jax.Array,
+               params: WorldParams):
+  """Bookkeeping of ONE world after the S physics steps of one frame.
+
+  Args:
+    carry: the world's bookkeeping before the frame.
+    obs: observations of the frame's steps, leading axis S (see module doc).
+    impacts: (linear bool[S, B], angular bool[S, B]) from :func:`frame_impacts`.
+    dv: f32[S, B, 3] sampled linear perturbations, m/s.
+    dw: f32[S, B, 3] sampled angular perturbations, rad/s.
+    params: scene constants.
+
+  Returns:
+    (new carry, :class:`FrameOutput`).
+  """
+  k0 = carry.step
+  running = carry.status == RUNNING
+  dt = params.dt
+  gap_steps = params.collision_gap_steps
+  first_finite = _finite(jax.tree.map(lambda x: x[0], obs))
+  record = running & first_finite
+  linear_impact, angular_impact = impacts
+
+  def one_step(state, inputs):
+    still_steps, since_impact, metrics, prev_com, init_quat, healthy = state
+    j, o, impact = inputs
+    k = k0 + j
+    finite = _finite(o)
+    speed = jnp.linalg.norm(o.lin_vel, axis=-1)
+    spin = jnp.linalg.norm(o.ang_vel, axis=-1)
+    healthy = healthy & finite & ~jnp.any(speed > params.max_speed)
+    moving = (speed >= params.rest_linear_speed) | (spin >= params.rest_angular_speed)
+    com = jnp.where(healthy, o.com_pos, prev_com)
+    init_quat = jnp.where(k == 0, o.quat, init_quat)
+    new_metrics = jnp.stack([
+        metrics[:, 0] + spin * dt,
+        jnp.where(moving, k * dt, metrics[:, 1]),
+        metrics[:, 2] + (impact & (since_impact > gap_steps)),
+        _rotation_angle(init_quat, o.quat),
+        metrics[:, 4] + jnp.where(k > 0, jnp.linalg.norm(com - prev_com, axis=-1), 0.0),
+        jnp.maximum(metrics[:, 5], com[:, 2]),
+    ], axis=-1)
+    keep = healthy & running
+    state = (
+        jnp.where(jnp.any(moving), 0, still_steps + 1),
+        jnp.where(keep, jnp.where(impact, 0, since_impact + 1), since_impact),
+        jnp.where(keep, new_metrics, metrics),
+        jnp.where(keep, com, prev_com),
+        init_quat,
+        healthy,
+    )
+    return state, None
+
+  n_steps = obs.com_pos.shape[0]
+  state0 = (carry.still_steps, carry.since_impact, carry.metrics, carry.prev_com, carry.init_quat,
+            jnp.bool_(True))
+  state, _ = jax.lax.scan(
+      one_step, state0, (jnp.arange(n_steps), obs, linear_impact | angular_impact), unroll=True)
+  still_steps, since_impact, metrics, prev_com, init_quat, healthy = state
+
+  frame = k0 // params.steps_per_frame
+  at_rest = still_steps >= params.rest_steps
+  status = jnp.where(~healthy, UNSTABLE, jnp.where(
+      at_rest, AT_REST, jnp.where(frame >= params.end_frame, END_TIME, RUNNING)))
+  status = jnp.where(running, status, carry.status)
+  keep_going = running & (status == RUNNING)
+
+  apply = keep_going & params.enabled
+  dv = jnp.where(apply, dv, 0.0)
+  dw = jnp.where(apply, dw, 0.0)
+  wrench = jax.vmap(jax.vmap(perturb.impulse_wrench, in_axes=(0, 0, 0, 0, 0, None)),
+                    in_axes=(0, 0, None, None, 0, None))(dv, dw, params.mass, params.inertia, obs.quat, dt)
+  n_applied = jnp.sum((jnp.any(dv != 0, -1) | jnp.any(dw != 0, -1)).astype(jnp.int32))
+
+  new_carry = WorldCarry(
+      step=jnp.where(running, k0 + n_steps, k0),
+      status=status,
+      frame_count=carry.frame_count + record,
+      still_steps=jnp.where(running, still_steps, carry.still_steps),
+      since_impact=since_impact,
+      perturbations=carry.perturbations + n_applied,
+      metrics=metrics,
+      prev_com=prev_com,
+      init_quat=init_quat,
+  )
+  return new_carry, FrameOutput(wrench=wrench, record=record, running=keep_going, dv=dv, dw=dw,
+                                linear_impact=linear_impact, angular_impact=angular_impact)
+
+
+def frame_update(carry: WorldCarry, obs: Observation, world_keys: jax.Array, params: WorldParams):
+  """:func:`post_frame` for a batch, with perturbations drawn only at impacts.
+
+  Args:
+    carry: bookkeeping of W worlds (leading axis W).
+    obs: observations, leading axes [W, S].
+    world_keys: key[W] step key roots.
+    params: scene constants.
+
+  Returns:
+    (new carry, :class:`FrameOutput` with leading axis W).
+  """
+  delta_v, delta_w, linear_impact, angular_impact = jax.vmap(frame_impacts, in_axes=(0, None))(obs, params)
+  wanted = (params.perturbable & params.enabled) & (carry.status == RUNNING)[:, None, None]
+  n_worlds, n_steps, n_bodies = linear_impact.shape
+  dv, dw = perturb.batch_perturbations(
+      world_keys, carry.step, delta_v, delta_w, linear_impact & wanted, angular_impact & wanted,
+      params.perturb, cap=max(64, n_worlds * n_steps * n_bodies // 16))
+  return jax.vmap(post_frame, in_axes=(0, 0, 0, 0, 0, None))(
+      carry, obs, (linear_impact, angular_impact), dv, dw, params)
+
+
+def _finite(o: Observation) -> jax.Array:
+  return (jnp.all(jnp.isfinite(o.com_pos)) & jnp.all(jnp.isfinite(o.lin_vel))
+          & jnp.all(jnp.isfinite(o.ang_vel)) & jnp.all(jnp.isfinite(o.quat)))
+
+
+def _rotation_angle(q1: jax.Array, q2: jax.Array) -> jax.Array:
+  """f32[...] angle in radians of the rotation between unit quaternions."""
+  dot = jnp.abs(jnp.sum(q1 * q2, axis=-1))
+  return 2.0 * jnp.arccos(jnp.clip(dot, 0.0, 1.0))
+
+
+def world_params(scene, steps_per_frame: int, end_frame: int) -> WorldParams:
+  """Scene constants for :func:`post_frame` from a :class:`mwbx.scene.Scene`."""
+  cfg = scene.config
+  m = scene.model
+  return WorldParams(
+      gravity=jnp.asarray(m.opt.gravity, jnp.float32),
+      mass=jnp.asarray(m.body_mass[scene.body_ids], jnp.float32),
+      inertia=jnp.asarray(m.body_inertia[scene.body_ids], jnp.float32),
+      perturbable=jnp.asarray(scene.perturbable),
+      perturb=perturb.PerturbParams(
+          alpha=cfg.perturb.alpha, lobe_exponent=cfg.perturb.lobe_exponent,
+          linear_threshold=cfg.perturb.linear_threshold, angular_threshold=cfg.perturb.angular_threshold),
+      enabled=cfg.perturb.enabled,
+      dt=float(m.opt.timestep),
+      rest_linear_speed=cfg.rest.linear_speed,
+      rest_angular_speed=cfg.rest.angular_speed,
+      rest_steps=max(1, int(round(cfg.rest.duration / m.opt.timestep))),
+      max_speed=cfg.sim.max_speed,
+      collision_gap_steps=int(round(cfg.perturb.collision_gap / m.opt.timestep)),
+      steps_per_frame=steps_per_frame,
+      end_frame=end_frame,
+  )
+
+
+def finalize_metrics(carry: WorldCarry) -> np.ndarray:
+  """f32[W, B, M] metric table (max_height of a world that never ran: 0)."""
+  metrics = np.array(carry.metrics)
+  metrics[..., 5] = np.where(np.isfinite(metrics[..., 5]), metrics[..., 5], 0.0)
+  return metrics

@@ -1,0 +1,134 @@
+"""The ``mwbx`` command: thin wrappers over the public API.
+
+  mwbx sample CONFIG [--worlds N] [--seed S] [--backend auto|mjx|native] [--out DIR]
+  mwbx info DIR [--json]
+
+Every error a user can cause ends in one line naming the file, field or value
+(exit status 2), never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+from mwbx.errors import MwbxError
+
+
+def _progress_bar(n_worlds: int, desc: str):
+  """A tqdm bar over worlds finished, with world-steps/s; returns (callback, bar)."""
+  from tqdm import tqdm
+  bar = tqdm(total=n_worlds, desc=desc, unit="world", dynamic_ncols=True, file=sys.stderr)
+  start = time.perf_counter()
+
+  def update(world_steps: int, finished: int, total: int) -> None:
+    bar.n = finished
+    elapsed = time.perf_counter() - start
+    bar.set_postfix_str(f"{world_steps / max(elapsed, 1e-9) / 1e3:,.0f}k world-steps/s", refresh=False)
+    bar.refresh()
+
+  return update, bar
+
+
+def _cmd_sample(args) -> int:
+  import jax
+  import mwbx
+  config = mwbx.load_config(args.config)
+  out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
+  existing = None
+  if (out / "checkpoints").exists():
+    existing = mwbx.Bank.load(out)
+  scene = mwbx.Scene(config)
+  seed = args.seed
+  first_world = 0
+  if existing is not None:
+    if existing.digest != config.digest(scene.mjcf_text):
+      raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
+    if seed is None:
+      seed = existing.run.get("seed", 0)
+    elif seed != existing.run.get("seed"):
+      raise MwbxError(f"--seed: {out} was sampled with seed {existing.run.get('seed')}, not {seed}")
+    first_world = existing.next_world_id
+  seed = 0 if seed is None else seed
+  n_worlds = args.worlds or 256
+
+  with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
+    print(f"mwbx: sampling {n_worlds} worlds of {args.config} on {sampler.backend_label}"
+          f" (worlds {first_world}..{first_world + n_worlds - 1}, seed {seed})", file=sys.stderr)
+    update, bar = _progress_bar(n_worlds, "sampling")
+    try:
+      bank, stats = sampler.run(n_worlds, jax.random.key(seed), first_world=first_world, progress=update)
+    finally:
+      bar.close()
+  bank.run = {"seed": seed}
+  total = existing.append(bank) if existing is not None else bank
+  total.save(out)
+  s = bank.summary()
+  print(f"worlds sampled      {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable)")
+  print(f"worlds at rest      {int(round(s['at_rest_fraction'] * s['worlds']))} ({s['at_rest_fraction']:.0%})")
+  print(f"perturbations       {s['perturbations']} ({s['perturbations'] / max(1, s['worlds']):.1f} per world)")
+  print(f"world-steps/s       {stats.world_steps_per_second:,.0f} ({stats.backend};"
+        f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s)")
+  print(f"bank                {out} ({total.n_worlds} worlds, {total.nbytes / 1e6:.1f} MB)")
+  return 0
+
+
+def _cmd_info(args) -> int:
+  import mwbx
+  bank = mwbx.Bank.load(args.bank)
+  s = bank.summary()
+  if args.json:
+    print(json.dumps({**s, "config": bank.config, "digest": bank.digest, "run": bank.run}, indent=2))
+    return 0
+  print(f"bank                {args.bank}")
+  print(f"worlds              {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable)")
+  print(f"at rest             {s['at_rest_fraction']:.1%}")
+  print(f"mean collisions     {s['mean_collisions']:.2f} per world")
+  print(f"perturbations       {s['perturbations']}")
+  print(f"storage             {s['storage_bytes']:,} bytes")
+  for key, value in s["qpos"].items():
+    print(f"qpos {key:<15}{value:,.4g}" if isinstance(value, float) else f"qpos {key:<15}{value}")
+  print(f"bodies              {', '.join(bank.body_names)}")
+  print(f"groups              {', '.join(f'{k}={list(v)}' for k, v in bank.groups.items()) or 'none'}")
+  print("config:")
+  print(json.dumps(bank.config, indent=2))
+  return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+  parser = argparse.ArgumentParser(prog="mwbx", description="Many-Worlds Browsing on JAX and MuJoCo.")
+  sub = parser.add_subparsers(dest="command", required=True)
+
+  p = sub.add_parser("sample", help="sample worlds of a config into a bank")
+  p.add_argument("config", help="YAML config (e.g. configs/quickstart.yaml)")
+  p.add_argument("--worlds", type=int, default=None, help="worlds to sample (default 256)")
+  p.add_argument("--seed", type=int, default=None, help="run seed (default 0, or the bank's)")
+  p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
+  p.add_argument("--chunk-size", type=int, default=None, help="worlds per lockstep batch")
+  p.add_argument("--out", default=None, help="bank directory; an existing bank is continued")
+  p.set_defaults(func=_cmd_sample)
+
+  p = sub.add_parser("info", help="summarize a bank")
+  p.add_argument("bank")
+  p.add_argument("--json", action="store_true")
+  p.set_defaults(func=_cmd_info)
+  return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+  args = build_parser().parse_args(argv)
+  try:
+    return args.func(args)
+  except MwbxError as err:
+    print(f"mwbx: error: {err}", file=sys.stderr)
+    return 2
+  except KeyboardInterrupt:
+    print("mwbx: interrupted; nothing was written for the unfinished run", file=sys.stderr)
+    return 130
+
+
+if __name__ == "__main__":
+  sys.exit(main())

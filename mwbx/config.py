@@ -1,0 +1,252 @@
+"""YAML scene configs -> validated, frozen config objects.
+
+A config names an MJCF file, which of its objects to randomize and how, and the
+sampling, rest, perturbation and codec parameters. Every field has a default
+except ``scene.mjcf``. Unknown keys and wrong types are rejected with a message
+naming the file and the field path (``perturb.alpha``).
+
+Example::
+
+  scene:
+    mjcf: quickstart.xml          # relative to this file, else a packaged asset
+    groups: {balls: [ball_a, ball_b]}
+  randomize:
+    balls:
+      position: {dist: uniform, scale: [0.05, 0.05, 0.0]}
+  sim: {end_time: 4.0, backend: auto}
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import pathlib
+from typing import Literal, Sequence
+
+import pydantic
+import yaml
+
+from mwbx.errors import MwbxError
+
+ASSET_DIR = pathlib.Path(__file__).parent / "assets"
+
+Vec3 = tuple[float, float, float]
+
+
+class _Strict(pydantic.BaseModel):
+  model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+
+class Distribution(_Strict):
+  """A zero-mean random offset.
+
+  ``uniform``: each component uniform in ``[-scale, scale]``; ``normal``: each
+  component normal with standard deviation ``scale``. ``scale`` is a scalar
+  (all components) or one value per component.
+  """
+
+  dist: Literal["uniform", "normal"] = "uniform"
+  scale: float | tuple[float, ...] = 0.0
+
+
+class Randomization(_Strict):
+  """Initial-condition noise for one object (or every object of a group).
+
+  Attributes:
+    position: offset of the root position, metres (3 components).
+    rotation: axis-angle rotation of the root orientation, radians (3).
+    linear_velocity: root linear velocity added, m/s (3).
+    angular_velocity: root angular velocity added, rad/s (3).
+    joint_noise: offset added to every hinge/slide/ball joint of the object,
+      radians or metres (1 component, or one per hinge/slide joint).
+  """
+
+  position: Distribution | None = None
+  rotation: Distribution | None = None
+  linear_velocity: Distribution | None = None
+  angular_velocity: Distribution | None = None
+  joint_noise: Distribution | None = None
+
+
+class SceneSection(_Strict):
+  """Which MJCF, which objects, which bodies are tracked.
+
+  Attributes:
+    mjcf: path of the MJCF file, relative to the config file; if no such file
+      exists, the packaged asset of that name (``mwbx/assets``).
+    objects: root bodies (children of the world body) to treat as objects;
+      default every non-static tree.
+    track: bodies tracked for queries and metrics; default every body of
+      every object.
+    groups: named sets of objects (or other groups).
+  """
+
+  mjcf: str
+  objects: tuple[str, ...] | None = None
+  track: tuple[str, ...] | None = None
+  groups: dict[str, tuple[str, ...]] = {}
+
+
+class SimSection(_Strict):
+  """Time stepping, recording and batching.
+
+  Attributes:
+    timestep: physics step, seconds; must divide ``1/record_fps``.
+    end_time: a world stops recording at this time if not at rest, seconds.
+    record_fps: rate of the stored ``qpos`` frames, Hz.
+    query_fps: rate of the COM polylines used by queries; divides record_fps.
+    backend: ``auto`` (mjx on GPU/TPU, native on CPU), ``mjx`` or ``native``.
+    mjx_impl: ``jax``, ``warp`` or ``auto`` (warp when importable on a GPU).
+    chunk_size: worlds simulated in lockstep per batch.
+    threads: native backend threads (0: one per CPU core).
+    max_speed: a body faster than this (m/s) marks its world unstable.
+  """
+
+  timestep: float = pydantic.Field(1.0 / 480.0, gt=0)
+  end_time: float = pydantic.Field(4.0, gt=0)
+  record_fps: float = pydantic.Field(120.0, gt=0)
+  query_fps: float = pydantic.Field(30.0, gt=0)
+  backend: Literal["auto", "mjx", "native"] = "auto"
+  mjx_impl: Literal["auto", "jax", "warp"] = "auto"
+  chunk_size: int = pydantic.Field(256, gt=0)
+  threads: int = pydantic.Field(0, ge=0)
+  max_speed: float = pydantic.Field(100.0, gt=0)
+
+
+class RestSection(_Strict):
+  """A world is at rest once every tracked body is slower than both speeds
+  for ``duration`` seconds."""
+
+  linear_speed: float = pydantic.Field(0.02, ge=0)
+  angular_speed: float = pydantic.Field(0.1, ge=0)
+  duration: float = pydantic.Field(0.25, ge=0)
+
+
+class PerturbSection(_Strict):
+  """Plausible impulse perturbations (paper §2).
+
+  Attributes:
+    enabled: off gives the plain deterministic simulation (plus randomized
+      initial conditions).
+    alpha: perturbation magnitude is uniform in ``±alpha·‖Δv‖``.
+    lobe_exponent: n of the Phong lobe ``cosⁿθ`` about ``Δv`` for the direction.
+    linear_threshold: ``C_v``, m/s²: ``‖Δv‖/dt`` above it is an impact.
+    angular_threshold: ``C_ω``, rad/s².
+    collision_gap: impacts of a body closer than this (s) count as one
+      collision in the metrics (MuJoCo's soft contacts spread an impact over
+      several steps and a sliding body chatters).
+    exclude: objects, groups or bodies never perturbed.
+  """
+
+  enabled: bool = True
+  alpha: float = pydantic.Field(0.1, ge=0, le=1)
+  lobe_exponent: float = pydantic.Field(20.0, ge=0)
+  linear_threshold: float = pydantic.Field(100.0, ge=0)
+  angular_threshold: float = pydantic.Field(2000.0, ge=0)
+  collision_gap: float = pydantic.Field(0.05, ge=0)
+  exclude: tuple[str, ...] = ()
+
+
+class CodecSection(_Strict):
+  """Error bounds of the stored trajectories."""
+
+  e_pos: float = pydantic.Field(1e-3, gt=0)
+  e_rot_deg: float = pydantic.Field(0.5, gt=0)
+  e_scalar: float = pydantic.Field(1e-3, gt=0)
+
+
+class Config(_Strict):
+  """A whole sampling config. ``source`` is the YAML file it came from."""
+
+  scene: SceneSection
+  randomize: dict[str, Randomization] = {}
+  sim: SimSection = SimSection()
+  rest: RestSection = RestSection()
+  perturb: PerturbSection = PerturbSection()
+  codec: CodecSection = CodecSection()
+  source: str | None = None
+
+  def resolved(self) -> dict:
+    """The full config with every default filled in, JSON-able."""
+    return self.model_dump(mode="json")
+
+  def mjcf_path(self) -> pathlib.Path:
+    """Where the MJCF lives: next to the config, else a packaged asset."""
+    base = pathlib.Path(self.source).parent if self.source else pathlib.Path.cwd()
+    path = base / self.scene.mjcf
+    if path.exists():
+      return path
+    asset = ASSET_DIR / self.scene.mjcf
+    if asset.exists():
+      return asset
+    raise MwbxError(
+        f"{self.source or '<config>'}: scene.mjcf: no file {str(path)!r}"
+        f" and no packaged asset {self.scene.mjcf!r}"
+    )
+
+  def with_overrides(self, **sim_fields) -> "Config":
+    """A copy with some ``sim`` fields replaced (None values are ignored)."""
+    fields = {k: v for k, v in sim_fields.items() if v is not None}
+    if not fields:
+      return self
+    return self.model_copy(update={"sim": self.sim.model_copy(update=fields)})
+
+  def digest(self, mjcf_text: str) -> str:
+    """sha256 of the resolved config (minus its file name) and the MJCF."""
+    resolved = self.resolved()
+    resolved.pop("source", None)
+    blob = json.dumps(resolved, sort_keys=True) + "\0" + mjcf_text
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _format_error(source: str, err: pydantic.ValidationError) -> str:
+  lines = []
+  for e in err.errors():
+    field = ".".join(str(p) for p in e["loc"]) or "<top>"
+    if e["type"] == "extra_forbidden":
+      lines.append(f"{source}: {field}: unknown key")
+    else:
+      lines.append(f"{source}: {field}: {e['msg']} (got {e.get('input')!r})")
+  return "\n".join(lines)
+
+
+def config_from_dict(data: dict, source: str = "<config>") -> Config:
+  """Validates a plain dict (e.g. parsed YAML) into a :class:`Config`."""
+  if not isinstance(data, dict):
+    raise MwbxError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+  try:
+    return Config.model_validate({**data, "source": source})
+  except pydantic.ValidationError as err:
+    raise MwbxError(_format_error(source, err)) from None
+
+
+def load_config(path: str | pathlib.Path) -> Config:
+  """Reads and validates a YAML config.
+
+  Args:
+    path: the YAML file; a bare name like ``"quickstart"`` also finds the
+      packaged config ``mwbx/assets/quickstart.yaml``.
+
+  Returns:
+    the validated :class:`Config` (MJCF paths resolve relative to ``path``).
+
+  Raises:
+    MwbxError: unreadable file, malformed YAML, unknown key or wrong type; the
+      message names the file and the field.
+  """
+  path = pathlib.Path(path)
+  if not path.exists() and (ASSET_DIR / f"{path.name}.yaml").exists():
+    path = ASSET_DIR / f"{path.name}.yaml"
+  try:
+    text = path.read_text()
+  except OSError as err:
+    raise MwbxError(f"{path}: cannot read config: {err.strerror}") from None
+  try:
+    data = yaml.safe_load(text)
+  except yaml.YAMLError as err:
+    raise MwbxError(f"{path}: malformed YAML: {err}") from None
+  return config_from_dict(data if data is not None else {}, source=str(path))
+
+
+
+

@@ -1,0 +1,316 @@
+"""Scenes: the MJCF model, its objects, tracked bodies, groups and the
+initial-condition randomization of each world.
+
+An *object* is a kinematic tree hanging off the world body (a free box, a
+ragdoll); its name is the name of its root body. *Tracked* bodies are the ones
+whose centre-of-mass paths and metrics are recorded. *Groups* name sets of
+objects. Every name a config uses is checked here, with a message naming the
+config file and field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from mwbx.config import Config, Distribution
+from mwbx.errors import MwbxError
+
+# Per tracked body the model gets these sensors, all on the body's inertial
+# frame (its centre of mass), in this order. The acceleration sensors give the
+# velocity change of the step just taken (MuJoCo integrates qvel += h·qacc), so
+# impacts are detected without differencing states.
+SENSORS = (
+    ("com_pos", mujoco.mjtSensor.mjSENS_FRAMEPOS, 3),
+    ("quat", mujoco.mjtSensor.mjSENS_FRAMEQUAT, 4),
+    ("lin_vel", mujoco.mjtSensor.mjSENS_FRAMELINVEL, 3),
+    ("ang_vel", mujoco.mjtSensor.mjSENS_FRAMEANGVEL, 3),
+    ("lin_acc", mujoco.mjtSensor.mjSENS_FRAMELINACC, 3),
+    ("ang_acc", mujoco.mjtSensor.mjSENS_FRAMEANGACC, 3),
+)
+SENSOR_WIDTH = sum(width for _, _, width in SENSORS)  # floats per tracked body
+
+
+def build_model(mjcf_text: str, tracked: Sequence[str], base_dir: str | None = None) -> mujoco.MjModel:
+  """Compiles the MJCF with the observation sensors of every tracked body.
+
+  Sensors already in the MJCF are removed so that ``sensordata`` is exactly
+  ``f32[B, SENSOR_WIDTH]`` in :data:`SENSORS` order.
+  """
+  spec = mujoco.MjSpec.from_string(mjcf_text)
+  if base_dir is not None:
+    spec.modelfiledir = base_dir
+  for sensor in list(spec.sensors):
+    spec.delete(sensor)
+  for body in tracked:
+    for name, sensor_type, _ in SENSORS:
+      spec.add_sensor(
+          name=f"mwbx_{name}_{body}",
+          type=sensor_type,
+          objtype=mujoco.mjtObj.mjOBJ_BODY,
+          objname=body,
+      )
+  return spec.compile()
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectInit:
+  """Static description of how one object's initial state is randomized.
+
+  Attributes:
+    free_qpos: qpos address of the root free joint, or -1.
+    free_dof: dof address of the root free joint, or -1.
+    joint_qpos: i32[k] qpos addresses of its hinge/slide joints.
+    position, rotation, linear_velocity, angular_velocity, joint_noise: the
+      distributions (None: no noise).
+  """
+
+  free_qpos: int
+  free_dof: int
+  joint_qpos: tuple[int, ...]
+  position: Distribution | None
+  rotation: Distribution | None
+  linear_velocity: Distribution | None
+  angular_velocity: Distribution | None
+  joint_noise: Distribution | None
+
+
+class Scene:
+  """A loaded scene: model, objects, tracked bodies, groups, randomization.
+
+  Attributes:
+    config: the validated config.
+    mjcf_text: the MJCF file's text, stored in every bank.
+    model: ``MjModel`` with the observation sensors added.
+    object_names: names of the objects (root bodies).
+    objects: object name -> tracked body names.
+    groups: group name -> object names (nested groups flattened).
+    body_names: the B tracked bodies.
+    body_ids: i32[B] MuJoCo body ids of the tracked bodies.
+    perturbable: bool[B] false for bodies opted out of perturbations.
+  """
+
+  def __init__(self, config: Config, mjcf_text: str | None = None):
+    self.config = config
+    source = config.source or "<config>"
+    if mjcf_text is None:
+      path = config.mjcf_path()
+      self.mjcf_dir = str(path.parent)
+      try:
+        mjcf_text = path.read_text()
+      except OSError as err:
+        raise MwbxError(f"{source}: scene.mjcf: cannot read {path}: {err.strerror}") from None
+    else:
+      self.mjcf_dir = None
+    self.mjcf_text = mjcf_text
+    try:
+      plain = mujoco.MjSpec.from_string(mjcf_text)
+      if self.mjcf_dir:
+        plain.modelfiledir = self.mjcf_dir
+      plain_model = plain.compile()
+    except Exception as err:  # MuJoCo raises ValueError with the parser's text.
+      raise MwbxError(f"{source}: scene.mjcf: MJCF failed to load: {err}") from None
+
+    body_name = lambda i: mujoco.mj_id2name(plain_model, mujoco.mjtObj.mjOBJ_BODY, i)
+    roots = [
+        i for i in range(1, plain_model.nbody)
+        if plain_model.body_parentid[i] == 0 and plain_model.body_dofnum[i] > 0
+    ]
+    root_names = {body_name(i): i for i in roots}
+    unnamed = [i for i in roots if not body_name(i)]
+    if unnamed:
+      raise MwbxError(f"{source}: scene.mjcf: moving root bodies need names (body ids {unnamed})")
+
+    object_names = config.scene.objects or tuple(root_names)
+    for name in object_names:
+      if name not in root_names:
+        raise MwbxError(
+            f"{source}: scene.objects: {name!r} is not a moving body hanging off the world body"
+            f" (have: {', '.join(root_names)})"
+        )
+    self.object_names = tuple(object_names)
+    subtree = {
+        name: [i for i in range(1, plain_model.nbody) if plain_model.body_rootid[i] == root_names[name]]
+        for name in self.object_names
+    }
+    all_bodies = [body_name(i) for name in self.object_names for i in subtree[name]]
+    if config.scene.track is None:
+      tracked = all_bodies
+    else:
+      tracked = list(config.scene.track)
+      for name in tracked:
+        if name not in all_bodies:
+          raise MwbxError(f"{source}: scene.track: unknown body {name!r} (have: {', '.join(all_bodies)})")
+    self.body_names = tuple(tracked)
+    self.objects = {
+        name: tuple(body_name(i) for i in subtree[name] if body_name(i) in self.body_names)
+        for name in self.object_names
+    }
+    self.groups = self._resolve_groups(source)
+
+    self.model = build_model(mjcf_text, self.body_names, self.mjcf_dir)
+    self.body_ids = np.array(
+        [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b) for b in self.body_names], np.int32
+    )
+    excluded = self.select_bodies(config.perturb.exclude, field="perturb.exclude")
+    self.perturbable = np.ones(len(self.body_names), bool)
+    self.perturbable[excluded] = False
+    self.object_inits = self._object_inits(source, subtree, root_names)
+
+  # -- names ------------------------------------------------------------------
+
+  def _resolve_groups(self, source: str) -> dict[str, tuple[str, ...]]:
+    raw = dict(self.config.scene.groups)
+    for name in raw:
+      if name in self.object_names or name in self.body_names:
+        raise MwbxError(f"{source}: scene.groups.{name}: a group may not reuse an object or body name")
+
+    def expand(name, stack):
+      if name in self.object_names:
+        return (name,)
+      if name not in raw:
+        raise MwbxError(f"{source}: scene.groups.{stack[0]}: unknown object or group {name!r}")
+      if name in stack[1:]:
+        raise MwbxError(f"{source}: scene.groups.{stack[0]}: group {name!r} contains itself")
+      out = []
+      for member in raw[name]:
+        out.extend(o for o in expand(member, stack + (member,)) if o not in out)
+      return tuple(out)
+
+    return {name: expand(name, (name,)) for name in raw}
+
+  def select_bodies(self, names: str | Sequence[str], field: str = "selection") -> np.ndarray:
+    """Indices into the tracked-body axis for body, object and group names."""
+    return select_bodies(names, self.body_names, self.objects, self.groups, field,
+                         self.config.source or "<config>")
+
+  def objects_of(self, name: str, field: str) -> tuple[str, ...]:
+    if name in self.object_names:
+      return (name,)
+    if name in self.groups:
+      return self.groups[name]
+    raise MwbxError(
+        f"{self.config.source or '<config>'}: {field}: unknown object or group {name!r}"
+        f" (objects: {', '.join(self.object_names)}; groups: {', '.join(self.groups) or 'none'})"
+    )
+
+  # -- randomization ------------------------------------------------------------
+
+  def _object_inits(self, source, subtree, root_names) -> tuple[ObjectInit, ...]:
+    m = self.model
+    per_object: dict[str, dict] = {}
+    for key, randomization in self.config.randomize.items():
+      for obj in self.objects_of(key, f"randomize.{key}"):
+        per_object.setdefault(obj, {}).update(randomization.model_dump(exclude_none=True))
+    inits = []
+    for obj, fields in per_object.items():
+      root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, obj)
+      joints = [j for j in range(m.njnt) if m.body_rootid[m.jnt_bodyid[j]] == root]
+      free = [j for j in joints if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE and m.jnt_bodyid[j] == root]
+      scalar = [j for j in joints if m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)]
+      for field in ("position", "rotation", "linear_velocity", "angular_velocity"):
+        if field in fields and not free:
+          raise MwbxError(f"{source}: randomize.{obj}.{field}: object {obj!r} has no free joint at its root")
+      if "joint_noise" in fields and not scalar:
+        raise MwbxError(f"{source}: randomize.{obj}.joint_noise: object {obj!r} has no hinge or slide joints")
+      dist = {k: Distribution.model_validate(v) for k, v in fields.items()}
+      for k, d in dist.items():
+        width = len(scalar) if k == "joint_noise" else 3
+        scale = np.atleast_1d(d.scale)
+        if scale.size not in (1, width):
+          raise MwbxError(
+              f"{source}: randomize.{obj}.{k}.scale: expected 1 or {width} values, got {scale.size}")
+      inits.append(ObjectInit(
+          free_qpos=int(m.jnt_qposadr[free[0]]) if free else -1,
+          free_dof=int(m.jnt_dofadr[free[0]]) if free else -1,
+          joint_qpos=tuple(int(m.jnt_qposadr[j]) for j in scalar),
+          position=dist.get("position"), rotation=dist.get("rotation"),
+          linear_velocity=dist.get("linear_velocity"), angular_velocity=dist.get("angular_velocity"),
+          joint_noise=dist.get("joint_noise"),
+      ))
+    return tuple(inits)
+
+  def initial_state(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Randomized initial state of ONE world.
+
+    Args:
+      key: the world's initialization key.
+
+    Returns:
+      qpos: f32[nq] and qvel: f32[nv] (the model's reference pose plus noise).
+    """
+    qpos = jnp.asarray(self.model.qpos0, jnp.float32)
+    qvel = jnp.zeros(self.model.nv, jnp.float32)
+    for index, init in enumerate(self.object_inits):
+      keys = jax.random.split(jax.random.fold_in(key, index), 5)
+      if init.free_qpos >= 0:
+        a = init.free_qpos
+        qpos = qpos.at[a:a + 3].add(_draw(keys[0], init.position, 3))
+        rotvec = _draw(keys[1], init.rotation, 3)
+        qpos = qpos.at[a + 3:a + 7].set(_quat_mul(_quat_from_rotvec(rotvec), qpos[a + 3:a + 7]))
+        v = init.free_dof
+        qvel = qvel.at[v:v + 3].add(_draw(keys[2], init.linear_velocity, 3))
+        qvel = qvel.at[v + 3:v + 6].add(_draw(keys[3], init.angular_velocity, 3))
+      if init.joint_qpos:
+        idx = np.array(init.joint_qpos)
+        qpos = qpos.at[idx].add(_draw(keys[4], init.joint_noise, len(idx)))
+    return qpos, qvel
+
+
+def select_bodies(names, body_names, objects, groups, field="selection", source="<bank>") -> np.ndarray:
+  """Indices into ``body_names`` for any mix of body, object and group names."""
+  if isinstance(names, str):
+    names = (names,)
+  out: list[int] = []
+  for name in names:
+    if name in groups:
+      bodies = [b for obj in groups[name] for b in objects[obj]]
+    elif name in objects:
+      bodies = list(objects[name])
+    elif name in body_names:
+      bodies = [name]
+    else:
+      raise MwbxError(
+          f"{source}: {field}: unknown body, object or group {name!r}"
+          f" (objects: {', '.join(objects)}; groups: {', '.join(groups) or 'none'})"
+      )
+    out.extend(body_names.index(b) for b in bodies if body_names.index(b) not in out)
+  return np.array(out, np.int32)
+
+
+def _draw(key: jax.Array, dist: Distribution | None, width: int) -> jax.Array:
+  if dist is None:
+    return jnp.zeros(width, jnp.float32)
+  scale = jnp.broadcast_to(jnp.asarray(dist.scale, jnp.float32), (width,))
+  if dist.dist == "uniform":
+    return scale * jax.random.uniform(key, (width,), jnp.float32, -1.0, 1.0)
+  return scale * jax.random.normal(key, (width,), jnp.float32)
+
+
+def _quat_from_rotvec(rotvec: jax.Array) -> jax.Array:
+  angle = jnp.linalg.norm(rotvec)
+  safe = jnp.where(angle > 1e-12, angle, 1.0)
+  axis = jnp.where(angle > 1e-12, rotvec / safe, jnp.array([1.0, 0.0, 0.0]))
+  return jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) * axis])
+
+
+def _quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
+  w1, x1, y1, z1 = a
+  w2, x2, y2, z2 = b
+  return jnp.array([
+      w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+      w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+      w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+      w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+  ])
+
+
+def load_scene(config: Config) -> Scene:
+  """Loads the config's MJCF and checks every name the config uses."""
+  return Scene(config)
