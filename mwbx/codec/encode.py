@@ -91,10 +91,13 @@ def _errors(kind: str, decoded: np.ndarray, true: np.ndarray) -> np.ndarray:
   if kind == "rot":
     rel = quat_mul(d * np.array([1.0, -1.0, -1.0, -1.0]), normalize(x))
     err = 2.0 * np.arctan2(np.linalg.norm(rel[..., 1:], axis=-1), np.abs(rel[..., 0]))
+    both_nan = np.isnan(d).any(axis=-1) & np.isnan(x).any(axis=-1)
   else:
-    err = np.abs(d - x).max(axis=-1)
-  same_nan = np.isnan(d).all(axis=-1) & np.isnan(x).any(axis=-1)
-  err = np.where(same_nan, 0.0, np.where(np.isnan(err), np.inf, err))
+    both_nan = np.isnan(d) & np.isnan(x)
+    err = np.where(both_nan, 0.0, np.abs(d - x)).max(axis=-1)
+    both_nan = np.zeros(err.shape, bool)
+  # A NaN kept as NaN is exact; any other NaN is an unbounded error.
+  err = np.where(both_nan, 0.0, np.where(np.isnan(err), np.inf, err))
   return err.max(axis=1)
 
 

@@ -1,0 +1,126 @@
+"""Slow, obvious references for the codec tests (plain Python loops)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mwbx.codec import rice
+
+
+def rice_encode_reference(values) -> bytes:
+  """Same format as ``rice.encode_ints``, written bit by bit."""
+  values = [int(v) for v in values]
+  out = bytearray(rice.write_varint(len(values)))
+  if not values:
+    return bytes(out)
+  us = [(v << 1) if v >= 0 else ((-v) << 1) - 1 for v in values]
+  blocks = [us[i:i + rice.BLOCK] for i in range(0, len(us), rice.BLOCK)]
+  ks = []
+  for block in blocks:
+    costs = []
+    for k in range(rice.KMAX + 1):
+      cost = 0
+      for u in block:
+        q = u >> k
+        cost += rice.QMAX + 1 + 64 if q >= rice.QMAX else q + 1 + k
+      costs.append(cost)
+    ks.append(costs.index(min(costs)))
+  kbits = "".join(format(k, "05b") for k in ks)
+  unary, rem, esc = [], [], bytearray()
+  for i, u in enumerate(us):
+    k = ks[i // rice.BLOCK]
+    q = u >> k
+    if q >= rice.QMAX:
+      unary.append("1" * rice.QMAX + "0")
+      esc += u.to_bytes(8, "little")
+    else:
+      unary.append("1" * q + "0")
+      if k:
+        rem.append(format(u & ((1 << k) - 1), f"0{k}b"))
+  unary = "".join(unary)
+  rem = "".join(rem)
+
+  def to_bytes(bits: str) -> bytes:
+    bits += "0" * (-len(bits) % 8)
+    return bytes(int(bits[i:i + 8], 2) for i in range(0, len(bits), 8))
+
+  out += to_bytes(kbits)
+  out += rice.write_varint(len(unary))
+  out += to_bytes(unary)
+  out += to_bytes(rem)
+  out += bytes(esc)
+  return bytes(out)
+
+
+def quat_mul(a, b):
+  aw, ax, ay, az = a
+  bw, bx, by, bz = b
+  return np.array([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                   aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw])
+
+
+def quat_exp(omega):
+  theta = math.sqrt(sum(float(w) ** 2 for w in omega))
+  if theta < 1e-12:
+    return np.array([1.0, 0.5 * omega[0], 0.5 * omega[1], 0.5 * omega[2]])
+  s = math.sin(theta / 2) / theta
+  return np.array([math.cos(theta / 2), s * omega[0], s * omega[1], s * omega[2]])
+
+
+def rotation_angle(q1, q2) -> float:
+  """Angle between two rotations through rotation matrices (sign-free)."""
+
+  def mat(q):
+    q = np.asarray(q, np.float64)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+  r = mat(q1).T @ mat(q2)
+  # arccos is ill-conditioned near 0: use the skew part as well.
+  skew = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+  return math.atan2(0.5 * np.linalg.norm(skew), 0.5 * (np.trace(r) - 1.0))
+
+
+def decode_reference(code) -> np.ndarray:
+  """Frame-by-frame decode of a parsed stream (``stream.WorldCode``), float64."""
+  n, lay = code.n_frames, code.layout
+  out = np.zeros((n, lay.nq))
+  steps = dict(zip(("pos", "rot", "scalar"), code.quanta.steps(code.bounds)))
+  kinds, adrs = code.kinds(), code.addresses()
+  seg_index = {"pos": 0, "rot": 0, "scalar": 0}
+  chan_index = {"pos": 0, "rot": 0, "scalar": 0}
+  for c, (kind, adr) in enumerate(zip(kinds, adrs)):
+    width = {"pos": 3, "rot": 4, "scalar": 1}[kind]
+    if code.modes[c] == 1:
+      for f in range(n):
+        v = code.raw[c][f].astype(np.float64)
+        out[f, adr:adr + width] = v / np.linalg.norm(v) if kind == "rot" else v
+      continue
+    segs = code.segs[kind]
+    count = int(segs.seg_count[chan_index[kind]]) if n >= 2 else 0
+    chan_index[kind] += 1
+    value = code.initial[c, :width].astype(np.float64)
+    if kind == "rot" and n:
+      value = value / np.linalg.norm(value)
+    if n:
+      out[0, adr:adr + width] = value
+    frame = 0
+    for _ in range(count):
+      k = seg_index[kind]
+      seg_index[kind] += 1
+      length, vel = int(segs.lengths[k]), segs.vel[k].astype(np.float64)
+      for tau in range(1, length + 1):
+        if kind == "rot":
+          v = quat_mul(quat_exp(tau * vel * steps[kind]), value)
+        else:
+          v = value + tau * vel * steps[kind]
+          if kind == "pos" and segs.flags[k]:
+            v[2] += code.quanta.quad * tau * tau
+        out[frame + tau, adr:adr + width] = v
+      value = out[frame + length, adr:adr + width].copy()
+      frame += length
+  return out

@@ -1,0 +1,265 @@
+"""Codec unit tests: layout, Rice codes, fit, decoder, store, against slow references."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mwbx.codec import (ChannelLayout, CodecBounds, CodecError, CompressedQposStore,
+                        decode_world, encode_batch, encode_batch_checked, encode_world, rice,
+                        testing)
+from mwbx.codec import fit as fit_lib
+from mwbx.codec.decode import decode_code
+from mwbx.codec.stream import parse
+import codec_reference as ref
+
+BOUNDS = CodecBounds()
+FPS = 120.0
+
+
+@pytest.fixture(scope="module")
+def boxes():
+  model = testing.boxes_model(3, seed=1)
+  qpos = testing.record_batch(model, 4, 300, seed=2)
+  layout = ChannelLayout.from_joints(model.jnt_type, model.jnt_qposadr, model.nq)
+  frame_count = np.array([300, 1, 0, 173])
+  enc = encode_batch_checked(qpos, frame_count, layout, BOUNDS, FPS, float(model.opt.gravity[2]))
+  return model, qpos, frame_count, layout, enc
+
+
+@pytest.fixture(scope="module")
+def chain():
+  model = testing.chain_model()
+  qpos = testing.record_batch(model, 2, 300, seed=3)
+  layout = ChannelLayout.from_joints(model.jnt_type, model.jnt_qposadr, model.nq)
+  enc = encode_batch_checked(qpos, np.array([300, 300]), layout, BOUNDS, FPS)
+  return model, qpos, layout, enc
+
+
+def _errors_reference(layout, decoded, true):
+  """Largest error per kind, frame by frame, rotation through rotation matrices."""
+  pos = max([np.abs(decoded[f, a:a + 3].astype(np.float64) - true[f, a:a + 3]).max()
+             for a in layout.pos_adr for f in range(true.shape[0])], default=0.0)
+  rot = max([ref.rotation_angle(decoded[f, a:a + 4], true[f, a:a + 4])
+             for a in layout.rot_adr for f in range(true.shape[0])], default=0.0)
+  scalar = max([abs(float(decoded[f, a]) - float(true[f, a]))
+                for a in layout.scalar_adr for f in range(true.shape[0])], default=0.0)
+  return pos, rot, scalar
+
+
+# -- layout and bounds -------------------------------------------------------------
+
+
+def test_layout_from_joints_covers_every_joint_type():
+  model = testing.chain_model()
+  layout = ChannelLayout.from_joints(model.jnt_type, model.jnt_qposadr, model.nq)
+  assert layout.pos_adr == (0,)
+  assert layout.rot_adr == (3, 7)
+  assert layout.scalar_adr == (11, 12, 13)
+  assert ChannelLayout.from_json(layout.to_json()) == layout
+
+
+def test_layout_and_bounds_reject_bad_input():
+  with pytest.raises(CodecError, match="unknown MuJoCo joint type 7"):
+    ChannelLayout.from_joints([7], [0], 1)
+  with pytest.raises(CodecError, match="exactly once"):
+    ChannelLayout(nq=4, scalar_adr=(0, 1, 2))
+  with pytest.raises(CodecError, match="e_pos"):
+    CodecBounds(e_pos=0.0)
+  with pytest.raises(CodecError, match="e_rot"):
+    CodecBounds(e_rot=float("nan"))
+
+
+# -- Rice codes ----------------------------------------------------------------------
+
+int_lists = st.lists(st.one_of(st.integers(-40, 40), st.integers(-2**51, 2**51)), max_size=150)
+
+
+@settings(max_examples=60, deadline=None)
+@given(int_lists)
+def test_rice_matches_bitwise_reference_and_roundtrips(values):
+  blob = rice.encode_ints(np.array(values, np.int64))
+  assert blob == ref.rice_encode_reference(values)
+  decoded, pos = rice.decode_ints(blob + b"tail", 0, "test", max_count=len(values))
+  assert pos == len(blob)
+  np.testing.assert_array_equal(decoded, np.array(values, np.int64))
+
+
+def test_rice_rejects_oversized_values_and_counts():
+  with pytest.raises(CodecError, match="too large"):
+    rice.encode_ints(np.array([2**60]))
+  blob = rice.encode_ints(np.arange(10))
+  with pytest.raises(CodecError, match="claims 10 values"):
+    rice.decode_ints(blob, 0, "test", max_count=5)
+
+
+# -- fit kernels ---------------------------------------------------------------------
+
+
+def _window(x, p_s, s, t_end, e, step, quad):
+  """Integer velocities keeping frames s+1..t_end within e (float64 loops)."""
+  lo, hi = -np.inf, np.inf
+  for t in range(s + 1, t_end + 1):
+    tau = t - s
+    r = x[t] - p_s - quad * tau * tau
+    lo, hi = max(lo, (r - e) / (tau * step)), min(hi, (r + e) / (tau * step))
+  return np.ceil(lo), np.floor(hi)
+
+
+@pytest.mark.parametrize("use_quad", [False, True])
+def test_linear_fit_segments_are_within_bound_and_maximal(use_quad):
+  rng = np.random.default_rng(5)
+  n, e, step, quad = 200, 1e-3, 1e-3 / 64, -3.4e-4
+  t = np.arange(n)
+  # A random walk, optionally on a parabola (more, shorter segments).
+  x = np.cumsum(rng.normal(0, 2e-3, n)) + (quad * t * t if use_quad else 0.0)
+  x = (x - x[0]).astype(np.float32)
+  res = fit_lib.fit_linear_batch(x[None, :, None], np.array([n], np.int32),
+                                 np.array([e], np.float32), np.float32(step), np.float32(quad),
+                                 gravity=False)
+  ends = np.flatnonzero(np.asarray(res.ends[0]))
+  vel = np.asarray(res.vel[0, :, 0])
+  assert ends[-1] == n - 1
+  s, p_s = 0, np.float32(0.0)
+  f32 = np.float32
+  for end in ends:
+    # gravity=False fits a pure linear model; small slack covers float32 starts.
+    lo, hi = _window(x.astype(np.float64), float(p_s), s, end, e * (1 + 1e-3), step, 0.0)
+    assert lo <= vel[end] <= hi
+    if end < n - 1:
+      lo, hi = _window(x.astype(np.float64), float(p_s), s, end + 1, e * (1 - 1e-3), step, 0.0)
+      assert lo > hi, "the greedy fit stopped although the segment could be extended"
+    p_s = f32(p_s + f32(f32(end - s) * f32(vel[end])) * f32(step))
+    s = end
+
+
+def test_rotation_fit_respects_angle_bound():
+  rng = np.random.default_rng(6)
+  n = 150
+  omega = rng.normal(0, 0.05, (n, 3)).cumsum(axis=0) * 0.1
+  q = np.stack([ref.quat_exp(w) for w in np.cumsum(omega, axis=0)]).astype(np.float32)
+  e = BOUNDS.e_rot / np.sqrt(3)
+  step = BOUNDS.e_rot / 64
+  res = fit_lib.fit_rotation_batch(q[None], np.array([n], np.int32), np.array([e], np.float32),
+                                   np.float32(step))
+  ends = np.flatnonzero(np.asarray(res.ends[0]))
+  vel = np.asarray(res.vel[0])
+  s, q_s = 0, q[0].astype(np.float64)
+  worst = 0.0
+  for end in ends:
+    for tau in range(1, end - s + 1):
+      dec = ref.quat_mul(ref.quat_exp(tau * vel[end] * step), q_s)
+      worst = max(worst, ref.rotation_angle(dec, q[s + tau]))
+    q_s = ref.quat_mul(ref.quat_exp((end - s) * vel[end] * step), q_s)
+    s = end
+  assert worst <= BOUNDS.e_rot
+
+
+# -- streams and the guarantee -------------------------------------------------------
+
+
+def test_simulated_boxes_meet_bounds_frame_by_frame(boxes):
+  _, qpos, frame_count, layout, enc = boxes
+  assert np.all(enc.raw_channels == 0)
+  for w, stream in enumerate(enc.streams):
+    n = frame_count[w]
+    decoded = decode_world(stream)
+    assert decoded.shape == (n, layout.nq) and decoded.dtype == np.float32
+    pos, rot, _ = _errors_reference(layout, decoded, qpos[w, :n])
+    assert pos <= BOUNDS.e_pos and rot <= BOUNDS.e_rot * (1 + 1e-6)
+    np.testing.assert_allclose(enc.max_error[w, :2], [pos, rot], rtol=1e-3, atol=1e-6)
+
+
+def test_articulated_chain_meets_bounds(chain):
+  _, qpos, layout, enc = chain
+  for w, stream in enumerate(enc.streams):
+    pos, rot, scalar = _errors_reference(layout, decode_world(stream), qpos[w])
+    assert pos <= BOUNDS.e_pos and rot <= BOUNDS.e_rot * (1 + 1e-6)
+    assert scalar <= BOUNDS.e_scalar
+
+
+def test_vectorized_decoder_matches_frame_by_frame_reference(boxes, chain):
+  for stream in boxes[4].streams + chain[3].streams:
+    code = parse(stream)
+    np.testing.assert_allclose(decode_code(code), ref.decode_reference(code), atol=2e-6)
+
+
+def test_decoded_quaternions_are_unit(boxes):
+  _, _, _, layout, enc = boxes
+  decoded = decode_world(enc.streams[0])
+  for a in layout.rot_adr:
+    np.testing.assert_allclose(np.linalg.norm(decoded[:, a:a + 4], axis=1), 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("start,stop", [(0, None), (5, 17), (250, 400), (-10, None), (40, 40)])
+def test_time_range_decode_equals_slice(boxes, start, stop):
+  stream = boxes[4].streams[0]
+  np.testing.assert_array_equal(decode_world(stream, start, stop), decode_world(stream)[start:stop])
+
+
+def test_compression_is_substantial_on_free_flight(boxes):
+  _, qpos, _, _, enc = boxes
+  assert 20 * len(enc.streams[0]) < qpos[0].nbytes
+
+
+def test_non_finite_channels_are_stored_raw():
+  model = testing.boxes_model(2, seed=3)
+  qpos = testing.record(model, 64, seed=4)
+  qpos[30:, 0] = np.nan
+  layout = ChannelLayout.from_joints(model.jnt_type, model.jnt_qposadr, model.nq)
+  enc = encode_batch_checked(qpos[None], np.array([64]), layout, BOUNDS)
+  assert enc.raw_channels[0] == 1
+  decoded = decode_world(enc.streams[0])
+  np.testing.assert_array_equal(np.isnan(decoded), np.isnan(qpos))
+  np.testing.assert_array_equal(decoded[:, :3], qpos[:, :3])
+
+
+def test_encode_world_matches_batch_and_rejects_bad_shapes(boxes):
+  _, qpos, _, layout, enc = boxes
+  assert encode_world(qpos[0], layout, BOUNDS, FPS, -9.81) == enc.streams[0]
+  assert encode_batch(qpos[:1], np.array([300]), layout, BOUNDS, FPS, -9.81) == enc.streams[:1]
+  with pytest.raises(CodecError, match="nq="):
+    encode_world(qpos[0, :, :5], layout, BOUNDS)
+  with pytest.raises(CodecError, match="frame_count"):
+    encode_batch(qpos, np.array([1, 2]), layout, BOUNDS)
+  with pytest.raises(CodecError, match="frame_count entries"):
+    encode_batch(qpos, np.array([1, 2, 3, 999]), layout, BOUNDS)
+
+
+# -- the store -------------------------------------------------------------------------
+
+
+def test_store_append_frames_state_restore(boxes):
+  model, qpos, frame_count, layout, enc = boxes
+  store = CompressedQposStore.from_model(model, BOUNDS, FPS)
+  store.append(qpos[:2], frame_count[:2])
+  store.append(qpos[2:], frame_count[2:])
+  assert store.n_worlds == 4
+  assert store.data.dtype == np.uint8 and store.offsets.dtype == np.int64
+  for w in range(4):
+    np.testing.assert_array_equal(store.frames(w), decode_world(enc.streams[w]))
+  np.testing.assert_array_equal(store.frames(0, 10, 20), store.frames(0)[10:20])
+  arrays, meta = store.state()
+  again = CompressedQposStore.restore({k: v.copy() for k, v in arrays.items()}, meta)
+  np.testing.assert_array_equal(again.frames(3), store.frames(3))
+  stats = again.stats()
+  assert stats["ratio_vs_float32"] > 10
+  assert 0 < stats["max_error_pos_m"] <= BOUNDS.e_pos
+  assert 0 < stats["max_error_rot_deg"] <= np.rad2deg(BOUNDS.e_rot)
+  both = store.copy()
+  both.extend(again)
+  assert both.n_worlds == 8 and store.n_worlds == 4
+  np.testing.assert_array_equal(both.frames(7), store.frames(3))
+
+
+def test_store_reports_corrupt_stream_with_world(boxes):
+  model, qpos, frame_count, _, _ = boxes
+  store = CompressedQposStore.from_model(model, BOUNDS, FPS)
+  store.append(qpos[:1], frame_count[:1])
+  store.data[store.offsets[1] // 2] ^= 0x10
+  with pytest.raises(CodecError, match="world 0: corrupt stream"):
+    store.frames(0)
+  arrays, meta = store.state()
+  arrays["offsets"] = arrays["offsets"] + 3
+  with pytest.raises(CodecError, match="offsets"):
+    CompressedQposStore.restore(arrays, meta)
