@@ -1,0 +1,15 @@
+"""Screen-space frustum queries and ranking metrics over a bank (paper §4)."""
+
+from mwbx.queries.camera import Camera
+from mwbx.queries.camera import ScreenBox
+from mwbx.queries.frustum import Frustum
+from mwbx.queries.metrics import Term
+from mwbx.queries.metrics import metric
+from mwbx.queries.metrics import rank
+from mwbx.queries.metrics import score
+from mwbx.queries.query import Query
+from mwbx.queries.query import body_radii
+from mwbx.queries.query import constraints_satisfied
+from mwbx.queries.query import evaluate
+from mwbx.queries.query import evaluate_each
+from mwbx.queries.query import first_entry

@@ -1,0 +1,159 @@
+"""Ranking metrics (paper §4.3): per-body tables combined over a selection.
+
+The bank holds `metrics: f32[W, B, M]` computed while sampling, one column
+per name in `bank.metric_names` (angular_travel rad, rest_time s, collisions,
+orientation_error rad, path_length m, max_height m). A Term picks one metric,
+a selection of bodies/objects/groups and a reduction (sum or max over the
+selected bodies) and a weight; a score is the weighted sum of terms. The
+query-dependent "constraints_satisfied" metric counts how many of the given
+queries each world satisfies, so worlds that satisfy most of them surface
+when none satisfies all. Ranking is a top-k over the scores of the eligible
+worlds; unstable worlds are never ranked.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+import math
+from typing import NamedTuple, Sequence
+
+import jax
+from jax import numpy as jp
+import numpy as np
+
+from mwbx.errors import MwbxError
+from mwbx.queries import query as query_lib
+
+CONSTRAINTS = "constraints_satisfied"
+REDUCTIONS = ("sum", "max")
+
+
+class Term(NamedTuple):
+  """One weighted metric over a selection of bodies.
+
+  metric: a name in bank.metric_names or "constraints_satisfied".
+  bodies: body/object/group names, or None for every tracked body.
+  reduce: "sum" or "max" over the selected bodies.
+  weight: factor in the score.
+  """
+
+  metric: str
+  bodies: tuple[str, ...] | None = None
+  reduce: str = "sum"
+  weight: float = 1.0
+
+
+def parse_term(spec: str) -> Term:
+  """"METRIC" or "METRIC:sum" / "METRIC:max" -> Term."""
+  name, _, reduce = str(spec).partition(":")
+  reduce = reduce or "sum"
+  if not name or reduce not in REDUCTIONS:
+    raise MwbxError(f"rank: expected METRIC[:sum|max], got {spec!r}")
+  return Term(name, None, reduce, 1.0)
+
+
+def as_terms(by) -> tuple[Term, ...]:
+  """A metric name, "NAME:max", a Term or a sequence of them -> tuple."""
+  if isinstance(by, (str, Term)):
+    by = (by,)
+  terms = tuple(parse_term(t) if isinstance(t, str) else t for t in by)
+  for t in terms:
+    if not isinstance(t, Term):
+      raise MwbxError(f"rank: expected metric names or Terms, got {type(t).__name__}")
+  return terms
+
+
+def metric(bank, name: str, bodies=None, reduce: str = "sum") -> np.ndarray:
+  """One precomputed metric combined over a selection: f64[W].
+
+  Args:
+    bank: the bank.
+    name: one of bank.metric_names.
+    bodies: body/object/group names, or None for every tracked body.
+    reduce: "sum" or "max" over the selected bodies (an empty selection
+      gives 0 for sum and -inf for max).
+  """
+  names = tuple(bank.metric_names)
+  if name not in names:
+    raise MwbxError(f"metric: unknown metric {name!r} (known: {', '.join(names + (CONSTRAINTS,))})")
+  if reduce not in REDUCTIONS:
+    raise MwbxError(f"metric {name!r}: reduce must be one of {REDUCTIONS}, got {reduce!r}")
+  mask = query_lib.selection_mask(bank, bodies)
+  column = np.asarray(bank.metrics[:, :, names.index(name)], np.float64)[:, mask]  # [W, k]
+  if reduce == "sum":
+    return np.sum(column, axis=1)
+  return np.max(column, axis=1, initial=-np.inf)
+
+
+def score(bank, terms, queries=()) -> np.ndarray:
+  """Weighted sum of terms: f64[W].
+
+  Args:
+    bank: the bank.
+    terms: metric names ("NAME[:sum|max]"), Terms, or a sequence of them.
+    queries: the queries counted by a "constraints_satisfied" term.
+  """
+  terms = as_terms(terms)
+  if not terms:
+    raise MwbxError("rank: no metric given")
+  total = np.zeros(bank.n_worlds)
+  for t in terms:
+    if not math.isfinite(float(t.weight)):
+      raise MwbxError(f"rank: weight of {t.metric!r} must be finite, got {t.weight!r}")
+    if t.metric == CONSTRAINTS:
+      value = query_lib.constraints_satisfied(bank, queries).astype(np.float64)
+    else:
+      value = metric(bank, t.metric, t.bodies, t.reduce)
+    total = total + float(t.weight) * value
+  return total
+
+
+def rank(bank, by, *, queries=(), match=None, top: int = 10,
+         descending: bool = True) -> tuple[np.ndarray, np.ndarray]:
+  """The best worlds by a score, via top-k.
+
+  Args:
+    bank: the bank.
+    by: metric names ("NAME[:sum|max]"), Terms, or a score array f[W].
+    queries: queries for a "constraints_satisfied" term.
+    match: bool[W] worlds eligible for ranking (e.g. `evaluate(bank, qs)`);
+      None: every world. Unstable worlds and NaN scores are never ranked.
+    top: how many worlds to return at most.
+    descending: highest score first (False: lowest first).
+
+  Returns:
+    (world ids i64[k] from bank.world_ids, scores f64[k]) with k <= top,
+    best first; ties go to the lower world index.
+  """
+  if isinstance(by, np.ndarray) or isinstance(by, jax.Array):
+    values = np.asarray(by, np.float64)
+    if values.shape != (bank.n_worlds,):
+      raise MwbxError(f"rank: a score array must have shape ({bank.n_worlds},), got {values.shape}")
+  else:
+    values = score(bank, by, queries)
+  if int(top) < 0:
+    raise MwbxError(f"top: must be >= 0, got {top}")
+  eligible = np.asarray(bank.valid, bool) & ~np.isnan(values)
+  if match is not None:
+    match = np.asarray(match, bool)
+    if match.shape != (bank.n_worlds,):
+      raise MwbxError(f"rank: match must be bool[{bank.n_worlds}], got shape {match.shape}")
+    eligible &= match
+  k = min(int(top), bank.n_worlds)
+  if k == 0:
+    return np.zeros(0, np.int64), np.zeros(0)
+  with jax.enable_x64(True):
+    order = np.asarray(_top_k(values, eligible, k, descending))
+  order = order[: min(k, int(eligible.sum()))]
+  return np.asarray(bank.world_ids)[order].astype(np.int64), values[order]
+
+
+@partial(jax.jit, static_argnums=(2, 3))
+def _top_k(values, eligible, k: int, descending: bool):
+  """Indices i32[k] of the k best eligible values (ineligible ones last)."""
+  key = values if descending else -values
+  # Eligible worlds must come before ineligible ones even at -inf.
+  lowest = jp.finfo(key.dtype).min
+  key = jp.where(eligible, jp.maximum(key, lowest), -jp.inf)
+  _, idx = jax.lax.top_k(key, k)
+  return idx
