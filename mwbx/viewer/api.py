@@ -102,38 +102,78 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
   return pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64)
 
 
+def fit_distance(lo: np.ndarray, hi: np.ndarray, centre: np.ndarray, direction: np.ndarray,
+                 fovy: float, aspect: float = 4 / 3, margin: float = 0.9) -> float:
+  """Smallest distance from `centre` along unit `direction` (towards the eye)
+  at which all 8 corners of the box [lo, hi] are inside the view.
+
+  fovy: vertical field of view in degrees; aspect: width / height assumed for
+  the browser window; margin: fraction of the half-angles used.
+  """
+  corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+  forward = -direction
+  right = np.cross(forward, [0.0, 0.0, 1.0])
+  if np.linalg.norm(right) < 1e-6:  # looking straight down or up
+    right = np.array([1.0, 0.0, 0.0])
+  right /= np.linalg.norm(right)
+  up = np.cross(right, forward)
+  tan_v = np.tan(np.radians(fovy) / 2) * margin
+  tan_h = tan_v * aspect
+
+  def fits(dist: float) -> bool:
+    v = corners - (centre + dist * direction)
+    depth = v @ forward
+    return bool(np.all(depth > 1e-3) and np.all(np.abs(v @ right) <= tan_h * depth)
+                and np.all(np.abs(v @ up) <= tan_v * depth))
+
+  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.1)
+  near, far = 0.0, radius / np.sin(np.radians(fovy) / 2) * 2 + 1.0
+  for _ in range(40):  # bisection; the view only widens with distance
+    mid = (near + far) / 2
+    near, far = (near, mid) if fits(mid) else (mid, far)
+  return far
+
+
+def mjcf_camera(model: mujoco.MjModel, cam_id: int) -> tuple[np.ndarray, np.ndarray, float]:
+  """(position f64[3], forward unit f64[3], fovy degrees) of an MJCF camera
+  at the reference configuration."""
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  mujoco.mj_camlight(model, data)
+  forward = -data.cam_xmat[cam_id].reshape(3, 3)[:, 2]  # cameras look along -z
+  return data.cam_xpos[cam_id].copy(), forward, float(model.cam_fovy[cam_id])
+
+
 def place_camera(vis, model: mujoco.MjModel, lo: np.ndarray, hi: np.ndarray,
-                 camera: str | None, fit: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                 camera: str | None) -> tuple[np.ndarray, np.ndarray]:
   """Aims meshcat's camera. Returns (centre f64[3], eye f64[3]) in world
   coordinates; the caller shifts the scene by -centre.
 
-  camera: an MJCF camera name, or None for the model's first camera (or an
-  oblique view fitting the bounds when the model has none).
-  fit: with camera None, ignore MJCF cameras and fit the bounds.
+  camera: an MJCF camera name to view exactly from; None fits the box
+  [lo, hi] into view, looking along the model's first camera (or obliquely
+  from the front right when the model has none).
   """
   box_centre = (lo + hi) / 2
   radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
-  if camera is not None and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
-    names = [model.camera(i).name for i in range(model.ncam)]
-    raise ViewerError(f"camera: no MJCF camera named {camera!r} (cameras: {names})")
-  cam_id = 0 if camera is None else mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-  if model.ncam > 0 and (camera is not None or not fit):
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    mujoco.mj_camlight(model, data)
-    eye = data.cam_xpos[cam_id].copy()
-    forward = -data.cam_xmat[cam_id].reshape(3, 3)[:, 2]  # cameras look along -z
-    fovy = float(model.cam_fovy[cam_id])
+  if camera is not None:
+    cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+    if cam_id < 0:
+      names = [model.camera(i).name for i in range(model.ncam)]
+      raise ViewerError(f"camera: no MJCF camera named {camera!r} (cameras: {names})")
+    eye, forward, fovy = mjcf_camera(model, cam_id)
     # Orbit about the point on the camera's axis nearest the scene, so the
     # first view looks exactly where the MJCF camera does.
     depth = max(float(np.dot(box_centre - eye, forward)), 0.1)
     centre = eye + depth * forward
   else:
-    fovy = DEFAULT_FOVY
-    direction = DEFAULT_VIEW_DIR / np.linalg.norm(DEFAULT_VIEW_DIR)
+    if model.ncam > 0:
+      _, forward, fovy = mjcf_camera(model, 0)
+      direction = -forward
+    else:
+      fovy = DEFAULT_FOVY
+      direction = DEFAULT_VIEW_DIR / np.linalg.norm(DEFAULT_VIEW_DIR)
     centre = box_centre
-    # The bounding sphere is loose for box-like scenes: come in a little closer.
-    eye = centre + direction * radius / np.sin(np.radians(fovy) / 2) * 0.8
+    eye = centre + direction * fit_distance(lo, hi, centre, direction, fovy)
   d = eye - centre
   cam = vis["/Cameras/default/rotated/<object>"]
   # The camera's parent is rotated +90 deg about x (three.js is y-up):
@@ -162,8 +202,8 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   queries: frustums to draw: QueryVolume, (corners f[8, 3], include) pairs or
     mwbx.queries query objects.
   layout: "overlay" (ghosted, tinted) or "grid" (side by side).
-  camera: MJCF camera to view from (None: the first one, if any, in overlay
-    layout; a view fitting the whole grid in grid layout).
+  camera: MJCF camera to view exactly from; None: fit everything into view,
+    looking along the model's first camera where it has one.
   frustum_depth: longest frustum side edge drawn, metres (None: 3x scene size).
   """
   if layout not in LAYOUTS:
@@ -191,7 +231,7 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
     lo, hi = lo + grid.min(axis=0), hi + grid.max(axis=0)
   root = vis[ROOT]
   root.delete()
-  centre, eye = place_camera(vis, model, lo, hi, camera, fit=layout == "grid")
+  centre, eye = place_camera(vis, model, lo, hi, camera)
   root.set_transform(pose_matrix(-centre, np.array([1.0, 0.0, 0.0, 0.0])))
   # meshcat's grid and axes sit at the display origin, no longer the world's.
   vis["/Grid"].set_property("visible", False)
