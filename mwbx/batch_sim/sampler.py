@@ -33,6 +33,7 @@ class SampleStats:
     world_steps: physics steps summed over worlds.
     run_seconds: stepping time, s.
     compile_seconds: compilation time, s.
+    codec_seconds: compressing recorded qpos, s.
     wall_seconds: everything, s.
   """
 
@@ -40,6 +41,7 @@ class SampleStats:
   world_steps: int = 0
   run_seconds: float = 0.0
   compile_seconds: float = 0.0
+  codec_seconds: float = 0.0
   wall_seconds: float = 0.0
 
   @property
@@ -131,6 +133,7 @@ class Sampler:
     ids = np.arange(first_world, first_world + n_worlds, dtype=np.int64)
     keys, init_keys, step_keys = world_keys(key, ids)
     results: list[ChunkResult] = []
+    store = self._new_store()
     c = self.chunk_size
     done_worlds = 0
     for lo in range(0, n_worlds, c):
@@ -150,33 +153,33 @@ class Sampler:
           self.scene, self.params, np.asarray(qpos0), np.asarray(qvel0), step_keys[pad],
           active, self.n_frames, progress=report)
       result = ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in result))
+      # Compress as worlds are produced: raw qpos never outlives its chunk.
+      codec_start = time.perf_counter()
+      result = _store_chunk(store, result)
+      stats.codec_seconds += time.perf_counter() - codec_start
       results.append(result)
       stats.world_steps += int(result.steps.sum())
       stats.run_seconds += result.run_seconds
       stats.compile_seconds += result.compile_seconds
       done_worlds += n
-    bank = self._assemble(ids, keys, results)
+    bank = self._assemble(ids, keys, results, store)
     stats.wall_seconds = time.perf_counter() - start_wall
     return bank, stats
 
-  def _assemble(self, ids, keys, results: list[ChunkResult]) -> bank_lib.Bank:
+  def _new_store(self):
+    """The compressed qpos store, bounds from the config's ``codec`` section."""
+    from mwbx.codec import CodecBounds, CompressedQposStore
+    cfg = self.scene.config
+    bounds = CodecBounds(e_pos=cfg.codec.e_pos, e_rot=float(np.deg2rad(cfg.codec.e_rot_deg)),
+                         e_scalar=cfg.codec.e_scalar)
+    return CompressedQposStore.from_model(self.scene.model, bounds, cfg.sim.record_fps,
+                                          n_bodies=len(self.scene.body_names))
+
+  def _assemble(self, ids, keys, results: list[ChunkResult], store) -> bank_lib.Bank:
     scene = self.scene
     cat = lambda name: np.concatenate([getattr(r, name) for r in results])
     frame_count = cat("frame_count").astype(np.int32)
     status = cat("status")
-    qpos = [r.qpos for r in results]
-    # Last guard of the promise that no NaN enters the bank: a world with a
-    # non-finite recorded frame is cut before it and flagged unstable.
-    for block, counts, stat in zip(qpos, np.split(frame_count, np.cumsum([len(q) for q in qpos])[:-1]),
-                                   np.split(status, np.cumsum([len(q) for q in qpos])[:-1])):
-      for w in range(len(block)):
-        bad = ~np.isfinite(block[w, :counts[w]]).all(axis=-1)
-        if bad.any():
-          counts[w] = int(np.argmax(bad))
-          stat[w] = world.UNSTABLE
-    store = bank_lib.RawQposStore(scene.model.nq)
-    for block, counts in zip(qpos, np.split(frame_count, np.cumsum([len(q) for q in qpos])[:-1])):
-      store.append(block, counts)
     com = np.concatenate([r.com for r in results])[:, ::self.query_stride]
     com_count = np.where(frame_count > 0, (frame_count - 1) // self.query_stride + 1, 0).astype(np.int32)
     com = np.nan_to_num(com)
@@ -195,6 +198,23 @@ class Sampler:
         record_fps=cfg.sim.record_fps, query_fps=cfg.sim.query_fps, timestep=float(scene.model.opt.timestep),
         config=cfg.resolved(), mjcf_text=scene.mjcf_text, digest=cfg.digest(scene.mjcf_text),
     )
+
+
+def _store_chunk(store, result: ChunkResult) -> ChunkResult:
+  """Appends a chunk's qpos to ``store``; returns the chunk without its qpos.
+
+  Last guard of the promise that no NaN enters the bank: a world with a
+  non-finite recorded frame is cut before it and flagged unstable.
+  """
+  counts = np.asarray(result.frame_count).astype(np.int32).copy()
+  status = np.asarray(result.status).copy()
+  for w in range(len(result.qpos)):
+    bad = ~np.isfinite(result.qpos[w, :counts[w]]).all(axis=-1)
+    if bad.any():
+      counts[w] = int(np.argmax(bad))
+      status[w] = world.UNSTABLE
+  store.append(result.qpos, counts)
+  return result._replace(qpos=None, frame_count=counts, status=status)
 
 
 def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str | None = None,
