@@ -13,3 +13,5 @@ from mwbx.queries.query import constraints_satisfied
 from mwbx.queries.query import evaluate
 from mwbx.queries.query import evaluate_each
 from mwbx.queries.query import first_entry
+from mwbx.queries.query_file import QuerySet
+from mwbx.queries.query_file import load_queries

@@ -1,0 +1,234 @@
+"""Query sets from YAML files.
+
+```yaml
+camera: {mjcf: front}          # default camera: an MJCF camera of the scene,
+#   or {eye: [x, y, z], target: [x, y, z], up: [0, 0, 1], fovy: 45,
+#       aspect: 1.333, orthographic: false}
+queries:
+  - name: ends_in_left_bin
+    box: [0.05, 0.75, 0.3, 0.95]   # screen box [u0, v0, u1, v1], origin top-left
+    near: 0.5                      # optional, metres along the view axis
+    far: 10
+    sign: include                  # include | exclude
+    bodies: [ball]                 # body, object or group names (default: all)
+    mode: any                      # any | all
+    window: [2.0, null]            # seconds, null = open end (default: whole path)
+    radius: auto                   # metres or auto (default 0: the COM point)
+  - name: never_on_ramp
+    region: {min: [-1, -0.3, 0.9], max: [0, 0.3, 1.3]}   # a world box instead
+    sign: exclude
+rank:                              # optional default ranking
+  - {metric: angular_travel, bodies: [ball], reduce: sum, weight: 1.0}
+order: desc                        # desc | asc
+top: 10
+```
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Literal, NamedTuple, Union
+
+import pydantic
+import yaml
+
+from mwbx.errors import MwbxError
+from mwbx.queries.camera import Camera
+from mwbx.queries.camera import ScreenBox
+from mwbx.queries.metrics import Term
+from mwbx.queries.metrics import parse_term
+from mwbx.queries.query import Query
+
+_STRICT = pydantic.ConfigDict(extra="forbid")
+Vec3 = tuple[float, float, float]
+
+
+class _MjcfCamera(pydantic.BaseModel):
+  model_config = _STRICT
+  mjcf: str
+  aspect: float | None = None
+
+
+class _LookAtCamera(pydantic.BaseModel):
+  model_config = _STRICT
+  eye: Vec3
+  target: Vec3
+  up: Vec3 = (0.0, 0.0, 1.0)
+  fovy: float = 45.0
+  aspect: float = 4.0 / 3.0
+  orthographic: bool = False
+
+
+_CameraSpec = Union[_MjcfCamera, _LookAtCamera]
+
+
+class _Region(pydantic.BaseModel):
+  model_config = pydantic.ConfigDict(extra="forbid", populate_by_name=True)
+  lo: Vec3 = pydantic.Field(alias="min")
+  hi: Vec3 = pydantic.Field(alias="max")
+
+
+class _QuerySpec(pydantic.BaseModel):
+  model_config = _STRICT
+  name: str = ""
+  box: tuple[float, float, float, float] | None = None
+  region: _Region | None = None
+  camera: _CameraSpec | None = None
+  near: float | None = None
+  far: float | None = None
+  sign: Literal["include", "exclude"] = "include"
+  bodies: str | list[str] | None = None
+  mode: Literal["any", "all"] = "any"
+  window: tuple[float | None, float | None] | None = None
+  radius: float | Literal["auto"] = 0.0
+
+
+class _TermSpec(pydantic.BaseModel):
+  model_config = _STRICT
+  metric: str
+  bodies: str | list[str] | None = None
+  reduce: Literal["sum", "max"] = "sum"
+  weight: float = 1.0
+
+
+class _FileSpec(pydantic.BaseModel):
+  model_config = _STRICT
+  camera: _CameraSpec | None = None
+  queries: list[_QuerySpec] = []
+  rank: list[str | _TermSpec] | str | None = None
+  order: Literal["desc", "asc"] = "desc"
+  top: int | None = pydantic.Field(default=None, ge=0)
+
+
+class QuerySet(NamedTuple):
+  """A loaded query file.
+
+  queries: the constraints (their conjunction). rank: the default ranking
+  terms, () if none. descending: order of the ranking. top: default number
+  of worlds to list, or None. path: the file.
+  """
+
+  queries: tuple[Query, ...]
+  rank: tuple[Term, ...] = ()
+  descending: bool = True
+  top: int | None = None
+  path: str = ""
+
+
+def _location(loc) -> str:
+  out = ""
+  for part in loc:
+    if isinstance(part, int):
+      out += f"[{part}]"
+    elif part in ("_MjcfCamera", "_LookAtCamera", "_TermSpec", "str") or "[" in str(part):
+      continue  # pydantic's union-member labels
+    else:
+      out += f".{part}" if out else str(part)
+  return out or "(top level)"
+
+
+def _camera(spec, where: str, path: str, model) -> Camera:
+  try:
+    if isinstance(spec, _MjcfCamera):
+      if model is None:
+        raise MwbxError(f"MJCF camera {spec.mjcf!r} needs the scene: pass the bank")
+      return Camera.from_model(model, spec.mjcf, spec.aspect)
+    return Camera.look_at(spec.eye, spec.target, spec.up, spec.fovy, spec.aspect,
+                          spec.orthographic)
+  except MwbxError as err:
+    raise MwbxError(f"{path}: {where}: {err}") from None
+
+
+def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
+  """Reads a query file (format in this module's docstring).
+
+  Args:
+    path: the YAML file.
+    bank: the bank the queries are for: supplies MJCF cameras and checks
+      body, object and group names now rather than at evaluation.
+    model: an MjModel for MJCF cameras when no bank is given.
+
+  Returns:
+    QuerySet. Errors name the file and the field (e.g. `queries[2].box`).
+  """
+  path = os.fspath(path)
+  try:
+    with open(path) as f:
+      raw = yaml.safe_load(f)
+  except OSError as err:
+    raise MwbxError(f"{path}: cannot read query file ({err.strerror})") from None
+  except yaml.YAMLError as err:
+    raise MwbxError(f"{path}: not valid YAML ({err})") from None
+  if raw is None:
+    raw = {}
+  if not isinstance(raw, dict):
+    raise MwbxError(f"{path}: expected a mapping with 'queries', got {type(raw).__name__}")
+  try:
+    spec = _FileSpec.model_validate(raw)
+  except pydantic.ValidationError as err:
+    # With unions, the deepest error is the one about the intended member.
+    first = max(err.errors(), key=lambda e: len(e["loc"]))
+    raise MwbxError(f"{path}: {_location(first['loc'])}: {first['msg']}"
+                    f" (got {first.get('input')!r})") from None
+  if model is None and bank is not None:
+    model = bank.model()
+  default_camera = None if spec.camera is None else _camera(spec.camera, "camera", path, model)
+  queries = []
+  for i, q in enumerate(spec.queries):
+    queries.append(_query(q, i, path, default_camera, model, bank))
+  terms = _terms(spec.rank, path, bank)
+  return QuerySet(tuple(queries), terms, spec.order == "desc", spec.top, path)
+
+
+def _query(q: _QuerySpec, i: int, path: str, default_camera, model, bank) -> Query:
+  where = f"queries[{i}]"
+  if (q.box is None) == (q.region is None):
+    raise MwbxError(f"{path}: {where}: give exactly one of 'box' (screen) or 'region' (world)")
+  fields = dict(bodies=q.bodies, sign=q.sign, mode=q.mode, window=q.window,
+                radius=q.radius, name=q.name or f"q{i}")
+  try:
+    if q.box is not None:
+      camera = default_camera if q.camera is None else _camera(q.camera, f"{where}.camera",
+                                                               path, model)
+      if camera is None:
+        raise MwbxError("a screen box needs a camera (top-level 'camera' or the query's own)")
+      query = Query.screen(camera, ScreenBox(*q.box), near=q.near, far=q.far, **fields)
+    else:
+      if q.near is not None or q.far is not None or q.camera is not None:
+        raise MwbxError("'near', 'far' and 'camera' apply to screen boxes, not to a region")
+      query = Query.region(q.region.lo, q.region.hi, **fields)
+  except MwbxError as err:
+    if str(err).startswith(path):
+      raise
+    raise MwbxError(f"{path}: {where}: {err}") from None
+  if bank is not None and query.bodies:
+    try:
+      bank.select_bodies(list(query.bodies))
+    except MwbxError as err:
+      raise MwbxError(f"{path}: {where}.bodies: {err}") from None
+  return query
+
+
+def _terms(rank, path: str, bank) -> tuple[Term, ...]:
+  if rank is None:
+    return ()
+  if isinstance(rank, str):
+    rank = [rank]
+  terms = []
+  for i, t in enumerate(rank):
+    try:
+      if isinstance(t, str):
+        term = parse_term(t)
+      else:
+        bodies = (t.bodies,) if isinstance(t.bodies, str) else t.bodies
+        term = Term(t.metric, None if bodies is None else tuple(bodies), t.reduce, t.weight)
+      if bank is not None:
+        known = tuple(bank.metric_names) + ("constraints_satisfied",)
+        if term.metric not in known:
+          raise MwbxError(f"unknown metric {term.metric!r} (known: {', '.join(known)})")
+        if term.bodies:
+          bank.select_bodies(list(term.bodies))
+    except MwbxError as err:
+      raise MwbxError(f"{path}: rank[{i}]: {err}") from None
+    terms.append(term)
+  return tuple(terms)
