@@ -176,10 +176,10 @@ class Scene:
         return (name,)
       if name not in raw:
         raise MwbxError(f"{source}: scene.groups.{stack[0]}: unknown object or group {name!r}")
-      if name in stack[1:]:
-        raise MwbxError(f"{source}: scene.groups.{stack[0]}: group {name!r} contains itself")
       out = []
       for member in raw[name]:
+        if member in stack:
+          raise MwbxError(f"{source}: scene.groups.{stack[0]}: group {member!r} contains itself")
         out.extend(o for o in expand(member, stack + (member,)) if o not in out)
       return tuple(out)
 

@@ -1,0 +1,122 @@
+"""Configs: defaults, validation, and one clear message per user mistake."""
+
+import pathlib
+import textwrap
+
+import pytest
+
+import mwbx
+
+SCENES = pathlib.Path(__file__).parent / "scenes"
+
+
+def write(tmp_path, text, name="cfg.yaml"):
+  path = tmp_path / name
+  path.write_text(textwrap.dedent(text))
+  return path
+
+
+def test_shipped_configs_load_with_defaults(quickstart_config):
+  cfg = quickstart_config
+  assert cfg.sim.record_fps == 120 and cfg.sim.query_fps == 30
+  assert cfg.perturb.alpha == 0.1
+  scene = mwbx.Scene(cfg)
+  assert scene.object_names == ("box_a", "ball", "capsule", "box_b")
+  assert scene.groups["round"] == ("ball", "capsule")
+  pachinko = mwbx.Scene(mwbx.load_config(pathlib.Path(__file__).parents[1] / "configs" / "pachinko.yaml"))
+  assert len(pachinko.object_names) == 8
+
+
+def test_packaged_assets_resolve_without_the_repo(tmp_path):
+  # A config anywhere naming a shipped scene finds the packaged MJCF.
+  path = write(tmp_path, "scene: {mjcf: quickstart.xml}\n")
+  assert mwbx.load_config(path).mjcf_path().parent.name == "assets"
+  assert mwbx.load_config("quickstart").scene.mjcf == "quickstart.xml"
+
+
+@pytest.mark.parametrize("body, field, message", [
+    ("scene: {mjcf: tiny.xml, colour: red}\n", "scene.colour", "unknown key"),
+    ("scene: {mjcf: tiny.xml}\nsim: {end_time: fast}\n", "sim.end_time", "valid number"),
+    ("scene: {mjcf: tiny.xml}\nsim: {end_time: -1}\n", "sim.end_time", "greater than 0"),
+    ("scene: {mjcf: tiny.xml}\nperturb: {alpha: 2}\n", "perturb.alpha", "less than or equal"),
+    ("scene: {mjcf: tiny.xml}\nsim: {backend: gpu}\n", "sim.backend", "auto"),
+    ("sim: {end_time: 1}\n", "scene", "Field required"),
+    ("scene: {mjcf: tiny.xml}\nrandomize: {cube: {position: {dist: cauchy}}}\n",
+     "randomize.cube.position.dist", "uniform"),
+])
+def test_bad_values_name_file_and_field(tmp_path, body, field, message):
+  path = write(tmp_path, body)
+  with pytest.raises(mwbx.MwbxError) as err:
+    mwbx.load_config(path)
+  text = str(err.value)
+  assert str(path) in text and field in text and message in text
+
+
+def test_malformed_yaml(tmp_path):
+  path = write(tmp_path, "scene: {mjcf: tiny.xml\n")
+  with pytest.raises(mwbx.MwbxError, match="malformed YAML") as err:
+    mwbx.load_config(path)
+  assert str(path) in str(err.value)
+
+
+def test_missing_config_file(tmp_path):
+  with pytest.raises(mwbx.MwbxError, match="cannot read config"):
+    mwbx.load_config(tmp_path / "nope.yaml")
+
+
+def scene_error(tmp_path, body, mjcf_text=None):
+  if mjcf_text is not None:
+    (tmp_path / "model.xml").write_text(mjcf_text)
+  else:
+    (tmp_path / "tiny.xml").write_text((SCENES / "tiny.xml").read_text())
+  path = write(tmp_path, body)
+  with pytest.raises(mwbx.MwbxError) as err:
+    mwbx.Scene(mwbx.load_config(path))
+  return str(err.value), path
+
+
+@pytest.mark.parametrize("body, field, needle", [
+    ("scene: {mjcf: tiny.xml, objects: [cube, crate]}\n", "scene.objects", "'crate'"),
+    ("scene: {mjcf: tiny.xml, track: [cube, wheel]}\n", "scene.track", "'wheel'"),
+    ("scene: {mjcf: tiny.xml, groups: {g: [cube, ghost]}}\n", "scene.groups.g", "'ghost'"),
+    ("scene: {mjcf: tiny.xml, groups: {g: [cube, h], h: [g]}}\n", "scene.groups", "contains itself"),
+    ("scene: {mjcf: tiny.xml}\nrandomize: {crate: {position: {scale: 0.1}}}\n", "randomize.crate", "'crate'"),
+    ("scene: {mjcf: tiny.xml}\nperturb: {exclude: [anvil]}\n", "perturb.exclude", "'anvil'"),
+    ("scene: {mjcf: tiny.xml}\nrandomize: {cube: {position: {scale: [1, 2]}}}\n",
+     "randomize.cube.position.scale", "expected 1 or 3"),
+    ("scene: {mjcf: tiny.xml}\nrandomize: {cube: {joint_noise: {scale: 0.1}}}\n",
+     "randomize.cube.joint_noise", "no hinge or slide"),
+])
+def test_unknown_names_name_file_and_field(tmp_path, body, field, needle):
+  text, path = scene_error(tmp_path, body)
+  assert str(path) in text and field in text and needle in text
+
+
+def test_mjcf_that_fails_to_load(tmp_path):
+  text, path = scene_error(tmp_path, "scene: {mjcf: model.xml}\n",
+                           "<mujoco><worldbody><body><geom type='sphere'/></worldbody></mujoco>")
+  assert str(path) in text and "scene.mjcf" in text and "MJCF failed to load" in text
+
+
+def test_missing_mjcf(tmp_path):
+  path = write(tmp_path, "scene: {mjcf: nowhere.xml}\n")
+  with pytest.raises(mwbx.MwbxError, match="scene.mjcf: no file"):
+    mwbx.Scene(mwbx.load_config(path))
+
+
+def test_timestep_must_divide_frame_time(tmp_path):
+  (tmp_path / "tiny.xml").write_text((SCENES / "tiny.xml").read_text())
+  path = write(tmp_path, "scene: {mjcf: tiny.xml}\nsim: {timestep: 0.003}\n")
+  with pytest.raises(mwbx.MwbxError, match="sim.timestep"):
+    mwbx.Sampler(mwbx.load_config(path), backend="native")
+
+
+def test_articulated_objects_and_groups():
+  cfg = mwbx.config_from_dict(
+      {"scene": {"mjcf": str(SCENES / "chain.xml"), "groups": {"g": ["root"], "gg": ["g", "puck"]}}},
+      source=str(SCENES / "chain.yaml"))
+  scene = mwbx.Scene(cfg)
+  assert scene.objects == {"root": ("root", "link1"), "puck": ("puck",)}
+  assert scene.groups["gg"] == ("root", "puck")
+  assert list(scene.select_bodies("gg")) == [0, 1, 2]
+  assert list(scene.select_bodies(["link1", "puck"])) == [1, 2]

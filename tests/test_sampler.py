@@ -1,0 +1,166 @@
+"""The sampling loop on the native backend: determinism, rest, instability, banks."""
+
+import json
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+import mwbx
+from mwbx.batch_sim import world
+from conftest import REPO, TESTS
+
+
+def same_world(a, i, b, j):
+  """Bit-identical recorded world i of bank a and world j of bank b."""
+  assert a.world_ids[i] == b.world_ids[j]
+  np.testing.assert_array_equal(a.keys[i], b.keys[j])
+  assert a.flags[i] == b.flags[j] and a.frame_count[i] == b.frame_count[j]
+  np.testing.assert_array_equal(a.qpos_frames(i), b.qpos_frames(j))
+  np.testing.assert_array_equal(a.com[i], b.com[j])
+  np.testing.assert_array_equal(a.metrics[i], b.metrics[j])
+  assert a.perturbations[i] == b.perturbations[j]
+
+
+def test_world_depends_only_on_config_key_and_id(tiny_config):
+  key = jax.random.key(42)
+  banks = {}
+  for n in (1, 7, 64):
+    banks[n] = mwbx.sample(tiny_config, n_worlds=n, key=key, backend="native", chunk_size=n)
+  for i in range(7):
+    same_world(banks[7], i, banks[64], i)
+  same_world(banks[1], 0, banks[64], 0)
+  # Continuing at world 7 reproduces worlds 7.. of the single run.
+  rest = mwbx.sample(tiny_config, n_worlds=5, key=key, backend="native", chunk_size=5, first_world=7)
+  for i in range(5):
+    same_world(rest, i, banks[64], 7 + i)
+  # The worlds really differ from each other and were perturbed.
+  assert len({bytes(banks[64].qpos_frames(i)[-1]) for i in range(64)}) == 64
+  assert banks[64].perturbations.sum() > 0
+
+
+def test_bank_contents(tiny_native_bank):
+  bank = tiny_native_bank
+  cfg = bank.config
+  assert bank.n_worlds == 32 and bank.body_names == ("cube", "ball")
+  assert bank.metric_names == world.METRIC_NAMES
+  end_frame = int(round(cfg["sim"]["end_time"] * cfg["sim"]["record_fps"]))
+  assert (bank.frame_count >= 1).all() and (bank.frame_count <= end_frame + 1).all()
+  at_rest = bank.at_rest
+  assert at_rest.any()
+  assert (bank.frame_count[~at_rest] == end_frame + 1).all()  # the others ran to the end time
+  stride = int(cfg["sim"]["record_fps"] / cfg["sim"]["query_fps"])
+  np.testing.assert_array_equal(bank.com_count, (bank.frame_count - 1) // stride + 1)
+  model = bank.model()
+  for w in (0, 5):
+    qpos = bank.qpos_frames(w)
+    assert qpos.shape == (bank.frame_count[w], model.nq) and np.isfinite(qpos).all()
+    # COM polyline point p is the COM of frame p * stride: check by forward kinematics.
+    data = __import__("mujoco").MjData(model)
+    for p in (0, bank.com_count[w] - 1):
+      data.qpos[:] = qpos[p * stride]
+      __import__("mujoco").mj_kinematics(model, data)
+      np.testing.assert_allclose(bank.com[w, p], data.xipos[bank.body_ids], atol=1e-5)
+    tail = bank.com[w, bank.com_count[w]:]
+    assert (tail == bank.com[w, bank.com_count[w] - 1]).all()
+  metrics = bank.metrics
+  assert (metrics[..., 0] > 0).all()                     # everything rotates on the way down
+  assert (metrics[..., 4] > 0.05).all()                  # and travels
+  assert (metrics[..., 5] >= 0.5).all()                  # from above the plate
+  rest_time = bank.metric("rest_time")
+  assert (rest_time <= (bank.frame_count[:, None] - 1) / 120 + 1e-6).all()
+
+
+def test_unstable_worlds_are_flagged_and_kept_finite(tiny_config):
+  # "Absurd velocity": a speed limit every falling world crosses.
+  cfg = tiny_config.with_overrides(max_speed=1.0)
+  bank = mwbx.sample(cfg, n_worlds=4, key=jax.random.key(0), backend="native")
+  assert (~bank.valid).all()
+  assert (bank.frame_count < 40).all()  # cut at the instability, ~0.2 s into the fall
+  for w in range(4):
+    assert np.isfinite(bank.qpos_frames(w)).all()
+  assert np.isfinite(bank.com).all() and np.isfinite(bank.metrics).all()
+
+
+def test_nan_world_does_not_disturb_the_batch(tiny_native):
+  sampler = tiny_native
+  ids = np.arange(4)
+  _, init_keys, step_keys = mwbx.batch_sim.sampler.world_keys(jax.random.key(1), ids)
+  qpos0, qvel0 = (np.asarray(x) for x in sampler._init(init_keys))
+  clean = sampler.backend.run_chunk(sampler.scene, sampler.params, qpos0, qvel0, step_keys,
+                                    np.ones(4, bool), sampler.n_frames)
+  qvel0 = qvel0.copy()
+  qvel0[2, 0] = np.nan
+  dirty = sampler.backend.run_chunk(sampler.scene, sampler.params, qpos0, qvel0, step_keys,
+                                    np.ones(4, bool), sampler.n_frames)
+  assert dirty.status[2] == world.UNSTABLE and dirty.frame_count[2] == 0
+  for w in (0, 1, 3):
+    assert dirty.status[w] == clean.status[w]
+    np.testing.assert_array_equal(dirty.qpos[w], clean.qpos[w])
+
+
+def test_save_load_append(tmp_path, tiny_native_bank, tiny_config):
+  bank = tiny_native_bank
+  path = bank.save(tmp_path / "bank")
+  loaded = mwbx.Bank.load(path)
+  for i in (0, 31):
+    same_world(bank, i, loaded, i)
+  assert loaded.config == bank.config and loaded.digest == bank.digest
+  assert json.loads((path / "config.resolved.json").read_text()) == bank.config
+  more = mwbx.sample(tiny_config, n_worlds=3, key=jax.random.key(0), backend="native",
+                     first_world=bank.next_world_id)
+  both = loaded.append(more)
+  both.save(path)
+  again = mwbx.Bank.load(path)
+  assert again.n_worlds == 35 and list(again.world_ids[-3:]) == [32, 33, 34]
+  same_world(again, 33, more, 1)
+  same_world(again, 3, bank, 3)
+
+
+def test_corrupt_bank_gives_a_clear_error(tmp_path, tiny_native_bank):
+  path = tiny_native_bank.save(tmp_path / "bank")
+  with pytest.raises(mwbx.MwbxError, match="no bank here"):
+    mwbx.Bank.load(tmp_path / "missing")
+  for f in sorted(path.rglob("*")):
+    if f.is_file() and f.stat().st_size > 1000 and "bank" in str(f.parent):
+      f.write_bytes(b"\0garbage" * 10)
+  with pytest.raises(mwbx.MwbxError, match=str(path)):
+    mwbx.Bank.load(path)
+
+
+def run_cli(*args):
+  return subprocess.run([sys.executable, "-m", "mwbx.cli", *args], capture_output=True, text=True,
+                        cwd=REPO, timeout=600)
+
+
+def test_cli_sample_continue_and_info(tmp_path):
+  out = tmp_path / "bank"
+  config = str(TESTS / "scenes" / "tiny.yaml")
+  first = run_cli("sample", config, "--worlds", "6", "--out", str(out), "--seed", "3")
+  assert first.returncode == 0, first.stderr
+  for needle in ("worlds sampled      6", "worlds at rest", "perturbations", "world-steps/s", str(out)):
+    assert needle in first.stdout
+  second = run_cli("sample", config, "--worlds", "4", "--out", str(out))
+  assert second.returncode == 0, second.stderr
+  info = run_cli("info", str(out), "--json")
+  assert info.returncode == 0, info.stderr
+  summary = json.loads(info.stdout)
+  assert summary["worlds"] == 10 and summary["run"] == {"seed": 3}
+  bank = mwbx.Bank.load(out)
+  assert list(bank.world_ids) == list(range(10))
+  direct = mwbx.sample(mwbx.load_config(config), n_worlds=10, key=jax.random.key(3), backend="native")
+  same_world(bank, 8, direct, 8)
+  text = run_cli("info", str(out))
+  assert "worlds              10" in text.stdout and "mean collisions" in text.stdout
+
+
+def test_cli_errors_are_one_line(tmp_path):
+  bad = tmp_path / "bad.yaml"
+  bad.write_text("scene: {mjcf: tiny.xml}\nsim: {chunk: 3}\n")
+  result = run_cli("sample", str(bad), "--out", str(tmp_path / "o"))
+  assert result.returncode == 2
+  assert result.stderr.strip().splitlines() == [f"mwbx: error: {bad}: sim.chunk: unknown key"]
+  result = run_cli("info", str(tmp_path / "nothing"))
+  assert result.returncode == 2 and "no bank here" in result.stderr and "Traceback" not in result.stderr
