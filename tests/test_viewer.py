@@ -23,7 +23,7 @@ import mwbx.viewer as mv
 from mwbx.viewer import frustums, geometry, kinematics, paths, playback
 from viewer_standin import STANDIN_XML, make_standin_bank
 
-FAST = settings(max_examples=40, deadline=None)
+FAST = settings(max_examples=int(__import__("os").environ.get("VIEWER_EXAMPLES", 40)), deadline=None)
 
 
 @pytest.fixture(scope="module")
@@ -261,9 +261,13 @@ def test_orthographic_box_has_no_eye_and_flat_frustum_is_an_error():
                   [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
   assert frustums.frustum_eye(box) is None
   flat = box.copy()
-  flat[:, 2] = 0
-  with pytest.raises(mv.ViewerError, match="query 3: frustum is empty or flat"):
-    frustums.hull_mesh(flat, index=3)
+  flat[:, 2] = 0  # a zero-height screen box: a flat wedge, drawn as a polygon
+  _, faces, edges = frustums.hull_mesh(flat)
+  assert faces.shape == (2, 3) and edges.shape == (4, 2)
+  line = np.zeros((8, 3))
+  line[:, 0] = np.arange(8)
+  with pytest.raises(mv.ViewerError, match="query 3: frustum is empty"):
+    frustums.hull_mesh(line, index=3)
 
 
 @FAST
@@ -282,24 +286,46 @@ def test_truncate_keeps_far_face_parallel(params, depth):
   np.testing.assert_allclose(frustums.frustum_eye(cut), eye, atol=1e-5 * (1 + np.abs(eye).max()))
 
 
-def test_as_volume_accepts_pairs_and_query_like_objects():
+def test_as_volume_accepts_pairs_and_mwbx_queries():
+  from mwbx import queries as mq
+
   corners = _frustum(np.zeros(3), (0.0, 0.0), 0.5, 2.0, 0.2, 0.1)
   assert frustums.as_volume((corners, False)).include is False
-
-  class Cam:
-    position = np.array([0.0, 0.0, 0.0])
-
-  class Query:
-    frustum = type("F", (), {"corners": corners})()
-    negative = True
-    camera = Cam()
-
-  vol = frustums.as_volume(Query())
-  assert not vol.include and np.array_equal(vol.eye, np.zeros(3))
-  with pytest.raises(mv.ViewerError, match="query 2: frustum corners must be 8"):
-    frustums.as_volume((corners[:7], True), index=2)
+  camera = mq.Camera.look_at(eye=[0.0, -2.0, 1.0], target=[0.0, 0.0, 0.5])
+  query = mq.Query.screen(camera, [0.4, 0.4, 0.6, 0.6], sign="exclude")
+  vol = frustums.as_volume(query)
+  assert not vol.include
+  np.testing.assert_allclose(vol.eye, camera.eye)
+  np.testing.assert_allclose(frustums.frustum_eye(vol.corners), camera.eye, atol=1e-6)
+  box = frustums.as_volume(mq.Query.region([0, 0, 0], [1, 2, 3]))
+  assert box.include and box.eye is None and frustums.frustum_eye(box.corners) is None
+  planes_only = mq.Frustum.from_planes(np.vstack([np.eye(3), -np.eye(3)]), [1, 2, 3, 0, 0, 0])
+  vol = frustums.as_volume(mq.Query(planes_only))
+  assert sorted(map(tuple, vol.corners.tolist())) == sorted(
+      (x, y, z) for x in (0.0, 1.0) for y in (0.0, 2.0) for z in (0.0, 3.0))
+  with pytest.raises(mv.ViewerError, match="query 2: frustum corners must be finite"):
+    frustums.as_volume((corners[:3], True), index=2)
   with pytest.raises(mv.ViewerError, match="query 0: expected"):
     frustums.as_volume("not a query")
+
+
+@FAST
+@given(hnp.arrays(np.float64, st.tuples(st.integers(4, 14), st.just(3)), elements=st.floats(-3, 3)))
+def test_hull_mesh_matches_scipy(points):
+  scipy_spatial = pytest.importorskip("scipy.spatial")
+  try:
+    reference = scipy_spatial.ConvexHull(points)
+  except scipy_spatial.QhullError:
+    return  # flat or degenerate input: covered by the explicit flat test
+  if reference.volume < 1e-3:
+    return  # nearly flat: the tolerances of the two differ
+  _, faces, _ = frustums.hull_mesh(points)
+  tri = points[faces]
+  volume = np.sum(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2]))) / 6
+  assert volume == pytest.approx(reference.volume, rel=1e-6)  # outward and closed
+  used = points[np.unique(faces)]
+  for v in points[reference.vertices]:  # every extreme point is used (up to tolerance)
+    assert np.min(np.abs(used - v).max(axis=1)) <= 1e-9 * np.ptp(points, axis=0).max()
 
 
 # ---------------------------------------------------------------- recorder and API
@@ -423,3 +449,44 @@ def test_recorder_replays_what_the_meshcat_server_stores(bank):
   theirs = decoded(base64.b64decode(b) for b in server_blobs)
   # meshcat's own viewer adds nothing on the Python side; uuids differ per draw.
   assert ours == theirs
+
+
+# ---------------------------------------------------------------- a real sampled bank
+
+
+@pytest.fixture(scope="module")
+def real_bank():
+  import jax
+
+  import mwbx
+
+  return mwbx.sample(mwbx.load_config("configs/quickstart.yaml"), n_worlds=4, key=jax.random.key(0))
+
+
+def test_real_bank_with_screen_queries(real_bank, tmp_path):
+  from mwbx import queries as mq
+
+  model = real_bank.model()
+  camera = mq.Camera.from_model(model, "front")
+  include = mq.Query.screen(camera, [0.0, 0.4, 1.0, 1.0], bodies="round")
+  exclude = mq.Query.screen(camera, [0.0, 0.0, 0.45, 0.6], bodies="box_a", sign="exclude")
+  flat = mq.Query.screen(camera, [0.5, 0.2, 0.5, 0.8], sign="exclude")  # zero-width wedge
+  queries = [include, exclude, flat]
+  vis, info = _draw_offline(real_bank, worlds=[0, 1], paths="round", queries=queries)
+  each = mq.evaluate_each(real_bank, queries)
+  match = each.all(axis=1)
+  rejected = ~each[:, 1] | ~each[:, 2]
+  n_bodies = real_bank.select_bodies("round").size
+  seg = lambda ws: int(sum((real_bank.com_count[w] - 1) * n_bodies for w in ws))  # noqa: E731
+  worlds = np.arange(real_bank.n_worlds)
+  assert info.path_segments == {
+      "faint": seg(worlds[~match & ~rejected]), "match": seg(worlds[match & ~rejected]),
+      "exclude": seg(worlds[rejected])}
+  assert info.n_queries == 3
+  cmds = _recorded(vis)
+  clips = {a["path"] for a in cmds[("set_animation", "")]["animations"]}
+  ids = real_bank.world_ids
+  assert clips == {f"/meshcat/mwbx/worlds/w{ids[w]}/{b}" for w in (0, 1) for b in real_bank.body_names}
+  assert ("set_object", "/meshcat/mwbx/queries/q1/camera/eye") in cmds
+  out = mv.export_html(real_bank, tmp_path / "real.html", worlds=[2], layout="grid", paths=True)
+  assert out.stat().st_size > 100_000

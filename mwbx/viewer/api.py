@@ -249,13 +249,14 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
 
 
 def query_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray | None, np.ndarray | None]:
-  """(match bool[W], exclude bool[W]) from mwbx.queries query objects: match
-  = satisfies every query; exclude = hit by a negative query. (None, None)
-  when the queries are plain frustums without an evaluator."""
-  if all(isinstance(q, (QueryVolume, tuple)) for q in queries):
+  """(match bool[W], exclude bool[W]) from the mwbx.queries.Query items:
+  match = satisfies every query; exclude = rejected by a negative query.
+  (None, None) when all are plain frustums (nothing to evaluate)."""
+  from mwbx.viewer import query_adapter
+
+  if not any(query_adapter.is_query(q) for q in queries):
     return None, None
-  from mwbx.viewer.query_adapter import evaluate_classes  # mwbx.queries is optional here
-  return evaluate_classes(bank, queries)
+  return query_adapter.evaluate_classes(bank, queries)
 
 
 def view(bank, worlds: Sequence[int] | None = None, *, paths: Any = None,

@@ -1,11 +1,30 @@
-"""Colour classes of worlds from mwbx.queries query objects (filled in once
-mwbx.queries lands)."""
+"""Colour classes of worlds from mwbx.queries queries (paper Fig. 5).
+
+match: worlds satisfying every query (green); exclude: valid worlds that a
+negative query rejects, i.e. whose path enters a red volume (red). Unstable
+worlds are in neither.
+"""
 
 from __future__ import annotations
 
-from mwbx.viewer.errors import ViewerError
+from typing import Any, Sequence
+
+import numpy as np
+
+from mwbx import queries as mq
 
 
-def evaluate_classes(bank, queries):
-  raise ViewerError("queries: mwbx.queries objects are not supported yet; pass "
-                    "QueryVolume or (corners, include) pairs")
+def is_query(q: Any) -> bool:
+  return isinstance(q, mq.Query)
+
+
+def evaluate_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+  """(match bool[W], exclude bool[W]) from the mwbx.queries.Query items of
+  `queries` (plain frustums in the list are drawn but not evaluated)."""
+  real = [q for q in queries if is_query(q)]
+  valid = np.asarray(bank.valid, bool)
+  each = np.asarray(mq.evaluate_each(bank, real), bool)  # [W, Q]
+  match = np.all(each, axis=1) & valid
+  negative = np.asarray([not q.include for q in real], bool)
+  exclude = np.any(~each[:, negative], axis=1) & valid if negative.any() else np.zeros_like(valid)
+  return match, exclude
