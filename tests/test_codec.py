@@ -116,7 +116,7 @@ def test_linear_fit_segments_are_within_bound_and_maximal(use_quad):
   x = (x - x[0]).astype(np.float32)
   res = fit_lib.fit_linear_batch(x[None, :, None], np.array([n], np.int32),
                                  np.array([e], np.float32), np.float32(step), np.float32(quad),
-                                 gravity=False)
+                                 np.int32(0), np.int32(0), gravity=False)
   ends = np.flatnonzero(np.asarray(res.ends[0]))
   vel = np.asarray(res.vel[0, :, 0])
   assert ends[-1] == n - 1
@@ -141,7 +141,7 @@ def test_rotation_fit_respects_angle_bound():
   e = BOUNDS.e_rot / np.sqrt(3)
   step = BOUNDS.e_rot / 64
   res = fit_lib.fit_rotation_batch(q[None], np.array([n], np.int32), np.array([e], np.float32),
-                                   np.float32(step))
+                                   np.float32(step), np.int32(5))
   ends = np.flatnonzero(np.asarray(res.ends[0]))
   vel = np.asarray(res.vel[0])
   s, q_s = 0, q[0].astype(np.float64)

@@ -58,7 +58,8 @@ def _paths(qpos: np.ndarray, adrs: tuple[int, ...], width: int) -> np.ndarray:
   return qpos[:, :, cols].transpose(0, 2, 1, 3).reshape(w * len(adrs), t, width)
 
 
-def _run_fit(kind: str, paths: np.ndarray, n: np.ndarray, e: float, step: float, quad: float):
+def _run_fit(kind: str, paths: np.ndarray, n: np.ndarray, e: float, step: float, quad: float,
+             coarse: int, g_fp: int):
   """Returns (ends bool[N, T], vel i64[N, T, D], flag bool[N, T]) as numpy."""
   num, t, width = paths.shape
   if num == 0 or t == 0:
@@ -73,11 +74,11 @@ def _run_fit(kind: str, paths: np.ndarray, n: np.ndarray, e: float, step: float,
   n_buf[:num] = n
   e_buf = np.full(n_pad, e, np.float32)
   if kind == "rot":
-    res = fit_lib.fit_rotation_batch(buf, n_buf, e_buf, np.float32(step))
+    res = fit_lib.fit_rotation_batch(buf, n_buf, e_buf, np.float32(step), np.int32(coarse))
     flag = np.zeros((num, t), bool)
   else:
     res = fit_lib.fit_linear_batch(buf, n_buf, e_buf, np.float32(step), np.float32(quad),
-                                   gravity=kind == "pos")
+                                   np.int32(coarse), np.int32(g_fp), gravity=kind == "pos")
     flag = np.asarray(res.flag)[:num, :t]
   return (np.asarray(res.ends)[:num, :t], np.asarray(res.vel)[:num, :t].astype(np.int64), flag)
 
@@ -157,7 +158,8 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     if kind != "rot":
       fit_in = fit_in - fit_in[:, :1]
     ends, vel, flag = _run_fit(kind, fit_in, n, fit_bound[kind] * (1 - FIT_MARGIN),
-                               steps[kind], quanta.quad)
+                               steps[kind], quanta.quad, quanta.coarse()[kind],
+                               quanta.g_fp(bounds))
     p_idx, f_idx = np.nonzero(ends)
     seg_per_path = np.bincount(p_idx, minlength=paths.shape[0])
     first = np.ones(p_idx.size, bool)
@@ -179,7 +181,12 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
       modes[:] = MODE_FIT
     for _ in range(2):
       code = _world_code(w, n_w, layout, bounds, fps, quanta, per_kind, modes)
-      stream = serialize(code)
+      try:
+        stream = serialize(code)
+      except CodecError:  # a velocity off its lattice (int32 overflow in the fit)
+        modes = np.full_like(modes, MODE_RAW)
+        code = _world_code(w, n_w, layout, bounds, fps, quanta, per_kind, modes)
+        stream = serialize(code)
       errs = _measure(code, stream, qpos[w, :n_w])
       bad = ~(errs <= bound_vec)
       if not np.any(bad):

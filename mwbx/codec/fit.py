@@ -17,11 +17,13 @@ Model of a segment that starts at frame ``s`` with the *decoded* value ``p_s``
 Instead of least squares followed by quantization, the fit keeps, per
 coordinate, the interval of velocities that keep every frame seen so far within
 the bound (each frame adds one linear constraint on ``v``), and extends the
-segment while that interval still contains an integer velocity. This is the
+segment while that interval still holds an allowed velocity. This is the
 greedy algorithm of Fig. 4 made exact for quantized coefficients, O(1) per
-frame. Among the feasible integers the one closest to the prediction (previous
-velocity, plus the gravity increment) is kept, which makes the coded residual
-small.
+frame. Allowed velocities are ``pred + r * 2**m``: ``pred`` is the previous
+segment's velocity (plus the gravity increment after a ballistic segment) and
+the lattice spacing ``2**m`` shrinks as the segment grows, so a short segment
+costs few bits (its velocity needs little precision) and a long one can still
+be fitted finely; the stream stores the small integer ``r``.
 
 For rotations the bound on the rotation angle is enforced through
 ``angle(exp(a), exp(b)) <= |a - b|`` (the exponential map of SO(3) does not
@@ -92,27 +94,48 @@ def rel_log(q: jax.Array, q_start: jax.Array) -> jax.Array:
   return factor * rel[1:]
 
 
-def _grid(lo: jax.Array, hi: jax.Array):
-  """Integer candidates of the window [lo, hi]: (ceil(lo), floor(hi), non-empty)."""
-  lo_i = jnp.ceil(jnp.clip(lo, -_INT_CAP, _INT_CAP))
-  hi_i = jnp.floor(jnp.clip(hi, -_INT_CAP, _INT_CAP))
-  return lo_i, hi_i, lo_i <= hi_i
+# Segments are cut at this length so integer products stay within int32.
+MAX_SEGMENT = 4096
 
 
-def gravity_increment(flag_prev, len_prev, quad, step):
-  """Predicted change of the vertical velocity after a ballistic segment (integer)."""
-  return jnp.where(flag_prev, jnp.round(2.0 * quad * len_prev / step), 0.0).astype(jnp.int32)
+def lattice_exponent(length, coarse):
+  """Velocity lattice of a segment: spacing ``2**m`` fine steps, m = max(0, coarse -
+  floor(log2 length)), so the displacement quantum over the segment stays about
+  ``bound * 2**-lattice_shift`` whatever its length."""
+  length = jnp.maximum(length, 1).astype(jnp.int32)
+  return jnp.maximum(0, coarse - (31 - jax.lax.clz(length)))
 
 
-def _fit_linear_path(x, n, e, step, quad, gravity: bool) -> LinearFit:
+def gravity_increment(flag, length, g_fp):
+  """Vertical velocity gained over a ballistic segment, fine steps (integer)."""
+  return jnp.where(flag, (length * g_fp + 128) >> 8, 0).astype(jnp.int32)
+
+
+def _pick(lo, hi, pred, m):
+  """The integer velocity ``pred + r * 2**m`` inside [lo, hi] with the smallest |r|.
+
+  Returns (velocity i32, r f32, non-empty bool), per coordinate.
+  """
+  spacing = jnp.left_shift(jnp.int32(1), m)
+  pred_f = pred.astype(lo.dtype)
+  inv = 1.0 / spacing.astype(lo.dtype)
+  r_lo = jnp.ceil(jnp.clip((lo - pred_f) * inv, -_INT_CAP, _INT_CAP))
+  r_hi = jnp.floor(jnp.clip((hi - pred_f) * inv, -_INT_CAP, _INT_CAP))
+  r = jnp.clip(0.0, r_lo, r_hi)
+  return pred + r.astype(jnp.int32) * spacing, r, r_lo <= r_hi
+
+
+def _fit_linear_path(x, n, e, step, quad, coarse, g_fp, gravity: bool) -> LinearFit:
   """Fit one linear-channel path.
 
   Args:
     x: f32[T, D] positions relative to x[0] (metres or joint units).
     n: i32, number of valid frames (frames >= n are padding).
     e: f32, bound used for the fit (same units as x).
-    step: f32, velocity quantum (units of x per frame).
+    step: f32, finest velocity quantum (units of x per frame).
     quad: f32, vertical quadratic coefficient (units of x per frame**2).
+    coarse: i32, lattice exponent of a 1-frame segment (see ``lattice_exponent``).
+    g_fp: i32, gravity velocity increment per frame, fine steps * 256.
     gravity: static; if True the last coordinate may switch on ``quad``.
   """
   num_t, dim = x.shape
@@ -131,22 +154,18 @@ def _fit_linear_path(x, n, e, step, quad, gravity: bool) -> LinearFit:
       return jnp.all(ok[:dim - 1]) & (ok[dim - 1] | ok[dim])
     return jnp.all(ok)
 
-  def choose(lo, hi, v_pred):
-    lo_i, hi_i, ok = _grid(lo, hi)
-    pred = v_pred[dims].astype(x.dtype)
-    v = jnp.clip(pred, lo_i, hi_i)
+  def choose(lo, hi, pred, length):
+    v, r, ok = _pick(lo, hi, pred[dims], lattice_exponent(length, coarse))
     if not gravity:
-      return v.astype(jnp.int32), jnp.array(False)
-    r0 = jnp.abs(v[dim - 1] - pred[dim - 1])
-    r1 = jnp.abs(v[dim] - pred[dim])
-    use_quad = ok[dim] & (~ok[dim - 1] | (r1 < r0))
+      return v, jnp.array(False)
+    use_quad = ok[dim] & (~ok[dim - 1] | (jnp.abs(r[dim]) < jnp.abs(r[dim - 1])))
     vz = jnp.where(use_quad, v[dim], v[dim - 1])
-    return jnp.concatenate([v[:dim - 1], vz[None]]).astype(jnp.int32), use_quad
+    return jnp.concatenate([v[:dim - 1], vz[None]]), use_quad
 
-  def predict(v_prev, flag_prev, len_prev):
+  def next_pred(vel, flag, length):
     if not gravity:
-      return v_prev
-    return v_prev.at[dim - 1].add(gravity_increment(flag_prev, len_prev, quad, step))
+      return vel
+    return vel.at[dim - 1].add(gravity_increment(flag, length, g_fp))
 
   def end_value(p_s, vel, flag, length):
     lf = length.astype(x.dtype)
@@ -156,33 +175,34 @@ def _fit_linear_path(x, n, e, step, quad, gravity: bool) -> LinearFit:
     return p
 
   def body(carry, inp):
-    t_s, p_s, lo, hi, v_prev, flag_prev, len_prev = carry
+    t_s, p_s, lo, hi, pred = carry
     t, x_t = inp
-    tau = (t - t_s).astype(x.dtype)
+    tau_i = t - t_s
+    tau = tau_i.astype(x.dtype)
     clo, chi = constraint(x_t, p_s, tau)
     nlo, nhi = jnp.maximum(lo, clo), jnp.minimum(hi, chi)
-    cont = feasible(_grid(nlo, nhi)[2])
+    ok = _pick(nlo, nhi, pred[dims], lattice_exponent(tau_i, coarse))[2]
+    cont = feasible(ok) & (tau_i <= MAX_SEGMENT)
     valid = t < n
     end = valid & ~cont
     # The segment [t_s, t - 1] closes; the next one starts at its decoded end.
-    length = t - 1 - t_s
-    vel, flag = choose(lo, hi, predict(v_prev, flag_prev, len_prev))
+    length = tau_i - 1
+    vel, flag = choose(lo, hi, pred, length)
     p_end = end_value(p_s, vel, flag, length)
     rlo, rhi = constraint(x_t, p_end, jnp.asarray(1.0, x.dtype))
-    closed = (t - 1, p_end, rlo, rhi, vel, flag, length)
-    extended = (t_s, p_s, nlo, nhi, v_prev, flag_prev, len_prev)
+    closed = (t - 1, p_end, rlo, rhi, next_pred(vel, flag, length))
+    extended = (t_s, p_s, nlo, nhi, pred)
     new = jax.tree.map(lambda c, e_, o: jnp.where(end, c, jnp.where(valid, e_, o)),
                        closed, extended, carry)
     return new, (end, vel, flag)
 
   n_win = dims.shape[0]
   init = (jnp.int32(0), jnp.zeros(dim, x.dtype), jnp.full(n_win, -jnp.inf, x.dtype),
-          jnp.full(n_win, jnp.inf, x.dtype), jnp.zeros(dim, jnp.int32), jnp.array(False),
-          jnp.int32(0))
+          jnp.full(n_win, jnp.inf, x.dtype), jnp.zeros(dim, jnp.int32))
   ts = jnp.arange(1, num_t, dtype=jnp.int32)
   carry, (ends, vel, flag) = jax.lax.scan(body, init, (ts, x[1:]))
-  t_s, p_s, lo, hi, v_prev, flag_prev, len_prev = carry
-  last_vel, last_flag = choose(lo, hi, predict(v_prev, flag_prev, len_prev))
+  t_s, _, lo, hi, pred = carry
+  last_vel, last_flag = choose(lo, hi, pred, n - 1 - t_s)
   # ys[i] describes the segment closing at frame i; append the final segment.
   ends = jnp.concatenate([ends, jnp.zeros(1, bool)])
   vel = jnp.concatenate([vel, jnp.zeros((1, dim), jnp.int32)])
@@ -195,55 +215,52 @@ def _fit_linear_path(x, n, e, step, quad, gravity: bool) -> LinearFit:
   return LinearFit(ends, vel, flag)
 
 
-def _fit_rotation_path(q, n, e, step) -> RotationFit:
+def _fit_rotation_path(q, n, e, step, coarse) -> RotationFit:
   """Fit one rotation path.
 
   Args:
     q: f32[T, 4] unit quaternions (w, x, y, z); signs may flip between frames.
     n: i32 valid frames.
     e: f32 half-width of the per-component box on the log-map error (radians).
-    step: f32 angular velocity quantum (radians per frame).
+    step: f32 finest angular velocity quantum (radians per frame).
+    coarse: i32 lattice exponent of a 1-frame segment.
   """
-  num_t = q.shape[0]
 
   def constraint(q_t, q_s, tau):
     omega = rel_log(q_t, q_s)
     inv = 1.0 / (tau * step)
     return (omega - e) * inv, (omega + e) * inv
 
-  def choose(lo, hi, w_prev):
-    lo_i, hi_i, _ = _grid(lo, hi)
-    return jnp.clip(w_prev.astype(q.dtype), lo_i, hi_i).astype(jnp.int32)
-
   def end_value(q_s, w, length):
     q_e = quat_mul(quat_exp(length.astype(q.dtype) * w.astype(q.dtype) * step), q_s)
     return q_e / jnp.linalg.norm(q_e)
 
   def body(carry, inp):
-    t_s, q_s, lo, hi, w_prev = carry
+    t_s, q_s, lo, hi, pred = carry
     t, q_t = inp
-    tau = (t - t_s).astype(q.dtype)
-    clo, chi = constraint(q_t, q_s, tau)
+    tau_i = t - t_s
+    clo, chi = constraint(q_t, q_s, tau_i.astype(q.dtype))
     nlo, nhi = jnp.maximum(lo, clo), jnp.minimum(hi, chi)
-    cont = jnp.all(_grid(nlo, nhi)[2])
+    ok = _pick(nlo, nhi, pred, lattice_exponent(tau_i, coarse))[2]
+    cont = jnp.all(ok) & (tau_i <= MAX_SEGMENT)
     valid = t < n
     end = valid & ~cont
-    length = t - 1 - t_s
-    w = choose(lo, hi, w_prev)
+    length = tau_i - 1
+    w = _pick(lo, hi, pred, lattice_exponent(length, coarse))[0]
     q_e = end_value(q_s, w, length)
     rlo, rhi = constraint(q_t, q_e, jnp.asarray(1.0, q.dtype))
     closed = (t - 1, q_e, rlo, rhi, w)
-    extended = (t_s, q_s, nlo, nhi, w_prev)
+    extended = (t_s, q_s, nlo, nhi, pred)
     new = jax.tree.map(lambda c, e_, o: jnp.where(end, c, jnp.where(valid, e_, o)),
                        closed, extended, carry)
     return new, (end, w)
 
   init = (jnp.int32(0), q[0], jnp.full(3, -jnp.inf, q.dtype), jnp.full(3, jnp.inf, q.dtype),
           jnp.zeros(3, jnp.int32))
-  ts = jnp.arange(1, num_t, dtype=jnp.int32)
+  ts = jnp.arange(1, q.shape[0], dtype=jnp.int32)
   carry, (ends, vel) = jax.lax.scan(body, init, (ts, q[1:]))
-  _, _, lo, hi, w_prev = carry
-  last_w = choose(lo, hi, w_prev)
+  t_s, _, lo, hi, pred = carry
+  last_w = _pick(lo, hi, pred, lattice_exponent(n - 1 - t_s, coarse))[0]
   ends = jnp.concatenate([ends, jnp.zeros(1, bool)])
   vel = jnp.concatenate([vel, jnp.zeros((1, 3), jnp.int32)])
   last = jnp.maximum(n - 1, 0)
@@ -254,15 +271,16 @@ def _fit_rotation_path(q, n, e, step) -> RotationFit:
 
 
 @functools.partial(jax.jit, static_argnames=("gravity",))
-def fit_linear_batch(x, n, e, step, quad, gravity: bool) -> LinearFit:
+def fit_linear_batch(x, n, e, step, quad, coarse, g_fp, gravity: bool) -> LinearFit:
   """Vmapped linear fit. x: f32[N, T, D] relative to x[:, 0]; n: i32[N]; e: f32[N]."""
   fit = functools.partial(_fit_linear_path, gravity=gravity)
-  return jax.vmap(fit, in_axes=(0, 0, 0, None, None))(x, n, e, step, quad)
+  return jax.vmap(fit, in_axes=(0, 0, 0, None, None, None, None))(x, n, e, step, quad, coarse,
+                                                                   g_fp)
 
 
 @jax.jit
-def fit_rotation_batch(q, n, e, step) -> RotationFit:
+def fit_rotation_batch(q, n, e, step, coarse) -> RotationFit:
   """Vmapped rotation fit. q: f32[N, T, 4] (normalized inside); n: i32[N]; e: f32[N]."""
   norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
   q = q / jnp.where(norm > 0, norm, 1.0)
-  return jax.vmap(_fit_rotation_path, in_axes=(0, 0, 0, None))(q, n, e, step)
+  return jax.vmap(_fit_rotation_path, in_axes=(0, 0, 0, None, None))(q, n, e, step, coarse)

@@ -11,9 +11,11 @@ Layout (little-endian):
   + vertical-quadratic flag; others: L - 1), then the velocity residuals
   (translation, rotation, scalar) | CRC32 u32 of everything before it.
 
-Residual of segment k of a channel: ``v_k - v_{k-1} - g_k`` (``v_{-1} = 0``),
-with ``g_k`` the gravity increment predicted from the previous segment's flag
-and length, so constant-velocity and ballistic motion code to zeros. Channel
+Residual of segment k of a channel: ``r_k`` with ``v_k = v_{k-1} + g_k + r_k *
+2**m_k`` (``v_{-1} = 0``), ``g_k`` the gravity increment predicted from the
+previous segment's flag and length, ``m_k`` the lattice exponent of its length
+(``Quanta``); constant-velocity and ballistic motion code to zeros, and decoding
+velocities is one segmented cumulative sum. Channel
 order is all translations, then rotations, then scalars, each in layout order.
 """
 
@@ -41,20 +43,36 @@ _FLOATS = struct.Struct("<5d")
 
 @dataclasses.dataclass(frozen=True)
 class Quanta:
-  """Quantization of one stream; every step is ``bound * 2**-shift``.
+  """Quantization of one stream.
 
   quad: vertical quadratic coefficient of translation (metres per frame**2).
+  vel_shift, rot_shift, scalar_shift: finest velocity step per frame is
+    ``bound * 2**-shift`` for each kind.
+  lattice_shift: a segment of L frames may only use every ``2**m``-th fine
+    step, ``m = max(0, shift - lattice_shift - floor(log2 L))``: its displacement
+    quantum stays about ``bound * 2**-lattice_shift``.
   """
 
   quad: float
   vel_shift: int = 6
   rot_shift: int = 6
   scalar_shift: int = 6
+  lattice_shift: int = 1
 
   def steps(self, bounds: CodecBounds) -> tuple[float, float, float]:
-    """(translation, rotation, scalar) velocity steps per frame, float64."""
+    """(translation, rotation, scalar) finest velocity steps per frame, float64."""
     return (bounds.e_pos * 2.0**-self.vel_shift, bounds.e_rot * 2.0**-self.rot_shift,
             bounds.e_scalar * 2.0**-self.scalar_shift)
+
+  def coarse(self) -> dict[str, int]:
+    """Lattice exponent of a 1-frame segment, per kind."""
+    return {"pos": max(0, self.vel_shift - self.lattice_shift),
+            "rot": max(0, self.rot_shift - self.lattice_shift),
+            "scalar": max(0, self.scalar_shift - self.lattice_shift)}
+
+  def g_fp(self, bounds: CodecBounds) -> int:
+    """Vertical velocity gained per ballistic frame, in fine steps * 256."""
+    return int(round(2.0 * self.quad / self.steps(bounds)[0] * 256.0))
 
 
 class Segments(NamedTuple):
@@ -120,25 +138,41 @@ def channel_starts(seg_count: np.ndarray) -> np.ndarray:
   return first
 
 
+def floor_log2(x: np.ndarray) -> np.ndarray:
+  """floor(log2(x)) of integers x >= 1, exactly."""
+  x = np.asarray(x, np.int64)
+  return ((x[:, None] >> np.arange(1, 63, dtype=np.int64)[None, :]) > 0).sum(axis=1)
+
+
+def lattice_exponent(lengths: np.ndarray, coarse: int) -> np.ndarray:
+  return np.maximum(0, coarse - floor_log2(np.maximum(lengths, 1)))
+
+
 def gravity_increment(flags: np.ndarray, lengths: np.ndarray, first: np.ndarray,
-                      quad: float, step: float) -> np.ndarray:
-  """i64[S]: predicted vertical velocity change entering each translation segment."""
+                      g_fp: int) -> np.ndarray:
+  """i64[S]: vertical velocity gained over the previous (ballistic) segment."""
   prev_flag = np.concatenate([[False], flags[:-1]]) & ~first
-  prev_len = np.concatenate([[0], lengths[:-1]]).astype(np.float64)
-  return np.where(prev_flag, np.round(2.0 * quad * prev_len / step), 0.0).astype(np.int64)
+  prev_len = np.concatenate([[0], lengths[:-1]]).astype(np.int64)
+  return np.where(prev_flag, (prev_len * g_fp + 128) >> 8, 0).astype(np.int64)
 
 
-def _residuals(vel: np.ndarray, first: np.ndarray, increment: np.ndarray | None) -> np.ndarray:
+def _residuals(vel, first, increment, m) -> np.ndarray:
+  """r with ``vel = prev + increment + r * 2**m`` (prev = 0 at a channel start)."""
   prev = np.concatenate([np.zeros((1, vel.shape[1]), np.int64), vel[:-1]])
   prev[first] = 0
-  res = vel - prev
+  diff = vel - prev
   if increment is not None:
-    res[:, -1] -= increment
-  return res
+    diff[:, -1] -= increment
+  r = diff >> m[:, None]
+  if np.any((r << m[:, None]) != diff):
+    raise CodecError("internal: a fitted velocity is off its lattice")
+  return r
 
 
-def _velocities(res: np.ndarray, first: np.ndarray, increment: np.ndarray | None) -> np.ndarray:
-  res = res.copy()
+def _velocities(r, first, increment, m) -> np.ndarray:
+  if np.any(np.abs(r) >= rice.VALUE_CAP >> 20) or np.any(m > 40):
+    raise CodecError("corrupt stream: velocity residuals out of range")
+  res = r << m[:, None]
   if increment is not None:
     res[:, -1] += increment
   if np.abs(res.astype(np.float64)).sum() >= 2.0**62:
@@ -160,7 +194,7 @@ def serialize(code: WorldCode) -> bytes:
     out += rice.write_varint(int(v))
   out += _FLOATS.pack(code.fps, code.bounds.e_pos, code.bounds.e_rot, code.bounds.e_scalar,
                       q.quad)
-  out += bytes([q.vel_shift, q.rot_shift, q.scalar_shift])
+  out += bytes([q.vel_shift, q.rot_shift, q.scalar_shift, q.lattice_shift])
   for adr in code.addresses():
     out += rice.write_varint(int(adr))
   out += np.asarray(code.modes, np.uint8).tobytes()
@@ -171,7 +205,7 @@ def serialize(code: WorldCode) -> bytes:
   for c, kind in enumerate(kinds):
     if code.modes[c] == MODE_RAW:
       out += np.asarray(code.raw[c], "<f4").reshape(code.n_frames, WIDTH[kind]).tobytes()
-  step_pos = q.steps(code.bounds)[0]
+  g_fp, coarse = q.g_fp(code.bounds), q.coarse()
   counts, length_codes, residuals = [], [], []
   for kind in KINDS:
     seg = code.segs[kind]
@@ -179,11 +213,12 @@ def serialize(code: WorldCode) -> bytes:
     first = channel_starts(seg.seg_count)
     if kind == "pos":
       length_codes.append(2 * (seg.lengths - 1) + seg.flags)
-      inc = gravity_increment(seg.flags, seg.lengths, first, q.quad, step_pos)
+      inc = gravity_increment(seg.flags, seg.lengths, first, g_fp)
     else:
       length_codes.append(seg.lengths - 1)
       inc = None
-    residuals.append(_residuals(np.asarray(seg.vel, np.int64), first, inc).reshape(-1))
+    m = lattice_exponent(seg.lengths, coarse[kind])
+    residuals.append(_residuals(np.asarray(seg.vel, np.int64), first, inc, m).reshape(-1))
   out += rice.encode_ints(np.concatenate(counts + length_codes + residuals))
   out += struct.pack("<I", zlib.crc32(out))
   return bytes(out)
@@ -219,7 +254,7 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
   n_frames, nq, n_pos, n_rot, n_scalar = header
   if n_frames > MAX_FRAMES or nq > 65535 or n_pos + n_rot + n_scalar > nq:
     raise CodecError(f"corrupt stream header (n_frames={n_frames}, nq={nq})")
-  end = _take(buf, pos, _FLOATS.size + 3, "header")
+  end = _take(buf, pos, _FLOATS.size + 4, "header")
   fps, e_pos, e_rot, e_scalar, quad = _FLOATS.unpack_from(buf, pos)
   shifts = buf[pos + _FLOATS.size:end]
   pos = end
@@ -279,8 +314,9 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
   n_res = sum(DIM[k] * n_seg[k] for k in KINDS)
   if values.size != cf + total + n_res:
     raise CodecError("corrupt stream: segment data size does not match segment counts")
-  quanta = Quanta(quad=quad, vel_shift=shifts[0], rot_shift=shifts[1], scalar_shift=shifts[2])
-  step_pos = quanta.steps(bounds)[0]
+  quanta = Quanta(quad=quad, vel_shift=shifts[0], rot_shift=shifts[1], scalar_shift=shifts[2],
+                  lattice_shift=shifts[3])
+  g_fp, coarse = quanta.g_fp(bounds), quanta.coarse()
   segs = {}
   c_off, l_off, r_off = 0, cf, cf + total
   for kind in KINDS:
@@ -301,8 +337,9 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
       per_channel = np.add.reduceat(lengths, np.flatnonzero(first))
       if np.any(per_channel != expect):
         raise CodecError(f"corrupt stream: segment lengths do not add up to {expect} frames")
-    inc = gravity_increment(flags, lengths, first, quad, step_pos) if kind == "pos" else None
-    vel = _velocities(res, first, inc) if lengths.size else res
+    inc = gravity_increment(flags, lengths, first, g_fp) if kind == "pos" else None
+    m = lattice_exponent(lengths, coarse[kind])
+    vel = _velocities(res, first, inc, m) if lengths.size else res
     if np.any(np.abs(vel) >= rice.VALUE_CAP):
       raise CodecError("corrupt stream: velocity out of range")
     segs[kind] = Segments(seg_count, lengths, vel, flags)
