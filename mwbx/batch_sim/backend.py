@@ -32,6 +32,8 @@ class ChunkResult(NamedTuple):
     steps: i32[C] physics steps taken.
     compile_seconds: time spent compiling, s.
     run_seconds: time spent stepping (excluding compilation), s.
+    physics_seconds: of which inside the physics engine (native backend; NaN
+      where physics and bookkeeping run fused, as on mjx), s.
   """
 
   qpos: np.ndarray
@@ -43,6 +45,7 @@ class ChunkResult(NamedTuple):
   steps: np.ndarray
   compile_seconds: float
   run_seconds: float
+  physics_seconds: float = float("nan")
 
 
 def resolve_backend(name: str) -> str:

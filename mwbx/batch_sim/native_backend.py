@@ -132,10 +132,14 @@ class NativeBackend:
     t0 = time.perf_counter()
     frame = 0
     world_steps = 0
+    physics_seconds = 0.0
     while running.any():
       idx = np.flatnonzero(running)
       before = states[idx]
-      after, sensors = self.step(before, wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx])
+      wrench_in, warm_in = wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx]
+      physics_start = time.perf_counter()
+      after, sensors = self.step(before, wrench_in, warm_in)
+      physics_seconds += time.perf_counter() - physics_start
       # mj_step resets a diverging world to time 0: treat as unstable.
       bad = ~np.isclose(after[:, -1, 0], before[:, 0] + spf * dt, rtol=0, atol=1e-6)
       sensors[bad] = np.nan
@@ -166,4 +170,5 @@ class NativeBackend:
         qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),
         frame_count=frame_count, status=np.asarray(carry.status),
         metrics=world.finalize_metrics(carry), perturbations=np.asarray(carry.perturbations),
-        steps=np.asarray(carry.step), compile_seconds=compile_seconds, run_seconds=run_seconds)
+        steps=np.asarray(carry.step), compile_seconds=compile_seconds, run_seconds=run_seconds,
+        physics_seconds=physics_seconds)

@@ -34,6 +34,7 @@ class SampleStats:
     run_seconds: stepping time, s.
     compile_seconds: compilation time, s.
     codec_seconds: compressing recorded qpos, s.
+    physics_seconds: inside the physics engine (native backend; NaN on mjx), s.
     wall_seconds: everything, s.
   """
 
@@ -42,6 +43,7 @@ class SampleStats:
   run_seconds: float = 0.0
   compile_seconds: float = 0.0
   codec_seconds: float = 0.0
+  physics_seconds: float = 0.0
   wall_seconds: float = 0.0
 
   @property
@@ -161,6 +163,7 @@ class Sampler:
       stats.world_steps += int(result.steps.sum())
       stats.run_seconds += result.run_seconds
       stats.compile_seconds += result.compile_seconds
+      stats.physics_seconds += result.physics_seconds
       done_worlds += n
     bank = self._assemble(ids, keys, results, store)
     stats.wall_seconds = time.perf_counter() - start_wall
