@@ -272,7 +272,8 @@ def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: 
                                 linear_impact=linear_impact, angular_impact=angular_impact)
 
 
-def frame_update(carry: WorldCarry, obs: Observation, world_keys: jax.Array, params: WorldParams):
+def frame_update(carry: WorldCarry, obs: Observation, world_keys: jax.Array, params: WorldParams,
+                 perturbable: jax.Array | None = None):
   """:func:`post_frame` for a batch, with perturbations drawn only at impacts.
 
   Args:
@@ -280,12 +281,16 @@ def frame_update(carry: WorldCarry, obs: Observation, world_keys: jax.Array, par
     obs: observations, leading axes [W, S].
     world_keys: key[W] step key roots.
     params: scene constants.
+    perturbable: optional bool[W, B] per-world mask ANDed with
+      ``params.perturbable`` (refinement: only active objects are perturbed).
 
   Returns:
     (new carry, :class:`FrameOutput` with leading axis W).
   """
   delta_v, delta_w, linear_impact, angular_impact = jax.vmap(frame_impacts, in_axes=(0, None))(obs, params)
   wanted = (params.perturbable & params.enabled) & (carry.status == RUNNING)[:, None, None]
+  if perturbable is not None:
+    wanted = wanted & perturbable[:, None, :]
   n_worlds, n_steps, n_bodies = linear_impact.shape
   dv, dw = perturb.batch_perturbations(
       world_keys, carry.step, delta_v, delta_w, linear_impact & wanted, angular_impact & wanted,
