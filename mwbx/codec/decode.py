@@ -160,11 +160,12 @@ def decode_world(stream: bytes | np.ndarray, start: int = 0, stop: int | None = 
 
   Raises CodecError on a corrupt or truncated stream.
   """
-  code = parse(stream)
   try:
+    code = parse(stream)
     with np.errstate(over="ignore", invalid="ignore"):
       return decode_code(code, start, stop)
-  except (IndexError, ValueError, MemoryError) as err:  # defensive: never a raw crash
-    if isinstance(err, CodecError):
-      raise
-    raise CodecError(f"corrupt stream: {err}") from None
+  except CodecError:
+    raise
+  except (ArithmeticError, IndexError, ValueError, TypeError, MemoryError) as err:
+    # Defensive: the parser validates what it reads; never let a raw crash out.
+    raise CodecError(f"corrupt stream: {type(err).__name__}: {err}") from None

@@ -316,6 +316,9 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
     raise CodecError("corrupt stream: segment data size does not match segment counts")
   quanta = Quanta(quad=quad, vel_shift=shifts[0], rot_shift=shifts[1], scalar_shift=shifts[2],
                   lattice_shift=shifts[3])
+  ratio = 2.0 * quad / quanta.steps(bounds)[0] * 256.0
+  if not abs(ratio) < 2.0**40:
+    raise CodecError("corrupt stream header: gravity term out of range")
   g_fp, coarse = quanta.g_fp(bounds), quanta.coarse()
   segs = {}
   c_off, l_off, r_off = 0, cf, cf + total
