@@ -2,6 +2,8 @@
 
   mwbx sample CONFIG [--worlds N] [--seed S] [--backend auto|mjx|native] [--out DIR]
   mwbx info DIR [--json]
+  mwbx query BANK QUERIES.yaml [--rank METRIC[:sum|max]] [--top K] [--json]
+  mwbx view BANK [--worlds 3,17 | --top K --rank METRIC] [--queries Q.yaml] [--html OUT.html] [--no-browser]
 
 Every error a user can cause ends in one line naming the file, field or value
 (exit status 2), never a traceback.
@@ -98,6 +100,47 @@ def _cmd_info(args) -> int:
   return 0
 
 
+def _cmd_view(args) -> int:
+  import mwbx
+  import mwbx.viewer
+  bank = mwbx.Bank.load(args.bank)
+  queries = None
+  if args.queries:
+    from mwbx.queries import load_queries
+    queries = load_queries(args.queries, bank=bank)
+  ids = mwbx.viewer.select.parse_world_ids(args.worlds) if args.worlds else None
+  rows, _ = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
+  paths = None if args.paths == "none" else True if args.paths == "all" else args.paths.split(",")
+  kwargs = dict(worlds=rows, paths=paths, layout=args.layout, camera=args.camera,
+                queries=queries.queries if queries is not None else None)
+  shown = "default" if rows is None else ", ".join(str(int(bank.world_ids[r])) for r in rows)
+  if args.html:
+    out = mwbx.viewer.export_html(bank, args.html, **kwargs)
+    print(f"wrote {out} (worlds {shown})")
+    return 0
+  vis = mwbx.viewer.view(bank, open=not args.no_browser, zmq_url=args.zmq_url, **kwargs)
+  print(f"mwbx: showing worlds {shown} at {vis.url()}", file=sys.stderr)
+  if vis.window.server_proc is None:
+    return 0  # drawn into a server someone else runs
+  try:
+    print("mwbx: meshcat server running; Ctrl-C stops it", file=sys.stderr)
+    vis.window.server_proc.wait()
+  except KeyboardInterrupt:
+    pass
+  finally:
+    vis.window.server_proc.kill()
+  return 0
+
+
+def _cmd_query(args) -> int:
+  import mwbx
+  from mwbx.queries.report import run_query_file
+  bank = mwbx.Bank.load(args.bank)
+  report = run_query_file(bank, args.queries, rank=args.rank, top=args.top)
+  print(json.dumps(report.to_dict(), indent=2) if args.json else report.format())
+  return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
   parser = argparse.ArgumentParser(prog="mwbx", description="Many-Worlds Browsing on JAX and MuJoCo.")
   sub = parser.add_subparsers(dest="command", required=True)
@@ -115,6 +158,29 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("bank")
   p.add_argument("--json", action="store_true")
   p.set_defaults(func=_cmd_info)
+
+  p = sub.add_parser("query", help="find worlds of a bank with screen-box queries and rank them")
+  p.add_argument("bank", help="bank directory")
+  p.add_argument("queries", help="query YAML (e.g. configs/queries/quickstart.yaml)")
+  p.add_argument("--rank", default=None, metavar="METRIC[:sum|max]",
+                 help="rank matches by a metric summed or maxed over all tracked bodies")
+  p.add_argument("--top", type=int, default=None, help="list at most K worlds")
+  p.add_argument("--json", action="store_true")
+  p.set_defaults(func=_cmd_query)
+
+  p = sub.add_parser("view", help="show worlds, paths and queries in meshcat (or write HTML)")
+  p.add_argument("bank")
+  p.add_argument("--worlds", default=None, help="world ids to play back, e.g. 3,17")
+  p.add_argument("--top", type=int, default=None, help="play back the best K worlds by --rank")
+  p.add_argument("--rank", default=None, help="metric to rank by, NAME[:sum|max]")
+  p.add_argument("--queries", default=None, help="query file (YAML): frustums drawn, paths coloured")
+  p.add_argument("--paths", default="all", help="COM paths: all, none, or body/object/group names a,b")
+  p.add_argument("--layout", choices=("overlay", "grid"), default="overlay")
+  p.add_argument("--camera", default=None, help="MJCF camera to view from (default: fit the scene)")
+  p.add_argument("--html", default=None, help="write one standalone HTML file instead of serving")
+  p.add_argument("--zmq-url", default=None, help="draw into a running meshcat server")
+  p.add_argument("--no-browser", action="store_true", help="only print the URL")
+  p.set_defaults(func=_cmd_view)
   return parser
 
 
