@@ -490,3 +490,77 @@ def test_real_bank_with_screen_queries(real_bank, tmp_path):
   assert ("set_object", "/meshcat/mwbx/queries/q1/camera/eye") in cmds
   out = mv.export_html(real_bank, tmp_path / "real.html", worlds=[2], layout="grid", paths=True)
   assert out.stat().st_size > 100_000
+
+
+# ---------------------------------------------------------------- mwbx view
+
+
+@pytest.fixture(scope="module")
+def bank_dir(real_bank, tmp_path_factory):
+  out = tmp_path_factory.mktemp("bank") / "quick"
+  real_bank.save(out)
+  return out
+
+
+def test_cli_view_writes_html_for_ranked_worlds(real_bank, bank_dir, tmp_path, capsys):
+  from mwbx import cli
+  from mwbx import queries as mq
+
+  qfile = tmp_path / "q.yaml"
+  qfile.write_text("camera: {mjcf: front}\nqueries:\n  - {box: [0, 0, 1, 1], bodies: [round]}\n")
+  out = tmp_path / "view.html"
+  rc = cli.main(["view", str(bank_dir), "--top", "2", "--rank", "path_length", "--queries", str(qfile),
+                 "--html", str(out)])
+  assert rc == 0 and out.stat().st_size > 100_000
+  ids, _ = mq.rank(real_bank, "path_length",
+                   match=mq.evaluate(real_bank, mq.load_queries(qfile, bank=real_bank).queries),
+                   top=2)
+  assert f"(worlds {', '.join(str(int(i)) for i in ids)})" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--worlds", "0,x"], "--worlds: 'x' is not a world id"),
+    (["--worlds", "999"], "--worlds: no world with id 999"),
+    (["--top", "2"], "--top needs --rank"),
+    (["--worlds", "0", "--top", "1", "--rank", "path_length"], "cannot be combined"),
+    (["--paths", "nonexistent"], "nonexistent"),
+])
+def test_cli_view_errors_are_one_line(bank_dir, tmp_path, capsys, argv, message):
+  from mwbx import cli
+
+  rc = cli.main(["view", str(bank_dir), *argv, "--html", str(tmp_path / "x.html")])
+  err = capsys.readouterr().err
+  assert rc == 2 and message in err and err.count("\n") == 1
+
+
+def test_cli_view_serves_until_interrupted(bank_dir):
+  """`mwbx view` keeps its meshcat server up, prints the URL, and stops the
+  server on Ctrl-C."""
+  import os
+  import signal
+  import subprocess
+  import sys
+  import time
+
+  proc = subprocess.Popen([sys.executable, "-m", "mwbx.cli", "view", str(bank_dir), "--worlds", "0",
+                           "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+  try:
+    lines = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+      line = proc.stderr.readline()
+      lines.append(line)
+      if "Ctrl-C stops it" in line or not line:
+        break
+    assert any("showing worlds 0 at http" in ln for ln in lines), lines
+    children = [int(c) for c in open(f"/proc/{proc.pid}/task/{proc.pid}/children").read().split()]
+    assert children, "no meshcat server subprocess"
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=30) == 0
+    time.sleep(0.5)
+    for child in children:  # the server is gone (or a zombie reaped with its parent)
+      assert not os.path.exists(f"/proc/{child}") or "Z" in open(f"/proc/{child}/stat").read().split()[2]
+  finally:
+    if proc.poll() is None:
+      proc.kill()
+      proc.wait()

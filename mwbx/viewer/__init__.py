@@ -15,3 +15,4 @@ from mwbx.viewer.api import view
 from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.frustums import QueryVolume
 from mwbx.viewer.recorder import SceneRecorder
+from mwbx.viewer.select import choose_worlds

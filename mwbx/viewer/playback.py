@@ -180,8 +180,12 @@ def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual
   tracks = world_tracks(bank, model, worlds, body_ids)
   animation = manim.Animation(default_framerate=float(bank.record_fps))
   world_ids = np.asarray(bank.world_ids)
+  shown = world_ids[np.asarray(worlds, np.int64)]
+  unique_ids = len(set(shown.tolist())) == shown.size
   for k, (track, style) in enumerate(zip(tracks, styles)):
-    node = vis[f"w{int(world_ids[track.world])}"]
+    wid = int(world_ids[track.world])
+    # Node names carry the world id; rows disambiguate repeated ids.
+    node = vis[f"w{wid}" if unique_ids else f"w{wid}_row{track.world}"]
     shift = np.eye(4)
     shift[:3, 3] = offsets[k]
     node.set_transform(shift)

@@ -1,0 +1,87 @@
+"""Which worlds to show, from world ids or a ranking (used by `mwbx view`).
+
+World ids are `bank.world_ids` (what rankings print); the viewer itself
+takes bank rows, so ids are mapped to rows here.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from mwbx.viewer.errors import ViewerError
+
+# Worlds shown by `--rank METRIC` without `--top`.
+DEFAULT_TOP = 4
+
+
+def parse_world_ids(text: str) -> list[int]:
+  """'3,17, 20' -> [3, 17, 20]; the message names the bad item."""
+  out = []
+  for item in text.split(","):
+    item = item.strip()
+    if not item:
+      continue
+    try:
+      out.append(int(item))
+    except ValueError:
+      raise ViewerError(f"--worlds: {item!r} is not a world id (expected e.g. 3,17)") from None
+  if not out:
+    raise ViewerError(f"--worlds: no world ids in {text!r}")
+  return out
+
+
+def rows_of_ids(bank, ids: Sequence[int]) -> np.ndarray:
+  """i64[n] bank rows of world ids (the first row where an id repeats)."""
+  world_ids = np.asarray(bank.world_ids)
+  rows = []
+  for wid in ids:
+    hit = np.flatnonzero(world_ids == int(wid))
+    if hit.size == 0:
+      raise ViewerError(f"--worlds: no world with id {int(wid)} in this bank "
+                        f"(ids {int(world_ids.min())}..{int(world_ids.max())})")
+    rows.append(int(hit[0]))
+  return np.asarray(rows, np.int64)
+
+
+def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = None,
+                  rank: str | None = None, queries=None) -> tuple[np.ndarray | None, np.ndarray | None]:
+  """The rows to play back and the worlds matching the queries.
+
+  ids: explicit world ids. top/rank: the best `top` worlds by a metric
+  ("NAME[:sum|max]", mwbx.queries.rank), among those matching `queries` when
+  given; rank None with top uses the query file's ranking. queries: a
+  mwbx.queries.QuerySet or None.
+  Returns (rows i64[n] or None for the viewer's default, match bool[W] or None).
+  """
+  if ids is not None and (top is not None or rank is not None):
+    raise ViewerError("--worlds cannot be combined with --top/--rank")
+  match = None
+  if queries is not None and len(queries.queries):
+    from mwbx import queries as mq
+
+    match = np.asarray(mq.evaluate(bank, queries.queries), bool)
+  if ids is not None:
+    return rows_of_ids(bank, ids), match
+  if top is None and rank is None:
+    if match is not None:
+      first = np.flatnonzero(match)[:1]
+      return (first if first.size else None), match
+    return None, match
+  from mwbx import queries as mq
+
+  by = rank
+  if by is None:
+    if queries is None or not queries.rank:
+      raise ViewerError("--top needs --rank METRIC (or a query file with a 'rank' section)")
+    by = queries.rank
+  k = DEFAULT_TOP if top is None else int(top)
+  if k <= 0:
+    raise ViewerError(f"--top: must be a positive number of worlds, got {k}")
+  descending = True if queries is None else queries.descending
+  qs = () if queries is None else queries.queries
+  ids, _ = mq.rank(bank, by, queries=qs, match=match, top=k, descending=descending)
+  if len(ids) == 0:
+    raise ViewerError("--rank: no valid world matches the queries; nothing to show")
+  return rows_of_ids(bank, ids), match
