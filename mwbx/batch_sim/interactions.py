@@ -1,0 +1,189 @@
+"""Which objects a refined world must simulate (paper §5, Fig. 7).
+
+Three object sets per world, kept as one boolean mask ``active: bool[O]``:
+*active* objects are simulated; *inactive* ones replay their stored motion;
+every active object has a *ghost* that replays its original motion. Before
+each frame, an inactive object that may touch an active object or a ghost
+during the frame becomes active (and gets a ghost) from then on; activation
+spreads until nothing changes (a newly activated object may reach a third).
+
+Interactions are tested conservatively with bounding spheres about each
+tracked body's centre of mass (covering its geoms and those of untracked
+descendants), inflated by how far the body can move before the next test, a
+contact margin, and for ghosts the codec's error bound (the decoded path is
+within it of the original motion). MuJoCo contacts between two geoms imply
+overlap of these spheres, so the test catches every contact either backend
+could report; activating too many objects is safe, too few would not be.
+Both backends use this same test, so they agree on activation.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from mwbx.errors import MwbxError
+
+
+class InteractionParams(NamedTuple):
+  """Scene constants of the interaction test.
+
+  Attributes:
+    body_object: f32[B, O] one-hot object of each tracked body.
+    radius: f32[B] bounding-sphere radius about the body's COM, m.
+    ghost_slack: f32[B] codec error bound at the body's geoms, m.
+    margin: contact margin added to every pair, m.
+    horizon: s until the next test (one frame plus one step).
+    speed_factor: bound on speed growth within a frame (1 + 2α).
+    gravity: |g|, m/s².
+  """
+
+  body_object: jax.Array
+  radius: jax.Array
+  ghost_slack: jax.Array
+  margin: float
+  horizon: float
+  speed_factor: float
+  gravity: float
+
+
+def body_radii(model: mujoco.MjModel, body_ids: np.ndarray, objects: dict, body_names) -> np.ndarray:
+  """f32[B] bounding radius about each tracked body's COM.
+
+  Covers every geom of the body and of its untracked descendants inside the
+  same object: for the body itself ``|geom_pos − ipos| + rbound + margin``
+  (rigid), for descendants the chain of joint offsets (plus slide ranges) as
+  an upper bound on the distance whatever the joint angles.
+  """
+  tracked = {int(b): i for i, b in enumerate(body_ids)}
+  radius = np.zeros(len(body_ids))
+  roots = {model.body(name).id for name in objects}
+  for b in range(1, model.nbody):
+    root = int(model.body_rootid[b])
+    if root not in roots:
+      continue
+    anchor, reach = b, 0.0
+    while anchor not in tracked:
+      reach += float(np.linalg.norm(model.body_pos[anchor]))
+      for j in range(model.body_jntadr[anchor], model.body_jntadr[anchor] + model.body_jntnum[anchor]):
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE:
+          reach += float(np.abs(model.jnt_range[j]).max()) if model.jnt_limited[j] else 1.0
+      if anchor == root:
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, root)
+        raise MwbxError(f"refine: object {name!r} has geoms on bodies with no tracked ancestor;"
+                        " track its root body (scene.track)")
+      anchor = int(model.body_parentid[anchor])
+    i = tracked[anchor]
+    for g in range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b]):
+      extent = float(model.geom_rbound[g] + max(model.geom_margin[g], 0.0))
+      if b == anchor:
+        dist = float(np.linalg.norm(model.geom_pos[g] - model.body_ipos[b]))
+      else:
+        dist = float(np.linalg.norm(model.body_ipos[anchor])) + reach + float(np.linalg.norm(model.geom_pos[g]))
+      radius[i] = max(radius[i], dist + extent)
+  return radius.astype(np.float32)
+
+
+def interaction_params(model, body_ids, body_names, objects: dict, object_names, codec_bounds,
+                       margin: float, horizon: float, alpha: float) -> InteractionParams:
+  """Builds :class:`InteractionParams` for a scene (host, once)."""
+  radius = body_radii(model, body_ids, objects, body_names)
+  onehot = np.zeros((len(body_names), len(object_names)), np.float32)
+  joints = np.zeros(len(body_names))
+  for o, name in enumerate(object_names):
+    root = model.body(name).id
+    n_joints = sum(1 for j in range(model.njnt) if model.body_rootid[model.jnt_bodyid[j]] == root)
+    for b in objects[name]:
+      onehot[body_names.index(b), o] = 1.0
+      joints[body_names.index(b)] = n_joints
+  e_pos, e_rot, e_scalar = codec_bounds
+  slack = np.sqrt(3.0) * e_pos + joints * max(e_rot, e_scalar) * (radius + 1.0)
+  return InteractionParams(
+      body_object=jnp.asarray(onehot), radius=jnp.asarray(radius), ghost_slack=jnp.asarray(slack, jnp.float32),
+      margin=float(margin), horizon=float(horizon), speed_factor=1.0 + 2.0 * float(alpha),
+      gravity=float(np.linalg.norm(model.opt.gravity)))
+
+
+def near_pairs(center: jax.Array, extent: jax.Array) -> jax.Array:
+  """bool[B, B]: spheres (center f32[B, 3], radius f32[B]) overlap."""
+  d = jnp.linalg.norm(center[:, None, :] - center[None, :, :], axis=-1)
+  return d <= extent[:, None] + extent[None, :]
+
+
+def activate(active: jax.Array, com_sim: jax.Array, speed_sim: jax.Array, com_now: jax.Array,
+             com_next: jax.Array, p: InteractionParams) -> jax.Array:
+  """The active set of ONE world for the coming frame.
+
+  Args:
+    active: bool[O] objects simulated so far.
+    com_sim: f32[B, 3] simulated COM of the bodies (used for active ones), m.
+    speed_sim: f32[B] their speed, m/s.
+    com_now: f32[B, 3] stored COM at this frame; com_next: at the next, m.
+    p: scene constants.
+
+  Returns:
+    bool[O] ``active`` plus every inactive object an active object or a ghost
+    may touch before the next test (transitively).
+  """
+  body_active = (p.body_object @ active.astype(jnp.float32)) > 0.5
+  # Stored motion over the frame: the chord's midpoint, half its length.
+  mid = 0.5 * (com_now + com_next)
+  half = 0.5 * jnp.linalg.norm(com_next - com_now, axis=-1)
+  h = p.horizon
+  vmax = jnp.max(jnp.where(body_active, speed_sim, 0.0))
+  reach = (jnp.maximum(speed_sim, vmax) * p.speed_factor + p.gravity * h) * h
+  center = jnp.where(body_active[:, None], com_sim, mid)
+  extent = p.radius + jnp.where(body_active, reach, half) + 0.5 * p.margin
+  near_now = near_pairs(center, extent)
+  ghost_extent = p.radius + half + 0.5 * p.margin + p.ghost_slack
+  # Ghosts and inactive bodies are both on their stored chords.
+  d_ghost = jnp.linalg.norm(mid[:, None, :] - mid[None, :, :], axis=-1)
+  near_ghost = d_ghost <= ghost_extent[:, None] + (p.radius + half + 0.5 * p.margin)[None, :]
+  # near_ghost[i, j]: ghost of body i near stored body j; near_now is symmetric.
+  to_obj = lambda m: (p.body_object.T @ m.astype(jnp.float32) @ p.body_object) > 0.5
+  reach_now, reach_ghost = to_obj(near_now), to_obj(near_ghost)
+
+  def spread(_, act):
+    from_active = reach_now | reach_ghost  # [source object, target object]
+    hit = (act.astype(jnp.float32) @ from_active.astype(jnp.float32)) > 0.5
+    return act | hit
+
+  return jax.lax.fori_loop(0, active.shape[0], spread, active)
+
+
+def activate_reference(active, com_sim, speed_sim, com_now, com_next, p: InteractionParams) -> np.ndarray:
+  """Plain-loop version of :func:`activate` (tests)."""
+  onehot = np.asarray(p.body_object)
+  body_obj = onehot.argmax(axis=1)
+  radius, slack = np.asarray(p.radius), np.asarray(p.ghost_slack)
+  active = np.array(active, bool)
+  n_bodies = len(body_obj)
+  body_active = active[body_obj]
+  vmax = max([speed_sim[b] for b in range(n_bodies) if body_active[b]], default=0.0)
+  h = p.horizon
+  center, ext, g_ext = [], [], []
+  for b in range(n_bodies):
+    mid = 0.5 * (com_now[b] + com_next[b])
+    half = 0.5 * np.linalg.norm(com_next[b] - com_now[b])
+    reach = (max(speed_sim[b], vmax) * p.speed_factor + p.gravity * h) * h
+    center.append(com_sim[b] if body_active[b] else mid)
+    ext.append(radius[b] + (reach if body_active[b] else half) + 0.5 * p.margin)
+    g_ext.append((mid, radius[b] + half + 0.5 * p.margin))
+  changed = True
+  while changed:
+    changed = False
+    for i in range(n_bodies):
+      for j in range(n_bodies):
+        oi, oj = body_obj[i], body_obj[j]
+        if not active[oi] or active[oj]:
+          continue
+        touch = np.linalg.norm(center[i] - center[j]) <= ext[i] + ext[j]
+        ghost = np.linalg.norm(g_ext[i][0] - g_ext[j][0]) <= g_ext[i][1] + slack[i] + g_ext[j][1]
+        if touch or ghost:
+          active[oj] = True
+          changed = True
+  return active

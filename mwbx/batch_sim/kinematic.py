@@ -1,0 +1,151 @@
+"""Stored-motion playback for refinement (paper §5, Fig. 7 LOAD-STORED-MOTION).
+
+A refined world replays its parent's *decoded* path for every object that is
+not simulated: ``qpos`` at the frames, ``qvel`` by differentiating the decoded
+path with ``mujoco.mj_differentiatePos`` (the chord velocity from frame f to
+f + 1), and between frames ``mj_integratePos`` of that velocity, so that the
+playback passes exactly through every stored frame. The same path gives the
+ghosts' and the inactive objects' body positions (forward kinematics of the
+decoded frames) and the metrics of the part of the world before t_min.
+
+Everything here runs once per refinement on the host (a few hundred frames
+of one world); the per-step work is array indexing in the loops.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+
+
+class StoredPath(NamedTuple):
+  """The parent world's decoded motion over the refined worlds' horizon.
+
+  Frames past the parent's last recorded frame hold it (zero velocity): a
+  parent that came to rest stays at rest.
+
+  Attributes:
+    qpos: f32[F, nq] decoded frames (frame f at f / record_fps s).
+    qvel: f32[F, nv] chord velocity from frame f to f + 1, qvel units.
+    com: f32[F, B, 3] tracked bodies' centres of mass, m.
+    quat: f32[F, B, 4] tracked bodies' inertial-frame orientations (w, x, y, z).
+    n_parent: frames the parent recorded.
+  """
+
+  qpos: np.ndarray
+  qvel: np.ndarray
+  com: np.ndarray
+  quat: np.ndarray
+  n_parent: int
+
+
+def stored_path(model: mujoco.MjModel, frames: np.ndarray, body_ids: np.ndarray, n_frames: int,
+                frame_time: float) -> StoredPath:
+  """Playback arrays of one decoded path.
+
+  Args:
+    model: the scene model.
+    frames: f32[T, nq] decoded qpos of the parent (T >= 1).
+    body_ids: i32[B] tracked body ids.
+    n_frames: F, frames to cover (held after T).
+    frame_time: seconds between frames (1 / record_fps).
+  """
+  t = len(frames)
+  n = max(n_frames, t)
+  qpos = np.concatenate([frames, np.repeat(frames[-1:], n - t, axis=0)]).astype(np.float64)
+  qvel = np.zeros((n, model.nv))
+  for f in range(t - 1):
+    mujoco.mj_differentiatePos(model, qvel[f], frame_time, qpos[f], qpos[f + 1])
+  data = mujoco.MjData(model)
+  com = np.zeros((t, len(body_ids), 3))
+  quat = np.zeros((t, len(body_ids), 4))
+  for f in range(t):
+    data.qpos[:] = qpos[f]
+    mujoco.mj_kinematics(model, data)
+    com[f] = data.xipos[body_ids]
+    for i, b in enumerate(body_ids):
+      mujoco.mju_mat2Quat(quat[f, i], data.ximat[b])
+  hold = lambda x: np.concatenate([x, np.repeat(x[-1:], n - t, axis=0)])
+  return StoredPath(qpos=qpos.astype(np.float32), qvel=qvel.astype(np.float32),
+                    com=hold(com).astype(np.float32), quat=hold(quat).astype(np.float32), n_parent=t)
+
+
+def central_velocity(model: mujoco.MjModel, path: StoredPath, frame: int, frame_time: float) -> np.ndarray:
+  """f32[nv] qvel at a frame by a central difference of the decoded path.
+
+  One-sided at the ends of the parent's recording (and zero for a one-frame
+  recording). This is the restart velocity of the objects refined at t_min.
+  """
+  lo, hi = max(frame - 1, 0), min(frame + 1, path.n_parent - 1)
+  v = np.zeros(model.nv)
+  if hi > lo:
+    mujoco.mj_differentiatePos(model, v, (hi - lo) * frame_time,
+                               path.qpos[lo].astype(np.float64), path.qpos[hi].astype(np.float64))
+  return v.astype(np.float32)
+
+
+def step_targets(model: mujoco.MjModel, path: StoredPath, steps_per_frame: int, dt: float) -> np.ndarray:
+  """f32[F * S, nq] playback ``qpos`` at every physics step.
+
+  Step ``f·S + j`` is ``mj_integratePos(qpos[f], qvel[f], j·dt)``: the path
+  between frames at the chord velocity, exactly ``qpos[f]`` at ``j = 0`` and
+  reaching ``qpos[f + 1]`` at ``j = S``. (Its ``qvel`` is ``qvel[f]``.)
+  """
+  n = len(path.qpos)
+  out = np.zeros((n * steps_per_frame, model.nq))
+  for f in range(n):
+    base = path.qpos[f].astype(np.float64)
+    v = path.qvel[f].astype(np.float64)
+    out[f * steps_per_frame] = base
+    for j in range(1, steps_per_frame):
+      q = base.copy()
+      mujoco.mj_integratePos(model, q, v, j * dt)
+      out[f * steps_per_frame + j] = q
+  return out.astype(np.float32)
+
+
+def _angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+  dot = np.abs(np.sum(q1 * q2, axis=-1))
+  return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+
+
+def prefix_metrics(path: StoredPath, frame: int, frame_time: float, dt: float, gravity: np.ndarray,
+                   rest_linear_speed: float, rest_angular_speed: float, linear_threshold: float,
+                   gap_frames: int) -> np.ndarray:
+  """f32[B, 6] metric accumulators (world.METRIC_NAMES order) over frames 0…frame.
+
+  Computed from the decoded path at the record rate: angular travel as the
+  sum of frame-to-frame rotation angles, rest time as the last frame moving
+  faster than the rest speeds (-inf if none), collisions as rising edges of
+  ``‖Δv − g·h‖ > C_v·dt`` between frame chords (an estimate: the stored path
+  holds no per-step accelerations), path length and highest COM z. Orientation
+  error is left 0 (the loop computes it against frame 0).
+  """
+  com = path.com[:frame + 1].astype(np.float64)
+  quat = path.quat[:frame + 1].astype(np.float64)
+  b = com.shape[1]
+  out = np.zeros((b, 6), np.float32)
+  out[:, 5] = com[:, :, 2].max(axis=0)
+  out[:, 1] = -np.inf
+  if frame == 0:
+    return out
+  angles = _angle(quat[:-1], quat[1:])  # [frame, B]
+  steps = np.linalg.norm(np.diff(com, axis=0), axis=-1)
+  out[:, 0] = angles.sum(axis=0)
+  out[:, 4] = steps.sum(axis=0)
+  moving = (steps / frame_time >= rest_linear_speed) | (angles / frame_time >= rest_angular_speed)
+  last = np.where(moving.any(axis=0), frame - 1 - np.argmax(moving[::-1], axis=0), -1)
+  out[:, 1] = np.where(last >= 0, last * frame_time, -np.inf)
+  if frame >= 2:
+    vel = np.diff(com, axis=0) / frame_time  # [frame, B, 3]
+    dv = np.diff(vel, axis=0) - gravity * frame_time
+    impact = np.linalg.norm(dv, axis=-1) > linear_threshold * dt
+    count = np.zeros(b)
+    since = np.full(b, 1 << 30)
+    for row in impact:
+      count += row & (since > gap_frames)
+      since = np.where(row, 0, since + 1)
+    out[:, 2] = count
+  return out

@@ -1,0 +1,289 @@
+"""Refinement (paper §5): resample only the objects a user marks, from t_min.
+
+``refine(bank, world, objects, t_min=… | frustum=…, n_samples, key)`` picks
+the parent world's stored state at t_min (decoded ``qpos``, ``qvel`` by
+differentiating the decoded path), simulates the marked objects with fresh
+perturbations, replays every other object's stored motion, and activates an
+object as soon as an active object or a ghost of one may touch it (see
+:mod:`mwbx.batch_sim.interactions` and :mod:`mwbx.batch_sim.refine_loop`).
+
+The new worlds are ordinary bank worlds: frames before t_min are the
+parent's, then the new motion; objects never activated keep the parent's
+decoded path, COM polylines and metrics exactly. Their lineage (parent row,
+t_min, objects asked for, final active set) is in ``bank.lineage`` under the
+new row's index, plus ``parent_world``/``refine_time`` columns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from mwbx import bank as bank_lib
+from mwbx.batch_sim import interactions, kinematic, refine_loop, refine_store
+from mwbx.batch_sim import world as world_lib
+from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
+from mwbx.errors import MwbxError
+
+DEFAULT_MARGIN = 0.01  # m, contact margin of the interaction test
+
+
+def _scene_of(bank):
+  from mwbx.config import config_from_dict
+  from mwbx.scene import Scene
+  data = dict(bank.config)
+  data.pop("source", None)
+  scene = Scene(config_from_dict(data, source="<bank config>"), mjcf_text=bank.mjcf_text)
+  if scene.body_names != tuple(bank.body_names):
+    raise MwbxError("refine: the bank's tracked bodies do not match its own config")
+  return scene
+
+
+def resolve_objects(bank, objects: str | Sequence[str]) -> tuple[str, ...]:
+  """Object names for object or group names (MwbxError naming an unknown one)."""
+  if isinstance(objects, str):
+    objects = [o for o in objects.split(",") if o]
+  out: list[str] = []
+  for name in objects:
+    if name in bank.objects:
+      members = (name,)
+    elif name in bank.groups:
+      members = bank.groups[name]
+    else:
+      raise MwbxError(f"refine: objects: unknown object or group {name!r}"
+                      f" (objects: {', '.join(bank.objects)}; groups: {', '.join(bank.groups) or 'none'})")
+    out.extend(m for m in members if m not in out)
+  if not out:
+    raise MwbxError("refine: objects: name at least one object or group to refine")
+  return tuple(out)
+
+
+def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_min: float | None = None) -> float:
+  """t_min in seconds: given, or the first time an object's COM enters ``frustum``."""
+  if (frustum is None) == (t_min is None):
+    raise MwbxError("refine: give exactly one of frustum (a screen box through a camera) or t_min")
+  last = (int(bank.frame_count[world]) - 1) / bank.record_fps
+  if frustum is not None:
+    from mwbx.queries import first_entry
+    t_min = first_entry(bank, world, list(objects), frustum)
+    if t_min is None:
+      raise MwbxError(f"refine: no object of {', '.join(objects)} enters the box in world {world}")
+  t_min = float(t_min)
+  if not (math.isfinite(t_min) and 0.0 <= t_min <= last + 1e-9):
+    raise MwbxError(f"refine: t_min {t_min:g} s is outside world {world}'s recording [0, {last:g}] s")
+  return t_min
+
+
+def _object_masks(model: mujoco.MjModel, object_names) -> tuple[np.ndarray, np.ndarray]:
+  """(bool[O, nq], bool[O, nv]) coordinates of each object's joints."""
+  qm = np.zeros((len(object_names), model.nq), bool)
+  vm = np.zeros((len(object_names), model.nv), bool)
+  nq_of = {0: 7, 1: 4, 2: 1, 3: 1}
+  nv_of = {0: 6, 1: 3, 2: 1, 3: 1}
+  for o, name in enumerate(object_names):
+    root = model.body(name).id
+    for j in range(model.njnt):
+      if model.body_rootid[model.jnt_bodyid[j]] == root:
+        t = int(model.jnt_type[j])
+        qm[o, model.jnt_qposadr[j]:model.jnt_qposadr[j] + nq_of[t]] = True
+        vm[o, model.jnt_dofadr[j]:model.jnt_dofadr[j] + nv_of[t]] = True
+  return qm, vm
+
+
+@dataclasses.dataclass
+class RefineStats(SampleStats):
+  """Timing of a refinement run; ``first_frame`` is the frame at t_min."""
+
+  first_frame: int = 0
+
+
+def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
+               key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
+               margin: float = DEFAULT_MARGIN, progress=None):
+  """:func:`refine` that also returns :class:`RefineStats` and only the new worlds."""
+  start_wall = time.perf_counter()
+  world = int(world)
+  if not 0 <= world < bank.n_worlds:
+    raise MwbxError(f"refine: world {world} out of range (bank has {bank.n_worlds} worlds)")
+  if not bank.valid[world]:
+    raise MwbxError(f"refine: world {world} went unstable while sampling; refine a stable world")
+  if n_samples < 1:
+    raise MwbxError(f"refine: n_samples must be at least 1, got {n_samples}")
+  names = resolve_objects(bank, objects)
+  t_min = resolve_t_min(bank, world, names, frustum, t_min)
+  sampler = _sampler(bank, backend)
+  chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
+  return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, progress, start_wall)
+
+
+_SAMPLERS: dict = {}
+
+
+def _sampler(bank, backend: str | None) -> Sampler:
+  """A sampler for the bank's scene, kept for later refinements of that scene
+  (its thread pool and compiled kernels are reused)."""
+  cache_key = (bank.digest, backend)
+  if cache_key not in _SAMPLERS:
+    if len(_SAMPLERS) >= 4:
+      _SAMPLERS.pop(next(iter(_SAMPLERS))).close()
+    _SAMPLERS[cache_key] = Sampler(_scene_of(bank), backend)
+  return _SAMPLERS[cache_key]
+
+
+def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, progress, start_wall):
+  scene, params = sampler.scene, sampler.params
+  model = scene.model
+  fps, spf = bank.record_fps, params.steps_per_frame
+  frame_time = 1.0 / fps
+  f0 = int(math.floor(t_min * fps + 1e-6))
+  n_frames = sampler.n_frames
+  if f0 >= n_frames:
+    raise MwbxError(f"refine: t_min {t_min:g} s is at or past the end time")
+  parent = bank.qpos_frames(world)
+  path = kinematic.stored_path(model, parent, scene.body_ids, n_frames + 2, frame_time)
+  targets = kinematic.step_targets(model, path, spf, model.opt.timestep) if sampler.backend_name == "mjx" else None
+  object_names = tuple(scene.object_names)
+  qm, vm = _object_masks(model, object_names)
+  asked = np.array([o in names for o in object_names])
+  cfg = scene.config
+  inter = interactions.interaction_params(
+      model, scene.body_ids, scene.body_names, scene.objects, object_names,
+      (cfg.codec.e_pos, float(np.deg2rad(cfg.codec.e_rot_deg)), cfg.codec.e_scalar),
+      margin, (spf + 1) * model.opt.timestep, cfg.perturb.alpha)
+
+  qpos0 = path.qpos[f0]
+  qvel0 = np.where(vm[asked].any(axis=0), kinematic.central_velocity(model, path, f0, frame_time), path.qvel[f0])
+  metrics0 = kinematic.prefix_metrics(
+      path, f0, frame_time, model.opt.timestep, np.asarray(model.opt.gravity), cfg.rest.linear_speed,
+      cfg.rest.angular_speed, cfg.perturb.linear_threshold,
+      max(1, int(round(cfg.perturb.collision_gap * fps))))
+
+  ids = np.arange(n_samples, dtype=np.int64)
+  keys, _, step_keys = world_keys(key, ids)
+  stats = RefineStats(backend=sampler.backend_label, first_frame=f0)
+  outputs = []
+  for lo in range(0, n_samples, chunk):
+    n = min(chunk, n_samples - lo)
+    pad = np.concatenate([np.arange(lo, lo + n), np.full(chunk - n, lo)])
+    running0 = np.arange(chunk) < n
+    carry = jax.vmap(world_lib.init_carry, in_axes=(None, 0))(len(scene.body_names), jnp.asarray(running0))
+    carry = carry._replace(
+        step=jnp.full(chunk, f0 * spf, jnp.int32),
+        metrics=jnp.broadcast_to(jnp.asarray(metrics0), carry.metrics.shape),
+        prev_com=jnp.broadcast_to(jnp.asarray(path.com[f0]), carry.prev_com.shape),
+        init_quat=jnp.broadcast_to(jnp.asarray(path.quat[0]), carry.init_quat.shape))
+    inp = refine_loop.RefineInputs(
+        params=params, inter=inter, path=path, step_targets=targets, first_frame=f0,
+        qpos0=np.tile(qpos0, (chunk, 1)), qvel0=np.tile(qvel0, (chunk, 1)),
+        active0=np.tile(asked, (chunk, 1)), carry0=carry, qpos_object=qm, dof_object=vm,
+        step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids)
+    run = refine_loop.run_mjx if sampler.backend_name == "mjx" else refine_loop.run_native
+    base = stats.world_steps
+
+    def report(steps, finished, _base=base, _lo=lo):
+      if progress is not None:
+        progress(_base + steps, _lo + finished, n_samples)
+
+    out = run(sampler.backend, inp, progress=report)
+    out = refine_loop.RefineOutput(*(x[:n] if isinstance(x, np.ndarray) else x for x in out))
+    outputs.append(out)
+    stats.world_steps += int(out.steps.sum())
+    stats.run_seconds += out.run_seconds
+    stats.compile_seconds += out.compile_seconds
+  codec_start = time.perf_counter()
+  new = _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs, qm, sampler)
+  stats.codec_seconds = time.perf_counter() - codec_start
+  stats.wall_seconds = time.perf_counter() - start_wall
+  return new, stats
+
+
+def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs, qm, sampler):
+  """The refined worlds as a bank (same scene, config and digest as ``bank``)."""
+  cat = lambda name: np.concatenate([getattr(o, name) for o in outputs])
+  count = f0 + cat("frame_count").astype(np.int32)
+  new_qpos, new_com = cat("qpos"), cat("com")
+  w, n_frames = len(count), sampler.n_frames
+  active = cat("active")
+  activated = cat("activated")
+  body_obj = np.array([object_names.index(next(o for o, bs in bank.objects.items() if b in bs))
+                       for b in bank.body_names])
+  body_active = active[:, body_obj]  # [W, B]
+
+  qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
+  keep_qpos = (~active).astype(np.float32) @ qm.astype(np.float32) > 0.5
+  store = refine_store.store_refined(bank.qpos_store, qpos, count, world, parent, keep_qpos)
+
+  stride = sampler.query_stride
+  n_points = bank.com.shape[1]
+  com_rate = np.concatenate([np.zeros((w, f0) + new_com.shape[2:], np.float32), new_com], axis=1)
+  com = com_rate[:, ::stride][:, :n_points]
+  com = np.concatenate([com, np.repeat(com[:, -1:], n_points - com.shape[1], axis=1)], axis=1)
+  before = (np.arange(n_points) * stride < f0)
+  com[:, before] = bank.com[world][before]
+  parent_com = bank.com[world]
+  com = np.where(body_active[:, None, :, None], com, parent_com[None])
+  com = np.nan_to_num(com)
+  com_count = ((count - 1) // stride + 1).astype(np.int32)
+
+  metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
+  metrics = np.where(body_active[:, :, None], metrics, bank.metrics[world][None])
+  status = cat("status")
+  flags = np.full(w, bank_lib.FLAG_FINISHED, np.uint8)
+  flags[status == world_lib.AT_REST] |= bank_lib.FLAG_AT_REST
+  flags[status == world_lib.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
+  first_id = int(bank.world_ids.max()) + 1 if bank.n_worlds else 0
+  t0 = f0 / bank.record_fps
+  lineage = {}
+  for i in range(w):
+    lineage[str(bank.n_worlds + i)] = {
+        "parent": int(world), "t_min": t0, "objects": list(names),
+        "active": [o for o, a in zip(object_names, active[i]) if a],
+        "activated_at": {o: int(f) / bank.record_fps for o, f in zip(object_names, activated[i]) if f >= 0},
+    }
+  return dataclasses.replace(
+      bank, world_ids=np.arange(first_id, first_id + w, dtype=np.int64),
+      keys=np.asarray(jax.random.key_data(keys)), flags=flags, frame_count=count, com=com.astype(np.float32),
+      com_count=com_count, metrics=metrics.astype(np.float32),
+      perturbations=cat("perturbations").astype(np.int32), steps=cat("steps").astype(np.int32),
+      parent_world=np.full(w, world, np.int64), refine_time=np.full(w, t0, np.float32),
+      qpos_store=store, lineage=lineage, _model=None)
+
+
+
+def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
+           key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
+           margin: float = DEFAULT_MARGIN, progress=None):
+  """Resamples the marked objects of one world from t_min on (paper §5).
+
+  Args:
+    bank: the bank holding the parent world.
+    world: the parent's row in ``bank``.
+    objects: object or group names (a list, or one comma-separated string).
+    frustum: a :class:`mwbx.queries.Frustum` (e.g. ``camera.frustum(box)``):
+      t_min is the first time any of the objects' COM is inside it; or
+    t_min: the restart time in seconds (rounded down to a recorded frame).
+    n_samples: refined worlds to make.
+    key: run key; refined world i draws from ``fold_in(key, i)``.
+    backend: ``auto`` | ``native`` | ``mjx`` (default: the config's).
+    chunk_size: worlds per lockstep batch.
+    margin: contact margin of the interaction test, m (larger is safer).
+    progress: optional callback(world_steps, worlds_finished, n_samples).
+
+  Returns:
+    ``bank`` with the refined worlds appended (rows ``bank.n_worlds`` on),
+    each with ``parent_world``, ``refine_time`` and ``lineage`` entries.
+
+  Raises:
+    MwbxError: unknown object, world out of range, unstable parent, t_min
+      outside the recording, or a box the objects never enter.
+  """
+  new, _ = refine_run(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
+                      backend=backend, chunk_size=chunk_size, margin=margin, progress=progress)
+  return bank.append(new)

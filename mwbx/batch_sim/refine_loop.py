@@ -1,0 +1,321 @@
+"""The lockstep loops of refinement, one per backend.
+
+Every world of a refinement starts at the same frame f0 of the same parent,
+so the stored path is shared and only the active masks differ per world. Per
+frame f (both backends):
+
+1. the active set for the frame comes from :func:`interactions.activate`
+   (on the last step's observations and the stored chord f → f + 1);
+2. objects inactive before that update are put on their stored state
+   (decoded ``qpos[f]``, chord ``qvel[f]``), so a newly activated object
+   starts exactly where its stored motion is;
+3. the frame's S physics steps run for every object; the MJX loop also puts
+   inactive objects back on the stored path before every step (playback
+   between frames by ``mj_integratePos``); the native loop hands whole frames
+   to ``mujoco.rollout``, so there inactive objects are reset at every frame
+   and may drift from the path inside it by at most the frame's free motion,
+   which the interaction margin covers (they never touch an active object
+   inside a frame, or they would have been activated);
+4. the bookkeeping kernel runs with only active bodies perturbable.
+
+Frames are recorded at the frame start, after step 2: an inactive object's
+recorded frame is its stored frame, bit for bit.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mwbx.batch_sim import interactions, world
+from mwbx.batch_sim.backend import fill_tail
+from mwbx.batch_sim.kinematic import StoredPath
+
+
+class RefineInputs(NamedTuple):
+  """One lockstep batch of refined worlds.
+
+  Attributes:
+    params: bookkeeping constants; inter: interaction-test constants.
+    path: the parent's stored path (at least n_frames + 2 frames).
+    step_targets: f32[F·S, nq] per-step playback qpos (MJX loop only, else None).
+    first_frame: f0, the frame at t_min.
+    qpos0: f32[C, nq]; qvel0: f32[C, nv] state at f0.
+    active0: bool[C, O] objects refined (asked for).
+    carry0: bookkeeping at f0 (leading axis C).
+    qpos_object: bool[O, nq]; dof_object: bool[O, nv] coordinates of each object.
+    step_keys: key[C] per-world step key roots.
+    running0: bool[C] false for padding slots.
+    n_frames: end_frame + 1.
+    body_ids: i32[B] tracked body ids.
+  """
+
+  params: world.WorldParams
+  inter: interactions.InteractionParams
+  path: StoredPath
+  step_targets: np.ndarray | None
+  first_frame: int
+  qpos0: np.ndarray
+  qvel0: np.ndarray
+  active0: np.ndarray
+  carry0: world.WorldCarry
+  qpos_object: np.ndarray
+  dof_object: np.ndarray
+  step_keys: jax.Array
+  running0: np.ndarray
+  n_frames: int
+  body_ids: np.ndarray
+
+
+class RefineOutput(NamedTuple):
+  """What a batch produced (host arrays); frames counted from f0.
+
+  Attributes:
+    qpos: f32[C, F - f0, nq]; com: f32[C, F - f0, B, 3] (tails repeat the last).
+    frame_count: i32[C] frames recorded from f0 on.
+    status: i32[C]; metrics: f32[C, B, M]; perturbations: i32[C].
+    steps: i32[C] physics steps simulated (from f0).
+    active: bool[C, O] final active sets.
+    activated: i32[C, O] frame each object became active (-1: never).
+    compile_seconds, run_seconds: s.
+  """
+
+  qpos: np.ndarray
+  com: np.ndarray
+  frame_count: np.ndarray
+  status: np.ndarray
+  metrics: np.ndarray
+  perturbations: np.ndarray
+  steps: np.ndarray
+  active: np.ndarray
+  activated: np.ndarray
+  compile_seconds: float
+  run_seconds: float
+
+
+def _activate_batch(active, com_sim, speed_sim, com_now, com_next, inter):
+  return jax.vmap(interactions.activate, in_axes=(0, 0, 0, None, None, None))(
+      active, com_sim, speed_sim, com_now, com_next, inter)
+
+
+_activate_jit = jax.jit(_activate_batch)
+
+
+def _body_mask(active: jax.Array, inter: interactions.InteractionParams) -> jax.Array:
+  """bool[W, B] bodies of active objects."""
+  return (active.astype(jnp.float32) @ inter.body_object.T) > 0.5
+
+
+def _start(inp: RefineInputs):
+  """(active for frame f0, host speeds) from the stored path at f0."""
+  p, f0 = inp.path, inp.first_frame
+  c = len(inp.qpos0)
+  frame_time = inp.params.dt * inp.params.steps_per_frame
+  speed = np.linalg.norm(p.com[f0 + 1] - p.com[f0], axis=-1) / frame_time
+  com = np.broadcast_to(p.com[f0], (c,) + p.com[f0].shape)
+  return _activate_jit(jnp.asarray(inp.active0), jnp.asarray(com), jnp.broadcast_to(speed, (c, len(speed))),
+                         jnp.asarray(p.com[f0]), jnp.asarray(p.com[f0 + 1]), inp.inter)
+
+
+def _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds):
+  frame_count = np.asarray(carry.frame_count)
+  steps = np.asarray(carry.step) - inp.first_frame * inp.params.steps_per_frame
+  return RefineOutput(
+      qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count), frame_count=frame_count,
+      status=np.asarray(carry.status), metrics=world.finalize_metrics(carry),
+      perturbations=np.asarray(carry.perturbations), steps=np.where(inp.running0, steps, 0).astype(np.int32),
+      active=np.asarray(active), activated=activated, compile_seconds=compile_seconds, run_seconds=run_seconds)
+
+
+_KERNELS: dict = {}
+
+
+def _native_kernel(params: world.WorldParams, n_sensor: int):
+  """The jitted per-frame kernel of the native loop (cached per params)."""
+  cache_key = (id(params), n_sensor)
+  if cache_key not in _KERNELS:
+    def kernel(carry, sensordata, keys, active, com_now, com_next, inter):
+      obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensordata[..., :n_sensor])
+      carry, out = world.frame_update(carry, obs, keys, params, _body_mask(active, inter))
+      speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)
+      nxt = _activate_batch(active, obs.com_pos[:, -1], speed, com_now, com_next, inter)
+      return carry, out.wrench, out.record, out.running, obs.com_pos[:, 0], nxt
+    _KERNELS[cache_key] = (params, jax.jit(kernel))
+  return _KERNELS[cache_key][1]
+
+
+def run_native(backend, inp: RefineInputs, progress=None) -> RefineOutput:
+  """Refined worlds on the native backend (``mujoco.rollout`` per frame)."""
+  m = backend.model
+  params, inter, path = inp.params, inp.inter, inp.path
+  c, spf, f0 = len(inp.qpos0), params.steps_per_frame, inp.first_frame
+  nq, nv, dt = m.nq, m.nv, m.opt.timestep
+  qadr, vadr = slice(1, 1 + nq), slice(1 + nq, 1 + nq + nv)
+  n_sensor = len(inter.radius) * world.SENSOR_WIDTH
+  body_ids = np.asarray(inp.body_ids)
+
+  kernel = _native_kernel(params, n_sensor)
+  states = backend.initial_states(inp.qpos0, inp.qvel0)
+  states[:, 0] = f0 * spf * dt
+  warmstart = np.zeros((c, nv))
+  wrench_full = np.zeros((c, spf, m.nbody, 6))
+  sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
+  n_out = inp.n_frames - f0
+  qpos_buf = np.zeros((c, n_out, nq), np.float32)
+  com_buf = np.zeros((c, n_out, len(body_ids), 3), np.float32)
+  com_path = jnp.asarray(path.com)
+  qpos_object = inp.qpos_object.astype(np.float32)
+  dof_object = inp.dof_object.astype(np.float32)
+
+  t0 = time.perf_counter()
+  active = _start(inp)
+  jax.block_until_ready(kernel(inp.carry0, jnp.asarray(sensordata), inp.step_keys, active,
+                               com_path[f0 + 1], com_path[f0 + 2], inter))
+  compile_seconds = time.perf_counter() - t0
+
+  t0 = time.perf_counter()
+  carry = inp.carry0
+  running = np.asarray(inp.running0).copy()
+  prev_inactive = ~np.asarray(inp.active0)
+  activated = np.where(np.asarray(active), f0, -1).astype(np.int32)
+  frame = f0
+  while running.any():
+    qmask = (prev_inactive.astype(np.float32) @ qpos_object) > 0.5
+    vmask = (prev_inactive.astype(np.float32) @ dof_object) > 0.5
+    states[:, qadr] = np.where(qmask, path.qpos[frame], states[:, qadr])
+    states[:, vadr] = np.where(vmask, path.qvel[frame], states[:, vadr])
+    idx = np.flatnonzero(running)
+    before = states[idx]
+    after, sensors = backend.step(before, wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx])
+    bad = ~np.isclose(after[:, -1, 0], before[:, 0] + spf * dt, rtol=0, atol=1e-6)
+    sensors[bad] = np.nan
+    sensordata[idx] = sensors
+    previous = after[:, -2] if spf > 1 else before
+    warmstart[idx] = (after[:, -1, vadr] - previous[:, vadr]) / dt
+    states[idx] = after[:, -1]
+
+    carry, wrench, record, still, com, nxt = kernel(
+        carry, jnp.asarray(sensordata), inp.step_keys, active, com_path[frame + 1], com_path[frame + 2], inter)
+    record = np.asarray(record)
+    if record.any():
+      rec = np.flatnonzero(record)
+      qpos_buf[rec, frame - f0] = before[np.searchsorted(idx, rec), qadr]
+      com_buf[rec, frame - f0] = np.asarray(com)[rec]
+    wrench_full[:, :, body_ids] = np.asarray(wrench)
+    running = np.asarray(still)
+    active_now = np.asarray(active)
+    nxt_np = np.where(running[:, None], np.asarray(nxt), active_now)
+    activated = np.where((activated < 0) & nxt_np, frame + 1, activated)
+    prev_inactive = ~active_now
+    active = jnp.asarray(nxt_np)
+    frame += 1
+    if progress is not None and frame % 16 == 0:
+      progress(int((np.asarray(carry.step) - f0 * spf).sum()), int((~running & inp.running0).sum()))
+  run_seconds = time.perf_counter() - t0
+  return _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds)
+
+
+def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 30) -> RefineOutput:
+  """Refined worlds on the MJX backend: blocks of frames as one jitted scan,
+  inactive objects put on the stored path before every physics step."""
+  from mwbx.batch_sim.mjx_backend import FRAMES_PER_BLOCK
+  m = backend.model
+  params, inter, path = inp.params, inp.inter, inp.path
+  c, spf, f0 = len(inp.qpos0), params.steps_per_frame, inp.first_frame
+  n_out = inp.n_frames - f0
+  block = min(frames_per_block or FRAMES_PER_BLOCK, n_out)
+  consts = (jnp.asarray(inp.step_targets), jnp.asarray(path.qvel), jnp.asarray(path.com),
+            jnp.asarray(inp.qpos_object, jnp.float32), jnp.asarray(inp.dof_object, jnp.float32), inter)
+  run = _mjx_block(backend, params, np.asarray(inp.body_ids), block, len(inter.radius) * world.SENSOR_WIDTH)
+  d = backend.make_data(jnp.asarray(inp.qpos0), jnp.asarray(inp.qvel0))
+  d = d.replace(time=jnp.full((c,), f0 * spf * m.opt.timestep, d.time.dtype))
+  t0 = time.perf_counter()
+  active = _start(inp)
+  wrench = jnp.zeros((c, spf, len(inp.body_ids), 6), jnp.float32)
+  state = (d, inp.carry0, wrench, inp.step_keys, active, jnp.asarray(~np.asarray(inp.active0)),
+           jnp.int32(f0))
+  state, first = run(state, consts)  # the first block, compiled on first use
+  jax.block_until_ready(state)
+  compile_seconds = time.perf_counter() - t0
+
+  qpos_buf = np.zeros((c, n_out, m.nq), np.float32)
+  com_buf = np.zeros((c, n_out, len(inp.body_ids), 3), np.float32)
+  activated = np.where(np.asarray(active), f0, -1).astype(np.int32)
+  t0 = time.perf_counter()
+  start, pending = 0, first
+  while start < n_out:
+    if pending is None:
+      state, pending = run(state, consts)
+    (record, qpos, com, nxt), pending = pending, None
+    record, qpos, com, nxt = (np.asarray(x) for x in (record, qpos, com, nxt))
+    stop = min(start + block, n_out)
+    f, w = np.nonzero(record[:stop - start])
+    qpos_buf[w, start + f] = qpos[f, w]
+    com_buf[w, start + f] = com[f, w]
+    for i in range(stop - start):
+      activated = np.where((activated < 0) & nxt[i], f0 + start + i + 1, activated)
+    start = stop
+    status = np.asarray(state[1].status)
+    if progress is not None:
+      progress(int((np.asarray(state[1].step) - f0 * spf).sum()), int((status != world.RUNNING).sum()))
+    if (status != world.RUNNING).all():
+      break
+  jax.block_until_ready(state)
+  run_seconds = time.perf_counter() - t0
+  return _finish(inp, state[1], qpos_buf, com_buf, state[4], activated, compile_seconds, run_seconds)
+
+
+_BLOCKS: dict = {}
+
+
+def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: int, n_sensor: int):
+  """The jitted function running ``block`` refined frames on MJX (cached)."""
+  cache_key = (id(backend), id(params), block, n_sensor)
+  if cache_key in _BLOCKS:
+    return _BLOCKS[cache_key][2]
+  spf = params.steps_per_frame
+  nbody = backend.model.nbody
+  ids = jnp.asarray(body_ids)
+
+  def put_on_path(d, inactive, frame, j, consts):
+    targets, qvel_path, _, qpos_object, dof_object, _ = consts
+    qm = (inactive.astype(jnp.float32) @ qpos_object) > 0.5
+    vm = (inactive.astype(jnp.float32) @ dof_object) > 0.5
+    return d.replace(qpos=jnp.where(qm, targets[frame * spf + j], d.qpos),
+                     qvel=jnp.where(vm, qvel_path[frame], d.qvel))
+
+  def frame_fn(consts, state):
+    com_path, inter = consts[2], consts[5]
+    d, carry, wrench, keys, active, prev_inactive, frame = state
+    d = put_on_path(d, prev_inactive, frame, 0, consts)
+    qpos = d.qpos
+
+    def physics_step(d, inputs):
+      j, xfrc_tracked = inputs
+      d = jax.lax.cond(j > 0, lambda x: put_on_path(x, ~active, frame, j, consts), lambda x: x, d)
+      xfrc = jnp.zeros((xfrc_tracked.shape[0], nbody, 6), jnp.float32).at[:, ids].set(xfrc_tracked)
+      d = backend.step(d, xfrc)
+      return d, d.sensordata
+
+    d_next, sensordata = jax.lax.scan(physics_step, d, (jnp.arange(spf), jnp.swapaxes(wrench, 0, 1)))
+    sensordata = jnp.swapaxes(sensordata, 0, 1)[..., :n_sensor]
+    obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensordata)
+    carry, out = world.frame_update(carry, obs, keys, params, _body_mask(active, inter))
+    speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)
+    nxt = _activate_batch(active, obs.com_pos[:, -1], speed, com_path[frame + 1], com_path[frame + 2], inter)
+    nxt = jnp.where(out.running[:, None], nxt, active)
+    keep = out.running
+    d = jax.tree.map(lambda new, old: jnp.where(keep.reshape((-1,) + (1,) * (new.ndim - 1)), new, old),
+                     d_next, d)
+    return (d, carry, out.wrench, keys, nxt, ~active, frame + 1), (out.record, qpos, obs.com_pos[:, 0], nxt)
+
+  def run(state, consts):
+    return jax.lax.scan(lambda st, _: frame_fn(consts, st), state, None, length=block)
+
+  fn = jax.jit(run)
+  _BLOCKS[cache_key] = (backend, params, fn)
+  return fn
