@@ -20,6 +20,7 @@ would hit is never dropped: culling never changes answers (the tests compare
 with a brute-force reference on many random banks).
 """
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -80,33 +81,37 @@ def build_index(
     PathIndex on the default device.
   """
   com = np.asarray(com, np.float32)
-  w, p, b, _ = com.shape
-  pts = np.ascontiguousarray(com.transpose(0, 2, 1, 3))  # [W, B, P, 3]
-  if p == 1:
-    pts = np.concatenate([pts, pts], axis=2)
-  n_seg = pts.shape[2] - 1
+  if com.shape[1] == 1:  # one point: a zero-length segment
+    com = np.concatenate([com, com], axis=1)
+  n_seg = com.shape[1] - 1
   n_chunks = -(-n_seg // chunk)
-  pad = n_chunks * chunk + 1 - pts.shape[2]
-  if pad:
-    tail = np.repeat(pts[:, :, -1:], pad, axis=2)
-    pts = np.concatenate([pts, tail], axis=2)
+  points, lo, hi, extent = _build(jp.asarray(com), jp.asarray(valid, bool), n_chunks, chunk)
+  return PathIndex(
+      points=points,
+      box_lo=lo,
+      box_hi=hi,
+      valid=jp.asarray(np.asarray(valid, bool)),
+      n_segments=jp.asarray(n_seg, jp.int32),
+      extent=extent,
+  )
+
+
+@partial(jax.jit, static_argnums=(2, 3))
+def _build(com, valid, n_chunks: int, chunk: int):
+  """Padded per-path polylines, chunk boxes and the coordinate extent."""
+  w, p, b, _ = com.shape
+  pts = jp.transpose(com, (0, 2, 1, 3))  # [W, B, P, 3]
+  pad = n_chunks * chunk + 1 - p
+  pts = jp.concatenate([pts, jp.repeat(pts[:, :, -1:], pad, axis=2)], axis=2)
   body = pts[:, :, :-1].reshape(w, b, n_chunks, chunk, 3)
   ends = pts[:, :, chunk::chunk]  # [W, B, NC, 3] last point of each chunk
-  lo = np.minimum(body.min(axis=3), ends)
-  hi = np.maximum(body.max(axis=3), ends)
-  valid = np.asarray(valid, bool)
+  lo = jp.minimum(body.min(axis=3), ends)
+  hi = jp.maximum(body.max(axis=3), ends)
   # Invalid worlds never match, and may hold NaN or huge values.
-  finite = np.abs(pts[valid])
-  finite = finite[np.isfinite(finite)]
-  extent = float(finite.max()) if finite.size else 0.0
-  return PathIndex(
-      points=jp.asarray(pts),
-      box_lo=jp.asarray(np.ascontiguousarray(np.moveaxis(lo, -1, 0))),
-      box_hi=jp.asarray(np.ascontiguousarray(np.moveaxis(hi, -1, 0))),
-      valid=jp.asarray(valid),
-      n_segments=jp.asarray(n_seg, jp.int32),
-      extent=jp.asarray(extent, jp.float32),
-  )
+  mag = jp.abs(pts)
+  mag = jp.where(valid[:, None, None, None] & jp.isfinite(mag), mag, 0.0)
+  extent = jp.max(mag, initial=0.0)
+  return pts, jp.moveaxis(lo, -1, 0), jp.moveaxis(hi, -1, 0), extent
 
 
 def _box_tests(
