@@ -166,10 +166,10 @@ def load_bank():
     import jax
 
     cfg = mwbx.load_config(str(ROOT / "configs/quickstart.yaml"))
-    return "quickstart", mwbx.sample(cfg, n_worlds=64, key=jax.random.key(0))
+    return "quickstart", mwbx.sample(cfg, n_worlds=128, key=jax.random.key(0))
   from viewer_standin import make_standin_bank
 
-  return "viewer stand-in", make_standin_bank(n_worlds=64)
+  return "viewer stand-in", make_standin_bank(n_worlds=128)
 
 
 def main() -> None:
@@ -190,10 +190,24 @@ def main() -> None:
   match = valid & (np.arange(bank.n_worlds) % 4 == 0)
   exclude = valid & (np.arange(bank.n_worlds) % 4 == 1)
   worlds = np.flatnonzero(valid)[:4].tolist()
+  queries, view_dir, path_bodies = None, None, True
+  if bank_name == "quickstart":
+    # Fig. 5 of the paper: an include box where paths land, an exclude box.
+    from mwbx import queries as mq
+
+    camera = mq.Camera.from_model(bank.model(), "front")
+    queries = [mq.Query.screen(camera, [0.3, 0.5, 0.42, 0.6], near=2.0, far=5.0, bodies="ball"),
+               mq.Query.screen(camera, [0.1, 0.45, 0.2, 0.55], near=2.0, far=5.0, bodies="ball",
+                               sign="exclude")]
+    path_bodies = "ball"
+    match = exclude = None
+    worlds = np.flatnonzero(np.asarray(mq.evaluate(bank, queries)))[:3].tolist() or worlds
+    view_dir = (1.0, -1.6, 1.1)
   with tempfile.TemporaryDirectory() as tmp:
     tmp = pathlib.Path(tmp)
     t0 = time.perf_counter()
-    out = mv.export_html(bank, tmp / "bank.html", worlds=worlds, paths=True, match=match, exclude=exclude)
+    out = mv.export_html(bank, tmp / "bank.html", worlds=worlds, paths=path_bodies, match=match, exclude=exclude,
+                         queries=queries, view_dir=view_dir)
     results["export"] = {"case": f"{bank_name}: {bank.n_worlds} worlds of paths, {len(worlds)} played back",
                          "export_html_s": time.perf_counter() - t0, "html_mb": out.stat().st_size / 1e6}
     if args.browser:

@@ -145,13 +145,15 @@ def mjcf_camera(model: mujoco.MjModel, cam_id: int) -> tuple[np.ndarray, np.ndar
 
 
 def place_camera(vis, model: mujoco.MjModel, lo: np.ndarray, hi: np.ndarray,
-                 camera: str | None) -> tuple[np.ndarray, np.ndarray]:
+                 camera: str | None, view_dir: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
   """Aims meshcat's camera. Returns (centre f64[3], eye f64[3]) in world
   coordinates; the caller shifts the scene by -centre.
 
   camera: an MJCF camera name to view exactly from; None fits the box
   [lo, hi] into view, looking along the model's first camera (or obliquely
   from the front right when the model has none).
+  view_dir: f[3] direction from the scene towards the eye for the fitted
+  view (overrides the MJCF camera's direction).
   """
   box_centre = (lo + hi) / 2
   radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
@@ -166,7 +168,13 @@ def place_camera(vis, model: mujoco.MjModel, lo: np.ndarray, hi: np.ndarray,
     depth = max(float(np.dot(box_centre - eye, forward)), 0.1)
     centre = eye + depth * forward
   else:
-    if model.ncam > 0:
+    if view_dir is not None:
+      direction = np.asarray(view_dir, np.float64).reshape(3)
+      if not np.all(np.isfinite(direction)) or np.linalg.norm(direction) == 0:
+        raise ViewerError(f"view_dir: must be a finite nonzero 3-vector, got {direction.tolist()}")
+      direction = direction / np.linalg.norm(direction)
+      fovy = float(model.cam_fovy[0]) if model.ncam > 0 else DEFAULT_FOVY
+    elif model.ncam > 0:
       _, forward, fovy = mjcf_camera(model, 0)
       direction = -forward
     else:
@@ -187,7 +195,8 @@ def place_camera(vis, model: mujoco.MjModel, lo: np.ndarray, hi: np.ndarray,
 def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
          path_worlds: Sequence[int] | None = None, match: np.ndarray | None = None,
          exclude: np.ndarray | None = None, queries: Sequence[Any] | None = None,
-         layout: str = "overlay", camera: str | None = None, play: bool = True,
+         layout: str = "overlay", camera: str | None = None,
+         view_dir: Sequence[float] | None = None, play: bool = True,
          frustum_depth: float | None = None,
          visible_groups: tuple[int, ...] = DEFAULT_VISIBLE_GROUPS) -> DrawInfo:
   """Draws a bank's worlds, paths and queries into a meshcat visualizer.
@@ -204,6 +213,7 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   layout: "overlay" (ghosted, tinted) or "grid" (side by side).
   camera: MJCF camera to view exactly from; None: fit everything into view,
     looking along the model's first camera where it has one.
+  view_dir: f[3] direction from the scene towards the eye for the fitted view.
   frustum_depth: longest frustum side edge drawn, metres (None: 3x scene size).
   """
   if layout not in LAYOUTS:
@@ -231,7 +241,7 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
     lo, hi = lo + grid.min(axis=0), hi + grid.max(axis=0)
   root = vis[ROOT]
   root.delete()
-  centre, eye = place_camera(vis, model, lo, hi, camera)
+  centre, eye = place_camera(vis, model, lo, hi, camera, view_dir)
   root.set_transform(pose_matrix(-centre, np.array([1.0, 0.0, 0.0, 0.0])))
   # meshcat's grid and axes sit at the display origin, no longer the world's.
   vis["/Grid"].set_property("visible", False)
@@ -269,7 +279,7 @@ def view(bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   server) is given; its page is `vis.url()`. open: also open a browser tab.
   Stop a server this started with `vis.window.server_proc.kill()`.
   Other keyword arguments: see `draw` (path_worlds, match, exclude, camera,
-  play, frustum_depth, visible_groups).
+  view_dir, play, frustum_depth, visible_groups).
   """
   if vis is None:
     vis = meshcat.Visualizer(zmq_url=zmq_url)
