@@ -19,14 +19,16 @@ def rice_encode_reference(values) -> bytes:
   blocks = [us[i:i + rice.BLOCK] for i in range(0, len(us), rice.BLOCK)]
   ks = []
   for block in blocks:
+    k0 = (sum(block) // len(block) + 1).bit_length() - 1
+    candidates = sorted({min(max(k0 + d, 0), rice.KMAX) for d in (-1, 0, 1)})
     costs = []
-    for k in range(rice.KMAX + 1):
+    for k in candidates:
       cost = 0
       for u in block:
         q = u >> k
         cost += rice.QMAX + 1 + 64 if q >= rice.QMAX else q + 1 + k
       costs.append(cost)
-    ks.append(costs.index(min(costs)))
+    ks.append(candidates[costs.index(min(costs))])
   kbits = "".join(format(k, "05b") for k in ks)
   unary, rem, esc = [], [], bytearray()
   for i, u in enumerate(us):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from mwbx.codec.layout import CodecError
-from mwbx.codec.stream import KINDS, MODE_FIT, WIDTH, WorldCode, channel_starts, parse
+from mwbx.codec.stream import KINDS, MODE_FIT, WIDTH, Segments, WorldCode, channel_starts, parse
 
 KIND_ID = {"pos": 0, "rot": 1, "scalar": 2}
 
@@ -41,42 +41,50 @@ def normalize(q: np.ndarray) -> np.ndarray:
     return np.where(norm > 0, q / norm, q)
 
 
-def _segment_index(lengths: np.ndarray, seg_count: np.ndarray, n_frames: int,
-                   frames: np.ndarray):
-  """For every (channel, frame): its segment and the frames since that segment began.
+def _locate(seg: Segments, chan_q: np.ndarray, frame_q: np.ndarray):
+  """Segment of every query (global channel ``chan_q``, frame ``frame_q``).
 
-  Returns (k: i64[C, F], tau: f64[C, F], first: bool[S], channel start of each segment).
+  Returns (k: i64[Q] segment, tau: f64[Q] frames since it began, has: bool[Q] the
+  channel has segments, chan: i64[S] channel of each segment, chan_start: i64[S]
+  first segment of that channel).
   """
+  seg_count, lengths = seg.seg_count, seg.lengths
   first = channel_starts(seg_count)
   chan = np.repeat(np.arange(seg_count.size), seg_count)
   chan_start = np.maximum.accumulate(np.where(first, np.arange(first.size), 0))
   total = np.cumsum(lengths)
   end_local = total - (total - lengths)[chan_start]
-  start_local = end_local - lengths
+  has = seg_count[chan_q] > 0
+  if lengths.size == 0:
+    return np.zeros(chan_q.size, np.int64), np.zeros(chan_q.size), has, chan, chan_start
   # Segment k covers frames (start, end]; frame 0 belongs to a channel's first segment.
-  key = end_local + chan * n_frames
-  query = frames[None, :] + np.arange(seg_count.size)[:, None] * n_frames
-  k = np.searchsorted(key, query, side="left")
-  tau = (frames[None, :] - start_local[k]).astype(np.float64)
-  return k, tau, first, chan_start
+  stride = int(max(end_local.max(), frame_q.max(initial=0))) + 1
+  k = np.searchsorted(end_local + chan * stride, frame_q + chan_q * stride, side="left")
+  k = np.minimum(k, lengths.size - 1)
+  tau = (frame_q - (end_local - lengths)[k]).astype(np.float64)
+  return k, tau, has, chan, chan_start
 
 
-def _decode_linear(initial, lengths, seg_count, vel, step, n_frames, frames, flags=None,
-                   quad=0.0) -> np.ndarray:
-  """f64[C, F, D] for linear channels (translation when ``flags`` is given)."""
-  k, tau, first, chan_start = _segment_index(lengths, seg_count, n_frames, frames)
-  chan = np.repeat(np.arange(seg_count.size), seg_count)
-  rate = vel.astype(np.float64) * step
-  lf = lengths.astype(np.float64)
+def eval_linear(initial: np.ndarray, seg: Segments, step: float, chan_q: np.ndarray,
+                frame_q: np.ndarray, quad: float | None = None) -> np.ndarray:
+  """f64[Q, D] decoded values of linear channels (translation when ``quad`` is set).
+
+  initial: f64[Cg, D] frame-0 values of the Cg channels ``seg`` describes.
+  """
+  k, tau, has, chan, chan_start = _locate(seg, chan_q, frame_q)
+  if seg.lengths.size == 0:
+    return initial[chan_q].copy()
+  rate = seg.vel.astype(np.float64) * step
+  lf = seg.lengths.astype(np.float64)
   disp = lf[:, None] * rate
-  if flags is not None:
-    disp[:, -1] += np.where(flags, quad * lf * lf, 0.0)
+  if quad is not None:
+    disp[:, -1] += np.where(seg.flags, quad * lf * lf, 0.0)
   excl = np.cumsum(disp, axis=0) - disp
   p_start = initial[chan] + excl - excl[chan_start]
-  out = p_start[k] + tau[:, :, None] * rate[k]
-  if flags is not None:
-    out[:, :, -1] += np.where(flags[k], quad, 0.0) * tau * tau
-  return out
+  out = p_start[k] + tau[:, None] * rate[k]
+  if quad is not None:
+    out[:, -1] += np.where(seg.flags[k], quad, 0.0) * tau * tau
+  return np.where(has[:, None], out, initial[chan_q])
 
 
 def _prefix_product(delta: np.ndarray) -> np.ndarray:
@@ -89,63 +97,97 @@ def _prefix_product(delta: np.ndarray) -> np.ndarray:
   return out
 
 
-def _decode_rotation(initial, lengths, seg_count, vel, step, n_frames, frames) -> np.ndarray:
-  """f64[C, F, 4] unit quaternions for rotation channels."""
-  k, tau, first, chan_start = _segment_index(lengths, seg_count, n_frames, frames)
-  n_ch = seg_count.size
-  rate_vec = vel.astype(np.float64) * step
+def eval_rotation(initial: np.ndarray, seg: Segments, step: float, chan_q: np.ndarray,
+                  frame_q: np.ndarray) -> np.ndarray:
+  """f64[Q, 4] decoded unit quaternions; initial: f64[Cg, 4] frame-0 values."""
+  q0 = normalize(initial)
+  k, tau, has, chan, chan_start = _locate(seg, chan_q, frame_q)
+  if seg.lengths.size == 0:
+    return q0[chan_q]
+  n_ch = seg.seg_count.size
+  rate_vec = seg.vel.astype(np.float64) * step
   rate = np.linalg.norm(rate_vec, axis=-1)
-  delta = quat_exp(lengths[:, None] * rate_vec)
+  delta = quat_exp(seg.lengths[:, None] * rate_vec)
   # Keyframe j of a channel: delta_j (x) ... (x) delta_0 (x) q0; pad channels to K.
-  k_max = int(seg_count.max())
-  local = np.arange(first.size) - chan_start
-  chan = np.repeat(np.arange(n_ch), seg_count)
-  padded = np.zeros((n_ch, k_max + 1, 4))
+  local = np.arange(chan.size) - chan_start
+  padded = np.zeros((n_ch, int(seg.seg_count.max()) + 1, 4))
   padded[:, :, 0] = 1.0
   padded[chan, local + 1] = delta
-  q0 = normalize(initial)
   keys = quat_mul(_prefix_product(padded), q0[:, None, :])
   q_start = keys[chan, local]
   with np.errstate(invalid="ignore", divide="ignore"):
     axis = np.where(rate[:, None] > 0, rate_vec / np.where(rate > 0, rate, 1.0)[:, None], 0.0)
   # exp(tau * w) (x) q_s = cos(a) q_s + sin(a) (0, axis) (x) q_s with a = tau |w| / 2.
-  pure = np.concatenate([np.zeros((axis.shape[0], 1)), axis], axis=-1)
-  turned = quat_mul(pure, q_start)
+  turned = quat_mul(np.concatenate([np.zeros((axis.shape[0], 1)), axis], axis=-1), q_start)
   half = 0.5 * tau * rate[k]
-  return np.cos(half)[:, :, None] * q_start[k] + np.sin(half)[:, :, None] * turned[k]
+  out = np.cos(half)[:, None] * q_start[k] + np.sin(half)[:, None] * turned[k]
+  return np.where(has[:, None], out, q0[chan_q])
+
+
+def _queries(n_frames: np.ndarray, n_chan: int, start, stop):
+  """Per world w (n_frames[w] frames) and each of its n_chan channels, the frames
+  ``start:stop``: (chan_q, frame_q, rows: output row of each query, row offsets)."""
+  lo = np.array([range(int(n))[start:stop].start for n in n_frames], np.int64)
+  hi = np.array([range(int(n))[start:stop].stop for n in n_frames], np.int64)
+  count = np.maximum(hi - lo, 0)
+  row_off = np.concatenate([[0], np.cumsum(count)])
+  world = np.repeat(np.arange(n_frames.size), n_chan)
+  per_chan = count[world]
+  chan_q = np.repeat(np.arange(world.size), per_chan)
+  local = np.arange(chan_q.size) - (np.cumsum(per_chan) - per_chan)[chan_q]
+  frame_q = lo[world[chan_q]] + local
+  rows = row_off[world[chan_q]] + local
+  return chan_q, frame_q, rows, row_off
+
+
+def evaluate(n_frames, initial, segs, channel_kind, addresses, nq, quanta, bounds, start=0,
+             stop=None):
+  """Decoded frames of W worlds that share a layout, all channels fitted.
+
+  n_frames: i64[W]; initial: f32[W, C, 4]; segs: kind -> Segments over the
+  W * C_kind channels of that kind (world-major). Returns (f32[rows, nq], row
+  offsets i64[W + 1]): world w's frames ``start:stop`` are rows
+  ``off[w]:off[w + 1]``.
+  """
+  steps = dict(zip(KINDS, quanta.steps(bounds)))
+  out = None
+  row_off = None
+  channel_kind = np.asarray(channel_kind)
+  addresses = np.asarray(addresses, np.int64)
+  for kind in KINDS:
+    sel = np.flatnonzero(channel_kind == KIND_ID[kind])
+    chan_q, frame_q, rows, row_off = _queries(n_frames, sel.size, start, stop)
+    if out is None:
+      out = np.zeros((int(row_off[-1]), nq), np.float32)
+    if sel.size == 0:
+      continue
+    width = WIDTH[kind]
+    init = initial[:, sel, :width].reshape(-1, width).astype(np.float64)
+    seg = segs[kind]
+    if kind == "rot":
+      values = eval_rotation(init, seg, steps[kind], chan_q, frame_q)
+    else:
+      values = eval_linear(init, seg, steps[kind], chan_q, frame_q,
+                           quad=quanta.quad if kind == "pos" else None)
+    cols = addresses[sel][chan_q % sel.size][:, None] + np.arange(width)[None, :]
+    out[rows[:, None], cols] = values
+  if out is None:
+    _, _, _, row_off = _queries(n_frames, 0, start, stop)
+    out = np.zeros((int(row_off[-1]), nq), np.float32)
+  return out, row_off
 
 
 def decode_code(code: WorldCode, start: int = 0, stop: int | None = None) -> np.ndarray:
   """Frames ``start:stop`` (slice semantics) of a parsed stream; f32[n, nq]."""
-  frames = np.arange(code.n_frames, dtype=np.int64)[start:stop]
-  out = np.zeros((frames.size, code.layout.nq), np.float32)
-  if frames.size == 0:
-    return out
   kinds = code.kinds()
-  adrs = np.array(code.addresses(), np.int64)
-  kind_arr = np.array([KIND_ID[k] for k in kinds], np.int64)
   fit = np.asarray(code.modes) == MODE_FIT
-  steps = dict(zip(KINDS, code.quanta.steps(code.bounds)))
-  for kind in KINDS:
-    width = WIDTH[kind]
-    sel = fit & (kind_arr == KIND_ID[kind])
-    if not np.any(sel):
-      continue
-    seg = code.segs[kind]
-    initial = code.initial[sel, :width].astype(np.float64)
-    if code.n_frames <= 1:
-      values = np.broadcast_to(initial[:, None, :], (initial.shape[0], frames.size, width))
-      if kind == "rot":
-        values = normalize(values)
-    elif kind == "rot":
-      values = _decode_rotation(initial, seg.lengths, seg.seg_count, seg.vel, steps[kind],
-                                code.n_frames, frames)
-    else:
-      values = _decode_linear(initial, seg.lengths, seg.seg_count, seg.vel, steps[kind],
-                              code.n_frames, frames,
-                              flags=seg.flags if kind == "pos" else None, quad=code.quanta.quad)
-    cols = (adrs[sel][:, None] + np.arange(width)[None, :]).reshape(-1)
-    out[:, cols] = values.transpose(1, 0, 2).reshape(frames.size, -1)
+  kind_id = np.array([KIND_ID[k] for k in kinds], np.int64)
+  # Raw channels take no part in the fitted evaluation.
+  kind_fit = np.where(fit, kind_id, -1)
+  out, _ = evaluate(np.array([code.n_frames]), code.initial[None], code.segs, kind_fit,
+                    code.addresses(), code.layout.nq, code.quanta, code.bounds, start, stop)
+  frames = np.arange(code.n_frames, dtype=np.int64)[start:stop]
+  adrs = code.addresses()
   for c, data in code.raw.items():
     width = data.shape[1]
     values = data[frames].astype(np.float64)

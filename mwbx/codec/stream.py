@@ -138,14 +138,8 @@ def channel_starts(seg_count: np.ndarray) -> np.ndarray:
   return first
 
 
-def floor_log2(x: np.ndarray) -> np.ndarray:
-  """floor(log2(x)) of integers x >= 1, exactly."""
-  x = np.asarray(x, np.int64)
-  return ((x[:, None] >> np.arange(1, 63, dtype=np.int64)[None, :]) > 0).sum(axis=1)
-
-
 def lattice_exponent(lengths: np.ndarray, coarse: int) -> np.ndarray:
-  return np.maximum(0, coarse - floor_log2(np.maximum(lengths, 1)))
+  return np.maximum(0, coarse - rice.floor_log2(np.maximum(lengths, 1)))
 
 
 def gravity_increment(flags: np.ndarray, lengths: np.ndarray, first: np.ndarray,
