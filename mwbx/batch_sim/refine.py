@@ -99,9 +99,13 @@ def _object_masks(model: mujoco.MjModel, object_names) -> tuple[np.ndarray, np.n
 
 @dataclasses.dataclass
 class RefineStats(SampleStats):
-  """Timing of a refinement run; ``first_frame`` is the frame at t_min."""
+  """Timing of a refinement run, plus per refined world the largest applied
+  ``‖perturbation‖ / (α‖Δv‖)`` (at most 1) and the perturbations drawn for
+  inactive bodies (always 0); ``first_frame`` is the frame at t_min."""
 
   first_frame: int = 0
+  max_perturbation_ratio: np.ndarray | None = None
+  inactive_perturbations: np.ndarray | None = None
 
 
 def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
@@ -197,6 +201,8 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, prog
     stats.world_steps += int(out.steps.sum())
     stats.run_seconds += out.run_seconds
     stats.compile_seconds += out.compile_seconds
+  stats.max_perturbation_ratio = np.concatenate([o.max_perturbation_ratio for o in outputs])
+  stats.inactive_perturbations = np.concatenate([o.inactive_perturbations for o in outputs])
   codec_start = time.perf_counter()
   new = _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs, qm, sampler)
   stats.codec_seconds = time.perf_counter() - codec_start

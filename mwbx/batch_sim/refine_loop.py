@@ -81,6 +81,8 @@ class RefineOutput(NamedTuple):
     steps: i32[C] physics steps simulated (from f0).
     active: bool[C, O] final active sets.
     activated: i32[C, O] frame each object became active (-1: never).
+    max_perturbation_ratio: f32[C] largest ‖perturbation‖ / (α‖Δv‖) applied.
+    inactive_perturbations: i64[C] perturbations drawn for inactive bodies (0).
     compile_seconds, run_seconds: s.
   """
 
@@ -93,6 +95,8 @@ class RefineOutput(NamedTuple):
   steps: np.ndarray
   active: np.ndarray
   activated: np.ndarray
+  max_perturbation_ratio: np.ndarray
+  inactive_perturbations: np.ndarray
   compile_seconds: float
   run_seconds: float
 
@@ -103,6 +107,20 @@ def _activate_batch(active, com_sim, speed_sim, com_now, com_next, inter):
 
 
 _activate_jit = jax.jit(_activate_batch)
+
+
+def _audit(obs, out, active, params, inter):
+  """Per world: the largest ``‖dv‖ / (α‖Δv‖)`` (≤ 1 is the plausibility bound;
+  angular alike) and how many perturbations went to inactive bodies (must be 0)."""
+  delta_v, delta_w, _, _ = jax.vmap(world.frame_impacts, in_axes=(0, None))(obs, params)
+  alpha = params.perturb.alpha
+  def ratio(d, delta):
+    mag, lim = jnp.linalg.norm(d, axis=-1), alpha * jnp.linalg.norm(delta, axis=-1)
+    return jnp.where(mag > 0, mag / jnp.maximum(lim, 1e-30), 0.0)
+  worst = jnp.maximum(ratio(out.dv, delta_v), ratio(out.dw, delta_w)).max(axis=(1, 2))
+  applied = jnp.any(out.dv != 0, -1) | jnp.any(out.dw != 0, -1)  # [W, S, B]
+  stray = jnp.sum(applied & ~_body_mask(active, inter)[:, None, :], axis=(1, 2))
+  return worst, stray
 
 
 def _body_mask(active: jax.Array, inter: interactions.InteractionParams) -> jax.Array:
@@ -121,14 +139,15 @@ def _start(inp: RefineInputs):
                          jnp.asarray(p.com[f0]), jnp.asarray(p.com[f0 + 1]), inp.inter)
 
 
-def _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds):
+def _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds, audit):
   frame_count = np.asarray(carry.frame_count)
   steps = np.asarray(carry.step) - inp.first_frame * inp.params.steps_per_frame
   return RefineOutput(
       qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count), frame_count=frame_count,
       status=np.asarray(carry.status), metrics=world.finalize_metrics(carry),
       perturbations=np.asarray(carry.perturbations), steps=np.where(inp.running0, steps, 0).astype(np.int32),
-      active=np.asarray(active), activated=activated, compile_seconds=compile_seconds, run_seconds=run_seconds)
+      active=np.asarray(active), activated=activated, max_perturbation_ratio=np.asarray(audit[0]),
+      inactive_perturbations=np.asarray(audit[1]), compile_seconds=compile_seconds, run_seconds=run_seconds)
 
 
 _KERNELS: dict = {}
@@ -143,7 +162,7 @@ def _native_kernel(params: world.WorldParams, n_sensor: int):
       carry, out = world.frame_update(carry, obs, keys, params, _body_mask(active, inter))
       speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)
       nxt = _activate_batch(active, obs.com_pos[:, -1], speed, com_now, com_next, inter)
-      return carry, out.wrench, out.record, out.running, obs.com_pos[:, 0], nxt
+      return carry, out.wrench, out.record, out.running, obs.com_pos[:, 0], nxt, _audit(obs, out, active, params, inter)
     _KERNELS[cache_key] = (params, jax.jit(kernel))
   return _KERNELS[cache_key][1]
 
@@ -182,6 +201,7 @@ def run_native(backend, inp: RefineInputs, progress=None) -> RefineOutput:
   running = np.asarray(inp.running0).copy()
   prev_inactive = ~np.asarray(inp.active0)
   activated = np.where(np.asarray(active), f0, -1).astype(np.int32)
+  audit_ratio, audit_stray = np.zeros(c, np.float32), np.zeros(c, np.int64)
   frame = f0
   while running.any():
     qmask = (prev_inactive.astype(np.float32) @ qpos_object) > 0.5
@@ -198,8 +218,10 @@ def run_native(backend, inp: RefineInputs, progress=None) -> RefineOutput:
     warmstart[idx] = (after[:, -1, vadr] - previous[:, vadr]) / dt
     states[idx] = after[:, -1]
 
-    carry, wrench, record, still, com, nxt = kernel(
+    carry, wrench, record, still, com, nxt, (worst, stray) = kernel(
         carry, jnp.asarray(sensordata), inp.step_keys, active, com_path[frame + 1], com_path[frame + 2], inter)
+    audit_ratio = np.maximum(audit_ratio, np.asarray(worst))
+    audit_stray += np.asarray(stray)
     record = np.asarray(record)
     if record.any():
       rec = np.flatnonzero(record)
@@ -216,7 +238,8 @@ def run_native(backend, inp: RefineInputs, progress=None) -> RefineOutput:
     if progress is not None and frame % 16 == 0:
       progress(int((np.asarray(carry.step) - f0 * spf).sum()), int((~running & inp.running0).sum()))
   run_seconds = time.perf_counter() - t0
-  return _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds)
+  return _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds,
+                 (audit_ratio, audit_stray))
 
 
 def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 30) -> RefineOutput:
@@ -245,13 +268,16 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
   qpos_buf = np.zeros((c, n_out, m.nq), np.float32)
   com_buf = np.zeros((c, n_out, len(inp.body_ids), 3), np.float32)
   activated = np.where(np.asarray(active), f0, -1).astype(np.int32)
+  audit_ratio, audit_stray = np.zeros(c, np.float32), np.zeros(c, np.int64)
   t0 = time.perf_counter()
   start, pending = 0, first
   while start < n_out:
     if pending is None:
       state, pending = run(state, consts)
-    (record, qpos, com, nxt), pending = pending, None
+    (record, qpos, com, nxt, (worst, stray)), pending = pending, None
     record, qpos, com, nxt = (np.asarray(x) for x in (record, qpos, com, nxt))
+    audit_ratio = np.maximum(audit_ratio, np.asarray(worst).max(axis=0))
+    audit_stray += np.asarray(stray).sum(axis=0)
     stop = min(start + block, n_out)
     f, w = np.nonzero(record[:stop - start])
     qpos_buf[w, start + f] = qpos[f, w]
@@ -266,7 +292,8 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
       break
   jax.block_until_ready(state)
   run_seconds = time.perf_counter() - t0
-  return _finish(inp, state[1], qpos_buf, com_buf, state[4], activated, compile_seconds, run_seconds)
+  return _finish(inp, state[1], qpos_buf, com_buf, state[4], activated, compile_seconds, run_seconds,
+                 (audit_ratio, audit_stray))
 
 
 _BLOCKS: dict = {}
@@ -311,7 +338,8 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
     keep = out.running
     d = jax.tree.map(lambda new, old: jnp.where(keep.reshape((-1,) + (1,) * (new.ndim - 1)), new, old),
                      d_next, d)
-    return (d, carry, out.wrench, keys, nxt, ~active, frame + 1), (out.record, qpos, obs.com_pos[:, 0], nxt)
+    audit = _audit(obs, out, active, params, inter)
+    return (d, carry, out.wrench, keys, nxt, ~active, frame + 1), (out.record, qpos, obs.com_pos[:, 0], nxt, audit)
 
   def run(state, consts):
     return jax.lax.scan(lambda st, _: frame_fn(consts, st), state, None, length=block)

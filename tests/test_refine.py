@@ -1,0 +1,195 @@
+"""Refinement (paper §5, Figs. 6–7) on the native backend.
+
+Scene (tests/refine_scenes/fig6.xml): a ball ("striker") lands on a round
+apex and rolls off left or right; on the right it pushes a resting box
+("target"); a third ball ("far") rolls far away. Parents are picked from a
+small sampled bank: one where the target was never hit (Fig. 6(a)) and one
+where it was (Fig. 6(b)).
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import jax
+import numpy as np
+import pytest
+
+import mwbx
+from mwbx.batch_sim.refine import refine, refine_run
+
+SCENES = pathlib.Path(__file__).parent / "refine_scenes"
+T_MIN = 0.1
+N = 8
+
+
+def _moved(q, cols):
+  return float(np.linalg.norm(q[-1, cols] - q[0, cols]))
+
+
+@pytest.fixture(scope="module")
+def bank():
+  config = mwbx.load_config(SCENES / "fig6.yaml")
+  return mwbx.sample(config, 16, jax.random.key(0), backend="native")
+
+
+@pytest.fixture(scope="module")
+def cols(bank):
+  model = bank.model()
+  adr = lambda name: int(model.jnt_qposadr[model.body(name).jntadr[0]])
+  return {name: slice(adr(name), adr(name) + 3) for name in ("striker", "target", "far")}
+
+
+def _refine(bank, parent, key=1):
+  new, stats = refine_run(bank, parent, ["striker"], t_min=T_MIN, n_samples=N, key=jax.random.key(key),
+                          backend="native")
+  return new, stats
+
+
+@pytest.fixture(scope="module")
+def case_a(bank, cols):
+  """Fig. 6(a): parent where the striker went left and never touched the target."""
+  parent = next(w for w in range(bank.n_worlds)
+                if bank.qpos_frames(w)[-1, 0] < -0.1 and _moved(bank.qpos_frames(w), cols["target"]) < 1e-3)
+  new, stats = _refine(bank, parent)
+  return parent, new, stats
+
+
+@pytest.fixture(scope="module")
+def case_b(bank, cols):
+  """Fig. 6(b): parent where the striker pushed the target; some refined worlds go left."""
+  hit = [w for w in range(bank.n_worlds) if _moved(bank.qpos_frames(w), cols["target"]) > 0.02]
+  for parent in hit[:4]:
+    new, stats = _refine(bank, parent)
+    if any(new.qpos_frames(w)[-1, 0] < -0.1 for w in range(new.n_worlds)):
+      return parent, new, stats
+  pytest.fail("no hit parent produced a refined world going left")
+
+
+def test_untouched_object_keeps_its_stored_path_exactly(bank, case_a, case_b, cols):
+  far = bank.body_names.index("far")
+  for parent, new, _ in (case_a, case_b):
+    stored = bank.qpos_frames(parent)
+    for w in range(new.n_worlds):
+      lineage = new.lineage[str(bank.n_worlds + w)]
+      assert "far" not in lineage["active"]
+      q = new.qpos_frames(w)
+      assert len(q) == len(stored)
+      model = bank.model()
+      jnt = model.body("far").jntadr[0]
+      a = int(model.jnt_qposadr[jnt])
+      np.testing.assert_array_equal(q[:, a:a + 7], stored[:, a:a + 7])  # frame by frame, bit for bit
+      np.testing.assert_array_equal(new.com[w, :, far], bank.com[parent, :, far])
+      np.testing.assert_array_equal(new.metrics[w, far], bank.metrics[parent, far])
+
+
+def test_fig6a_refined_object_hits_resting_object_which_becomes_active(bank, case_a, cols):
+  parent, new, _ = case_a
+  assert _moved(bank.qpos_frames(parent), cols["target"]) < 1e-3
+  moved = []
+  for w in range(new.n_worlds):
+    q = new.qpos_frames(w)
+    lineage = new.lineage[str(bank.n_worlds + w)]
+    if _moved(q, cols["target"]) > 1e-3:
+      # Anything that moved off its stored path was simulated.
+      assert "target" in lineage["active"]
+      assert lineage["activated_at"]["target"] > T_MIN
+      moved.append(w)
+      # It moved physically: pushed to +x along the floor, no tunnelling, at rest on it.
+      assert q[-1, cols["target"]][0] > q[0, cols["target"]][0] + 0.01
+      assert abs(q[-1, cols["target"]][2] - 0.05) < 5e-3
+      assert np.all(q[:, cols["striker"]][:, 0] < q[:, cols["target"]][:, 0])
+  assert moved, "no refined world hit the resting target"
+
+
+def test_fig6b_object_no_longer_hit_is_activated_by_the_ghost_and_stays(bank, case_b, cols):
+  parent, new, _ = case_b
+  stored = bank.qpos_frames(parent)
+  assert _moved(stored, cols["target"]) > 0.02
+  hit_frame = int(np.argmax(np.linalg.norm(stored[:, cols["target"]] - stored[0, cols["target"]], axis=1) > 1e-4))
+  left = [w for w in range(new.n_worlds) if new.qpos_frames(w)[-1, 0] < -0.1]
+  assert left
+  for w in left:
+    lineage = new.lineage[str(bank.n_worlds + w)]
+    assert "target" in lineage["active"]
+    # Activated by the striker's ghost, before the original hit.
+    assert lineage["activated_at"]["target"] <= hit_frame / bank.record_fps
+    q = new.qpos_frames(w)
+    # It does not keep flying as if it had been hit: it stays where it rested.
+    assert _moved(q, cols["target"]) < 2e-3
+
+
+def test_continuity_at_t_min_and_plausibility_bound(bank, case_a, case_b):
+  model = bank.model()
+  e_pos = bank.config["codec"]["e_pos"]
+  free = [int(model.jnt_qposadr[j]) for j in range(model.njnt)]
+  for parent, new, stats in (case_a, case_b):
+    stored = bank.qpos_frames(parent)
+    f0 = int(round(T_MIN * bank.record_fps))
+    assert np.all(new.refine_time == pytest.approx(f0 / bank.record_fps))
+    assert np.all(new.parent_world == parent)
+    parent_step = max(np.abs(np.diff(stored[f0 - 2:f0 + 3, a:a + 3], axis=0)).max() for a in free)
+    for w in range(new.n_worlds):
+      q = new.qpos_frames(w)
+      for a in free:
+        # No jump at t_min: the refined world starts on the parent's stored state.
+        np.testing.assert_allclose(q[:f0 + 1, a:a + 3], stored[:f0 + 1, a:a + 3], atol=2.5 * e_pos, rtol=0)
+        step = np.abs(np.diff(q[f0 - 2:f0 + 3, a:a + 3], axis=0)).max()
+        assert step <= 2 * parent_step + 4 * e_pos
+    # |perturbation| <= alpha * |dv| in every refined world, never on inactive bodies.
+    assert stats.max_perturbation_ratio.shape == (N,)
+    assert np.all(stats.max_perturbation_ratio <= 1.0 + 1e-5)
+    assert np.all(stats.max_perturbation_ratio > 0)  # the striker did get perturbed
+    assert np.all(stats.inactive_perturbations == 0)
+    assert np.all(new.perturbations > 0)
+
+
+def test_refined_worlds_are_ordinary_bank_worlds(bank, case_a, tmp_path):
+  parent, new, _ = case_a
+  total = bank.append(new)
+  assert total.digest == bank.digest and total.n_worlds == bank.n_worlds + N
+  row = bank.n_worlds
+  lineage = total.lineage[str(row)]
+  assert lineage["parent"] == parent and lineage["objects"] == ["striker"]
+  assert "striker" in lineage["active"]
+  total.save(tmp_path / "bank")
+  loaded = mwbx.Bank.load(tmp_path / "bank")
+  np.testing.assert_array_equal(loaded.qpos_frames(row), total.qpos_frames(row))
+  assert loaded.lineage[str(row)] == lineage
+  # Refinable again (here a refined world refined once more, briefly).
+  again = refine(loaded, row, "striker", t_min=0.5, n_samples=2, key=jax.random.key(5), backend="native")
+  assert again.n_worlds == loaded.n_worlds + 2
+  assert again.lineage[str(loaded.n_worlds)]["parent"] == row
+
+
+def test_frustum_picks_t_min_with_first_entry(bank, case_a):
+  from mwbx.queries import Camera, ScreenBox, first_entry
+  parent = case_a[0]
+  camera = Camera.from_model(bank.model(), "front")
+  box = ScreenBox(0.0, 0.0, 1.0, 0.62)  # upper part of the image: the striker enters it late in its fall
+  frustum = camera.frustum(box)
+  t = first_entry(bank, parent, ["striker"], frustum)
+  assert t is not None
+  new, _ = refine_run(bank, parent, ["striker"], frustum=frustum, n_samples=2, key=jax.random.key(2),
+                      backend="native")
+  assert new.refine_time[0] == pytest.approx(np.floor(t * bank.record_fps + 1e-6) / bank.record_fps)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(world=999, objects="striker", t_min=0.1), "out of range"),
+    (dict(world=0, objects="nosuch", t_min=0.1), "nosuch"),
+    (dict(world=0, objects="striker", t_min=99.0), "outside"),
+    (dict(world=0, objects="striker"), "exactly one"),
+])
+def test_user_errors_name_the_value(bank, kwargs, message):
+  with pytest.raises(mwbx.MwbxError, match=message):
+    refine(bank, n_samples=1, key=jax.random.key(0), **kwargs)
+
+
+def test_unstable_parent_is_refused(bank):
+  import dataclasses
+  flags = bank.flags.copy()
+  flags[3] |= mwbx.FLAG_UNSTABLE
+  broken = dataclasses.replace(bank, flags=flags)
+  with pytest.raises(mwbx.MwbxError, match="unstable"):
+    refine(broken, 3, "striker", t_min=0.1, n_samples=1, key=jax.random.key(0))
