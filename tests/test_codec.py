@@ -263,3 +263,59 @@ def test_store_reports_corrupt_stream_with_world(boxes):
   arrays["offsets"] = arrays["offsets"] + 3
   with pytest.raises(CodecError, match="offsets"):
     CompressedQposStore.restore(arrays, meta)
+
+
+# -- the batched writer and reader -------------------------------------------------------
+
+
+def test_batch_writer_matches_per_world_streams(boxes):
+  """Streams from the batched writer are byte for byte the per-world ones."""
+  from mwbx.codec.batch import BatchCode, serialize_batch
+  from mwbx.codec.stream import serialize
+  _, _, _, _, enc = boxes
+  codes = [parse(s) for s in enc.streams]
+  assert [serialize(c) for c in codes] == enc.streams
+  kinds = ("pos", "rot", "scalar")
+  segs = {}
+  for kind in kinds:
+    parts = [c.segs[kind] for c in codes]
+    segs[kind] = type(parts[0])(*(np.concatenate([getattr(p, f) for p in parts])
+                                  for f in parts[0]._fields))
+  batch = BatchCode(n_frames=np.array([c.n_frames for c in codes]), layout=codes[0].layout,
+                    bounds=codes[0].bounds, fps=codes[0].fps, quanta=codes[0].quanta,
+                    initial=np.stack([c.initial for c in codes]), segs=segs)
+  assert serialize_batch(batch) == enc.streams
+
+
+@pytest.mark.parametrize("start,stop", [(0, None), (3, 50), (-20, None)])
+def test_batch_reader_matches_per_world_decoder(boxes, chain, start, stop):
+  from mwbx.codec.batch import decode_batch
+  for enc in (boxes[4], chain[3]):
+    data = np.frombuffer(b"".join(enc.streams), np.uint8)
+    offsets = np.concatenate([[0], np.cumsum([len(s) for s in enc.streams])])
+    for got, stream in zip(decode_batch(data, offsets, start, stop), enc.streams):
+      np.testing.assert_array_equal(got, decode_world(stream, start, stop))
+
+
+def test_batch_reader_falls_back_and_names_corrupt_world(boxes):
+  from mwbx.codec.batch import decode_batch
+  model, qpos, frame_count, layout, enc = boxes
+  nan_world = qpos[:1].copy()
+  nan_world[0, 5:, 2] = np.nan  # a raw channel: the per-world path decodes it
+  streams = enc.streams + encode_batch(nan_world, np.array([300]), layout, BOUNDS, FPS, -9.81)
+  data = np.frombuffer(b"".join(streams), np.uint8).copy()
+  offsets = np.concatenate([[0], np.cumsum([len(s) for s in streams])])
+  out = decode_batch(data, offsets)
+  np.testing.assert_array_equal(out[-1], decode_world(streams[-1]))
+  data[offsets[2] + 20] ^= 0x40
+  with pytest.raises(CodecError, match="world 2: corrupt stream"):
+    decode_batch(data, offsets)
+
+
+def test_store_frames_batch(boxes):
+  model, qpos, frame_count, _, enc = boxes
+  store = CompressedQposStore.from_model(model, BOUNDS, FPS)
+  store.append(qpos, frame_count)
+  got = store.frames_batch([3, 0], 10, 40)
+  np.testing.assert_array_equal(got[0], store.frames(3, 10, 40))
+  np.testing.assert_array_equal(got[1], store.frames(0, 10, 40))

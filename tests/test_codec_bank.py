@@ -1,0 +1,72 @@
+"""The codec inside real sampled banks: guarantee, save/load, corruption, `mwbx info`."""
+
+import numpy as np
+import pytest
+
+import jax
+import mwbx
+from mwbx import bank as bank_lib
+from mwbx.batch_sim import sampler as sampler_lib
+from mwbx.codec import CodecError, CompressedQposStore
+
+from test_codec_properties import _angles
+
+
+def _sample_both(config: str, n_worlds: int):
+  """The same worlds twice: qpos kept raw, and compressed as `mwbx sample` does."""
+  cfg = mwbx.load_config(f"configs/{config}.yaml")
+  with mwbx.Sampler(cfg) as sampler:
+    bank, _ = sampler.run(n_worlds, jax.random.key(0))
+    sampler._new_store = lambda: bank_lib.RawQposStore(sampler.scene.model.nq)
+    raw, _ = sampler.run(n_worlds, jax.random.key(0))
+  return cfg, bank, raw
+
+
+@pytest.fixture(scope="module")
+def quickstart():
+  return _sample_both("quickstart", 8)
+
+
+@pytest.mark.parametrize("config", ["quickstart", "pachinko"])
+def test_sampled_banks_meet_the_bounds(config, quickstart):
+  cfg, bank, raw = quickstart if config == "quickstart" else _sample_both(config, 4)
+  assert isinstance(bank.qpos_store, CompressedQposStore)
+  np.testing.assert_array_equal(bank.frame_count, raw.frame_count)
+  layout = bank.qpos_store.layout
+  e_rot = np.deg2rad(cfg.codec.e_rot_deg)
+  for w in range(bank.n_worlds):
+    got, true = bank.qpos_frames(w), raw.qpos_frames(w).astype(np.float64)
+    assert got.shape == true.shape
+    for a in layout.pos_adr:
+      assert np.abs(got[:, a:a + 3] - true[:, a:a + 3]).max(initial=0) <= cfg.codec.e_pos
+    for a in layout.rot_adr:
+      assert _angles(got[:, a:a + 4], true[:, a:a + 4]).max(initial=0) <= e_rot * (1 + 1e-3) + 1e-3
+    for a in layout.scalar_adr:
+      assert np.abs(got[:, a] - true[:, a]).max(initial=0) <= cfg.codec.e_scalar
+  stats = bank.qpos_store.stats()
+  assert stats["max_error_pos_m"] <= cfg.codec.e_pos
+  assert stats["ratio_vs_float32"] > 10
+
+
+def test_bank_save_load_keeps_streams_and_reports_corruption(quickstart, tmp_path):
+  _, bank, _ = quickstart
+  bank.save(tmp_path / "bank")
+  loaded = mwbx.Bank.load(tmp_path / "bank")
+  assert isinstance(loaded.qpos_store, CompressedQposStore)
+  np.testing.assert_array_equal(loaded.qpos_store.data, bank.qpos_store.data)
+  np.testing.assert_array_equal(loaded.qpos_frames(5, 10, 20), bank.qpos_frames(5, 10, 20))
+  store = loaded.qpos_store
+  store.data[store.offsets[3] + 30] ^= 0x01
+  with pytest.raises(mwbx.MwbxError, match="world 3: corrupt stream"):
+    loaded.qpos_frames(3)
+  assert issubclass(CodecError, mwbx.MwbxError)
+
+
+def test_mwbx_info_shows_codec_stats(quickstart, tmp_path, capsys):
+  from mwbx import cli
+  _, bank, _ = quickstart
+  bank.save(tmp_path / "bank")
+  assert cli.main(["info", str(tmp_path / "bank")]) == 0
+  out = capsys.readouterr().out
+  for key in ("bits_per_body_frame", "ratio_vs_float32", "max_error_pos_m", "max_error_rot_deg"):
+    assert f"qpos {key}" in out
