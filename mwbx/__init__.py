@@ -19,6 +19,7 @@ from mwbx.batch_sim import METRIC_NAMES
 from mwbx.batch_sim import SampleStats
 from mwbx.batch_sim import Sampler
 from mwbx.batch_sim import sample
+from mwbx.batch_sim.refine import refine
 from mwbx.config import Config
 from mwbx.config import config_from_dict
 from mwbx.config import load_config

@@ -4,6 +4,7 @@
   mwbx info DIR [--json]
   mwbx query BANK QUERIES.yaml [--rank METRIC[:sum|max]] [--top K] [--json]
   mwbx view BANK [--worlds 3,17 | --top K --rank METRIC] [--queries Q.yaml] [--html OUT.html] [--no-browser]
+  mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N [--out DIR]
 
 Every error a user can cause ends in one line naming the file, field or value
 (exit status 2), never a traceback.
@@ -141,6 +142,44 @@ def _cmd_query(args) -> int:
   return 0
 
 
+def _cmd_refine(args) -> int:
+  import jax
+  import mwbx
+  from mwbx.batch_sim.refine import refine_run
+  bank = mwbx.Bank.load(args.bank)
+  frustum = None
+  if (args.box is None) == (args.time is None):
+    raise MwbxError("refine: give either --box with --camera, or --time")
+  if args.box is not None:
+    from mwbx.queries import Camera, ScreenBox
+    if args.camera is None:
+      raise MwbxError("--box: needs --camera (an MJCF camera name)")
+    try:
+      u0, v0, u1, v1 = (float(x) for x in args.box.split(","))
+    except ValueError:
+      raise MwbxError(f"--box: expected u0,v0,u1,v1 in normalised screen coordinates, got {args.box!r}") from None
+    frustum = Camera.from_model(bank.model(), args.camera).frustum(ScreenBox(u0, v0, u1, v1))
+  out = pathlib.Path(args.out or args.bank)
+  update, bar = _progress_bar(args.samples, "refining")
+  try:
+    new, stats = refine_run(bank, args.world, args.objects, frustum=frustum, t_min=args.time,
+                            n_samples=args.samples, key=jax.random.key(args.seed), backend=args.backend,
+                            progress=update)
+  finally:
+    bar.close()
+  total = bank.append(new)
+  total.save(out)
+  rows = f"{bank.n_worlds}..{total.n_worlds - 1}"
+  active = [len(new.lineage[str(bank.n_worlds + i)]["active"]) for i in range(new.n_worlds)]
+  print(f"refined worlds      {new.n_worlds} of world {args.world} from t_min = {new.refine_time[0]:.4f} s"
+        f" (rows {rows}; {int(new.valid.sum())} valid)")
+  print(f"active objects      {min(active)}..{max(active)} per world (asked: {args.objects})")
+  print(f"world-steps/s       {stats.world_steps_per_second:,.0f} ({stats.backend};"
+        f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s)")
+  print(f"bank                {out} ({total.n_worlds} worlds, {total.nbytes / 1e6:.1f} MB)")
+  return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
   parser = argparse.ArgumentParser(prog="mwbx", description="Many-Worlds Browsing on JAX and MuJoCo.")
   sub = parser.add_subparsers(dest="command", required=True)
@@ -181,6 +220,19 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--zmq-url", default=None, help="draw into a running meshcat server")
   p.add_argument("--no-browser", action="store_true", help="only print the URL")
   p.set_defaults(func=_cmd_view)
+
+  p = sub.add_parser("refine", help="resample chosen objects of one world from a time or a screen box on")
+  p.add_argument("bank", help="bank directory")
+  p.add_argument("--world", type=int, required=True, help="row of the world to refine")
+  p.add_argument("--objects", required=True, help="objects or groups to refine, e.g. ball_0,cubes")
+  p.add_argument("--box", default=None, help="screen box u0,v0,u1,v1 (normalised, origin top-left)")
+  p.add_argument("--camera", default=None, help="MJCF camera the box is drawn in")
+  p.add_argument("--time", type=float, default=None, help="t_min in seconds (instead of --box)")
+  p.add_argument("--samples", type=int, required=True, help="refined worlds to make")
+  p.add_argument("--seed", type=int, default=0, help="refinement seed")
+  p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
+  p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
+  p.set_defaults(func=_cmd_refine)
   return parser
 
 
