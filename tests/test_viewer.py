@@ -4,6 +4,7 @@ small bank (no browser here: see test_viewer_browser.py)."""
 from __future__ import annotations
 
 import base64
+import pathlib
 import re
 import warnings
 
@@ -460,7 +461,8 @@ def real_bank():
 
   import mwbx
 
-  return mwbx.sample(mwbx.load_config("configs/quickstart.yaml"), n_worlds=4, key=jax.random.key(0))
+  config = pathlib.Path(__file__).parents[1] / "configs" / "quickstart.yaml"
+  return mwbx.sample(mwbx.load_config(config), n_worlds=4, key=jax.random.key(0))
 
 
 def test_real_bank_with_screen_queries(real_bank, tmp_path):

@@ -15,7 +15,6 @@ import pytest
 
 import mwbx.viewer as mv
 from viewer_render import chromium_unavailable_reason, colour_fraction, hue_fraction, hue_of, screenshot
-from viewer_standin import make_standin_bank
 
 # Thresholds as fractions of an 800 x 600 screenshot.
 MIN_OBJECT_FRACTION = 0.0008  # ~380 px of one object colour
@@ -34,14 +33,13 @@ def browser():
 
 @pytest.fixture(scope="module")
 def bank():
-  """A real quickstart bank once mwbx.sample exists; the stand-in before."""
+  """A real sampled quickstart bank of 4 worlds."""
+  import jax
+
   import mwbx
 
-  if hasattr(mwbx, "sample") and pathlib.Path("configs/quickstart.yaml").exists():
-    import jax
-
-    return mwbx.sample(mwbx.load_config("configs/quickstart.yaml"), n_worlds=4, key=jax.random.key(0))
-  return make_standin_bank(n_worlds=4)
+  config = pathlib.Path(__file__).parents[1] / "configs" / "quickstart.yaml"
+  return mwbx.sample(mwbx.load_config(config), n_worlds=4, key=jax.random.key(0))
 
 
 def object_colours(bank) -> list[tuple[float, float, float]]:

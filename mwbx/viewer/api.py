@@ -85,10 +85,9 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
   played-back worlds (all bodies) and of the drawn paths, and static geoms
   other than planes."""
   com = np.asarray(bank.com)
-  pts = [com[worlds].reshape(-1, 3)]
+  pts = [_finite_extent(com, worlds, np.arange(com.shape[2]))]
   if path_classes is not None and bodies is not None:
-    drawn = np.concatenate(list(path_classes))
-    pts.append(com[drawn][:, :, bodies].reshape(-1, 3))
+    pts.append(_finite_extent(com, np.concatenate(list(path_classes)), bodies))
   data = mujoco.MjData(model)
   mujoco.mj_kinematics(model, data)
   static = (model.body_weldid[model.geom_bodyid] == 0) & (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE)
@@ -142,6 +141,19 @@ def mjcf_camera(model: mujoco.MjModel, cam_id: int) -> tuple[np.ndarray, np.ndar
   mujoco.mj_camlight(model, data)
   forward = -data.cam_xmat[cam_id].reshape(3, 3)[:, 2]  # cameras look along -z
   return data.cam_xpos[cam_id].copy(), forward, float(model.cam_fovy[cam_id])
+
+
+def _finite_extent(com: np.ndarray, worlds: np.ndarray, bodies: np.ndarray,
+                   chunk: int = 1024) -> np.ndarray:
+  """f64[k, 3] (k = 0 or 2) finite min and max over com[worlds][:, :, bodies],
+  in chunks of worlds so a large bank is never copied whole."""
+  lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+  for start in range(0, len(worlds), chunk):
+    part = com[worlds[start:start + chunk]][:, :, bodies].reshape(-1, 3).astype(np.float64)
+    part = part[np.all(np.isfinite(part), axis=1)]
+    if part.size:
+      lo, hi = np.minimum(lo, part.min(axis=0)), np.maximum(hi, part.max(axis=0))
+  return np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((0, 3))
 
 
 def place_camera(vis, model: mujoco.MjModel, lo: np.ndarray, hi: np.ndarray,
