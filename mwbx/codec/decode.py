@@ -1,8 +1,9 @@
 """Bit-exact decoder: stream -> ``qpos`` frames, vectorized with numpy.
 
 Segment starts come from (segmented) cumulative sums over segments, rotation
-keyframes from a parallel prefix product of quaternions; every frame is then
-evaluated independently, so decoding a time range only touches those frames.
+keyframes from a parallel prefix product of quaternions (both float64); every
+frame is then evaluated independently in float32, so decoding a time range
+only touches those frames.
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ def _locate(seg: Segments, chan_q: np.ndarray, frame_q: np.ndarray):
 
 def eval_linear(initial: np.ndarray, seg: Segments, step: float, chan_q: np.ndarray,
                 frame_q: np.ndarray, quad: float | None = None) -> np.ndarray:
-  """f64[Q, D] decoded values of linear channels (translation when ``quad`` is set).
+  """f32[Q, D] decoded values of linear channels (translation when ``quad`` is set).
 
   initial: f64[Cg, D] frame-0 values of the Cg channels ``seg`` describes.
   """
@@ -81,47 +82,53 @@ def eval_linear(initial: np.ndarray, seg: Segments, step: float, chan_q: np.ndar
     disp[:, -1] += np.where(seg.flags, quad * lf * lf, 0.0)
   excl = np.cumsum(disp, axis=0) - disp
   p_start = initial[chan] + excl - excl[chan_start]
-  out = p_start[k] + tau[:, None] * rate[k]
+  # Per frame in float32 (the encoder measures the error of exactly this output).
+  tau32 = tau.astype(np.float32)
+  out = p_start.astype(np.float32)[k] + tau32[:, None] * rate.astype(np.float32)[k]
   if quad is not None:
-    out[:, -1] += np.where(seg.flags[k], quad, 0.0) * tau * tau
-  return np.where(has[:, None], out, initial[chan_q])
+    out[:, -1] += np.where(seg.flags, np.float32(quad), np.float32(0))[k] * tau32 * tau32
+  return np.where(has[:, None], out, initial[chan_q].astype(np.float32))
 
 
-def _prefix_product(delta: np.ndarray) -> np.ndarray:
-  """Inclusive prefix product along axis 1, later factors on the left; [C, K, 4]."""
+def _segmented_prefix_product(delta: np.ndarray, chan: np.ndarray) -> np.ndarray:
+  """Inclusive prefix product of quaternions within runs of equal ``chan``, later
+  factors on the left (Hillis-Steele, log2 of the longest run passes); [S, 4]."""
   out = delta.copy()
   d = 1
-  while d < out.shape[1]:
-    out[:, d:] = quat_mul(out[:, d:], out[:, :-d])
+  while d < out.shape[0]:
+    same = chan[d:] == chan[:-d]
+    if not same.any():
+      break
+    idx = np.flatnonzero(same)
+    out[idx + d] = quat_mul(out[idx + d], out[idx])
     d *= 2
   return out
 
 
 def eval_rotation(initial: np.ndarray, seg: Segments, step: float, chan_q: np.ndarray,
                   frame_q: np.ndarray) -> np.ndarray:
-  """f64[Q, 4] decoded unit quaternions; initial: f64[Cg, 4] frame-0 values."""
+  """f32[Q, 4] decoded unit quaternions; initial: f64[Cg, 4] frame-0 values."""
   q0 = normalize(initial)
   k, tau, has, chan, chan_start = _locate(seg, chan_q, frame_q)
   if seg.lengths.size == 0:
     return q0[chan_q]
-  n_ch = seg.seg_count.size
   rate_vec = seg.vel.astype(np.float64) * step
   rate = np.linalg.norm(rate_vec, axis=-1)
-  delta = quat_exp(seg.lengths[:, None] * rate_vec)
-  # Keyframe j of a channel: delta_j (x) ... (x) delta_0 (x) q0; pad channels to K.
-  local = np.arange(chan.size) - chan_start
-  padded = np.zeros((n_ch, int(seg.seg_count.max()) + 1, 4))
-  padded[:, :, 0] = 1.0
-  padded[chan, local + 1] = delta
-  keys = quat_mul(_prefix_product(padded), q0[:, None, :])
-  q_start = keys[chan, local]
+  # Keyframes: segment j of a channel starts at delta_{j-1} (x) ... (x) delta_0 (x) q0.
+  keys = quat_mul(_segmented_prefix_product(quat_exp(seg.lengths[:, None] * rate_vec), chan),
+                  q0[chan])
+  first = np.zeros(chan.size, bool)
+  first[chan_start] = True
+  q_start = np.where(first[:, None], q0[chan], np.roll(keys, 1, axis=0))
   with np.errstate(invalid="ignore", divide="ignore"):
     axis = np.where(rate[:, None] > 0, rate_vec / np.where(rate > 0, rate, 1.0)[:, None], 0.0)
-  # exp(tau * w) (x) q_s = cos(a) q_s + sin(a) (0, axis) (x) q_s with a = tau |w| / 2.
+  # exp(tau * w) (x) q_s = cos(a) q_s + sin(a) (0, axis) (x) q_s with a = tau |w| / 2;
+  # per frame in float32 (the encoder measures the error of exactly this output).
   turned = quat_mul(np.concatenate([np.zeros((axis.shape[0], 1)), axis], axis=-1), q_start)
-  half = 0.5 * tau * rate[k]
-  out = np.cos(half)[:, None] * q_start[k] + np.sin(half)[:, None] * turned[k]
-  return np.where(has[:, None], out, q0[chan_q])
+  half = (0.5 * rate.astype(np.float32))[k] * tau.astype(np.float32)
+  out = (np.cos(half)[:, None] * q_start.astype(np.float32)[k]
+         + np.sin(half)[:, None] * turned.astype(np.float32)[k])
+  return np.where(has[:, None], out, q0[chan_q].astype(np.float32))
 
 
 def _queries(n_frames: np.ndarray, n_chan: int, start, stop):

@@ -40,8 +40,8 @@ def unzigzag(u: np.ndarray) -> np.ndarray:
 
 def floor_log2(x: np.ndarray) -> np.ndarray:
   """floor(log2(x)) of integers x >= 1, exactly."""
-  x = np.asarray(x, np.int64)
-  return ((x[:, None] >> np.arange(1, 63, dtype=np.int64)[None, :]) > 0).sum(axis=1)
+  # frexp is exact on integers below 2**53: x = m * 2**e with m in [0.5, 1).
+  return np.frexp(np.asarray(x, np.int64).astype(np.float64))[1].astype(np.int64) - 1
 
 
 def write_varint(value: int) -> bytes:
