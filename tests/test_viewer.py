@@ -4,7 +4,6 @@ small bank (no browser here: see test_viewer_browser.py)."""
 from __future__ import annotations
 
 import base64
-import pathlib
 import re
 import warnings
 
@@ -22,6 +21,7 @@ with warnings.catch_warnings():
 
 import mwbx.viewer as mv
 from mwbx.viewer import frustums, geometry, kinematics, paths, playback
+from viewer_banks import quickstart_bank
 from viewer_standin import STANDIN_XML, make_standin_bank
 
 FAST = settings(max_examples=int(__import__("os").environ.get("VIEWER_EXAMPLES", 40)), deadline=None)
@@ -457,12 +457,7 @@ def test_recorder_replays_what_the_meshcat_server_stores(bank):
 
 @pytest.fixture(scope="module")
 def real_bank():
-  import jax
-
-  import mwbx
-
-  config = pathlib.Path(__file__).parents[1] / "configs" / "quickstart.yaml"
-  return mwbx.sample(mwbx.load_config(config), n_worlds=4, key=jax.random.key(0))
+  return quickstart_bank(4)
 
 
 def test_real_bank_with_screen_queries(real_bank, tmp_path):

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import mwbx.viewer as mv
+from viewer_banks import quickstart_bank
 from viewer_render import chromium_unavailable_reason, colour_fraction, hue_fraction, hue_of, screenshot
 
 # Thresholds as fractions of an 800 x 600 screenshot.
@@ -34,12 +35,7 @@ def browser():
 @pytest.fixture(scope="module")
 def bank():
   """A real sampled quickstart bank of 4 worlds."""
-  import jax
-
-  import mwbx
-
-  config = pathlib.Path(__file__).parents[1] / "configs" / "quickstart.yaml"
-  return mwbx.sample(mwbx.load_config(config), n_worlds=4, key=jax.random.key(0))
+  return quickstart_bank(4)
 
 
 def object_colours(bank) -> list[tuple[float, float, float]]:
