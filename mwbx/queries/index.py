@@ -31,8 +31,10 @@ from mwbx.queries import segments
 
 # Segments per leaf chunk; 16 keeps the chunk boxes tight on 30 fps paths.
 DEFAULT_CHUNK = 16
-# Candidate chunks tested per block of the exact stage.
-DEFAULT_BLOCK = 4096
+# Candidate chunks tested per block of the exact stage: about 1/64 of all
+# chunks (a typical query keeps a few percent), within these bounds.
+MIN_BLOCK = 128
+MAX_BLOCK = 2048
 # Relative bound on the float32 rounding error of a box-plane distance
 # (about 6 roundings of 2^-24 each, with a factor 8 to spare).
 _SLACK_REL = 2.0**-18
@@ -220,7 +222,7 @@ def path_hits(
     offsets: jax.Array,
     body_mask: jax.Array,
     window: jax.Array,
-    block: int = DEFAULT_BLOCK,
+    block: int | None = None,
 ) -> jax.Array:
   """Which paths meet the volume, culled by the hierarchy.
 
@@ -230,13 +232,23 @@ def path_hits(
     offsets: f64[B, F] plane offsets per body with its sphere radius added.
     body_mask: bool[B] bodies to test; others report False.
     window: f64[2] time window in segment units, 0 <= w0 <= w1.
-    block: candidate chunks per exact-test block (static).
+    block: candidate chunks per exact-test block (static); None: chosen
+      from the bank size by `default_block`.
 
   Returns:
     bool[W, B]; False for unselected bodies and invalid worlds.
   """
+  if block is None:
+    block = default_block(index)
   with jax.enable_x64(True):
     return _path_hits_jit(index, normals, offsets, body_mask, window, block)
+
+
+def default_block(index: PathIndex) -> int:
+  """Exact-test block size for a bank: a power of two near 1/64 of its chunks."""
+  n_chunks = index.box_lo.shape[1] * index.box_lo.shape[2] * index.box_lo.shape[3]
+  block = 1 << max(0, (n_chunks // 64 - 1).bit_length())
+  return min(MAX_BLOCK, max(MIN_BLOCK, block))
 
 
 def _path_hits(index, normals, offsets, body_mask, window, block):
