@@ -561,3 +561,18 @@ def test_cli_view_serves_until_interrupted(bank_dir):
     if proc.poll() is None:
       proc.kill()
       proc.wait()
+
+
+def test_queries_accepts_one_query_or_a_query_set(real_bank, tmp_path):
+  from mwbx import queries as mq
+
+  qfile = tmp_path / "q.yaml"
+  qfile.write_text("camera: {mjcf: front}\nqueries:\n  - {box: [0, 0, 0.5, 1]}\n"
+                   "  - {box: [0.5, 0, 1, 1], sign: exclude}\n")
+  qset = mq.load_queries(qfile, bank=real_bank)
+  for queries, n in ((qset, 2), (qset.queries[0], 1), (qset.queries, 2)):
+    _, info = _draw_offline(real_bank, worlds=[], paths=True, queries=queries)
+    assert info.n_queries == n
+  corners = _frustum(np.zeros(3), (0.0, 0.0), 0.5, 2.0, 0.2, 0.1)
+  _, info = _draw_offline(real_bank, worlds=[], queries=(corners, True))
+  assert info.n_queries == 1

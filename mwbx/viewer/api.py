@@ -233,7 +233,7 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   model = bank.model()
   worlds = resolve_worlds(bank, worlds)
   bodies = resolve_bodies(bank, paths)
-  queries = list(queries or [])
+  queries = as_query_list(queries)
   if queries and match is None and exclude is None:
     match, exclude = query_classes(bank, queries)
   classes = None
@@ -268,6 +268,19 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   for i, volume in enumerate(volumes):
     draw_volume(root["queries"][f"q{i}"], volume, i, max_depth=depth, eye_radius=0.015 * radius)
   return DrawInfo(centre, worlds, offsets, counts, len(volumes), eye)
+
+
+def as_query_list(queries: Any) -> list:
+  """None, one query, a sequence of them, or a mwbx.queries.QuerySet -> list."""
+  if queries is None:
+    return []
+  if isinstance(queries, QueryVolume) or hasattr(queries, "frustum"):
+    return [queries]
+  if isinstance(queries, tuple) and len(queries) == 2 and isinstance(queries[1], (bool, np.bool_)):
+    return [queries]  # one (corners, include) pair
+  if hasattr(queries, "queries"):  # a QuerySet from mwbx.queries.load_queries
+    return list(queries.queries)
+  return list(queries)
 
 
 def query_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray | None, np.ndarray | None]:
