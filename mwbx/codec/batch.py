@@ -21,14 +21,15 @@ from mwbx.codec.decode import KIND_ID, decode_world, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, WIDTH, Quanta,
                                Segments, _residuals, _velocities, channel_starts,
-                               gravity_increment, lattice_exponent, parse)
+                               gravity_increment, initial_bytes, lattice_exponent, parse,
+                               read_initial)
 
 
 @dataclasses.dataclass
 class BatchCode:
   """Segments of W worlds sharing one layout, every channel fitted.
 
-  n_frames: i64[W]; initial: f32[W, C, 4] frame-0 values (channel order pos,
+  n_frames: i64[W]; initial: f64[W, C, 4] frame-0 values on their grid (order pos,
   rot, scalar); segs: kind -> Segments over the W * C_kind channels of that kind,
   world-major.
   """
@@ -103,14 +104,12 @@ def serialize_batch(bc: BatchCode) -> list[bytes]:
   blobs = rice.encode_ints_batch(values[order], np.bincount(world, minlength=n_w))
   sig = _signature(lay, bc.bounds, bc.fps, q)
   modes = bytes(n_ch)
-  widths = np.array([WIDTH[k] for k in ("pos", "rot", "scalar") for _ in cols[k]], np.int64)
-  mask = np.arange(4)[None, :] < widths[:, None]
-  initial = np.asarray(bc.initial, "<f4")[:, mask]
+  kinds = [k for k in KINDS for _ in cols[k]]
   head = _HEAD.pack(MAGIC, VERSION)
   out = []
   for w in range(n_w):
     body = b"".join((head, rice.write_varint(int(bc.n_frames[w])), sig, modes,
-                     initial[w].tobytes(), blobs[w]))
+                     initial_bytes(bc.initial[w], kinds, bc.bounds), blobs[w]))
     out.append(body + struct.pack("<I", zlib.crc32(body)))
   return out
 
@@ -134,10 +133,9 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> BatchCode:
     raise _Fallback()
   sig = _signature(lay, first.bounds, first.fps, first.quanta)
   n_ch = lay.n_channels
-  widths = np.array([WIDTH[k] for k in first.kinds()], np.int64)
-  n_init = int(widths.sum())
+  kinds = first.kinds()
   n_frames = np.zeros(n_w, np.int64)
-  init_pos = np.zeros(n_w, np.int64)
+  initial = np.zeros((n_w, n_ch, 4))
   blob_start = np.zeros(n_w, np.int64)
   blob_end = np.zeros(n_w, np.int64)
   head = _HEAD.pack(MAGIC, VERSION)
@@ -154,15 +152,10 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> BatchCode:
     if view[pos:end] != sig or view[end:end + n_ch] != modes:
       raise _Fallback()
     n_frames[w] = n
-    init_pos[w] = end + n_ch
-    blob_start[w] = init_pos[w] + 4 * n_init
+    initial[w], blob_start[w] = read_initial(view, end + n_ch, kinds, first.bounds)
     blob_end[w] = hi - 4
   if np.any(blob_start > blob_end) or np.any(n_frames > (1 << 24)):
     raise _Fallback()
-  init_idx = (init_pos[:, None] + np.arange(4 * n_init)[None, :]).reshape(-1)
-  flat = data[init_idx].view("<f4").reshape(n_w, n_init)
-  initial = np.zeros((n_w, n_ch, 4), np.float32)
-  initial[:, np.arange(4)[None, :] < widths[:, None]] = flat
   expect = np.maximum(n_frames - 1, 0)
   values, counts = rice.decode_ints_batch(data, blob_start, blob_end, n_ch + 7 * expect * n_ch)
   starts = np.cumsum(counts) - counts

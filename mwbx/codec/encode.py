@@ -17,8 +17,8 @@ from mwbx.codec import fit as fit_lib
 from mwbx.codec.batch import BatchCode, parse_batch, serialize_batch
 from mwbx.codec.decode import decode_code, evaluate, normalize, quat_mul
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
-from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode, parse,
-                               serialize)
+from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
+                               initial_steps, parse, quantize_initial, serialize)
 
 # Fraction of each bound kept back for float32 rounding inside the fit.
 FIT_MARGIN = 2.0**-6
@@ -37,7 +37,7 @@ class EncodedBatch(NamedTuple):
 
 def default_quanta(fps: float, gravity: float = DEFAULT_GRAVITY) -> Quanta:
   """Quantization for a recording rate; ``gravity``: vertical component, m/s**2."""
-  return Quanta(quad=0.5 * float(gravity) / float(fps) ** 2)
+  return Quanta(quad=float(np.float32(0.5 * float(gravity) / float(fps) ** 2)))
 
 
 def _bucket(n: int, multiple: int) -> int:
@@ -155,9 +155,16 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     n = np.repeat(frame_count, len(adrs))
     mask = np.repeat(valid, len(adrs), axis=0)[:, :, None]
     finite = np.all(np.isfinite(paths) | ~mask, axis=(1, 2))
-    fit_in = np.where(mask & finite[:, None, None], paths, 0.0).astype(np.float32)
-    if kind != "rot":
-      fit_in = fit_in - fit_in[:, :1]
+    # Frame 0 is stored on a grid; the fit starts from that stored value.
+    initial = quantize_initial(kind, paths[:, 0], bounds) * initial_steps(bounds)[kind] \
+        if num_t else np.zeros((paths.shape[0], width))
+    initial[n == 0] = 0.0
+    fit_in = np.where(mask & finite[:, None, None], paths, 0.0).astype(np.float64)
+    if kind == "rot":
+      fit_in[:, :1] = initial[:, None, :]
+    else:
+      fit_in = fit_in - initial[:, None, :]
+    fit_in = fit_in.astype(np.float32)
     ends, vel, flag = _run_fit(kind, fit_in, n, fit_bound[kind] * (1 - FIT_MARGIN),
                                steps[kind], quanta.quad, quanta.coarse()[kind],
                                quanta.g_fp(bounds))
@@ -166,7 +173,7 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     first = np.ones(p_idx.size, bool)
     first[1:] = p_idx[1:] != p_idx[:-1]
     prev = np.where(first, 0, np.concatenate([[0], f_idx[:-1]]))
-    per_kind[kind] = dict(paths=paths, finite=finite, seg=seg_per_path,
+    per_kind[kind] = dict(paths=paths, finite=finite, seg=seg_per_path, initial=initial,
                           seg_off=np.concatenate([[0], np.cumsum(seg_per_path)]),
                           lengths=f_idx - prev, vel=vel[p_idx, f_idx], flag=flag[p_idx, f_idx],
                           n_ch=len(adrs))
@@ -218,14 +225,12 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
   n_ch = layout.n_channels
   finite = np.stack([k["finite"].reshape(num_w, k["n_ch"]).all(axis=1)
                      for k in per_kind.values()]).all(axis=0)
-  initial = np.zeros((num_w, n_ch, 4), np.float32)
+  initial = np.zeros((num_w, n_ch, 4))
   c = 0
   for kind, k in per_kind.items():
     width, n_k = WIDTH[kind], k["n_ch"]
-    if k["paths"].shape[1]:
-      initial[:, c:c + n_k, :width] = k["paths"][:, 0].reshape(num_w, n_k, width)
+    initial[:, c:c + n_k, :width] = k["initial"].reshape(num_w, n_k, width)
     c += n_k
-  initial[frame_count == 0] = 0.0
   segs = {kind: Segments(k["seg"].astype(np.int64), k["lengths"].astype(np.int64),
                          k["vel"].reshape(-1, DIM[kind]).astype(np.int64), k["flag"].astype(bool))
           for kind, k in per_kind.items()}
@@ -272,14 +277,13 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
 
 def _world_code(w, n_w, layout, bounds, fps, quanta, per_kind, modes) -> WorldCode:
   n_ch = layout.n_channels
-  initial = np.zeros((n_ch, 4), np.float32)
+  initial = np.zeros((n_ch, 4))
   raw, segs = {}, {}
   c = 0
   for kind, k in per_kind.items():
     width, n_k = WIDTH[kind], k["n_ch"]
     data = k["paths"][w * n_k:(w + 1) * n_k, :n_w]
-    if n_w:
-      initial[c:c + n_k, :width] = data[:, 0]
+    initial[c:c + n_k, :width] = k["initial"][w * n_k:(w + 1) * n_k]
     kind_modes = modes[c:c + n_k]
     for j in np.flatnonzero(kind_modes == MODE_RAW):
       raw[c + int(j)] = data[j]

@@ -38,7 +38,7 @@ MODE_RAW = 1
 WIDTH = {"pos": 3, "rot": 4, "scalar": 1}
 # Sanity caps: corrupt headers must not make the decoder allocate without limit.
 MAX_FRAMES = 1 << 24
-_FLOATS = struct.Struct("<5d")
+_FLOATS = struct.Struct("<5f")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,9 +60,13 @@ class Quanta:
   lattice_shift: int = 1
 
   def steps(self, bounds: CodecBounds) -> tuple[float, float, float]:
-    """(translation, rotation, scalar) finest velocity steps per frame, float64."""
-    return (bounds.e_pos * 2.0**-self.vel_shift, bounds.e_rot * 2.0**-self.rot_shift,
-            bounds.e_scalar * 2.0**-self.scalar_shift)
+    """(translation, rotation, scalar) finest velocity steps per frame, float64.
+
+    Computed from the bounds rounded to float32, as the stream stores them.
+    """
+    e_pos, e_rot, e_scalar = stored_bounds(bounds)
+    return (e_pos * 2.0**-self.vel_shift, e_rot * 2.0**-self.rot_shift,
+            e_scalar * 2.0**-self.scalar_shift)
 
   def coarse(self) -> dict[str, int]:
     """Lattice exponent of a 1-frame segment, per kind."""
@@ -73,6 +77,29 @@ class Quanta:
   def g_fp(self, bounds: CodecBounds) -> int:
     """Vertical velocity gained per ballistic frame, in fine steps * 256."""
     return int(round(2.0 * self.quad / self.steps(bounds)[0] * 256.0))
+
+
+def stored_bounds(bounds: CodecBounds) -> tuple[float, float, float]:
+  """The bounds as a stream stores them (float32)."""
+  return tuple(float(np.float32(e)) for e in (bounds.e_pos, bounds.e_rot, bounds.e_scalar))
+
+
+def initial_steps(bounds: CodecBounds) -> dict[str, float]:
+  """Quantum of the frame-0 value of each kind: its error stays below half the bound
+  (a quaternion's 4 components each off by step / 2 turn it by about 2 * step)."""
+  e_pos, e_rot, e_scalar = stored_bounds(bounds)
+  return {"pos": 0.5 * e_pos, "rot": 0.25 * e_rot, "scalar": 0.5 * e_scalar}
+
+
+def quantize_initial(kind: str, x: np.ndarray, bounds: CodecBounds) -> np.ndarray:
+  """i64[..., width] codes of frame-0 values (quaternions normalized first; NaN -> 0)."""
+  x = np.asarray(x, np.float64)
+  if kind == "rot":
+    norm = np.linalg.norm(x, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+      x = np.where(norm > 0, x / norm, 0.0)
+  codes = np.round(np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0) / initial_steps(bounds)[kind])
+  return np.clip(codes, -2.0**50, 2.0**50).astype(np.int64)
 
 
 class Segments(NamedTuple):
@@ -99,7 +126,8 @@ def empty_segments(dim: int) -> Segments:
 class WorldCode:
   """Everything one stream holds, as arrays.
 
-  initial: f32[C, 4], frame-0 value of each channel (first ``width`` used).
+  initial: f64[C, 4], frame-0 value of each channel (first ``width`` used), on
+    its quantization grid (``initial_steps``).
   modes: u8[C] per channel (MODE_FIT or MODE_RAW), channel order pos, rot, scalar.
   raw: dict channel index -> f32[n_frames, width].
   segs: kind -> Segments of that kind's fitted channels.
@@ -193,9 +221,7 @@ def serialize(code: WorldCode) -> bytes:
     out += rice.write_varint(int(adr))
   out += np.asarray(code.modes, np.uint8).tobytes()
   kinds = code.kinds()
-  widths = np.array([WIDTH[k] for k in kinds], np.int64)
-  mask = np.arange(4)[None, :] < widths[:, None]
-  out += np.asarray(code.initial, "<f4")[mask].tobytes()
+  out += initial_bytes(code.initial, kinds, code.bounds)
   for c, kind in enumerate(kinds):
     if code.modes[c] == MODE_RAW:
       out += np.asarray(code.raw[c], "<f4").reshape(code.n_frames, WIDTH[kind]).tobytes()
@@ -216,6 +242,29 @@ def serialize(code: WorldCode) -> bytes:
   out += rice.encode_ints(np.concatenate(counts + length_codes + residuals))
   out += struct.pack("<I", zlib.crc32(out))
   return bytes(out)
+
+
+def initial_bytes(initial: np.ndarray, kinds: list[str], bounds: CodecBounds) -> bytes:
+  """Frame-0 values as zigzag varints of their grid codes, channel by channel."""
+  out = bytearray()
+  for c, kind in enumerate(kinds):
+    codes = quantize_initial(kind, initial[c, :WIDTH[kind]], bounds)
+    for u in rice.zigzag(codes).tolist():
+      out += rice.write_varint(u)
+  return bytes(out)
+
+
+def read_initial(buf, pos: int, kinds: list[str], bounds: CodecBounds):
+  """Inverse of ``initial_bytes``: (f64[C, 4] values, position after them)."""
+  steps = initial_steps(bounds)
+  initial = np.zeros((len(kinds), 4))
+  for c, kind in enumerate(kinds):
+    for i in range(WIDTH[kind]):
+      u, pos = rice.read_varint(buf, pos, "initial value")
+      if u >= 1 << 52:
+        raise CodecError("corrupt stream: initial value out of range")
+      initial[c, i] = float((u >> 1) ^ -(u & 1)) * steps[kind]
+  return initial, pos
 
 
 def _take(buf, pos, size, what):
@@ -273,12 +322,7 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
   if np.any(modes > MODE_RAW):
     raise CodecError("corrupt stream: unknown channel mode")
   kinds = ["pos"] * n_pos + ["rot"] * n_rot + ["scalar"] * n_scalar
-  n_init = 3 * n_pos + 4 * n_rot + n_scalar
-  end = _take(buf, pos, 4 * n_init, "initial values")
-  widths = np.array([WIDTH[k] for k in kinds], np.int64)
-  initial = np.zeros((n_ch, 4), np.float32)
-  initial[np.arange(4)[None, :] < widths[:, None]] = np.frombuffer(buf, "<f4", n_init, pos)
-  pos = end
+  initial, pos = read_initial(buf, pos, kinds, bounds)
   raw = {}
   for c in np.flatnonzero(modes == MODE_RAW).tolist():
     size = n_frames * WIDTH[kinds[c]]
