@@ -15,7 +15,7 @@ import pytest
 
 import mwbx.viewer as mv
 from viewer_banks import quickstart_bank
-from viewer_render import chromium_unavailable_reason, colour_fraction, hue_fraction, hue_of, screenshot
+from viewer_render import chromium_unavailable_reason, colour_fraction, hue_fraction, hue_of, screenshot, screenshots
 
 # Thresholds as fractions of an 800 x 600 screenshot.
 MIN_OBJECT_FRACTION = 0.0008  # ~380 px of one object colour
@@ -71,15 +71,23 @@ def page(bank, browser, tmp_path_factory):
   return out
 
 
-def test_exported_page_shows_geometry_and_paths(bank, page):
-  image = screenshot(page.as_uri(), seek_s=0.5)
+def test_exported_page_shows_geometry_paths_and_motion(bank, page):
+  shots = screenshots(page.as_uri(), (0.0, 0.5, 3.0))
   save = pathlib.Path("out/viewer")
   save.mkdir(parents=True, exist_ok=True)
   from PIL import Image
 
-  Image.fromarray(image).save(save / "browser_test.png")
-  ok, fractions = scene_drawn(image, object_colours(bank), mv.paths.MATCH[:3])
-  assert ok, f"scene not visible in the screenshot: {fractions}"
+  Image.fromarray(shots.images[1]).save(save / "browser_test.png")
+  for image in shots.images:
+    ok, fractions = scene_drawn(image, object_colours(bank), mv.paths.MATCH[:3])
+    assert ok, f"scene not visible in the screenshot: {fractions}"
+  # Played back at the recorded rate: the clip lasts as long as the recording.
+  world = int(np.flatnonzero(np.asarray(bank.valid))[0])
+  assert shots.duration_s == pytest.approx((bank.frame_count[world] - 1) / bank.record_fps, abs=1e-3)
+  # The bodies move: pictures at different times differ, beyond rendering noise.
+  changed = lambda a, b: float(np.mean(np.abs(a.astype(int) - b.astype(int)).max(axis=-1) > 30))  # noqa: E731
+  assert changed(shots.images[0], shots.images[2]) > 0.002
+  assert changed(shots.images[0], screenshots(page.as_uri(), (0.0,)).images[0]) < 0.0005
 
 
 def test_check_fails_without_webgl_and_on_an_empty_page(bank, page, tmp_path):

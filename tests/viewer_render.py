@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import io
 import os
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -31,16 +31,26 @@ def chromium_unavailable_reason() -> str | None:
   return None
 
 
-def screenshot(url: str, *, seek_s: float | None = None, webgl: bool = True,
-               size: tuple[int, int] = (800, 600), timeout_ms: int = 60_000) -> np.ndarray:
-  """u8[H, W, 3] screenshot of `url` once the scene has loaded.
+class PageShots(NamedTuple):
+  """Screenshots u8[H, W, 3] per requested time, and the animation duration
+  the page reports (seconds; 0 without WebGL or animation)."""
 
-  seek_s: pause the animation and show the frame at this time (seconds), so
-  the picture does not depend on how fast the page rendered.
+  images: list
+  duration_s: float
+
+
+def screenshots(url: str, seeks_s: Sequence[float | None] = (None,), *, webgl: bool = True,
+                size: tuple[int, int] = (800, 600), timeout_ms: int = 60_000) -> PageShots:
+  """Screenshots of `url` once the scene has loaded, one per entry of seeks_s.
+
+  A number pauses the animation and shows the frame at that time (seconds),
+  so the picture does not depend on how fast the page rendered; None takes
+  the page as it is.
   """
   from PIL import Image
   from playwright.sync_api import sync_playwright
 
+  images, duration = [], 0.0
   with sync_playwright() as pw:
     browser = pw.chromium.launch(executable_path=CHROMIUM_BINARY,
                                  args=list(WEBGL_ARGS if webgl else NO_WEBGL_ARGS))
@@ -49,18 +59,27 @@ def screenshot(url: str, *, seek_s: float | None = None, webgl: bool = True,
       page.goto(url)
       if webgl:
         page.wait_for_function("window.mwbx_loaded === true", timeout=timeout_ms)
-        if seek_s is not None:
-          # Actions only pose their targets once started: start, stop the clock, seek.
-          page.evaluate("viewer.animator.play(); viewer.animator.pause();"
-                        f"viewer.animator.seek({float(seek_s)});")
-        # Two animation frames: the render loop draws dirty scenes once per frame.
-        page.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+        duration = float(page.evaluate("viewer.animator.duration"))
       else:
         page.wait_for_timeout(1000)
-      png = page.screenshot()
+      for seek in seeks_s:
+        if webgl and seek is not None:
+          # Actions only pose their targets once started: start, stop the clock, seek.
+          page.evaluate("viewer.animator.play(); viewer.animator.pause();"
+                        f"viewer.animator.seek({float(seek)});")
+        if webgl:
+          # Two animation frames: the render loop draws dirty scenes once per frame.
+          page.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+        images.append(np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB")))
     finally:
       browser.close()
-  return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+  return PageShots(images, duration)
+
+
+def screenshot(url: str, *, seek_s: float | None = None, webgl: bool = True,
+               size: tuple[int, int] = (800, 600)) -> np.ndarray:
+  """u8[H, W, 3]: one screenshot (see `screenshots`)."""
+  return screenshots(url, (seek_s,), webgl=webgl, size=size).images[0]
 
 
 def colour_fraction(image: np.ndarray, rgb: Sequence[float], tol: float) -> float:
