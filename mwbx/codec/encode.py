@@ -41,9 +41,7 @@ def default_quanta(fps: float, gravity: float = DEFAULT_GRAVITY) -> Quanta:
 
 
 def _bucket(n: int, multiple: int) -> int:
-  """Pad sizes to few distinct values so the jitted fit compiles rarely."""
-  if n <= multiple:
-    return multiple
+  """Pad a batch size to a power of two (>= multiple) so the jitted fit compiles rarely."""
   size = multiple
   while size < n:
     size *= 2
@@ -66,7 +64,8 @@ def _run_fit(kind: str, paths: np.ndarray, n: np.ndarray, e: float, step: float,
   if num == 0 or t == 0:
     d = 3 if kind == "rot" else width
     return np.zeros((num, t), bool), np.zeros((num, t, d), np.int64), np.zeros((num, t), bool)
-  n_pad, t_pad = _bucket(num, 8), _bucket(t, 64)
+  # Frames padded to a multiple of 128: a bank records a fixed number of frames.
+  n_pad, t_pad = _bucket(num, 8), -(-t // 128) * 128
   buf = np.zeros((n_pad, t_pad, width), np.float32)
   if kind == "rot":
     buf[:, :, 0] = 1.0
