@@ -174,11 +174,12 @@ def test_first_entry_kernel_matches_reference():
 def test_index_boxes_bound_their_chunks(chunk):
   com = queries_bank.ballistic_paths(3, 23, 2, seed=1)
   index = index_lib.build_index(com, np.ones(3, bool), chunk=chunk)
-  pts = np.asarray(index.points)
-  lo, hi = np.asarray(index.box_lo), np.asarray(index.box_hi)
-  assert index.chunk == chunk and int(index.n_segments) == 22
-  np.testing.assert_array_equal(pts[:, :, :23], com.transpose(0, 2, 1, 3))
-  for c in range(lo.shape[3]):
+  pts = np.asarray(index.points)  # [B, W, P', 3]
+  lo, hi = np.asarray(index.box_lo), np.asarray(index.box_hi)  # [B, 3, W, NC]
+  assert index.chunk == chunk and int(index.n_segments) == 22 and index.shape == (3, 2)
+  np.testing.assert_array_equal(pts[:, :, :23], com.transpose(2, 0, 1, 3))
+  np.testing.assert_array_equal(pts[:, :, 23:], np.broadcast_to(pts[:, :, 22:23], pts[:, :, 23:].shape))
+  for c in range(index.n_chunks):
     seg = pts[:, :, c * chunk: c * chunk + chunk + 1]
-    np.testing.assert_array_equal(lo[..., c], np.moveaxis(seg.min(axis=2), -1, 0))
-    np.testing.assert_array_equal(hi[..., c], np.moveaxis(seg.max(axis=2), -1, 0))
+    np.testing.assert_array_equal(lo[..., c], np.moveaxis(seg.min(axis=2), -1, 1))
+    np.testing.assert_array_equal(hi[..., c], np.moveaxis(seg.max(axis=2), -1, 1))

@@ -6,8 +6,9 @@ path level is implied by the chunk boxes: testing all chunk boxes of the bank
 is one fused pass over a few MB, cheaper than compacting twice.
 
 A query runs in three jitted steps:
-  1. test every chunk box (float32) against the volume, the time window, the
-     body selection and world validity -> candidate mask bool[W, B, NC];
+  1. test the chunk boxes (float32) of every selected body (a `lax.cond` per
+     body skips the others) against the volume, the time window and world
+     validity -> candidate mask bool[B, W, NC];
   2. compact the candidates without a scatter: a prefix sum of per-path counts
      plus a search maps output slot j to (path, chunk);
   3. in blocks of `block` candidate chunks (a while loop, so any number of
@@ -43,10 +44,11 @@ _SLACK_REL = 2.0**-18
 class PathIndex(NamedTuple):
   """Bounds hierarchy of all COM polylines of a bank (device arrays).
 
-  points: f32[W, B, NC*chunk + 1, 3] polylines, the last point repeated as
+  Body-major, so that one body's arrays are contiguous:
+  points: f32[B, W, NC*chunk + 1, 3] polylines, the last point repeated as
     padding, metres.
-  box_lo: f32[3, W, B, NC] chunk box minimum corners (x, y, z first), metres.
-  box_hi: f32[3, W, B, NC] chunk box maximum corners, metres.
+  box_lo: f32[B, 3, W, NC] chunk box minimum corners, metres.
+  box_hi: f32[B, 3, W, NC] chunk box maximum corners, metres.
   valid: bool[W] worlds that may match (not unstable).
   n_segments: i32 real segments per path (P - 1, at least 1).
   extent: f32 largest absolute coordinate in the bank, metres (for `slack`).
@@ -61,12 +63,16 @@ class PathIndex(NamedTuple):
 
   @property
   def chunk(self) -> int:
-    return (self.points.shape[2] - 1) // self.box_lo.shape[3]
+    return (self.points.shape[2] - 1) // self.n_chunks
+
+  @property
+  def n_chunks(self) -> int:
+    return self.box_lo.shape[3]
 
   @property
   def shape(self) -> tuple[int, int]:
     """(W, B)."""
-    return self.points.shape[0], self.points.shape[1]
+    return self.points.shape[1], self.points.shape[0]
 
 
 def build_index(
@@ -102,18 +108,19 @@ def build_index(
 def _build(com, valid, n_chunks: int, chunk: int):
   """Padded per-path polylines, chunk boxes and the coordinate extent."""
   w, p, b, _ = com.shape
-  pts = jp.transpose(com, (0, 2, 1, 3))  # [W, B, P, 3]
+  pts = jp.transpose(com, (2, 0, 1, 3))  # [B, W, P, 3]
   pad = n_chunks * chunk + 1 - p
   pts = jp.concatenate([pts, jp.repeat(pts[:, :, -1:], pad, axis=2)], axis=2)
-  body = pts[:, :, :-1].reshape(w, b, n_chunks, chunk, 3)
-  ends = pts[:, :, chunk::chunk]  # [W, B, NC, 3] last point of each chunk
+  body = pts[:, :, :-1].reshape(b, w, n_chunks, chunk, 3)
+  ends = pts[:, :, chunk::chunk]  # [B, W, NC, 3] last point of each chunk
   lo = jp.minimum(body.min(axis=3), ends)
   hi = jp.maximum(body.max(axis=3), ends)
   # Invalid worlds never match, and may hold NaN or huge values.
   mag = jp.abs(pts)
-  mag = jp.where(valid[:, None, None, None] & jp.isfinite(mag), mag, 0.0)
+  mag = jp.where(valid[None, :, None, None] & jp.isfinite(mag), mag, 0.0)
   extent = jp.max(mag, initial=0.0)
-  return pts, jp.moveaxis(lo, -1, 0), jp.moveaxis(hi, -1, 0), extent
+  to_soa = lambda x: jp.transpose(x, (0, 3, 1, 2))  # [B, 3, W, NC]
+  return pts, to_soa(lo), to_soa(hi), extent
 
 
 def _box_tests(
@@ -126,48 +133,52 @@ def _box_tests(
   """Float32 chunk-box tests against the volume.
 
   Returns:
-    (candidates: bool[W, B, NC], chunks that may meet the volume and need the
-    exact test; inside: bool[W, B], paths with a chunk wholly inside the
+    (candidates: bool[B, W, NC], chunks that may meet the volume and need the
+    exact test; inside: bool[B, W], paths with a chunk wholly inside the
     volume and in the window, which therefore hit).
   """
   w, b = index.shape
-  n_chunks = index.box_lo.shape[3]
-  c = index.chunk
+  n_chunks, c = index.n_chunks, index.chunk
   off32 = offsets.astype(jp.float32)  # [B, F]
   slack = _SLACK_REL * (
       jp.sum(jp.abs(normals), axis=1)[None, :] * index.extent + jp.abs(off32)
   )
-  outside = jp.zeros((w, b, n_chunks), bool)
-  inside = jp.ones((w, b, n_chunks), bool)
-  lo, hi = index.box_lo, index.box_hi
-  for f in range(normals.shape[0]):  # F <= 6, unrolled
-    n = normals[f]
-    pos = n > 0
-    # Box corners that minimise and maximise n·p.
-    near = (jp.where(pos[0], lo[0], hi[0]) * n[0]
-            + jp.where(pos[1], lo[1], hi[1]) * n[1]) + jp.where(
-                pos[2], lo[2], hi[2]) * n[2]
-    far = (jp.where(pos[0], hi[0], lo[0]) * n[0]
-           + jp.where(pos[1], hi[1], lo[1]) * n[1]) + jp.where(
-               pos[2], hi[2], lo[2]) * n[2]
-    off = off32[None, :, f, None]
-    tol = slack[None, :, f, None]
-    outside |= near - off > tol
-    inside &= far - off < -tol
   # Chunks holding a real segment that overlaps the window (exact: the same
   # per-segment arithmetic as the leaf test, on the segment indices only).
   k = jp.arange(n_chunks * c, dtype=jp.float64)
   overlap, _, _ = segments.segment_ranges(k, window)
   overlap &= k < index.n_segments
   in_window = jp.any(overlap.reshape(n_chunks, c), axis=1)
-  keep = (
-      in_window[None, None, :]
-      & body_mask[None, :, None]
-      & index.valid[:, None, None]
-  )
-  inside_path = jp.any(inside & keep, axis=2)
-  candidates = ~outside & keep & ~inside_path[:, :, None]
-  return candidates, inside_path
+  keep = in_window[None, :] & index.valid[:, None]  # [W, NC]
+
+  def one_body(lo, hi, off, tol):
+    """lo, hi: f32[3, W, NC]; off, tol: f32[F] -> (candidates, inside)."""
+    outside = jp.zeros((w, n_chunks), bool)
+    inside = jp.ones((w, n_chunks), bool)
+    for f in range(normals.shape[0]):  # F <= 6, unrolled
+      n = normals[f]
+      pos = n > 0
+      # Box corners that minimise and maximise n·p.
+      near = (jp.where(pos[0], lo[0], hi[0]) * n[0]
+              + jp.where(pos[1], lo[1], hi[1]) * n[1]) + jp.where(
+                  pos[2], lo[2], hi[2]) * n[2]
+      far = (jp.where(pos[0], hi[0], lo[0]) * n[0]
+             + jp.where(pos[1], hi[1], lo[1]) * n[1]) + jp.where(
+                 pos[2], hi[2], lo[2]) * n[2]
+      outside |= near - off[f] > tol[f]
+      inside &= far - off[f] < -tol[f]
+    inside_path = jp.any(inside & keep, axis=1)
+    return ~outside & keep & ~inside_path[:, None], inside_path
+
+  def skipped(*_):
+    return jp.zeros((w, n_chunks), bool), jp.zeros(w, bool)
+
+  def per_body(i):
+    # A real branch: unselected bodies cost nothing.
+    return jax.lax.cond(body_mask[i], one_body, skipped,
+                        index.box_lo[i], index.box_hi[i], off32[i], slack[i])
+
+  return jax.lax.map(per_body, jp.arange(b))
 
 
 def _exact_blocks(
@@ -178,11 +189,11 @@ def _exact_blocks(
     window: jax.Array,
     block: int,
 ) -> jax.Array:
-  """Exact test of all candidate chunks, block by block: bool[W, B]."""
+  """Exact test of all candidate chunks, block by block: bool[B, W]."""
   w, b = index.shape
   n_chunks = candidates.shape[2]
   c = index.chunk
-  per_path = candidates.reshape(w * b, n_chunks)
+  per_path = candidates.reshape(b * w, n_chunks)  # path = body * W + world
   counts = jp.sum(per_path, axis=1, dtype=jp.int32)
   ends = jp.cumsum(counts)  # slot j belongs to the path with ends[p] > j
   total = ends[-1]
@@ -194,14 +205,14 @@ def _exact_blocks(
     slot = i * block + jp.arange(block, dtype=jp.int32)
     live = slot < total
     path = jp.searchsorted(ends, slot, side="right").astype(jp.int32)
-    path = jp.minimum(path, w * b - 1)
+    path = jp.minimum(path, b * w - 1)
     rank = slot - (ends[path] - counts[path])
     rows = per_path[path]  # [block, NC]
     seen = jp.cumsum(rows, axis=1, dtype=jp.int32)
     chunk_id = jp.argmax(seen > rank[:, None], axis=1)
     first = chunk_id * c
     pts = flat_points[path[:, None], first[:, None] + steps[None, :]]
-    body_off = offsets[path % b]  # [block, F]
+    body_off = offsets[path // w]  # [block, F]
     hit, _ = jax.vmap(
         segments.polyline_hits, in_axes=(0, None, 0, None, 0, None)
     )(pts, normals, body_off, window, first.astype(jp.float64), index.n_segments)
@@ -212,8 +223,8 @@ def _exact_blocks(
   def more(carry):
     return carry[0] * block < total
 
-  _, hits = jax.lax.while_loop(more, one_block, (0, jp.zeros(w * b, bool)))
-  return hits.reshape(w, b)
+  _, hits = jax.lax.while_loop(more, one_block, (0, jp.zeros(b * w, bool)))
+  return hits.reshape(b, w)
 
 
 def path_hits(
@@ -246,7 +257,8 @@ def path_hits(
 
 def default_block(index: PathIndex) -> int:
   """Exact-test block size for a bank: a power of two near 1/64 of its chunks."""
-  n_chunks = index.box_lo.shape[1] * index.box_lo.shape[2] * index.box_lo.shape[3]
+  w, b = index.shape
+  n_chunks = w * b * index.n_chunks
   block = 1 << max(0, (n_chunks // 64 - 1).bit_length())
   return min(MAX_BLOCK, max(MIN_BLOCK, block))
 
@@ -254,7 +266,7 @@ def default_block(index: PathIndex) -> int:
 def _path_hits(index, normals, offsets, body_mask, window, block):
   candidates, inside = _box_tests(index, normals, offsets, body_mask, window)
   exact = _exact_blocks(index, candidates, normals, offsets, window, block)
-  return exact | inside
+  return (exact | inside).T
 
 
 _path_hits_jit = jax.jit(_path_hits, static_argnums=5)
@@ -281,9 +293,9 @@ def _brute_force(index, normals, offsets, body_mask, window):
     )
     return jp.any(hit)
 
-  per_body = jax.vmap(one_path, in_axes=(0, 0))
-  hits = jax.vmap(per_body, in_axes=(0, None))(index.points, offsets)
-  return hits & body_mask[None, :] & index.valid[:, None]
+  per_world = jax.vmap(one_path, in_axes=(0, None))
+  hits = jax.vmap(per_world, in_axes=(0, 0))(index.points, offsets)  # [B, W]
+  return hits.T & body_mask[None, :] & index.valid[:, None]
 
 
 _brute_force_jit = jax.jit(_brute_force)

@@ -249,9 +249,11 @@ def combine(hits: np.ndarray, body_mask: np.ndarray, query: Query) -> np.ndarray
 def evaluate_each(bank, queries) -> np.ndarray:
   """Each query's answer for each world: bool[W, Q]; unstable worlds False."""
   queries = as_queries(queries)
+  out = np.zeros((bank.n_worlds, len(queries)), bool)
+  if bank.n_worlds == 0 or not queries:
+    return out
   state = _state(bank)
   valid = np.asarray(bank.valid, bool)
-  out = np.zeros((bank.n_worlds, len(queries)), bool)
   for i, query in enumerate(queries):
     normals, offsets, mask, window = resolve(bank, query, state)
     hits = np.asarray(index_lib.path_hits(state.index, normals, offsets, mask, window))
@@ -293,7 +295,7 @@ def first_entry(bank, world: int, bodies, frustum: Frustum, *,
   chosen = np.flatnonzero(mask)
   if chosen.size == 0:
     return None
-  points = state.index.points[int(world)][chosen]  # [k, P', 3] padded paths
+  points = state.index.points[chosen, int(world)]  # [k, P', 3] padded paths
   with jax.enable_x64(True):
     t = _first_entry(points, normals, offsets[chosen], win, state.index.n_segments)
   t = float(t)

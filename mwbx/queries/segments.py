@@ -72,26 +72,19 @@ def clip_segment(
   return hit, enter
 
 
-def window_ranges(
-    n_segments: int, window: jax.Array
-) -> tuple[jax.Array, jax.Array, jax.Array]:
-  """Parameter ranges of segments 0..n_segments-1 inside a time window.
-
-  Args:
-    n_segments: number of segments (static).
-    window: f64[2] (w0, w1) in segment units, 0 <= w0 <= w1.
-
-  Returns:
-    (overlap: bool[S], s0: f64[S], s1: f64[S]).
-  """
-  k = jp.arange(n_segments, dtype=jp.float64)
-  return segment_ranges(k, window)
-
-
 def segment_ranges(
     k: jax.Array, window: jax.Array
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-  """Like `window_ranges` for given segment indices `k: f64[...]`."""
+  """Parameter ranges of segments k inside a time window.
+
+  Args:
+    k: f64[...] segment indices (whole numbers).
+    window: f64[2] (w0, w1) in segment units, 0 <= w0 <= w1.
+
+  Returns:
+    (overlap: bool[...], segment k has a point in the window; s0, s1: f64[...]
+    the part of the segment inside it, [max(w0 - k, 0), min(w1 - k, 1)]).
+  """
   u0 = window[0] - k
   u1 = window[1] - k
   overlap = (u1 >= 0) & (u0 <= 1)
@@ -130,22 +123,6 @@ def polyline_hits(
   if n_segments is not None:
     hit &= k < n_segments
   return hit, enter
-
-
-def path_hit(
-    points: jax.Array, normals: jax.Array, offsets: jax.Array, window: jax.Array
-) -> jax.Array:
-  """Whether one whole path meets the volume in the window (brute force).
-
-  Args:
-    points: f32[P, 3] the path, P >= 2.
-    normals, offsets, window: as in `polyline_hits`.
-
-  Returns:
-    bool.
-  """
-  hit, _ = polyline_hits(points, normals, offsets, window)
-  return jp.any(hit)
 
 
 def path_first_entry(
