@@ -1,5 +1,6 @@
 """Error-bounded trajectory codec (paper section 3): piecewise fits, Rice codes."""
 
+from mwbx.codec.batch import decode_batch
 from mwbx.codec.decode import decode_world
 from mwbx.codec.encode import EncodedBatch
 from mwbx.codec.encode import encode_batch

@@ -26,6 +26,7 @@ _BOX = """<body name="box{i}" pos="{x} {y} {z}"><freejoint/>
 _CHAIN = """
 <mujoco>
   <option timestep="{dt}"/>
+  <default><joint armature="0.01" damping="0.02"/></default>
   <worldbody>
     <geom type="plane" size="20 20 0.1"/>
     <body name="root" pos="0 0 1.5"><freejoint/>
