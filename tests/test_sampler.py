@@ -57,18 +57,21 @@ def test_bank_contents(tiny_native_bank):
   for w in (0, 5):
     qpos = bank.qpos_frames(w)
     assert qpos.shape == (bank.frame_count[w], model.nq) and np.isfinite(qpos).all()
-    # COM polyline point p is the COM of frame p * stride: check by forward kinematics.
+    # COM polyline point p is the COM of frame p * stride: check by forward
+    # kinematics of the decoded qpos, which the codec keeps within e_pos (the
+    # tiny scene's bodies have their COM at the body origin).
     data = __import__("mujoco").MjData(model)
     for p in (0, bank.com_count[w] - 1):
       data.qpos[:] = qpos[p * stride]
       __import__("mujoco").mj_kinematics(model, data)
-      np.testing.assert_allclose(bank.com[w, p], data.xipos[bank.body_ids], atol=1e-5)
+      np.testing.assert_allclose(bank.com[w, p], data.xipos[bank.body_ids], atol=cfg["codec"]["e_pos"] * 1.001)
     tail = bank.com[w, bank.com_count[w]:]
     assert (tail == bank.com[w, bank.com_count[w] - 1]).all()
   metrics = bank.metrics
   assert (metrics[..., 0] > 0).all()                     # everything rotates on the way down
   assert (metrics[..., 4] > 0.05).all()                  # and travels
-  assert (metrics[..., 5] >= 0.5).all()                  # from above the plate
+  # Everything starts at rest and falls: the highest point is the first one.
+  np.testing.assert_allclose(metrics[..., 5], bank.com[:, 0, :, 2], atol=1e-4)
   rest_time = bank.metric("rest_time")
   assert (rest_time <= (bank.frame_count[:, None] - 1) / 120 + 1e-6).all()
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from mwbx import bank as bank_lib
 from mwbx.batch_sim import world
-from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_impl
+from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
 from mwbx.config import Config
 from mwbx.errors import MwbxError
 from mwbx.scene import Scene
@@ -185,6 +185,7 @@ class Sampler:
     status = cat("status")
     com = np.concatenate([r.com for r in results])[:, ::self.query_stride]
     com_count = np.where(frame_count > 0, (frame_count - 1) // self.query_stride + 1, 0).astype(np.int32)
+    com = fill_tail(np.ascontiguousarray(com), com_count)  # the tail repeats the last polyline point
     com = np.nan_to_num(com)
     flags = np.full(len(ids), bank_lib.FLAG_FINISHED, np.uint8)
     flags[status == world.AT_REST] |= bank_lib.FLAG_AT_REST

@@ -225,7 +225,9 @@ def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: 
         metrics[:, 4] + jnp.where(k > 0, jnp.linalg.norm(com - prev_com, axis=-1), 0.0),
         jnp.maximum(metrics[:, 5], com[:, 2]),
     ], axis=-1)
-    keep = healthy & running
+    # The last frame is recorded at its first step; later steps of it are not
+    # part of the world (its simulation ends there).
+    keep = healthy & running & ((k0 // params.steps_per_frame < params.end_frame) | (j == 0))
     state = (
         jnp.where(jnp.any(moving), 0, still_steps + 1),
         jnp.where(keep, jnp.where(impact, 0, since_impact + 1), since_impact),
