@@ -111,3 +111,18 @@ def test_metric_errors_are_clear():
     metrics_lib.parse_term("rest_time:median")
   with pytest.raises(MwbxError, match="shape"):
     rank(bank, np.zeros(W + 1))
+
+
+@settings(max_examples=80, deadline=None)
+@given(values=st.lists(st.sampled_from([-np.inf, -1.0, 0.0, 0.5, 2.0, np.inf]), min_size=1, max_size=30),
+       data=st.data(), descending=st.booleans())
+def test_top_k_orders_like_a_stable_sort(values, data, descending):
+  values = np.asarray(values)
+  n = len(values)
+  eligible = np.asarray(data.draw(st.lists(st.booleans(), min_size=n, max_size=n)))
+  k = data.draw(st.integers(0, n))
+  got = metrics_lib.top_k(values, eligible, k, descending)
+  # Eligible worlds by value, then the ineligible ones in index order.
+  best_first = sorted(range(n), key=lambda i: (not eligible[i], (
+      -values[i] if descending else values[i]) if eligible[i] else 0.0, i))
+  assert got.tolist() == best_first[:k]

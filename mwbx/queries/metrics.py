@@ -7,18 +7,16 @@ a selection of bodies/objects/groups and a reduction (sum or max over the
 selected bodies) and a weight; a score is the weighted sum of terms. The
 query-dependent "constraints_satisfied" metric counts how many of the given
 queries each world satisfies, so worlds that satisfy most of them surface
-when none satisfies all. Ranking is a top-k over the scores of the eligible
-worlds; unstable worlds are never ranked.
+when none satisfies all. Ranking is a top-k (partition, then a sort of the k best) over the scores of
+the eligible worlds; unstable worlds are never ranked.
 """
 
 from __future__ import annotations
 
-from functools import partial
 import math
 from typing import NamedTuple, Sequence
 
 import jax
-from jax import numpy as jp
 import numpy as np
 
 from mwbx.errors import MwbxError
@@ -140,20 +138,30 @@ def rank(bank, by, *, queries=(), match=None, top: int = 10,
       raise MwbxError(f"rank: match must be bool[{bank.n_worlds}], got shape {match.shape}")
     eligible &= match
   k = min(int(top), bank.n_worlds)
-  if k == 0:
-    return np.zeros(0, np.int64), np.zeros(0)
-  with jax.enable_x64(True):
-    order = np.asarray(_top_k(values, eligible, k, descending))
+  order = top_k(values, eligible, k, descending)
   order = order[: min(k, int(eligible.sum()))]
   return np.asarray(bank.world_ids)[order].astype(np.int64), values[order]
 
 
-@partial(jax.jit, static_argnums=(2, 3))
-def _top_k(values, eligible, k: int, descending: bool):
-  """Indices i32[k] of the k best eligible values (ineligible ones last)."""
-  key = values if descending else -values
+def top_k(values: np.ndarray, eligible: np.ndarray, k: int,
+          descending: bool = True) -> np.ndarray:
+  """Indices i64[k] of the k best values, eligible ones first, ties to the
+  lower index: a partition to the k-th best key, then a sort of those only.
+
+  Args:
+    values: f64[W] scores. eligible: bool[W]. k: 0 <= k <= W.
+    descending: highest first (else lowest first).
+  """
+  key = np.asarray(values, np.float64) if descending else -np.asarray(values, np.float64)
   # Eligible worlds must come before ineligible ones even at -inf.
-  lowest = jp.finfo(key.dtype).min
-  key = jp.where(eligible, jp.maximum(key, lowest), -jp.inf)
-  _, idx = jax.lax.top_k(key, k)
-  return idx
+  key = np.where(eligible, np.maximum(key, np.finfo(np.float64).min), -np.inf)
+  n = len(key)
+  if k <= 0:
+    return np.zeros(0, np.int64)
+  if k < n:
+    kth = np.partition(key, n - k)[n - k]  # the k-th largest key
+    chosen = np.flatnonzero(key >= kth)
+  else:
+    chosen = np.arange(n)
+  order = chosen[np.lexsort((chosen, -key[chosen]))]
+  return order[:k].astype(np.int64)
