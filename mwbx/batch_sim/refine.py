@@ -214,6 +214,11 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
   """The refined worlds as a bank (same scene, config and digest as ``bank``)."""
   cat = lambda name: np.concatenate([getattr(o, name) for o in outputs])
   count = f0 + cat("frame_count").astype(np.int32)
+  status = cat("status")
+  # A refined world at rest before the parent's end holds its last frame to the
+  # parent's length: then untouched objects' coded channels are the parent's own.
+  count = np.where((status == world_lib.AT_REST) & (count < path.n_parent),
+                   np.minimum(path.n_parent, f0 + cat("qpos").shape[1]), count).astype(np.int32)
   new_qpos, new_com = cat("qpos"), cat("com")
   w, n_frames = len(count), sampler.n_frames
   active = cat("active")
@@ -240,7 +245,6 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
 
   metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
   metrics = np.where(body_active[:, :, None], metrics, bank.metrics[world][None])
-  status = cat("status")
   flags = np.full(w, bank_lib.FLAG_FINISHED, np.uint8)
   flags[status == world_lib.AT_REST] |= bank_lib.FLAG_AT_REST
   flags[status == world_lib.UNSTABLE] |= bank_lib.FLAG_UNSTABLE

@@ -34,6 +34,56 @@ def _channel_segments(code, kind: str):
   return out
 
 
+def _raw_that_decodes_to(values: np.ndarray, rotation: bool) -> np.ndarray:
+  """f32[n, width] raw column values whose decoding is exactly ``values``.
+
+  The decoder renormalizes raw quaternions, which can move a unit quaternion
+  by one ulp; for such rows a neighbour within ±1 ulp per component that
+  decodes back to the row is stored instead.
+  """
+  from mwbx.codec.decode import normalize
+  values = np.asarray(values, np.float32)
+  if not rotation:
+    return values.copy()
+  decode = lambda x: normalize(x.astype(np.float64)).astype(np.float32)
+  out = values.copy()
+  steps = np.array(np.meshgrid(*[[-1, 0, 1]] * 4, indexing="ij")).reshape(4, -1).T
+  for row in np.flatnonzero(np.any(decode(values) != values, axis=1)):
+    y = values[row]
+    up, down = np.nextafter(y, np.float32(np.inf)), np.nextafter(y, np.float32(-np.inf))
+    cand = np.where(steps > 0, up, np.where(steps < 0, down, y)).astype(np.float32)
+    ok = np.flatnonzero(np.all(decode(cand) == y, axis=1))
+    if ok.size:
+      out[row] = cand[ok[0]]
+  return out
+
+
+def _extended(channel, extra: int, kind: str, code):
+  """A parent channel's (lengths, vel, flags) held for ``extra`` more frames.
+
+  The extra segment's velocity is the lattice point nearest zero (the
+  lattice depends on the segment's length and the gravity increment of a
+  ballistic previous segment), so the hold drifts by less than one
+  displacement quantum; the parent's own frames decode exactly as before.
+  """
+  from mwbx.codec.stream import channel_starts, gravity_increment, lattice_exponent
+  lengths, vel, flags = channel
+  if extra == 0 or len(lengths) == 0:
+    return channel
+  coarse = code.quanta.coarse()[kind]
+  m = int(lattice_exponent(np.array([extra]), coarse)[0])
+  base = vel[-1].copy()
+  if kind == "pos":
+    all_len = np.concatenate([lengths, [extra]])
+    all_flags = np.concatenate([flags, [False]])
+    first = channel_starts(np.array([len(all_len)]))
+    base[-1] += gravity_increment(all_flags, all_len, first, code.quanta.g_fp(code.bounds))[-1]
+  step = 1 << m
+  new_vel = base + np.round(-base / step).astype(np.int64) * step
+  return (np.concatenate([lengths, [extra]]), np.concatenate([vel, new_vel[None]]),
+          np.concatenate([flags, [False]]))
+
+
 def splice_stream(new_stream: np.ndarray, parent_stream: np.ndarray, parent_frames: np.ndarray,
                   keep_qpos: np.ndarray) -> bytes:
   """A refined world's stream with the parent's channels where ``keep_qpos``.
@@ -53,7 +103,6 @@ def splice_stream(new_stream: np.ndarray, parent_stream: np.ndarray, parent_fram
   kinds, adrs = new.kinds(), new.addresses()
   take = [bool(keep_qpos[a]) for a in adrs]
   n = new.n_frames
-  same_length = parent.n_frames == n
   modes = np.array(new.modes, np.uint8)
   initial = np.array(new.initial)
   raw = dict(new.raw)
@@ -67,13 +116,13 @@ def splice_stream(new_stream: np.ndarray, parent_stream: np.ndarray, parent_fram
       if take[c]:
         raw.pop(c, None)
         initial[c] = parent.initial[c]
-        if same_length and parent.modes[c] == MODE_FIT:
+        if n >= parent.n_frames and parent.modes[c] == MODE_FIT:
           modes[c] = MODE_FIT
-          parts.append(theirs[c])
+          parts.append(_extended(theirs[c], n - parent.n_frames, kind, parent))
         else:
           modes[c] = MODE_RAW
           idx = np.minimum(np.arange(n), len(parent_frames) - 1)
-          raw[c] = parent_frames[idx, adrs[c]:adrs[c] + WIDTH[kind]].astype(np.float32)
+          raw[c] = _raw_that_decodes_to(parent_frames[idx, adrs[c]:adrs[c] + WIDTH[kind]], kind == "rot")
       elif modes[c] == MODE_FIT:
         parts.append(mine[c])
     dim = new.segs[kind].vel.shape[1]
