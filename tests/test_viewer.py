@@ -576,3 +576,25 @@ def test_queries_accepts_one_query_or_a_query_set(real_bank, tmp_path):
   corners = _frustum(np.zeros(3), (0.0, 0.0), 0.5, 2.0, 0.2, 0.1)
   _, info = _draw_offline(real_bank, worlds=[], queries=(corners, True))
   assert info.n_queries == 1
+
+
+def test_scene_bounds_cover_static_boxes_and_moving_bodies(bank, model):
+  from mwbx.viewer import api
+
+  worlds = np.array([0, 2])
+  lo, hi = api.scene_bounds(bank, model, worlds, None, None)
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  ramp = model.geom("ramp").id
+  # Reference: the ramp's 8 corners one by one, and every body's COM +- its geom radius.
+  size = model.geom_size[ramp]
+  for sx in (-1, 1):
+    for sy in (-1, 1):
+      for sz in (-1, 1):
+        p = data.geom_xpos[ramp] + data.geom_xmat[ramp].reshape(3, 3) @ (size * [sx, sy, sz])
+        assert np.all(p >= lo - 1e-9) and np.all(p <= hi + 1e-9)
+  com = np.asarray(bank.com)[worlds].reshape(-1, 3)
+  r = max(model.geom_rbound[g] for g in range(model.ngeom) if model.body_weldid[model.geom_bodyid[g]])
+  assert np.all(com.min(axis=0) - r >= lo - 1e-6) and np.all(com.max(axis=0) + r <= hi + 1e-6)
+  hidden = data.geom_xpos[model.geom("hidden_collider").id]  # group 3: not shown, not framed
+  assert hidden[2] > hi[2]

@@ -23,7 +23,7 @@ from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.frustums import QueryVolume, as_volume, draw_volume
 from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS, pose_matrix, scene_visuals
 from mwbx.viewer.paths import PathClasses, classify_worlds, draw_paths
-from mwbx.viewer.playback import LAYOUTS, draw_playback, grid_offsets
+from mwbx.viewer.playback import LAYOUTS, draw_playback, grid_offsets, make_grid
 from mwbx.viewer.recorder import SceneRecorder
 
 ROOT = "mwbx"
@@ -80,18 +80,29 @@ def resolve_bodies(bank, paths: Any) -> np.ndarray | None:
 
 
 def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
-                 path_classes: PathClasses | None, bodies: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-  """(lo f64[3], hi f64[3]) box around what is shown: COM paths of the
-  played-back worlds (all bodies) and of the drawn paths, and static geoms
-  other than planes."""
+                 path_classes: PathClasses | None, bodies: np.ndarray | None,
+                 visible_groups: tuple[int, ...] = DEFAULT_VISIBLE_GROUPS) -> tuple[np.ndarray, np.ndarray]:
+  """(lo f64[3], hi f64[3]) box around what is shown: the COM paths of the
+  played-back worlds (all bodies, widened by the largest moving geom) and of
+  the drawn paths, and the boxes of the visible static geoms other than planes."""
   com = np.asarray(bank.com)
   pts = [_finite_extent(com, worlds, np.arange(com.shape[2]))]
+  visible = np.isin(model.geom_group, visible_groups) & (model.geom_rgba[:, 3] > 0)
+  moving = visible & (model.body_weldid[model.geom_bodyid] != 0)
+  if pts[0].size and moving.any():
+    margin = float(model.geom_rbound[moving].max())
+    pts[0] = pts[0] + np.array([[-margin], [margin]])
   if path_classes is not None and bodies is not None:
     pts.append(_finite_extent(com, np.concatenate(list(path_classes)), bodies))
   data = mujoco.MjData(model)
   mujoco.mj_kinematics(model, data)
-  static = (model.body_weldid[model.geom_bodyid] == 0) & (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE)
-  pts.append(data.geom_xpos[static])
+  static = np.flatnonzero(visible & (model.body_weldid[model.geom_bodyid] == 0)
+                          & (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE))
+  signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+  for g in static:
+    centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
+    local = centre[None] + signs * half[None]  # [8, 3] box corners in the geom frame
+    pts.append(data.geom_xpos[g][None] + local @ data.geom_xmat[g].reshape(3, 3).T)
   pts = np.concatenate(pts, axis=0)
   pts = pts[np.all(np.isfinite(pts), axis=1)]
   if pts.shape[0] == 0:
@@ -156,50 +167,64 @@ def _finite_extent(com: np.ndarray, worlds: np.ndarray, bodies: np.ndarray,
   return np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((0, 3))
 
 
-def place_camera(vis, model: mujoco.MjModel, lo: np.ndarray, hi: np.ndarray,
-                 camera: str | None, view_dir: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-  """Aims meshcat's camera. Returns (centre f64[3], eye f64[3]) in world
-  coordinates; the caller shifts the scene by -centre.
+class ViewSpec(NamedTuple):
+  """Where the first view looks from.
 
-  camera: an MJCF camera name to view exactly from; None fits the box
-  [lo, hi] into view, looking along the model's first camera (or obliquely
-  from the front right when the model has none).
-  view_dir: f[3] direction from the scene towards the eye for the fitted
-  view (overrides the MJCF camera's direction).
+  direction: f64[3] unit vector from the scene towards the eye.
+  fovy: vertical field of view, degrees.
+  eye: f64[3] exact eye position (an MJCF camera), or None to fit the scene.
   """
-  box_centre = (lo + hi) / 2
-  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
+
+  direction: np.ndarray
+  fovy: float
+  eye: np.ndarray | None
+
+
+def view_spec(model: mujoco.MjModel, camera: str | None = None,
+              view_dir: Sequence[float] | None = None) -> ViewSpec:
+  """camera: an MJCF camera name to view exactly from; None fits the scene
+  into view, looking along `view_dir` (f[3], scene towards eye), else along
+  the model's first camera, else obliquely from the front right."""
   if camera is not None:
     cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
     if cam_id < 0:
       names = [model.camera(i).name for i in range(model.ncam)]
       raise ViewerError(f"camera: no MJCF camera named {camera!r} (cameras: {names})")
     eye, forward, fovy = mjcf_camera(model, cam_id)
+    return ViewSpec(-forward, fovy, eye)
+  fovy = float(model.cam_fovy[0]) if model.ncam > 0 else DEFAULT_FOVY
+  if view_dir is not None:
+    direction = np.asarray(view_dir, np.float64).reshape(-1)
+    if direction.shape != (3,) or not np.all(np.isfinite(direction)) or not np.any(direction):
+      raise ViewerError(f"view_dir: must be a finite nonzero 3-vector, got {direction.tolist()}")
+  elif model.ncam > 0:
+    direction = -mjcf_camera(model, 0)[1]
+  else:
+    direction = DEFAULT_VIEW_DIR
+  return ViewSpec(direction / np.linalg.norm(direction), fovy, None)
+
+
+def place_camera(vis, lo: np.ndarray, hi: np.ndarray, spec: ViewSpec) -> tuple[np.ndarray, np.ndarray]:
+  """Aims meshcat's camera at the box [lo, hi]. Returns (centre f64[3],
+  eye f64[3]) in world coordinates; the caller shifts the scene by -centre."""
+  box_centre = (lo + hi) / 2
+  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
+  if spec.eye is not None:
     # Orbit about the point on the camera's axis nearest the scene, so the
     # first view looks exactly where the MJCF camera does.
-    depth = max(float(np.dot(box_centre - eye, forward)), 0.1)
+    forward = -spec.direction
+    depth = max(float(np.dot(box_centre - spec.eye, forward)), 0.1)
+    eye = spec.eye
     centre = eye + depth * forward
   else:
-    if view_dir is not None:
-      direction = np.asarray(view_dir, np.float64).reshape(3)
-      if not np.all(np.isfinite(direction)) or np.linalg.norm(direction) == 0:
-        raise ViewerError(f"view_dir: must be a finite nonzero 3-vector, got {direction.tolist()}")
-      direction = direction / np.linalg.norm(direction)
-      fovy = float(model.cam_fovy[0]) if model.ncam > 0 else DEFAULT_FOVY
-    elif model.ncam > 0:
-      _, forward, fovy = mjcf_camera(model, 0)
-      direction = -forward
-    else:
-      fovy = DEFAULT_FOVY
-      direction = DEFAULT_VIEW_DIR / np.linalg.norm(DEFAULT_VIEW_DIR)
     centre = box_centre
-    eye = centre + direction * fit_distance(lo, hi, centre, direction, fovy)
+    eye = centre + spec.direction * fit_distance(lo, hi, centre, spec.direction, spec.fovy)
   d = eye - centre
   cam = vis["/Cameras/default/rotated/<object>"]
   # The camera's parent is rotated +90 deg about x (three.js is y-up):
   # world (x, y, z) = local (x, -z, y).
   cam.set_property("position", [float(d[0]), float(d[2]), float(-d[1])])
-  cam.set_property("fov", fovy)
+  cam.set_property("fov", spec.fovy)
   cam.set_property("far", float(max(100.0, 20 * (radius + np.linalg.norm(d)))))
   return centre, eye
 
@@ -240,27 +265,25 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   if bodies is not None:
     classes = classify_worlds(np.asarray(bank.valid), path_worlds, match, exclude)
   volumes = [as_volume(q, i) for i, q in enumerate(queries)]
-  lo, hi = scene_bounds(bank, model, worlds, classes, bodies)
-  size = hi - lo
-  cell_centre = (lo + hi) / 2
-  radius = max(float(np.linalg.norm(size)) / 2, 0.2)
+  lo, hi = scene_bounds(bank, model, worlds, classes, bodies, visible_groups)
+  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
   visuals = scene_visuals(model, visible_groups, plane_extent=2.0 * radius + float(np.max(np.abs(hi))))
-
-  cell = np.maximum(size[:2], 0.2) * 1.25
+  spec = view_spec(model, camera, view_dir)
+  grid = None
   if layout == "grid":
+    grid = make_grid(worlds.size, lo, hi, spec.direction)
     # Frame the whole grid, not only the first cell.
-    grid = grid_offsets(worlds.size, cell) if worlds.size else np.zeros((1, 3))
-    lo, hi = lo + grid.min(axis=0), hi + grid.max(axis=0)
+    cells = grid_offsets(max(worlds.size, 1), grid)
+    lo, hi = lo + cells.min(axis=0), hi + cells.max(axis=0)
   root = vis[ROOT]
   root.delete()
-  centre, eye = place_camera(vis, model, lo, hi, camera, view_dir)
+  centre, eye = place_camera(vis, lo, hi, spec)
   root.set_transform(pose_matrix(-centre, np.array([1.0, 0.0, 0.0, 0.0])))
   # meshcat's grid and axes sit at the display origin, no longer the world's.
   vis["/Grid"].set_property("visible", False)
   vis["/Axes"].set_property("visible", False)
 
-  offsets = draw_playback(root["worlds"], bank, model, visuals, list(worlds), layout, cell,
-                          cell_centre, play)
+  offsets = draw_playback(root["worlds"], bank, model, visuals, list(worlds), layout, grid, play)
   counts = {"faint": 0, "match": 0, "exclude": 0}
   if classes is not None:
     counts = draw_paths(root["paths"], np.asarray(bank.com), np.asarray(bank.com_count), bodies, classes)

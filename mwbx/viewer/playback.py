@@ -61,30 +61,74 @@ def world_styles(n_worlds: int, layout: str) -> list[WorldStyle]:
       WorldStyle(GHOST_TINTS[(k - 1) % len(GHOST_TINTS)], GHOST_OPACITY) for k in range(1, n_worlds)]
 
 
-def grid_offsets(n_worlds: int, cell: np.ndarray) -> np.ndarray:
-  """f64[n, 3] translations of grid cells (row-major, rows along -y, about
-  square), cell: f64[2] cell size in metres along x and y."""
-  cols = int(np.ceil(np.sqrt(n_worlds)))
-  k = np.arange(n_worlds)
-  return np.stack([(k % cols) * cell[0], -(k // cols) * cell[1], np.zeros(n_worlds)], axis=1)
+class Grid(NamedTuple):
+  """Side-by-side layout of worlds.
 
-
-def tile_planes(visuals: Sequence[GeomVisual], centre: np.ndarray,
-                tile: np.ndarray) -> list[GeomVisual]:
-  """Grid layout: horizontal static planes become one floor tile per cell.
-
-  centre: f64[3] world point the tile is centred under (metres).
-  tile: f64[2] tile size along x and y (metres), a bit less than the cell so
-  neighbouring worlds are visibly apart and their floors never overlap.
+  Cells run along `col_axis` (f64[3] unit, the view's right), rows along
+  `row_axis` (towards the viewer for floor-like scenes, downwards for tall
+  ones), `col_step`/`row_step` metres apart; `n_cols` cells per row.
+  centre: f64[3] world point at the middle of a cell (its floor tile is
+  centred under it). tile_axes: f64[3, 3] columns (right, away, up) of the
+  floor tiles; tile: f64[2] tile size along right and away, metres.
   """
+
+  col_axis: np.ndarray
+  col_step: float
+  row_axis: np.ndarray
+  row_step: float
+  n_cols: int
+  centre: np.ndarray
+  tile_axes: np.ndarray
+  tile: np.ndarray
+
+
+# Cells are this much larger than what moves in them.
+GRID_SPACING = 1.25
+
+
+def make_grid(n_worlds: int, lo: np.ndarray, hi: np.ndarray, direction: np.ndarray) -> Grid:
+  """A grid of n_worlds cells around the box [lo, hi] (what one world shows),
+  seen along `direction` (f64[3] unit, from the scene towards the eye)."""
+  forward = -np.asarray(direction, np.float64)
+  right = np.cross(forward, [0.0, 0.0, 1.0])
+  if np.linalg.norm(right) < 1e-6:  # looking straight down or up
+    right = np.array([1.0, 0.0, 0.0])
+  right /= np.linalg.norm(right)
+  away = np.cross([0.0, 0.0, 1.0], right)  # horizontal, away from the viewer
+  corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+  extent = lambda axis: max(float(np.ptp(corners @ axis)), 0.2)  # noqa: E731
+  up = np.array([0.0, 0.0, 1.0])
+  if extent(up) > extent(away):
+    row_axis, row_step = -up, GRID_SPACING * extent(up)  # tall scenes: rows stack downwards
+  else:
+    row_axis, row_step = -away, GRID_SPACING * extent(away)  # floors: rows come towards the viewer
+  col_step = GRID_SPACING * extent(right)
+  tile = 0.97 * GRID_SPACING * np.array([extent(right), extent(away)])
+  return Grid(right, col_step, row_axis, row_step, int(np.ceil(np.sqrt(max(n_worlds, 1)))),
+              (np.asarray(lo) + np.asarray(hi)) / 2, np.stack([right, away, up], axis=1), tile)
+
+
+def grid_offsets(n_worlds: int, grid: Grid) -> np.ndarray:
+  """f64[n, 3] translations of the grid cells, row-major."""
+  k = np.arange(n_worlds)
+  return ((k % grid.n_cols)[:, None] * grid.col_step * grid.col_axis[None]
+          + (k // grid.n_cols)[:, None] * grid.row_step * grid.row_axis[None])
+
+
+def tile_planes(visuals: Sequence[GeomVisual], grid: Grid) -> list[GeomVisual]:
+  """Grid layout: horizontal static planes become one floor tile per cell,
+  a bit smaller than the cell so neighbouring worlds are visibly apart and
+  their floors never overlap."""
   out = []
   for v in visuals:
     normal = v.local[:3, 2]
     is_plane = isinstance(v.geometry, mg.Box) and v.geometry.lengths[2] == PLANE_THICKNESS
     if v.static and is_plane and abs(abs(normal[2]) - 1.0) < 1e-9:
       local = np.eye(4)
-      local[:3, 3] = [centre[0], centre[1], v.local[2, 3]]
-      v = v._replace(geometry=mg.Box([float(tile[0]), float(tile[1]), PLANE_THICKNESS]), local=local)
+      local[:3, :3] = grid.tile_axes
+      local[:3, 3] = [grid.centre[0], grid.centre[1], v.local[2, 3]]
+      v = v._replace(geometry=mg.Box([float(grid.tile[0]), float(grid.tile[1]), PLANE_THICKNESS]),
+                     local=local)
     out.append(v)
   return out
 
@@ -157,22 +201,22 @@ def add_clip(animation: manim.Animation, node, pos: np.ndarray, quat: np.ndarray
 
 
 def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual],
-                  worlds: Sequence[int], layout: str, cell: np.ndarray | None = None,
-                  centre: np.ndarray | None = None, play: bool = True) -> np.ndarray:
+                  worlds: Sequence[int], layout: str, grid: Grid | None = None,
+                  play: bool = True) -> np.ndarray:
   """Draws `worlds` of `bank` under `vis` and sets the animation.
 
   Nodes: `static` (overlay: once), `w{world_id}/static` (grid), and
-  `w{world_id}/{body}/{geom}`. cell: f64[2] grid cell size in metres and
-  centre: f64[3] world point at the middle of a cell (grid only).
+  `w{world_id}/{body}/{geom}`. grid: the cell layout (grid layout only).
   Returns f64[n, 3] the translation of each world's node (zeros for overlay).
   """
   styles = world_styles(len(worlds), layout)
   body_ids = moving_body_ids(list(visuals))
   offsets = np.zeros((len(worlds), 3))
   if layout == "grid":
-    cell = np.asarray(cell if cell is not None else (1.0, 1.0), np.float64)
-    offsets = grid_offsets(len(worlds), cell)
-    visuals = tile_planes(visuals, np.zeros(3) if centre is None else centre, 0.97 * cell)
+    if grid is None:
+      raise ViewerError("grid layout needs a Grid (see make_grid)")
+    offsets = grid_offsets(len(worlds), grid)
+    visuals = tile_planes(visuals, grid)
   else:
     draw_static(vis["static"], visuals)
   if not worlds:
