@@ -43,7 +43,7 @@ def queries(draw):
       radius=draw(st.sampled_from([0.0, 0.04, "auto"])))
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(qs=st.lists(queries(), min_size=0, max_size=3))
 def test_evaluate_matches_reference(bank, qs):
   expected = ref.evaluate_each(bank, qs)

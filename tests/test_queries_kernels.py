@@ -15,7 +15,7 @@ from mwbx.queries import segments
 import queries_bank
 import queries_reference as ref
 
-SETTINGS = settings(max_examples=30, deadline=None,
+SETTINGS = settings(max_examples=20, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 # A few fixed shapes keep the number of compilations small.
 SHAPES = [(5, 1, 2), (4, 2, 3), (6, 17, 2), (3, 40, 3)]  # (W, P, B)
