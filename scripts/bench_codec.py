@@ -325,7 +325,8 @@ def compare(data: Data, bounds: CodecBounds, repeats: int) -> dict:
 
 
 def rate_distortion(data: Data, scales) -> dict:
-  """bits per body-frame vs bound, translation and rotation separately."""
+  """Bits per channel-frame (one free-joint translation, or one quaternion, for one
+  frame) vs bound, translation and rotation separately."""
   out = {}
   for kind in ("pos", "rot"):
     sub = subset(data, kind)
@@ -337,8 +338,9 @@ def rate_distortion(data: Data, scales) -> dict:
       enc = encode_batch_checked(sub.qpos, sub.frame_count, sub.layout, bounds, 120.0,
                                  sub.gravity)
       nbytes = sum(len(x) for x in enc.streams)
+      channel_frames = int(sub.frame_count.sum()) * sub.layout.n_channels
       curve.append({"bound": bounds.e_pos if kind == "pos" else float(np.rad2deg(bounds.e_rot)),
-                    "bits_per_body_frame": 8 * nbytes / sub.body_frames})
+                    "bits_per_channel_frame": 8 * nbytes / channel_frames})
     out[kind] = curve
   return out
 
@@ -363,6 +365,7 @@ def _table(name: str, result: dict) -> str:
 
 def _plot(rd: dict, path: pathlib.Path):
   import matplotlib
+  import matplotlib.ticker
   matplotlib.use("Agg")
   import matplotlib.pyplot as plt
   fig, axes = plt.subplots(1, 2, figsize=(10, 4))
@@ -370,12 +373,15 @@ def _plot(rd: dict, path: pathlib.Path):
     for name, curves in rd.items():
       if kind in curves:
         xs = [p["bound"] for p in curves[kind]]
-        ys = [p["bits_per_body_frame"] for p in curves[kind]]
+        ys = [p["bits_per_channel_frame"] for p in curves[kind]]
         ax.plot(xs, ys, "o-", label=name)
     ax.set_xscale("log")
+    ticks = sorted({p["bound"] for curves in rd.values() for p in curves.get(kind, [])})
+    ax.set_xticks(ticks, [f"{t:.3g}" for t in ticks])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel(unit)
-    ax.set_ylabel("bits per body-frame")
-    ax.set_title("translation" if kind == "pos" else "rotation")
+    ax.set_ylabel("bits per channel-frame")
+    ax.set_title("translation (free joints)" if kind == "pos" else "rotation (free and ball joints)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
   fig.tight_layout()
@@ -384,9 +390,13 @@ def _plot(rd: dict, path: pathlib.Path):
 
 def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--replot", action="store_true", help="redraw the PNG from the JSON")
   parser.add_argument("--worlds", type=int, default=256, help="worlds per sampled bank")
   parser.add_argument("--quick", action="store_true", help="small run (smoke test)")
   args = parser.parse_args()
+  if args.replot:
+    _plot(json.loads((OUT / "codec.json").read_text())["rate_distortion"], OUT / "codec_rd.png")
+    return
   n = 16 if args.quick else args.worlds
   repeats = 1 if args.quick else 3
   bounds = CodecBounds()

@@ -135,7 +135,7 @@ bounds_st = st.sampled_from([CodecBounds(), CodecBounds(1e-4, 1e-3, 1e-4),
                              CodecBounds(1e-2, 0.05, 1e-2)])
 
 
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(n=lengths, kinds=world_kinds, seed=st.integers(0, 2**31), bounds=bounds_st)
 def test_decoded_error_never_exceeds_bound(n, kinds, seed, bounds):
   qpos = _world(n, kinds, seed)
@@ -210,7 +210,7 @@ def test_truncated_streams_raise_codec_error(valid_streams, which, cut):
     decode_world(data[:cut % len(data)])
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(which=st.integers(0, 1), edits=st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)),
                                                min_size=1, max_size=6))
 def test_corruption_behind_a_valid_crc_never_crashes(valid_streams, which, edits):

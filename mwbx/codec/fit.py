@@ -167,19 +167,25 @@ def _fit_linear_path(x, n, e, step, quad, coarse, g_fp, gravity: bool) -> Linear
       return vel
     return vel.at[dim - 1].add(gravity_increment(flag, length, g_fp))
 
-  def end_value(p_s, vel, flag, length):
-    lf = length.astype(x.dtype)
-    p = p_s + lf * vel.astype(x.dtype) * step
+  def start_value(acc):
+    # The decoded start from exact integer sums (float32 sums would drift over
+    # many segments): sum of L * v (fine steps) and of flag * L**2.
+    acc_lin, acc_quad = acc
+    p = acc_lin.astype(x.dtype) * step
     if gravity:
-      p = p.at[dim - 1].add(jnp.where(flag, quad * lf * lf, 0.0))
+      p = p.at[dim - 1].add(acc_quad.astype(x.dtype) * quad)
     return p
 
+  def advance(acc, vel, flag, length):
+    acc_lin, acc_quad = acc
+    return (acc_lin + length * vel, acc_quad + jnp.where(flag, length * length, 0))
+
   def body(carry, inp):
-    t_s, p_s, lo, hi, pred = carry
+    t_s, acc, lo, hi, pred = carry
     t, x_t = inp
     tau_i = t - t_s
     tau = tau_i.astype(x.dtype)
-    clo, chi = constraint(x_t, p_s, tau)
+    clo, chi = constraint(x_t, start_value(acc), tau)
     nlo, nhi = jnp.maximum(lo, clo), jnp.minimum(hi, chi)
     ok = _pick(nlo, nhi, pred[dims], lattice_exponent(tau_i, coarse))[2]
     cont = feasible(ok) & (tau_i <= MAX_SEGMENT)
@@ -188,17 +194,18 @@ def _fit_linear_path(x, n, e, step, quad, coarse, g_fp, gravity: bool) -> Linear
     # The segment [t_s, t - 1] closes; the next one starts at its decoded end.
     length = tau_i - 1
     vel, flag = choose(lo, hi, pred, length)
-    p_end = end_value(p_s, vel, flag, length)
-    rlo, rhi = constraint(x_t, p_end, jnp.asarray(1.0, x.dtype))
-    closed = (t - 1, p_end, rlo, rhi, next_pred(vel, flag, length))
-    extended = (t_s, p_s, nlo, nhi, pred)
+    acc_end = advance(acc, vel, flag, length)
+    rlo, rhi = constraint(x_t, start_value(acc_end), jnp.asarray(1.0, x.dtype))
+    closed = (t - 1, acc_end, rlo, rhi, next_pred(vel, flag, length))
+    extended = (t_s, acc, nlo, nhi, pred)
     new = jax.tree.map(lambda c, e_, o: jnp.where(end, c, jnp.where(valid, e_, o)),
                        closed, extended, carry)
     return new, (end, vel, flag)
 
   n_win = dims.shape[0]
-  init = (jnp.int32(0), jnp.zeros(dim, x.dtype), jnp.full(n_win, -jnp.inf, x.dtype),
-          jnp.full(n_win, jnp.inf, x.dtype), jnp.zeros(dim, jnp.int32))
+  init = (jnp.int32(0), (jnp.zeros(dim, jnp.int32), jnp.int32(0)),
+          jnp.full(n_win, -jnp.inf, x.dtype), jnp.full(n_win, jnp.inf, x.dtype),
+          jnp.zeros(dim, jnp.int32))
   ts = jnp.arange(1, num_t, dtype=jnp.int32)
   carry, (ends, vel, flag) = jax.lax.scan(body, init, (ts, x[1:]))
   t_s, _, lo, hi, pred = carry
