@@ -31,6 +31,8 @@ class StoredPath(NamedTuple):
     qvel: f32[F, nv] chord velocity from frame f to f + 1, qvel units.
     com: f32[F, B, 3] tracked bodies' centres of mass, m.
     quat: f32[F, B, 4] tracked bodies' inertial-frame orientations (w, x, y, z).
+    lin_vel: f32[F, B, 3] COM chord velocity from frame f to f + 1, m/s.
+    ang_vel: f32[F, B, 3] chord angular velocity (world frame), rad/s.
     n_parent: frames the parent recorded.
   """
 
@@ -38,6 +40,8 @@ class StoredPath(NamedTuple):
   qvel: np.ndarray
   com: np.ndarray
   quat: np.ndarray
+  lin_vel: np.ndarray
+  ang_vel: np.ndarray
   n_parent: int
 
 
@@ -68,8 +72,20 @@ def stored_path(model: mujoco.MjModel, frames: np.ndarray, body_ids: np.ndarray,
     for i, b in enumerate(body_ids):
       mujoco.mju_mat2Quat(quat[f, i], data.ximat[b])
   hold = lambda x: np.concatenate([x, np.repeat(x[-1:], n - t, axis=0)])
+  com, quat = hold(com), hold(quat)
+  lin_vel = np.zeros_like(com)
+  lin_vel[:-1] = np.diff(com, axis=0) / frame_time
+  ang_vel = np.zeros_like(com)
+  for f in range(min(t, n) - 1):
+    for i in range(len(body_ids)):
+      # world-frame rotation q_{f+1} q_f^-1 as a rotation vector
+      inv, rel = np.zeros(4), np.zeros(4)
+      mujoco.mju_negQuat(inv, quat[f, i])
+      mujoco.mju_mulQuat(rel, quat[f + 1, i], inv)
+      mujoco.mju_quat2Vel(ang_vel[f, i], rel, frame_time)
   return StoredPath(qpos=qpos.astype(np.float32), qvel=qvel.astype(np.float32),
-                    com=hold(com).astype(np.float32), quat=hold(quat).astype(np.float32), n_parent=t)
+                    com=com.astype(np.float32), quat=quat.astype(np.float32),
+                    lin_vel=lin_vel.astype(np.float32), ang_vel=ang_vel.astype(np.float32), n_parent=t)
 
 
 def central_velocity(model: mujoco.MjModel, path: StoredPath, frame: int, frame_time: float) -> np.ndarray:

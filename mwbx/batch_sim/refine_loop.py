@@ -109,6 +109,30 @@ def _activate_batch(active, com_sim, speed_sim, com_now, com_next, inter):
 _activate_jit = jax.jit(_activate_batch)
 
 
+def _with_stored_motion(obs, active, frame, stored, params, inter):
+  """A batch frame's observations with inactive bodies reporting their stored
+  motion (COM along the chord, chord velocities, no contact acceleration), so
+  their metrics, rest detection and impact counts follow the stored path.
+
+  Args:
+    obs: observations, leading axes [W, S].
+    active: bool[W, O] objects simulated during the frame.
+    frame: i32 frame index f.
+    stored: (com f32[F, B, 3], quat f32[F, B, 4], lin_vel f32[F, B, 3],
+      ang_vel f32[F, B, 3]) of the stored path.
+  """
+  com, quat, lin_vel, ang_vel = stored
+  spf = obs.com_pos.shape[1]
+  a = (jnp.arange(spf, dtype=jnp.float32) / spf)[:, None, None]
+  chord = com[frame][None] + a * (com[frame + 1] - com[frame])[None]  # [S, B, 3]
+  m = ~_body_mask(active, inter)[:, None, :, None]
+  pick = lambda stored_value, sim: jnp.where(m, jnp.broadcast_to(stored_value, sim.shape), sim)
+  return world.Observation(
+      com_pos=pick(chord, obs.com_pos), quat=pick(quat[frame], obs.quat), lin_vel=pick(lin_vel[frame], obs.lin_vel),
+      ang_vel=pick(ang_vel[frame], obs.ang_vel), lin_acc=pick(params.gravity, obs.lin_acc),
+      ang_acc=pick(jnp.zeros(3, jnp.float32), obs.ang_acc))
+
+
 def _audit(obs, out, active, params, inter):
   """Per world: the largest ``‖dv‖ / (α‖Δv‖)`` (≤ 1 is the plausibility bound;
   angular alike) and how many perturbations went to inactive bodies (must be 0)."""
@@ -157,8 +181,10 @@ def _native_kernel(params: world.WorldParams, n_sensor: int):
   """The jitted per-frame kernel of the native loop (cached per params)."""
   cache_key = (id(params), n_sensor)
   if cache_key not in _KERNELS:
-    def kernel(carry, sensordata, keys, active, com_now, com_next, inter):
+    def kernel(carry, sensordata, keys, active, frame, stored, inter):
       obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensordata[..., :n_sensor])
+      obs = _with_stored_motion(obs, active, frame, stored, params, inter)
+      com_now, com_next = stored[0][frame + 1], stored[0][frame + 2]
       carry, out = world.frame_update(carry, obs, keys, params, _body_mask(active, inter))
       speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)
       nxt = _activate_batch(active, obs.com_pos[:, -1], speed, com_now, com_next, inter)
@@ -186,14 +212,14 @@ def run_native(backend, inp: RefineInputs, progress=None) -> RefineOutput:
   n_out = inp.n_frames - f0
   qpos_buf = np.zeros((c, n_out, nq), np.float32)
   com_buf = np.zeros((c, n_out, len(body_ids), 3), np.float32)
-  com_path = jnp.asarray(path.com)
   qpos_object = inp.qpos_object.astype(np.float32)
   dof_object = inp.dof_object.astype(np.float32)
 
   t0 = time.perf_counter()
   active = _start(inp)
-  jax.block_until_ready(kernel(inp.carry0, jnp.asarray(sensordata), inp.step_keys, active,
-                               com_path[f0 + 1], com_path[f0 + 2], inter))
+  stored = tuple(jnp.asarray(x) for x in (path.com, path.quat, path.lin_vel, path.ang_vel))
+  jax.block_until_ready(kernel(inp.carry0, jnp.asarray(sensordata), inp.step_keys, active, jnp.int32(f0),
+                               stored, inter))
   compile_seconds = time.perf_counter() - t0
 
   t0 = time.perf_counter()
@@ -219,7 +245,7 @@ def run_native(backend, inp: RefineInputs, progress=None) -> RefineOutput:
     states[idx] = after[:, -1]
 
     carry, wrench, record, still, com, nxt, (worst, stray) = kernel(
-        carry, jnp.asarray(sensordata), inp.step_keys, active, com_path[frame + 1], com_path[frame + 2], inter)
+        carry, jnp.asarray(sensordata), inp.step_keys, active, jnp.int32(frame), stored, inter)
     audit_ratio = np.maximum(audit_ratio, np.asarray(worst))
     audit_stray += np.asarray(stray)
     record = np.asarray(record)
@@ -252,7 +278,8 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
   n_out = inp.n_frames - f0
   block = min(frames_per_block or FRAMES_PER_BLOCK, n_out)
   consts = (jnp.asarray(inp.step_targets), jnp.asarray(path.qvel), jnp.asarray(path.com),
-            jnp.asarray(inp.qpos_object, jnp.float32), jnp.asarray(inp.dof_object, jnp.float32), inter)
+            jnp.asarray(inp.qpos_object, jnp.float32), jnp.asarray(inp.dof_object, jnp.float32), inter,
+            tuple(jnp.asarray(x) for x in (path.com, path.quat, path.lin_vel, path.ang_vel)))
   run = _mjx_block(backend, params, np.asarray(inp.body_ids), block, len(inter.radius) * world.SENSOR_WIDTH)
   d = backend.make_data(jnp.asarray(inp.qpos0), jnp.asarray(inp.qvel0))
   d = d.replace(time=jnp.full((c,), f0 * spf * m.opt.timestep, d.time.dtype))
@@ -311,7 +338,7 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
   ids = jnp.asarray(body_ids)
 
   def put_on_path(d, inactive, frame, j, consts):
-    targets, qvel_path, _, qpos_object, dof_object, _ = consts
+    targets, qvel_path, _, qpos_object, dof_object, _, _ = consts
     qm = (inactive.astype(jnp.float32) @ qpos_object) > 0.5
     vm = (inactive.astype(jnp.float32) @ dof_object) > 0.5
     return d.replace(qpos=jnp.where(qm, targets[frame * spf + j], d.qpos),
@@ -333,6 +360,7 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
     d_next, sensordata = jax.lax.scan(physics_step, d, (jnp.arange(spf), jnp.swapaxes(wrench, 0, 1)))
     sensordata = jnp.swapaxes(sensordata, 0, 1)[..., :n_sensor]
     obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensordata)
+    obs = _with_stored_motion(obs, active, frame, consts[6], params, inter)
     carry, out = world.frame_update(carry, obs, keys, params, _body_mask(active, inter))
     speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)
     nxt = _activate_batch(active, obs.com_pos[:, -1], speed, com_path[frame + 1], com_path[frame + 2], inter)

@@ -1,0 +1,117 @@
+"""Refinement against sampling from scratch, measured in one run (paper §5).
+
+On configs/pachinko.yaml: sample N whole worlds (the baseline), then refine one
+object of one of them from mid-way into N new worlds, on the same backend and
+batch size. Reported:
+  - refined samples/s vs whole worlds/s (stepping time, and wall time without
+    compilation: stepping + bookkeeping + compression),
+  - cost per simulated world-step, refinement over sampling (target <= 1.2),
+  - the end-to-end speedup that starting at t_min gives,
+  - how many objects ended up active.
+Compile time is kept apart and never counted; both paths are warmed up first.
+
+  .venv/bin/python scripts/bench_refine.py [--worlds 64] [--object NAME] [--backend native]
+
+Writes out/bench/refine.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import time
+
+import jax
+import numpy as np
+
+import mwbx
+from mwbx.batch_sim.refine import refine_run
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--config", default=str(REPO / "configs" / "pachinko.yaml"))
+  parser.add_argument("--worlds", type=int, default=64)
+  parser.add_argument("--object", default=None,
+                      help="object to refine (default: the one that moves most after t_min)")
+  parser.add_argument("--backend", default="native", choices=("native", "mjx"))
+  parser.add_argument("--parent", type=int, default=0, help="row of the world to refine")
+  parser.add_argument("--out", default=str(REPO / "out" / "bench" / "refine.json"))
+  args = parser.parse_args()
+
+  config = mwbx.load_config(args.config)
+  n = args.worlds
+  with mwbx.Sampler(config, backend=args.backend, chunk_size=n) as sampler:
+    sampler.run(n, jax.random.key(99))  # warm-up: compile kernels and codec
+    start = time.perf_counter()
+    bank, s = sampler.run(n, jax.random.key(0))
+    sample_wall = time.perf_counter() - start - s.compile_seconds
+  parent = args.parent
+  if not bank.valid[parent]:
+    parent = int(np.flatnonzero(bank.valid)[0])
+  t_min = 0.5 * (int(bank.frame_count[parent]) - 1) / bank.record_fps
+  if args.object is None:  # the object still moving most after t_min
+    p0 = int(t_min * bank.query_fps)
+    path = bank.com[parent, p0:int(bank.com_count[parent])]
+    travel = {name: float(np.linalg.norm(np.diff(path[:, bank.select_bodies(name)], axis=0), axis=-1).sum())
+              for name in bank.objects}
+    args.object = max(travel, key=travel.get)
+
+  refine_run(bank, parent, [args.object], t_min=t_min, n_samples=n, key=jax.random.key(98),
+             backend=args.backend, chunk_size=n)  # warm-up
+  start = time.perf_counter()
+  new, r = refine_run(bank, parent, [args.object], t_min=t_min, n_samples=n, key=jax.random.key(1),
+                      backend=args.backend, chunk_size=n)
+  refine_wall = time.perf_counter() - start - r.compile_seconds
+
+  sample_step = s.run_seconds / s.world_steps
+  refine_step = r.run_seconds / r.world_steps
+  active = np.array([len(new.lineage[str(bank.n_worlds + i)]["active"]) for i in range(new.n_worlds)])
+  result = {
+      "machine": f"{os.cpu_count()}-core {platform.machine()} CPU, no GPU" if jax.default_backend() == "cpu"
+                 else jax.devices()[0].device_kind,
+      "config": pathlib.Path(args.config).name, "backend": s.backend, "worlds": n,
+      "object": args.object, "parent": parent, "t_min_s": float(new.refine_time[0]),
+      "parent_frames": int(bank.frame_count[parent]),
+      "sample": {"world_steps": s.world_steps, "run_s": s.run_seconds, "wall_s": sample_wall,
+                 "worlds_per_s_run": n / s.run_seconds, "worlds_per_s_wall": n / sample_wall,
+                 "us_per_world_step": 1e6 * sample_step, "compile_s": s.compile_seconds},
+      "refine": {"world_steps": r.world_steps, "run_s": r.run_seconds, "wall_s": refine_wall,
+                 "samples_per_s_run": n / r.run_seconds, "samples_per_s_wall": n / refine_wall,
+                 "us_per_world_step": 1e6 * refine_step, "compile_s": r.compile_seconds,
+                 "mean_active_objects": float(active.mean()), "max_active_objects": int(active.max()),
+                 "max_perturbation_ratio": float(r.max_perturbation_ratio.max())},
+      "step_cost_ratio": refine_step / sample_step,
+      "speedup_run": s.run_seconds / r.run_seconds,
+      "speedup_wall": sample_wall / refine_wall,
+      "steps_fraction": r.world_steps / s.world_steps,
+  }
+  out = pathlib.Path(args.out)
+  out.parent.mkdir(parents=True, exist_ok=True)
+  out.write_text(json.dumps(result, indent=2))
+
+  print(f"{result['machine']}; {result['config']} on {result['backend']}, {n} worlds,"
+        f" refining {args.object} of world {parent} from t_min = {result['t_min_s']:.3f} s"
+        f" (parent {result['parent_frames']} frames)")
+  print(f"{'':28}{'sampling':>14}{'refinement':>14}{'ratio':>10}")
+  rows = [
+      ("world-steps", s.world_steps, r.world_steps, r.world_steps / s.world_steps, "{:,.0f}"),
+      ("us per world-step", 1e6 * sample_step, 1e6 * refine_step, result["step_cost_ratio"], "{:.2f}"),
+      ("worlds/s (stepping)", n / s.run_seconds, n / r.run_seconds, result["speedup_run"], "{:.2f}"),
+      ("worlds/s (wall, no compile)", n / sample_wall, n / refine_wall, result["speedup_wall"], "{:.2f}"),
+      ("compile s", s.compile_seconds, r.compile_seconds, float("nan"), "{:.1f}"),
+  ]
+  for name, a, b, ratio, fmt in rows:
+    print(f"{name:28}{fmt.format(a):>14}{fmt.format(b):>14}{ratio:>10.2f}")
+  print(f"active objects per refined world: mean {active.mean():.2f}, max {active.max()}"
+        f" (of {len(bank.objects)}); largest |perturbation|/(alpha|dv|) {r.max_perturbation_ratio.max():.3f}")
+  print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+  main()
