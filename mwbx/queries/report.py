@@ -12,6 +12,7 @@ import os
 
 import numpy as np
 
+from mwbx.errors import MwbxError
 from mwbx.queries import metrics as metrics_lib
 from mwbx.queries import query as query_lib
 from mwbx.queries.query_file import load_queries
@@ -87,6 +88,8 @@ def run_query_file(bank, path: str | os.PathLike, rank: str | None = None,
     top: worlds to list at most (None: the file's `top`, else all matches).
     descending: overrides the order.
   """
+  if top is not None and top < 0:
+    raise MwbxError(f"--top: must be >= 0, got {top}")
   qs = load_queries(path, bank)
   each = query_lib.evaluate_each(bank, qs.queries)
   valid = np.asarray(bank.valid, bool)
