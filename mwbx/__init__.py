@@ -20,10 +20,25 @@ from mwbx.batch_sim import SampleStats
 from mwbx.batch_sim import Sampler
 from mwbx.batch_sim import sample
 from mwbx.batch_sim.refine import refine
+from mwbx.codec import CodecBounds
+from mwbx.codec import CodecError
 from mwbx.config import Config
 from mwbx.config import config_from_dict
 from mwbx.config import load_config
 from mwbx.errors import MwbxError
+from mwbx.queries import Camera
+from mwbx.queries import Frustum
+from mwbx.queries import Query
+from mwbx.queries import QuerySet
+from mwbx.queries import ScreenBox
+from mwbx.queries import constraints_satisfied
+from mwbx.queries import evaluate
+from mwbx.queries import evaluate_each
+from mwbx.queries import first_entry
+from mwbx.queries import load_queries
+from mwbx.queries import rank
 from mwbx.scene import Scene
+from mwbx.viewer import export_html
+from mwbx.viewer import view
 
 __version__ = "0.1.0"
