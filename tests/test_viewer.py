@@ -579,10 +579,10 @@ def test_queries_accepts_one_query_or_a_query_set(real_bank, tmp_path):
 
 
 def test_scene_bounds_cover_static_boxes_and_moving_bodies(bank, model):
-  from mwbx.viewer import api
+  from mwbx.viewer import framing
 
   worlds = np.array([0, 2])
-  lo, hi = api.scene_bounds(bank, model, worlds, None, None)
+  lo, hi = framing.scene_bounds(bank, model, worlds, None, None)
   data = mujoco.MjData(model)
   mujoco.mj_kinematics(model, data)
   ramp = model.geom("ramp").id
@@ -598,3 +598,28 @@ def test_scene_bounds_cover_static_boxes_and_moving_bodies(bank, model):
   assert np.all(com.min(axis=0) - r >= lo - 1e-6) and np.all(com.max(axis=0) + r <= hi + 1e-6)
   hidden = data.geom_xpos[model.geom("hidden_collider").id]  # group 3: not shown, not framed
   assert hidden[2] > hi[2]
+
+
+@FAST
+@given(st.integers(1, 12), hnp.arrays(np.float64, 3, elements=st.floats(0.05, 5.0)),
+       st.floats(-np.pi, np.pi), st.floats(0.05, 1.4))
+def test_grid_cells_never_overlap(n, size, yaw, pitch):
+  direction = np.array([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
+  lo, hi = -size / 2, size / 2
+  grid = playback.make_grid(n, lo, hi, direction)
+  offsets = playback.grid_offsets(n, grid)
+  corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+  # Separating-axis reference: two translated copies of the box are apart when
+  # their projections on the column or the row axis are apart.
+  for i in range(n):
+    for j in range(i + 1, n):
+      apart = False
+      for axis in (grid.col_axis, grid.row_axis):
+        a, b = corners @ axis + offsets[i] @ axis, corners @ axis + offsets[j] @ axis
+        apart |= a.max() < b.min() or b.max() < a.min()
+      assert apart
+  # Columns run across the view (perpendicular to it, horizontal).
+  assert abs(grid.col_axis @ direction) < 1e-9 and abs(grid.col_axis[2]) < 1e-9
+  # Extents below 0.2 m count as 0.2 m (tiny scenes still get usable cells).
+  tall = max(size[2], 0.2) > max(np.ptp(corners @ np.cross([0, 0, 1.0], grid.col_axis)), 0.2)
+  assert np.allclose(grid.row_axis, [0, 0, -1]) == tall

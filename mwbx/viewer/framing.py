@@ -1,0 +1,171 @@
+"""Framing the first view: what is shown, and where meshcat's camera looks from.
+
+meshcat's orbit controls always orbit the display origin, so the caller
+shifts the scene by the returned centre; the camera is placed relative to it.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import mujoco
+import numpy as np
+
+from mwbx.viewer.errors import ViewerError
+from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS
+from mwbx.viewer.paths import PathClasses
+
+# Field of view (degrees) used when the model has no MJCF camera to copy.
+DEFAULT_FOVY = 50.0
+# Viewing direction (from the scene towards the eye) without an MJCF camera.
+DEFAULT_VIEW_DIR = np.array([1.0, -1.4, 0.9])
+
+
+def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
+                 path_classes: PathClasses | None, bodies: np.ndarray | None,
+                 visible_groups: tuple[int, ...] = DEFAULT_VISIBLE_GROUPS) -> tuple[np.ndarray, np.ndarray]:
+  """(lo f64[3], hi f64[3]) box around what is shown: the COM paths of the
+  played-back worlds (all bodies, widened by the largest moving geom) and of
+  the drawn paths, and the boxes of the visible static geoms other than planes."""
+  com = np.asarray(bank.com)
+  pts = [_finite_extent(com, worlds, np.arange(com.shape[2]))]
+  visible = np.isin(model.geom_group, visible_groups) & (model.geom_rgba[:, 3] > 0)
+  moving = visible & (model.body_weldid[model.geom_bodyid] != 0)
+  if pts[0].size and moving.any():
+    margin = float(model.geom_rbound[moving].max())
+    pts[0] = pts[0] + np.array([[-margin], [margin]])
+  if path_classes is not None and bodies is not None:
+    pts.append(_finite_extent(com, np.concatenate(list(path_classes)), bodies))
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  static = np.flatnonzero(visible & (model.body_weldid[model.geom_bodyid] == 0)
+                          & (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE))
+  signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+  for g in static:
+    centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
+    local = centre[None] + signs * half[None]  # [8, 3] box corners in the geom frame
+    pts.append(data.geom_xpos[g][None] + local @ data.geom_xmat[g].reshape(3, 3).T)
+  pts = np.concatenate(pts, axis=0)
+  pts = pts[np.all(np.isfinite(pts), axis=1)]
+  if pts.shape[0] == 0:
+    centre = np.asarray(model.stat.center, np.float64)
+    half = max(float(model.stat.extent), 0.5)
+    return centre - half, centre + half
+  return pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64)
+
+
+def fit_distance(lo: np.ndarray, hi: np.ndarray, centre: np.ndarray, direction: np.ndarray,
+                 fovy: float, aspect: float = 4 / 3, margin: float = 0.9) -> float:
+  """Smallest distance from `centre` along unit `direction` (towards the eye)
+  at which all 8 corners of the box [lo, hi] are inside the view.
+
+  fovy: vertical field of view in degrees; aspect: width / height assumed for
+  the browser window; margin: fraction of the half-angles used.
+  """
+  corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+  forward = -direction
+  right = np.cross(forward, [0.0, 0.0, 1.0])
+  if np.linalg.norm(right) < 1e-6:  # looking straight down or up
+    right = np.array([1.0, 0.0, 0.0])
+  right /= np.linalg.norm(right)
+  up = np.cross(right, forward)
+  tan_v = np.tan(np.radians(fovy) / 2) * margin
+  tan_h = tan_v * aspect
+
+  def fits(dist: float) -> bool:
+    v = corners - (centre + dist * direction)
+    depth = v @ forward
+    return bool(np.all(depth > 1e-3) and np.all(np.abs(v @ right) <= tan_h * depth)
+                and np.all(np.abs(v @ up) <= tan_v * depth))
+
+  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.1)
+  near, far = 0.0, radius / np.sin(np.radians(fovy) / 2) * 2 + 1.0
+  for _ in range(40):  # bisection; the view only widens with distance
+    mid = (near + far) / 2
+    near, far = (near, mid) if fits(mid) else (mid, far)
+  return far
+
+
+def mjcf_camera(model: mujoco.MjModel, cam_id: int) -> tuple[np.ndarray, np.ndarray, float]:
+  """(position f64[3], forward unit f64[3], fovy degrees) of an MJCF camera
+  at the reference configuration."""
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  mujoco.mj_camlight(model, data)
+  forward = -data.cam_xmat[cam_id].reshape(3, 3)[:, 2]  # cameras look along -z
+  return data.cam_xpos[cam_id].copy(), forward, float(model.cam_fovy[cam_id])
+
+
+def _finite_extent(com: np.ndarray, worlds: np.ndarray, bodies: np.ndarray,
+                   chunk: int = 1024) -> np.ndarray:
+  """f64[k, 3] (k = 0 or 2) finite min and max over com[worlds][:, :, bodies],
+  in chunks of worlds so a large bank is never copied whole."""
+  lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+  for start in range(0, len(worlds), chunk):
+    part = com[worlds[start:start + chunk]][:, :, bodies].reshape(-1, 3).astype(np.float64)
+    part = part[np.all(np.isfinite(part), axis=1)]
+    if part.size:
+      lo, hi = np.minimum(lo, part.min(axis=0)), np.maximum(hi, part.max(axis=0))
+  return np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((0, 3))
+
+
+class ViewSpec(NamedTuple):
+  """Where the first view looks from.
+
+  direction: f64[3] unit vector from the scene towards the eye.
+  fovy: vertical field of view, degrees.
+  eye: f64[3] exact eye position (an MJCF camera), or None to fit the scene.
+  """
+
+  direction: np.ndarray
+  fovy: float
+  eye: np.ndarray | None
+
+
+def view_spec(model: mujoco.MjModel, camera: str | None = None,
+              view_dir: Sequence[float] | None = None) -> ViewSpec:
+  """camera: an MJCF camera name to view exactly from; None fits the scene
+  into view, looking along `view_dir` (f[3], scene towards eye), else along
+  the model's first camera, else obliquely from the front right."""
+  if camera is not None:
+    cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+    if cam_id < 0:
+      names = [model.camera(i).name for i in range(model.ncam)]
+      raise ViewerError(f"camera: no MJCF camera named {camera!r} (cameras: {names})")
+    eye, forward, fovy = mjcf_camera(model, cam_id)
+    return ViewSpec(-forward, fovy, eye)
+  fovy = float(model.cam_fovy[0]) if model.ncam > 0 else DEFAULT_FOVY
+  if view_dir is not None:
+    direction = np.asarray(view_dir, np.float64).reshape(-1)
+    if direction.shape != (3,) or not np.all(np.isfinite(direction)) or not np.any(direction):
+      raise ViewerError(f"view_dir: must be a finite nonzero 3-vector, got {direction.tolist()}")
+  elif model.ncam > 0:
+    direction = -mjcf_camera(model, 0)[1]
+  else:
+    direction = DEFAULT_VIEW_DIR
+  return ViewSpec(direction / np.linalg.norm(direction), fovy, None)
+
+
+def place_camera(vis, lo: np.ndarray, hi: np.ndarray, spec: ViewSpec) -> tuple[np.ndarray, np.ndarray]:
+  """Aims meshcat's camera at the box [lo, hi]. Returns (centre f64[3],
+  eye f64[3]) in world coordinates; the caller shifts the scene by -centre."""
+  box_centre = (lo + hi) / 2
+  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
+  if spec.eye is not None:
+    # Orbit about the point on the camera's axis nearest the scene, so the
+    # first view looks exactly where the MJCF camera does.
+    forward = -spec.direction
+    depth = max(float(np.dot(box_centre - spec.eye, forward)), 0.1)
+    eye = spec.eye
+    centre = eye + depth * forward
+  else:
+    centre = box_centre
+    eye = centre + spec.direction * fit_distance(lo, hi, centre, spec.direction, spec.fovy)
+  d = eye - centre
+  cam = vis["/Cameras/default/rotated/<object>"]
+  # The camera's parent is rotated +90 deg about x (three.js is y-up):
+  # world (x, y, z) = local (x, -z, y).
+  cam.set_property("position", [float(d[0]), float(d[2]), float(-d[1])])
+  cam.set_property("fov", spec.fovy)
+  cam.set_property("far", float(max(100.0, 20 * (radius + np.linalg.norm(d)))))
+  return centre, eye
