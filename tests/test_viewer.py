@@ -438,10 +438,18 @@ def test_recorder_replays_what_the_meshcat_server_stores(bank):
   live = mv.view(bank, worlds=[0], paths="box")
   try:
     server_html = live.static_html()
+    # A second visualizer connected to the same server redraws the scene.
+    other = mv.view(bank, worlds=[2], zmq_url=live.window.zmq_url)
+    assert other.window.server_proc is None
+    redrawn = live.static_html()
   finally:
     live.window.server_proc.kill()
     live.window.server_proc.wait()
   assert live.url().startswith("http")
+  paths_in = lambda html: {umsgpack.unpackb(base64.b64decode(b))["path"]  # noqa: E731
+                           for b in re.findall(r'base64,([A-Za-z0-9+/=]+)"', html)}
+  assert "/meshcat/mwbx/worlds/w2/box/g3" in paths_in(redrawn)
+  assert not any("/worlds/w0/" in p for p in paths_in(redrawn))
   offline, _ = _draw_offline(bank, worlds=[0], paths="box")
   server_blobs = re.findall(r'base64,([A-Za-z0-9+/=]+)"', server_html)
   decoded = lambda blobs: sorted(  # noqa: E731
