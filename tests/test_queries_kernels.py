@@ -183,3 +183,27 @@ def test_index_boxes_bound_their_chunks(chunk):
     seg = pts[:, :, c * chunk: c * chunk + chunk + 1]
     np.testing.assert_array_equal(lo[..., c], np.moveaxis(seg.min(axis=2), -1, 1))
     np.testing.assert_array_equal(hi[..., c], np.moveaxis(seg.max(axis=2), -1, 1))
+
+
+def test_culling_leaves_few_candidates_and_shortcuts_enclosed_paths():
+  com = queries_bank.ballistic_paths(32, 61, 4, seed=5)
+  index = index_lib.build_index(com, np.ones(32, bool), chunk=8)
+  units = np.array([0.0, 60.0])
+  mask = np.ones(4, bool)
+  small = Frustum.box([0.1, 0.1, 0.5], [0.3, 0.3, 0.7])
+  offsets = np.tile(small.offsets, (4, 1))
+  with jax.enable_x64(True):
+    candidates, inside = jax.jit(index_lib._box_tests)(index, small.normals, offsets, mask, units)
+  assert 0 < np.asarray(candidates).sum() < 0.1 * np.asarray(candidates).size
+  assert not np.asarray(inside).any()
+  # A box around everything: every path hits through the shortcut, no exact test.
+  big = Frustum.box([-50, -50, -50], [50, 50, 50])
+  offsets = np.tile(big.offsets, (4, 1))
+  with jax.enable_x64(True):
+    candidates, inside = jax.jit(index_lib._box_tests)(index, big.normals, offsets, mask, units)
+  assert not np.asarray(candidates).any() and np.asarray(inside).all()
+  # Unselected bodies are skipped entirely.
+  mask = np.array([True, False, False, True])
+  with jax.enable_x64(True):
+    candidates, inside = jax.jit(index_lib._box_tests)(index, big.normals, offsets, mask, units)
+  np.testing.assert_array_equal(np.asarray(inside).any(axis=1), mask)
