@@ -94,15 +94,17 @@ def test_scene_visuals_cover_every_type_and_pose(model):
   for g, v in by_geom.items():
     body = model.geom_bodyid[g]
     assert v.static == (body == 0)
-    # Geom frame in the world = body pose (identity for static) @ local @ inverse fix.
+    # Pose of the meshcat primitive in the world = body pose (identity for
+    # static geoms) @ local; it must be MuJoCo's geom pose, except that
+    # three.js cylinders lie along +y (turned +90 deg about x onto +z).
     body_pose = np.eye(4)
     if not v.static:
       body_pose = geometry.pose_matrix(data.xpos[body], data.xquat[body])
     world = body_pose @ v.local
-    # The meshcat primitive's symmetry axis (+y for cylinders, +z otherwise)
-    # must land on the MuJoCo geom's z axis.
-    axis = np.array([0, 1, 0]) if isinstance(v.geometry, meshcat.geometry.Cylinder) else np.array([0, 0, 1])
-    np.testing.assert_allclose(world[:3, :3] @ axis, data.geom_xmat[g].reshape(3, 3)[:, 2], atol=1e-9)
+    expected = data.geom_xmat[g].reshape(3, 3)
+    if isinstance(v.geometry, meshcat.geometry.Cylinder):
+      expected = expected @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
+    np.testing.assert_allclose(world[:3, :3], expected, atol=1e-9)
     offset = np.zeros(3)
     if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
       offset[2] = -geometry.PLANE_THICKNESS / 2
