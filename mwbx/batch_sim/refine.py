@@ -17,6 +17,7 @@ new row's index, plus ``parent_world``/``refine_time`` columns.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from typing import Sequence
@@ -110,7 +111,7 @@ class RefineStats(SampleStats):
 
 def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
                key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
-               margin: float = DEFAULT_MARGIN, progress=None):
+               margin: float = DEFAULT_MARGIN, playback: str = "frame", progress=None):
   """:func:`refine` that also returns :class:`RefineStats` and only the new worlds."""
   start_wall = time.perf_counter()
   world = int(world)
@@ -120,11 +121,16 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
     raise MwbxError(f"refine: world {world} went unstable while sampling; refine a stable world")
   if n_samples < 1:
     raise MwbxError(f"refine: n_samples must be at least 1, got {n_samples}")
+  if playback not in ("frame", "step"):
+    raise MwbxError(f"refine: playback must be 'frame' or 'step', got {playback!r}")
+  if not margin >= 0:
+    raise MwbxError(f"refine: margin must be >= 0 m, got {margin!r}")
   names = resolve_objects(bank, objects)
   t_min = resolve_t_min(bank, world, names, frustum, t_min)
   sampler = _sampler(bank, backend)
   chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
-  return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, progress, start_wall)
+  return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, progress,
+              start_wall)
 
 
 _SAMPLERS: dict = {}
@@ -141,7 +147,7 @@ def _sampler(bank, backend: str | None) -> Sampler:
   return _SAMPLERS[cache_key]
 
 
-def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, progress, start_wall):
+def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, progress, start_wall):
   scene, params = sampler.scene, sampler.params
   model = scene.model
   fps, spf = bank.record_fps, params.steps_per_frame
@@ -152,7 +158,8 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, prog
     raise MwbxError(f"refine: t_min {t_min:g} s is at or past the end time")
   parent = bank.qpos_frames(world)
   path = kinematic.stored_path(model, parent, scene.body_ids, n_frames + 2, frame_time)
-  targets = kinematic.step_targets(model, path, spf, model.opt.timestep) if sampler.backend_name == "mjx" else None
+  mjx = sampler.backend_name == "mjx"
+  targets = kinematic.step_targets(model, path, spf, model.opt.timestep) if mjx or playback == "step" else None
   object_names = tuple(scene.object_names)
   qm, vm = _object_masks(model, object_names)
   asked = np.array([o in names for o in object_names])
@@ -188,7 +195,10 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, prog
         qpos0=np.tile(qpos0, (chunk, 1)), qvel0=np.tile(qvel0, (chunk, 1)),
         active0=np.tile(asked, (chunk, 1)), carry0=carry, qpos_object=qm, dof_object=vm,
         step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids)
-    run = refine_loop.run_mjx if sampler.backend_name == "mjx" else refine_loop.run_native
+    if mjx:
+      run = refine_loop.run_mjx
+    else:
+      run = functools.partial(refine_loop.run_native, every_step=playback == "step")
     base = stats.world_steps
 
     def report(steps, finished, _base=base, _lo=lo):
@@ -269,7 +279,7 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
 
 def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
            key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
-           margin: float = DEFAULT_MARGIN, progress=None):
+           margin: float = DEFAULT_MARGIN, playback: str = "frame", progress=None):
   """Resamples the marked objects of one world from t_min on (paper §5).
 
   Args:
@@ -284,6 +294,10 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
     backend: ``auto`` | ``native`` | ``mjx`` (default: the config's).
     chunk_size: worlds per lockstep batch.
     margin: contact margin of the interaction test, m (larger is safer).
+    playback: native backend only: ``frame`` puts inactive objects on their
+      stored path at every frame boundary (one rollout call per frame),
+      ``step`` before every physics step (S calls per frame). The MJX
+      backend always does it every step.
     progress: optional callback(world_steps, worlds_finished, n_samples).
 
   Returns:
@@ -295,5 +309,6 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
       outside the recording, or a box the objects never enter.
   """
   new, _ = refine_run(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
-                      backend=backend, chunk_size=chunk_size, margin=margin, progress=progress)
+                      backend=backend, chunk_size=chunk_size, margin=margin, playback=playback,
+                      progress=progress)
   return bank.append(new)

@@ -193,8 +193,45 @@ def _native_kernel(params: world.WorldParams, n_sensor: int):
   return _KERNELS[cache_key][1]
 
 
-def run_native(backend, inp: RefineInputs, progress=None) -> RefineOutput:
-  """Refined worlds on the native backend (``mujoco.rollout`` per frame)."""
+def _steps_on_path(backend, states, wrench, warmstart, inactive, inp: RefineInputs, frame: int):
+  """One frame as S one-step rollouts, inactive objects put on the stored
+  path before each step after the first (``every_step`` playback).
+
+  Args:
+    states: f64[n, nstate] at the frame start (already on the path).
+    wrench: f64[n, S, nbody * 6]; warmstart: f64[n, nv].
+    inactive: bool[n, O] objects inactive during the frame.
+
+  Returns:
+    as :meth:`NativeBackend.step`.
+  """
+  m = backend.model
+  nq, nv, dt = m.nq, m.nv, m.opt.timestep
+  qadr, vadr = slice(1, 1 + nq), slice(1 + nq, 1 + nq + nv)
+  spf = wrench.shape[1]
+  qmask = (inactive.astype(np.float32) @ inp.qpos_object.astype(np.float32)) > 0.5
+  vmask = (inactive.astype(np.float32) @ inp.dof_object.astype(np.float32)) > 0.5
+  current = states.copy()
+  out_states, out_sensors = [], []
+  for j in range(spf):
+    if j > 0:
+      current[:, qadr] = np.where(qmask, inp.step_targets[frame * spf + j], current[:, qadr])
+      current[:, vadr] = np.where(vmask, inp.path.qvel[frame], current[:, vadr])
+    after, sensors = backend.step(current, wrench[:, j:j + 1], warmstart)
+    warmstart = (after[:, -1, vadr] - current[:, vadr]) / dt
+    current = after[:, -1].copy()
+    out_states.append(after[:, -1])
+    out_sensors.append(sensors[:, 0])
+  return np.stack(out_states, axis=1), np.stack(out_sensors, axis=1)
+
+
+def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = False) -> RefineOutput:
+  """Refined worlds on the native backend (``mujoco.rollout`` per frame).
+
+  ``every_step``: put inactive objects on the stored path before every
+  physics step (S one-step rollout calls per frame) instead of at every
+  frame boundary (one call per frame).
+  """
   m = backend.model
   params, inter, path = inp.params, inp.inter, inp.path
   c, spf, f0 = len(inp.qpos0), params.steps_per_frame, inp.first_frame
@@ -236,7 +273,11 @@ def run_native(backend, inp: RefineInputs, progress=None) -> RefineOutput:
     states[:, vadr] = np.where(vmask, path.qvel[frame], states[:, vadr])
     idx = np.flatnonzero(running)
     before = states[idx]
-    after, sensors = backend.step(before, wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx])
+    if every_step:
+      after, sensors = _steps_on_path(backend, before, wrench_full[idx].reshape(len(idx), spf, -1),
+                                      warmstart[idx], ~np.asarray(active)[idx], inp, frame)
+    else:
+      after, sensors = backend.step(before, wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx])
     bad = ~np.isclose(after[:, -1, 0], before[:, 0] + spf * dt, rtol=0, atol=1e-6)
     sensors[bad] = np.nan
     sensordata[idx] = sensors
