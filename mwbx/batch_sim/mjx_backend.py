@@ -90,7 +90,10 @@ class MjxBackend:
     c = len(qpos0)
     active = np.asarray(active)
     body_ids = scene.body_ids
-    block_frames = min(FRAMES_PER_BLOCK, n_frames)
+    # Equal blocks of at most FRAMES_PER_BLOCK frames: the last block would
+    # otherwise step up to a whole block past the end time.
+    n_blocks = -(-n_frames // FRAMES_PER_BLOCK)
+    block_frames = -(-n_frames // n_blocks)
     fn = self.block(params, body_ids, block_frames)
 
     d = self.make_data(jnp.asarray(qpos0), jnp.asarray(qvel0))
