@@ -114,15 +114,20 @@ def gravity_increment(flag, length, g_fp):
 def _pick(lo, hi, pred, m):
   """The integer velocity ``pred + r * 2**m`` inside [lo, hi] with the smallest |r|.
 
-  Returns (velocity i32, r f32, non-empty bool), per coordinate.
+  Returns (velocity i32, r i32, non-empty bool), per coordinate. The window is
+  split into integer and fractional parts before ``pred`` is subtracted, so a
+  large ``pred`` (after an impact) costs no float32 precision.
   """
-  spacing = jnp.left_shift(jnp.int32(1), m)
-  pred_f = pred.astype(lo.dtype)
-  inv = 1.0 / spacing.astype(lo.dtype)
-  r_lo = jnp.ceil(jnp.clip((lo - pred_f) * inv, -_INT_CAP, _INT_CAP))
-  r_hi = jnp.floor(jnp.clip((hi - pred_f) * inv, -_INT_CAP, _INT_CAP))
-  r = jnp.clip(0.0, r_lo, r_hi)
-  return pred + r.astype(jnp.int32) * spacing, r, r_lo <= r_hi
+  lo = jnp.clip(lo, -_INT_CAP, _INT_CAP)
+  hi = jnp.clip(hi, -_INT_CAP, _INT_CAP)
+  lo_floor, hi_floor = jnp.floor(lo), jnp.floor(hi)
+  below = lo_floor.astype(jnp.int32) - pred
+  above = hi_floor.astype(jnp.int32) - pred
+  # ceil((below + frac) / 2**m) for frac in [0, 1), and floor((above + frac) / 2**m).
+  r_lo = jnp.where(lo > lo_floor, (below >> m) + 1, -((-below) >> m))
+  r_hi = above >> m
+  r = jnp.clip(0, r_lo, r_hi)
+  return pred + r * jnp.left_shift(jnp.int32(1), m), r, r_lo <= r_hi
 
 
 def _fit_linear_path(x, n, e, step, quad, coarse, g_fp, gravity: bool) -> LinearFit:
