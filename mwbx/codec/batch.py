@@ -213,30 +213,72 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> BatchCode:
                    quanta=q, initial=initial, segs=segs)
 
 
+def _batchable(data: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+  """Worlds whose header matches the first all-fitted stream (cheap byte checks)."""
+  view = memoryview(data)
+  n_w = offsets.size - 1
+  ref = None
+  for w in range(n_w):
+    try:
+      code = parse(view[offsets[w]:offsets[w + 1]])
+    except CodecError:
+      continue
+    if not np.any(code.modes):
+      ref = code
+      break
+  if ref is None:
+    return np.zeros(0, np.int64)
+  sig = _signature(ref.layout, ref.bounds, ref.fps, ref.quanta) + bytes(ref.layout.n_channels)
+  head = _HEAD.pack(MAGIC, VERSION)
+  keep = []
+  for w in range(n_w):
+    lo, hi = int(offsets[w]), int(offsets[w + 1])
+    if hi - lo < len(head) + len(sig) + 5 or view[lo:lo + len(head)] != head:
+      continue
+    try:
+      _, pos = rice.read_varint(view, lo + len(head), "n_frames")
+    except CodecError:
+      continue
+    if view[pos:pos + len(sig)] == sig:
+      keep.append(w)
+  return np.asarray(keep, np.int64)
+
+
 def decode_batch(data: np.ndarray, offsets: np.ndarray, start: int = 0,
                  stop: int | None = None) -> list[np.ndarray]:
   """Frames ``start:stop`` of every stream ``data[offsets[w]:offsets[w + 1]]``.
 
-  Returns one f32[n, nq] array per world (views into one array). Streams the
-  vectorized path does not cover are decoded one by one; a corrupt stream
-  raises CodecError naming its world.
+  Returns one f32[n, nq] array per world. Worlds sharing a layout with all
+  channels fitted are decoded in one vectorized pass; the others (raw channels,
+  another layout, corruption) one by one, and a corrupt stream raises
+  CodecError naming its world.
   """
   offsets = np.asarray(offsets, np.int64)
-  data = np.asarray(data, np.uint8)
+  data = np.ascontiguousarray(data, np.uint8)
   n_w = offsets.size - 1
   if n_w <= 0:
     return []
-  try:
-    bc = parse_batch(data, offsets)
-    out, row_off = evaluate(bc.n_frames, bc.initial, bc.segs, bc.channel_kinds(), bc.addresses(),
-                            bc.layout.nq, bc.quanta, bc.bounds, start, stop)
-    return [out[row_off[w]:row_off[w + 1]] for w in range(n_w)]
-  except (_Fallback, CodecError, ArithmeticError, IndexError, ValueError):
-    pass
-  result = []
-  for w in range(n_w):
+  result = [None] * n_w
+  fast = _batchable(data, offsets)
+  if fast.size:
+    if fast.size == n_w:
+      sub_data, sub_off = data, offsets
+    else:
+      lo, hi = offsets[fast], offsets[fast + 1]
+      sub_data = np.concatenate([data[a:b] for a, b in zip(lo, hi)])
+      sub_off = np.concatenate([[0], np.cumsum(hi - lo)])
     try:
-      result.append(decode_world(data[offsets[w]:offsets[w + 1]], start, stop))
-    except CodecError as err:
-      raise CodecError(f"world {w}: {err}") from None
+      bc = parse_batch(sub_data, sub_off)
+      out, row_off = evaluate(bc.n_frames, bc.initial, bc.segs, bc.channel_kinds(),
+                              bc.addresses(), bc.layout.nq, bc.quanta, bc.bounds, start, stop)
+      for i, w in enumerate(fast):
+        result[w] = out[row_off[i]:row_off[i + 1]]
+    except (_Fallback, CodecError, ArithmeticError, IndexError, ValueError):
+      pass
+  for w in range(n_w):
+    if result[w] is None:
+      try:
+        result[w] = decode_world(data[offsets[w]:offsets[w + 1]], start, stop)
+      except CodecError as err:
+        raise CodecError(f"world {w}: {err}") from None
   return result
