@@ -79,6 +79,11 @@ def test_impacts_only_above_thresholds(tiny_native):
   bound_w = params.perturb.alpha * np.linalg.norm(dt * ang_acc, axis=-1)
   assert np.all(np.linalg.norm(dv, axis=-1) <= bound_v * (1 + _BOUND_TOLERANCE))
   assert np.all(np.linalg.norm(dw, axis=-1) <= bound_w * (1 + _BOUND_TOLERANCE))
+  # The wrenches (computed only at impacts) are impulse_wrench of (dv, dw).
+  reference = jax.vmap(perturb.impulse_wrench, in_axes=(0, 0, 0, 0, 0, None))(
+      dv.reshape(-1, 3), dw.reshape(-1, 3), np.tile(np.asarray(params.mass), w * s),
+      np.tile(np.asarray(params.inertia), (w * s, 1)), quat.reshape(-1, 4).astype(np.float32), dt)
+  np.testing.assert_allclose(np.asarray(out.wrench).reshape(-1, 6), reference, rtol=1e-5, atol=1e-6)
 
 
 def test_sparse_batch_perturbations_match_dense_reference():

@@ -184,7 +184,7 @@ def frame_impacts(obs: Observation, params: WorldParams):
 
 
 def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: jax.Array,
-               params: WorldParams):
+               wrench: jax.Array, params: WorldParams):
   """Bookkeeping of ONE world after the S physics steps of one frame.
 
   Args:
@@ -193,6 +193,7 @@ def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: 
     impacts: (linear bool[S, B], angular bool[S, B]) from :func:`frame_impacts`.
     dv: f32[S, B, 3] sampled linear perturbations, m/s.
     dw: f32[S, B, 3] sampled angular perturbations, rad/s.
+    wrench: f32[S, B, 6] the wrenches applying them (perturb.impulse_wrench).
     params: scene constants.
 
   Returns:
@@ -255,8 +256,7 @@ def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: 
   apply = keep_going & params.enabled
   dv = jnp.where(apply, dv, 0.0)
   dw = jnp.where(apply, dw, 0.0)
-  wrench = jax.vmap(jax.vmap(perturb.impulse_wrench, in_axes=(0, 0, 0, 0, 0, None)),
-                    in_axes=(0, 0, None, None, 0, None))(dv, dw, params.mass, params.inertia, obs.quat, dt)
+  wrench = jnp.where(apply, wrench, 0.0)
   n_applied = jnp.sum((jnp.any(dv != 0, -1) | jnp.any(dw != 0, -1)).astype(jnp.int32))
 
   new_carry = WorldCarry(
@@ -294,11 +294,12 @@ def frame_update(carry: WorldCarry, obs: Observation, world_keys: jax.Array, par
   if perturbable is not None:
     wanted = wanted & perturbable[:, None, :]
   n_worlds, n_steps, n_bodies = linear_impact.shape
-  dv, dw = perturb.batch_perturbations(
+  dv, dw, wrench = perturb.batch_perturbations(
       world_keys, carry.step, delta_v, delta_w, linear_impact & wanted, angular_impact & wanted,
-      params.perturb, cap=max(64, n_worlds * n_steps * n_bodies // 16))
-  return jax.vmap(post_frame, in_axes=(0, 0, 0, 0, 0, None))(
-      carry, obs, (linear_impact, angular_impact), dv, dw, params)
+      params.perturb, cap=max(64, n_worlds * n_steps * n_bodies // 16),
+      inertial=(params.mass, params.inertia, obs.quat, params.dt))
+  return jax.vmap(post_frame, in_axes=(0, 0, 0, 0, 0, 0, None))(
+      carry, obs, (linear_impact, angular_impact), dv, dw, wrench, params)
 
 
 def _finite(o: Observation) -> jax.Array:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from mwbx.perturb.impulses import PerturbParams, perturbation_from_uniforms
+from mwbx.perturb.impulses import PerturbParams, impulse_wrench, perturbation_from_uniforms
 
 
 def body_step_uniforms(world_key: jax.Array, step: jax.Array, body: jax.Array) -> jax.Array:
@@ -35,7 +35,9 @@ def batch_perturbations(
     angular_impact: jax.Array,
     params: PerturbParams,
     cap: int,
-) -> tuple[jax.Array, jax.Array]:
+    *,
+    inertial=None,
+):
   """Perturbations of every body at every step of a frame, for a batch.
 
   Args:
@@ -47,9 +49,13 @@ def batch_perturbations(
     angular_impact: bool[W, S, B] where an angular perturbation is wanted.
     params: α and lobe exponent.
     cap: entries per round (static); rounds repeat until all are done.
+    inertial: optional ``(mass f32[B], inertia f32[B, 3], quat f32[W, S, B, 4],
+      dt)``: also return the wrench that applies each perturbation in one
+      step (:func:`impulse_wrench`), computed only at the impacts too.
 
   Returns:
-    (dv f32[W, S, B, 3], dw f32[W, S, B, 3]), zero where no impact.
+    (dv f32[W, S, B, 3], dw f32[W, S, B, 3]), zero where no impact; with
+    ``inertial``, also wrench f32[W, S, B, 6].
   """
   n_worlds, n_steps, n_bodies = linear_impact.shape
   total = n_worlds * n_steps * n_bodies
@@ -62,25 +68,34 @@ def batch_perturbations(
   flat_lin = linear_impact.reshape(-1)
   flat_ang = angular_impact.reshape(-1)
 
+  if inertial is not None:
+    mass, inertia, quat, dt = inertial
+    flat_quat = quat.reshape(-1, 4)
+
   def entry(index):
     world = index // (n_steps * n_bodies)
     step = first_step[world] + (index // n_bodies) % n_steps
-    u = body_step_uniforms(world_keys[world], step, index % n_bodies)
+    body = index % n_bodies
+    u = body_step_uniforms(world_keys[world], step, body)
     dv = perturbation_from_uniforms(u[0:3], flat_dv[index], params.alpha, params.lobe_exponent)
     dw = perturbation_from_uniforms(u[3:6], flat_dw[index], params.alpha, params.lobe_exponent)
-    return jnp.where(flat_lin[index], dv, 0.0), jnp.where(flat_ang[index], dw, 0.0)
+    dv, dw = jnp.where(flat_lin[index], dv, 0.0), jnp.where(flat_ang[index], dw, 0.0)
+    if inertial is None:
+      return dv, dw, jnp.zeros(6, jnp.float32)
+    return dv, dw, impulse_wrench(dv, dw, mass[body], inertia[body], flat_quat[index], dt)
 
   def one_round(r, out):
-    dv_out, dw_out = out
     index = jax.lax.dynamic_slice(order, (r * cap,), (cap,))
-    safe = jnp.minimum(index, total - 1)
-    dv, dw = jax.vmap(entry)(safe)
+    values = jax.vmap(entry)(jnp.minimum(index, total - 1))
     # Fill entries (index == total) are dropped by the scatter.
-    return dv_out.at[index].set(dv, mode="drop"), dw_out.at[index].set(dw, mode="drop")
+    return tuple(o.at[index].set(v, mode="drop") for o, v in zip(out, values))
 
-  zeros = jnp.zeros((total, 3), jnp.float32)
+  zeros = (jnp.zeros((total, 3), jnp.float32), jnp.zeros((total, 3), jnp.float32),
+           jnp.zeros((total, 6), jnp.float32))
   order = jnp.concatenate([order, jnp.full(cap, total, order.dtype)])  # room for the last round
   rounds = (count + cap - 1) // cap
-  dv, dw = jax.lax.fori_loop(0, rounds, one_round, (zeros, zeros))
-  shape = (n_worlds, n_steps, n_bodies, 3)
-  return dv.reshape(shape), dw.reshape(shape)
+  dv, dw, wrench = jax.lax.fori_loop(0, rounds, one_round, zeros)
+  shape = (n_worlds, n_steps, n_bodies)
+  if inertial is None:
+    return dv.reshape(shape + (3,)), dw.reshape(shape + (3,))
+  return dv.reshape(shape + (3,)), dw.reshape(shape + (3,)), wrench.reshape(shape + (6,))
