@@ -74,7 +74,8 @@ def _cmd_sample(args) -> int:
   print(f"worlds at rest      {int(round(s['at_rest_fraction'] * s['worlds']))} ({s['at_rest_fraction']:.0%})")
   print(f"perturbations       {s['perturbations']} ({s['perturbations'] / max(1, s['worlds']):.1f} per world)")
   print(f"world-steps/s       {stats.world_steps_per_second:,.0f} ({stats.backend};"
-        f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s)")
+        f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s,"
+        f" compression {stats.codec_seconds:.1f} s)")
   print(f"bank                {out} ({total.n_worlds} worlds, {total.nbytes / 1e6:.1f} MB)")
   return 0
 
@@ -175,7 +176,8 @@ def _cmd_refine(args) -> int:
         f" (rows {rows}; {int(new.valid.sum())} valid)")
   print(f"active objects      {min(active)}..{max(active)} per world (asked: {args.objects})")
   print(f"world-steps/s       {stats.world_steps_per_second:,.0f} ({stats.backend};"
-        f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s)")
+        f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s,"
+        f" compression {stats.codec_seconds:.1f} s)")
   print(f"bank                {out} ({total.n_worlds} worlds, {total.nbytes / 1e6:.1f} MB)")
   return 0
 
