@@ -21,7 +21,7 @@ from mwbx.codec.decode import KIND_ID, decode_world, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, WIDTH, Quanta,
                                Segments, _residuals, _velocities, channel_starts,
-                               gravity_increment, initial_bytes, lattice_exponent, parse,
+                               gravity_increment, initial_bytes, initial_codes, lattice_exponent, parse,
                                read_initial)
 
 
@@ -105,11 +105,12 @@ def serialize_batch(bc: BatchCode) -> list[bytes]:
   sig = _signature(lay, bc.bounds, bc.fps, q)
   modes = bytes(n_ch)
   kinds = [k for k in KINDS for _ in cols[k]]
+  init_codes = initial_codes(bc.initial, kinds, bc.bounds).tolist()
   head = _HEAD.pack(MAGIC, VERSION)
   out = []
   for w in range(n_w):
     body = b"".join((head, rice.write_varint(int(bc.n_frames[w])), sig, modes,
-                     initial_bytes(bc.initial[w], kinds, bc.bounds), blobs[w]))
+                     initial_bytes(init_codes[w]), blobs[w]))
     out.append(body + struct.pack("<I", zlib.crc32(body)))
   return out
 

@@ -221,7 +221,7 @@ def serialize(code: WorldCode) -> bytes:
     out += rice.write_varint(int(adr))
   out += np.asarray(code.modes, np.uint8).tobytes()
   kinds = code.kinds()
-  out += initial_bytes(code.initial, kinds, code.bounds)
+  out += initial_bytes(initial_codes(code.initial, kinds, code.bounds).tolist())
   for c, kind in enumerate(kinds):
     if code.modes[c] == MODE_RAW:
       out += np.asarray(code.raw[c], "<f4").reshape(code.n_frames, WIDTH[kind]).tobytes()
@@ -244,14 +244,25 @@ def serialize(code: WorldCode) -> bytes:
   return bytes(out)
 
 
-def initial_bytes(initial: np.ndarray, kinds: list[str], bounds: CodecBounds) -> bytes:
-  """Frame-0 values as zigzag varints of their grid codes, channel by channel."""
-  out = bytearray()
-  for c, kind in enumerate(kinds):
-    codes = quantize_initial(kind, initial[c, :WIDTH[kind]], bounds)
-    for u in rice.zigzag(codes).tolist():
-      out += rice.write_varint(u)
-  return bytes(out)
+def initial_codes(initial: np.ndarray, kinds: list[str], bounds: CodecBounds) -> np.ndarray:
+  """u64[..., n] zigzag grid codes of frame-0 values ``initial: f64[..., C, 4]``,
+  channel by channel (each kind's width)."""
+  kinds_arr = np.array(kinds)
+  out = []
+  for kind in KINDS:
+    sel = np.flatnonzero(kinds_arr == kind)
+    if sel.size:
+      codes = quantize_initial(kind, initial[..., sel, :WIDTH[kind]], bounds)
+      out.append((sel, codes.reshape(*codes.shape[:-2], -1)))
+  if not out:
+    return np.zeros(initial.shape[:-2] + (0,), np.uint64)
+  # Back to channel order: kinds are contiguous (pos, rot, scalar) in a layout.
+  return rice.zigzag(np.concatenate([c for _, c in out], axis=-1))
+
+
+def initial_bytes(codes) -> bytes:
+  """Zigzag codes (from ``initial_codes``) as varints."""
+  return b"".join(map(rice.write_varint, codes))
 
 
 def read_initial(buf, pos: int, kinds: list[str], bounds: CodecBounds):
