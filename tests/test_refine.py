@@ -213,3 +213,17 @@ def test_frame_playback_on_native(bank, case_a, cols):
   frame_new = case_a[1]
   for w in range(4):
     assert np.sign(new.qpos_frames(w)[-1, 0]) == np.sign(frame_new.qpos_frames(w)[-1, 0])
+
+
+def test_cli_refine(bank, tmp_path, capsys):
+  from mwbx import cli
+  path = tmp_path / "bank"
+  bank.save(path)
+  assert cli.main(["refine", str(path), "--world", "1", "--objects", "striker", "--time", "0.1",
+                   "--samples", "2", "--backend", "native"]) == 0
+  assert "refined worlds      2 of world 1" in capsys.readouterr().out
+  loaded = mwbx.Bank.load(path)
+  assert loaded.n_worlds == bank.n_worlds + 2 and loaded.lineage[str(bank.n_worlds)]["parent"] == 1
+  assert cli.main(["refine", str(path), "--world", "1", "--objects", "striker", "--box", "0,0,1,1",
+                   "--samples", "1"]) == 2
+  assert "--camera" in capsys.readouterr().err
