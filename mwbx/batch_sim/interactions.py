@@ -19,6 +19,7 @@ Both backends use this same test, so they agree on activation.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -147,12 +148,13 @@ def activate(active: jax.Array, com_sim: jax.Array, speed_sim: jax.Array, com_no
   to_obj = lambda m: (p.body_object.T @ m.astype(jnp.float32) @ p.body_object) > 0.5
   reach_now, reach_ghost = to_obj(near_now), to_obj(near_ghost)
 
-  def spread(_, act):
-    from_active = reach_now | reach_ghost  # [source object, target object]
-    hit = (act.astype(jnp.float32) @ from_active.astype(jnp.float32)) > 0.5
-    return act | hit
-
-  return jax.lax.fori_loop(0, active.shape[0], spread, active)
+  # Transitive closure of "source may touch target" by repeated squaring
+  # (static, ceil(log2 O) products), then everything reachable from `active`.
+  n_objects = active.shape[0]
+  closure = (jnp.eye(n_objects, dtype=bool) | reach_now | reach_ghost).astype(jnp.float32)
+  for _ in range(max(1, math.ceil(math.log2(max(n_objects, 2))))):
+    closure = ((closure @ closure) > 0.5).astype(jnp.float32)
+  return (active.astype(jnp.float32) @ closure) > 0.5
 
 
 def activate_reference(active, com_sim, speed_sim, com_now, com_next, p: InteractionParams) -> np.ndarray:
