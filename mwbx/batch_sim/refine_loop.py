@@ -190,19 +190,21 @@ def _native_kernel(params: world.WorldParams, n_sensor: int):
       carry, out = world.frame_update(carry, obs, keys, params, _body_mask(active, inter))
       speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)
       nxt = _activate_batch(active, obs.com_pos[:, -1], speed, com_now, com_next, inter)
-      return carry, out.wrench, out.record, out.running, obs.com_pos[:, 0], nxt, _audit(obs, out, active, params, inter)
+      worst, stray = _audit(obs, out, active, params, inter)
+      return carry, (out.wrench, out.record, out.running, obs.com_pos[:, 0], nxt, worst, stray)
     _KERNELS[cache_key] = (params, jax.jit(kernel))
   return _KERNELS[cache_key][1]
 
 
-def _steps_on_path(backend, states, wrench, warmstart, inactive, inp: RefineInputs, frame: int):
+def _steps_on_path(backend, states, wrench, warmstart, qmask, vmask, inp: RefineInputs, frame: int):
   """One frame as S one-step rollouts, inactive objects put on the stored
   path before each step after the first (``every_step`` playback).
 
   Args:
     states: f64[n, nstate] at the frame start (already on the path).
     wrench: f64[n, S, nbody * 6]; warmstart: f64[n, nv].
-    inactive: bool[n, O] objects inactive during the frame.
+    qmask: bool[n, nq]; vmask: bool[n, nv] coordinates of the objects
+      inactive during the frame.
 
   Returns:
     as :meth:`NativeBackend.step`.
@@ -211,8 +213,6 @@ def _steps_on_path(backend, states, wrench, warmstart, inactive, inp: RefineInpu
   nq, nv, dt = m.nq, m.nv, m.opt.timestep
   qadr, vadr = slice(1, 1 + nq), slice(1 + nq, 1 + nq + nv)
   spf = wrench.shape[1]
-  qmask = (inactive.astype(np.float32) @ inp.qpos_object.astype(np.float32)) > 0.5
-  vmask = (inactive.astype(np.float32) @ inp.dof_object.astype(np.float32)) > 0.5
   current = states.copy()
   out_states, out_sensors = [], []
   for j in range(spf):
@@ -257,27 +257,31 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Fal
   t0 = time.perf_counter()
   active = _start(inp)
   stored = tuple(jnp.asarray(x) for x in (path.com, path.quat, path.lin_vel, path.ang_vel))
-  jax.block_until_ready(kernel(inp.carry0, jnp.asarray(sensordata), inp.step_keys, active, jnp.int32(f0),
-                               stored, inter))
+  jax.block_until_ready(kernel(inp.carry0, sensordata, inp.step_keys, np.asarray(active), np.int32(f0),
+                               stored, jax.device_put(inter)))
   compile_seconds = time.perf_counter() - t0
 
   t0 = time.perf_counter()
   carry = inp.carry0
+  inter = jax.device_put(inter)
   running = np.asarray(inp.running0).copy()
+  active = np.asarray(active)  # kept on the host between frames
   prev_inactive = ~np.asarray(inp.active0)
-  activated = np.where(np.asarray(active), f0, -1).astype(np.int32)
+  activated = np.where(active, f0, -1).astype(np.int32)
   audit_ratio, audit_stray = np.zeros(c, np.float32), np.zeros(c, np.int64)
+  masks = lambda inactive: ((inactive.astype(np.float32) @ qpos_object) > 0.5,
+                            (inactive.astype(np.float32) @ dof_object) > 0.5)
   frame = f0
   while running.any():
-    qmask = (prev_inactive.astype(np.float32) @ qpos_object) > 0.5
-    vmask = (prev_inactive.astype(np.float32) @ dof_object) > 0.5
+    qmask, vmask = masks(prev_inactive)
     states[:, qadr] = np.where(qmask, path.qpos[frame], states[:, qadr])
     states[:, vadr] = np.where(vmask, path.qvel[frame], states[:, vadr])
     idx = np.flatnonzero(running)
     before = states[idx]
     if every_step:
+      qmask, vmask = masks(~active[idx])
       after, sensors = _steps_on_path(backend, before, wrench_full[idx].reshape(len(idx), spf, -1),
-                                      warmstart[idx], ~np.asarray(active)[idx], inp, frame)
+                                      warmstart[idx], qmask, vmask, inp, frame)
     else:
       after, sensors = backend.step(before, wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx])
     bad = ~np.isclose(after[:, -1, 0], before[:, 0] + spf * dt, rtol=0, atol=1e-6)
@@ -287,22 +291,20 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Fal
     warmstart[idx] = (after[:, -1, vadr] - previous[:, vadr]) / dt
     states[idx] = after[:, -1]
 
-    carry, wrench, record, still, com, nxt, (worst, stray) = kernel(
-        carry, jnp.asarray(sensordata), inp.step_keys, active, jnp.int32(frame), stored, inter)
-    audit_ratio = np.maximum(audit_ratio, np.asarray(worst))
-    audit_stray += np.asarray(stray)
-    record = np.asarray(record)
+    carry, outs = kernel(carry, sensordata, inp.step_keys, active, np.int32(frame), stored, inter)
+    wrench, record, still, com, nxt, worst, stray = jax.device_get(outs)
+    audit_ratio = np.maximum(audit_ratio, worst)
+    audit_stray += stray
     if record.any():
       rec = np.flatnonzero(record)
       qpos_buf[rec, frame - f0] = before[np.searchsorted(idx, rec), qadr]
-      com_buf[rec, frame - f0] = np.asarray(com)[rec]
-    wrench_full[:, :, body_ids] = np.asarray(wrench)
-    running = np.asarray(still)
-    active_now = np.asarray(active)
-    nxt_np = np.where(running[:, None], np.asarray(nxt), active_now)
-    activated = np.where((activated < 0) & nxt_np, frame + 1, activated)
-    prev_inactive = ~active_now
-    active = jnp.asarray(nxt_np)
+      com_buf[rec, frame - f0] = com[rec]
+    wrench_full[:, :, body_ids] = wrench
+    running = still
+    nxt = np.where(running[:, None], nxt, active)
+    activated = np.where((activated < 0) & nxt, frame + 1, activated)
+    prev_inactive = ~active
+    active = nxt
     frame += 1
     if progress is not None and frame % 16 == 0:
       progress(int((np.asarray(carry.step) - f0 * spf).sum()), int((~running & inp.running0).sum()))
