@@ -195,11 +195,11 @@ def test_unstable_parent_is_refused(bank):
     refine(broken, 3, "striker", t_min=0.1, n_samples=1, key=jax.random.key(0))
 
 
-def test_frame_playback_on_native(bank, case_a, cols):
-  """Inactive objects put on the stored path at frame boundaries only."""
+def test_step_playback_on_native(bank, case_a, cols):
+  """Inactive objects put on the stored path before every physics step."""
   parent = case_a[0]
   new, stats = refine_run(bank, parent, ["striker"], t_min=T_MIN, n_samples=4, key=jax.random.key(1),
-                          backend="native", playback="frame")
+                          backend="native", playback="step")
   stored = bank.qpos_frames(parent)
   for w in range(new.n_worlds):
     q = new.qpos_frames(w)
@@ -209,7 +209,7 @@ def test_frame_playback_on_native(bank, case_a, cols):
       assert "target" in lineage["active"]
   assert np.all(stats.max_perturbation_ratio <= 1.0 + 1e-5)
   assert np.all(stats.inactive_perturbations == 0)
-  # Same perturbation keys: the worlds that went right with step playback go right here too.
+  # Same perturbation keys: the worlds that went right with frame playback go right here too.
   frame_new = case_a[1]
   for w in range(4):
     assert np.sign(new.qpos_frames(w)[-1, 0]) == np.sign(frame_new.qpos_frames(w)[-1, 0])

@@ -111,7 +111,7 @@ class RefineStats(SampleStats):
 
 def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
                key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
-               margin: float = DEFAULT_MARGIN, playback: str = "step", progress=None):
+               margin: float = DEFAULT_MARGIN, playback: str = "frame", progress=None):
   """:func:`refine` that also returns :class:`RefineStats` and only the new worlds."""
   start_wall = time.perf_counter()
   world = int(world)
@@ -279,7 +279,7 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
 
 def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
            key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
-           margin: float = DEFAULT_MARGIN, playback: str = "step", progress=None):
+           margin: float = DEFAULT_MARGIN, playback: str = "frame", progress=None):
   """Resamples the marked objects of one world from t_min on (paper §5).
 
   Args:
@@ -294,11 +294,12 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
     backend: ``auto`` | ``native`` | ``mjx`` (default: the config's).
     chunk_size: worlds per lockstep batch.
     margin: contact margin of the interaction test, m (larger is safer).
-    playback: native backend only: ``step`` (default) puts inactive objects
-      on their stored path before every physics step (S one-step rollout
-      calls per frame); ``frame`` only at every frame boundary (one call per
+    playback: native backend only: ``frame`` (default) puts inactive objects
+      on their stored path at every frame boundary (one rollout call per
       frame; inside a frame they move freely from the stored state, which the
-      interaction margin covers). The MJX backend always does it every step.
+      interaction margin covers, and report their stored motion); ``step``
+      before every physics step (S one-step rollout calls per frame, about
+      1.2x the cost). The MJX backend always does it every step.
     progress: optional callback(world_steps, worlds_finished, n_samples).
 
   Returns:

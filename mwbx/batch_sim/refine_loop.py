@@ -9,15 +9,15 @@ frame f (both backends):
 2. objects inactive before that update are put on their stored state
    (decoded ``qpos[f]``, chord ``qvel[f]``), so a newly activated object
    starts exactly where its stored motion is;
-3. the frame's S physics steps run for every object, inactive objects put
-   back on the stored path before every step (playback between frames by
-   ``mj_integratePos``): inside the jitted scan on MJX, as S one-step
-   ``mujoco.rollout`` calls on the native backend. The native loop can
-   instead hand whole frames to one call (``every_step=False``): then
-   inactive objects are reset at every frame and may drift from the path
-   inside it by at most the frame's free motion, which the interaction margin
-   covers (they never touch an active object inside a frame, or they would
-   have been activated);
+3. the frame's S physics steps run for every object. On MJX inactive objects
+   are put back on the stored path before every step inside the jitted scan
+   (playback between frames by ``mj_integratePos``). The native loop hands
+   whole frames to one ``mujoco.rollout`` call: inactive objects are reset
+   at every frame and may drift from the path inside it by at most the
+   frame's free motion, which the interaction margin covers (they never touch
+   an active object inside a frame, or they would have been activated); with
+   ``every_step=True`` it makes S one-step calls and resets them before every
+   step, at about 1.2× the cost;
 4. the bookkeeping kernel runs with only active bodies perturbable.
 
 Frames are recorded at the frame start, after step 2: an inactive object's
