@@ -166,3 +166,48 @@ def test_splice_keeps_parent_channels_bit_for_bit(child_frames):
   plain = CompressedQposStore.from_model(model, CodecBounds(), 120.0)
   plain.append(child[None], np.array([child_frames]))
   np.testing.assert_array_equal(got[:, ~keep], plain.frames(0)[:, ~keep])
+
+
+def test_stored_motion_and_audit_against_loops():
+  from mwbx import perturb
+  from mwbx.batch_sim import refine_loop, world
+  rng = np.random.default_rng(4)
+  w, s, b, f = 3, 4, 5, 6
+  p = _params(b, 4, rng)
+  params = world.WorldParams(
+      gravity=jnp.array([0.0, 0.0, -9.81]), mass=jnp.ones(b), inertia=jnp.ones((b, 3)), perturbable=jnp.ones(b, bool),
+      perturb=perturb.PerturbParams(alpha=0.1), enabled=True, dt=1 / 480, rest_linear_speed=0.02,
+      rest_angular_speed=0.1, rest_steps=10, max_speed=100.0, collision_gap_steps=1, steps_per_frame=s,
+      end_frame=100)
+  r = lambda *shape: jnp.asarray(rng.normal(size=shape), jnp.float32)
+  obs = world.Observation(r(w, s, b, 3), r(w, s, b, 4), r(w, s, b, 3), r(w, s, b, 3), r(w, s, b, 3), r(w, s, b, 3))
+  stored = (r(f, b, 3), r(f, b, 4), r(f, b, 3), r(f, b, 3))
+  active = jnp.asarray(rng.random((w, 4)) < 0.5)
+  got = refine_loop._with_stored_motion(obs, active, 2, stored, params, p)
+  obj = np.asarray(p.body_object).argmax(axis=1)
+  for i in range(w):
+    for j in range(s):
+      for k in range(b):
+        if bool(active[i, obj[k]]):
+          np.testing.assert_array_equal(got.com_pos[i, j, k], obs.com_pos[i, j, k])
+        else:
+          chord = stored[0][2, k] + (j / s) * (stored[0][3, k] - stored[0][2, k])
+          np.testing.assert_allclose(got.com_pos[i, j, k], chord, atol=1e-6)
+          np.testing.assert_array_equal(got.lin_vel[i, j, k], stored[2][2, k])
+          np.testing.assert_array_equal(got.lin_acc[i, j, k], params.gravity)
+  # Audit: largest |dv| / (alpha |delta_v|) and perturbations on inactive bodies.
+  dv = jnp.where(rng.random((w, s, b, 1)) < 0.3, r(w, s, b, 3) * 0.01, 0.0)
+  out = world.FrameOutput(wrench=None, record=None, running=None, dv=dv, dw=jnp.zeros_like(dv),
+                          linear_impact=None, angular_impact=None)
+  worst, stray = refine_loop._audit(obs, out, active, params, p)
+  for i in range(w):
+    ratios, n_stray = [0.0], 0
+    for j in range(s):
+      for k in range(b):
+        d = np.asarray(dv[i, j, k])
+        if np.any(d != 0):
+          delta = (1 / 480) * (np.asarray(obs.lin_acc[i, j, k]) - np.array([0, 0, -9.81]))
+          ratios.append(np.linalg.norm(d) / (0.1 * np.linalg.norm(delta)))
+          n_stray += int(not bool(active[i, obj[k]]))
+    assert float(worst[i]) == pytest.approx(max(ratios), rel=1e-4)
+    assert int(stray[i]) == n_stray
