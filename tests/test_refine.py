@@ -227,3 +227,12 @@ def test_cli_refine(bank, tmp_path, capsys):
   assert cli.main(["refine", str(path), "--world", "1", "--objects", "striker", "--box", "0,0,1,1",
                    "--samples", "1"]) == 2
   assert "--camera" in capsys.readouterr().err
+
+
+def test_refined_worlds_do_not_depend_on_the_batching(bank, case_a):
+  parent, new, _ = case_a
+  again, _ = refine_run(bank, parent, ["striker"], t_min=T_MIN, n_samples=N, key=jax.random.key(1),
+                        backend="native", chunk_size=3)
+  for w in range(N):
+    np.testing.assert_array_equal(again.qpos_frames(w), new.qpos_frames(w))
+  assert again.lineage == new.lineage
