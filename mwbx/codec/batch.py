@@ -96,8 +96,9 @@ def serialize_batch(bc: BatchCode) -> list[bytes]:
       inc = None
     worlds.append(seg_world)
     m = lattice_exponent(seg.lengths, coarse[kind])
-    res_pieces.append(_residuals(np.asarray(seg.vel, np.int64), first, inc, m).reshape(-1))
-    res_worlds.append(np.repeat(seg_world, DIM[kind]))
+    # Coordinate-major; the stable sort by world below keeps that order per world.
+    res_pieces.append(_residuals(np.asarray(seg.vel, np.int64), first, inc, m).T.reshape(-1))
+    res_worlds.append(np.tile(seg_world, DIM[kind]))
   values = np.concatenate(pieces + res_pieces)
   world = np.concatenate(worlds + res_worlds)
   order = np.argsort(world, kind="stable")
@@ -189,7 +190,12 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> BatchCode:
   for kind in KINDS:
     codes = gather(l_off, n_seg[kind])
     l_off = l_off + n_seg[kind]
-    res = gather(r_off, DIM[kind] * n_seg[kind]).reshape(-1, DIM[kind])
+    flat = gather(r_off, DIM[kind] * n_seg[kind])  # per world: coordinate-major
+    world = np.repeat(np.arange(n_w), DIM[kind] * n_seg[kind])
+    local = np.arange(flat.size) - (np.cumsum(DIM[kind] * n_seg[kind]) - DIM[kind] * n_seg[kind])[world]
+    per = np.maximum(n_seg[kind][world], 1)
+    res = np.zeros((int(n_seg[kind].sum()), DIM[kind]), np.int64)
+    res[(np.cumsum(n_seg[kind]) - n_seg[kind])[world] + local % per, local // per] = flat
     r_off = r_off + DIM[kind] * n_seg[kind]
     if kind == "pos":
       lengths, flags = (codes >> 1) + 1, (codes & 1).astype(bool)

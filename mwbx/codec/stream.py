@@ -238,7 +238,8 @@ def serialize(code: WorldCode) -> bytes:
       length_codes.append(seg.lengths - 1)
       inc = None
     m = lattice_exponent(seg.lengths, coarse[kind])
-    residuals.append(_residuals(np.asarray(seg.vel, np.int64), first, inc, m).reshape(-1))
+    # Component by component: each coordinate's residuals have their own statistics.
+    residuals.append(_residuals(np.asarray(seg.vel, np.int64), first, inc, m).T.reshape(-1))
   out += rice.encode_ints(np.concatenate(counts + length_codes + residuals))
   out += struct.pack("<I", zlib.crc32(out))
   return bytes(out)
@@ -380,7 +381,7 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
       lengths, flags = (codes >> 1) + 1, (codes & 1).astype(bool)
     else:
       lengths, flags = codes + 1, np.zeros(codes.size, bool)
-    res = values[r_off:r_off + DIM[kind] * n_seg[kind]].reshape(n_seg[kind], DIM[kind])
+    res = values[r_off:r_off + DIM[kind] * n_seg[kind]].reshape(DIM[kind], n_seg[kind]).T
     r_off += DIM[kind] * n_seg[kind]
     if np.any(lengths < 1):
       raise CodecError("corrupt stream: segment length out of range")
