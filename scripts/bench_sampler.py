@@ -7,8 +7,10 @@ For each scene (quickstart, pachinko) and the same randomized initial states:
   (d) the mwbx sampler on the native backend
   (e) the mwbx sampler on the mjx backend
 in world-steps per second, each with its batch size, plus the sampler's own
-overhead (perturb + record + metrics + codec) over the time spent inside the
-physics engine. Compile time is reported apart and never counted.
+overhead (perturb + record + metrics) over the time spent inside the physics
+engine. (a), (b) and (d) alternate for a few repeats and each keeps its best,
+since the machine may be shared. Compile time and compression time are
+reported apart and never counted in the rates.
 
   .venv/bin/python scripts/bench_sampler.py [--worlds 256] [--mjx-worlds 32] [--skip-mjx]
 
@@ -96,16 +98,22 @@ def bench_scene(name, args):
     n_steps = sampler.n_frames * sampler.params.steps_per_frame
     qpos0, qvel0 = initial_states(sampler, args.worlds)
     threads = sampler.backend.threads
-    rate_a = bench_mj_step(model, qpos0, qvel0, n_steps, args.loop_worlds)
-    rows.append(("a", "mj_step Python loop", args.loop_worlds, rate_a, None))
-    rate_b = bench_rollout(model, qpos0, qvel0, n_steps, threads)
-    rows.append(("b", f"bare mujoco.rollout ({threads} threads)", args.worlds, rate_b, None))
-    sampler.run(min(args.worlds, 8), jax.random.key(1))  # warm up: compile the bookkeeping kernel
-    bank, stats = sampler.run(args.worlds, jax.random.key(0))
-    overhead = stats.run_seconds / stats.physics_seconds - 1
+    sampler.run(min(args.worlds, 8), jax.random.key(1))  # warm up: compile the kernels
+    # The machine is shared: alternate (a), (b), (d) and keep each one's best.
+    best = {"a": 0.0, "b": 0.0, "d": 0.0}
+    for _ in range(args.repeats):
+      best["a"] = max(best["a"], bench_mj_step(model, qpos0, qvel0, n_steps, args.loop_worlds))
+      best["b"] = max(best["b"], bench_rollout(model, qpos0, qvel0, n_steps, threads))
+      bank, stats = sampler.run(args.worlds, jax.random.key(0))
+      if stats.world_steps_per_second > best["d"]:
+        best["d"], best_stats = stats.world_steps_per_second, stats
+    rows.append(("a", "mj_step Python loop", args.loop_worlds, best["a"], None))
+    rows.append(("b", f"bare mujoco.rollout ({threads} threads)", args.worlds, best["b"], None))
+    stats = best_stats
     rows.append(("d", "mwbx sampler, native", args.worlds, stats.world_steps_per_second,
-                 {"overhead_over_physics": overhead, "compile_s": stats.compile_seconds,
-                  "codec_s": stats.codec_seconds, "at_rest": float(bank.at_rest.mean()),
+                 {"overhead_over_physics": stats.run_seconds / stats.physics_seconds - 1,
+                  "compile_s": stats.compile_seconds, "codec_s": stats.codec_seconds,
+                  "run_s": stats.run_seconds, "at_rest": float(bank.at_rest.mean()),
                   "world_steps": stats.world_steps}))
   if not args.skip_mjx:
     short = config.with_overrides(end_time=args.mjx_end_time, chunk_size=args.mjx_worlds)
@@ -130,6 +138,7 @@ def main():
   parser.add_argument("--loop-worlds", type=int, default=16, help="worlds of the mj_step loop (a)")
   parser.add_argument("--mjx-worlds", type=int, default=32, help="batch of (c) and (e)")
   parser.add_argument("--mjx-end-time", type=float, default=0.5, help="simulated seconds for (c) and (e)")
+  parser.add_argument("--repeats", type=int, default=3, help="alternating repeats of (a), (b), (d)")
   parser.add_argument("--skip-mjx", action="store_true")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "sampler.json"))
   args = parser.parse_args()
