@@ -26,8 +26,13 @@ test: $(STAMP)
 	-@bash scripts/ensure_chromium.sh
 	$(PY) -m pytest -q tests
 
+# Every benchmark: tables on stdout, JSON (and plots) in out/bench/.
 bench: $(STAMP)
 	$(PY) scripts/bench_sampler.py
+	$(PY) scripts/bench_codec.py
+	$(PY) scripts/bench_queries.py
+	$(PY) scripts/bench_viewer.py
+	$(PY) scripts/bench_refine.py
 
 clean:
 	rm -rf out .pytest_cache .hypothesis
