@@ -9,7 +9,7 @@ decode throughput, and what compression adds to ``mwbx sample`` wall time.
 
 Writes out/bench/codec.json and out/bench/codec_rd.png and prints tables.
 
-  .venv/bin/python scripts/bench_codec.py [--worlds 256] [--quick]
+  .venv/bin/python scripts/bench_codec.py [--worlds 128] [--quick] [--replot]
 """
 
 from __future__ import annotations
@@ -391,7 +391,7 @@ def _plot(rd: dict, path: pathlib.Path):
 def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--replot", action="store_true", help="redraw the PNG from the JSON")
-  parser.add_argument("--worlds", type=int, default=256, help="worlds per sampled bank")
+  parser.add_argument("--worlds", type=int, default=128, help="worlds per sampled bank")
   parser.add_argument("--quick", action="store_true", help="small run (smoke test)")
   args = parser.parse_args()
   if args.replot:
