@@ -94,7 +94,7 @@ def _cmd_info(args) -> int:
   print(f"perturbations       {s['perturbations']}")
   print(f"storage             {s['storage_bytes']:,} bytes")
   for key, value in s["qpos"].items():
-    print(f"qpos {key:<15}{value:,.4g}" if isinstance(value, float) else f"qpos {key:<15}{value}")
+    print(f"qpos {key:<22}{value:,.4g}" if isinstance(value, float) else f"qpos {key:<22}{value}")
   print(f"bodies              {', '.join(bank.body_names)}")
   print(f"groups              {', '.join(f'{k}={list(v)}' for k, v in bank.groups.items()) or 'none'}")
   print("config:")
@@ -238,8 +238,21 @@ def build_parser() -> argparse.ArgumentParser:
   return parser
 
 
+def _enable_compilation_cache() -> None:
+  """Keeps compiled kernels on disk, so a second ``mwbx`` run skips compiling."""
+  import os
+  import jax
+  cache = os.environ.get("MWBX_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "mwbx", "jax"))
+  try:
+    os.makedirs(cache, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", cache)
+  except OSError:
+    pass  # a read-only home: compile every time
+
+
 def main(argv: list[str] | None = None) -> int:
   args = build_parser().parse_args(argv)
+  _enable_compilation_cache()
   try:
     return args.func(args)
   except MwbxError as err:

@@ -1,11 +1,19 @@
 """Shared fixtures: tiny scenes and samplers compiled once per test session."""
 
+import os
 import pathlib
+import tempfile
 
 import jax
 import pytest
 
 import mwbx
+
+# One on-disk compilation cache for this test session, shared with the `mwbx`
+# commands the CLI tests start (they read MWBX_CACHE_DIR), apart from the
+# user's own cache.
+os.environ.setdefault("MWBX_CACHE_DIR", tempfile.mkdtemp(prefix="mwbx-test-jax-cache-"))
+jax.config.update("jax_compilation_cache_dir", os.environ["MWBX_CACHE_DIR"])
 
 TESTS = pathlib.Path(__file__).parent
 REPO = TESTS.parent

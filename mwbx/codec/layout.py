@@ -28,16 +28,10 @@ JNT_BALL = 1
 JNT_SLIDE = 2
 JNT_HINGE = 3
 
-try:  # The package-wide error type, once the foundation provides it.
-  from mwbx.errors import MwbxError as _BaseError  # type: ignore
-except ImportError:  # pragma: no cover - depends on the foundation's layout
-  try:
-    from mwbx import MwbxError as _BaseError  # type: ignore
-  except ImportError:
-    _BaseError = ValueError
+from mwbx.errors import MwbxError
 
 
-class CodecError(_BaseError):
+class CodecError(MwbxError):
   """A stream that cannot be decoded, or codec input a user got wrong."""
 
 

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-try:  # The package-wide base class.
-  from mwbx.errors import MwbxError as _Base
-except ImportError:  # pragma: no cover - before mwbx/errors.py exists
-  _Base = ValueError
+from mwbx.errors import MwbxError
 
 
-class ViewerError(_Base):
+class ViewerError(MwbxError):
   """A bad argument to `view`/`export_html` (unknown world, layout, body, query...).
 
   The message names the argument and the offending value.
