@@ -25,12 +25,16 @@ def _progress_bar(n_worlds: int, desc: str):
   """A tqdm bar over worlds finished, with world-steps/s; returns (callback, bar)."""
   from tqdm import tqdm
   bar = tqdm(total=n_worlds, desc=desc, unit="world", dynamic_ncols=True, file=sys.stderr)
-  start = time.perf_counter()
+  first: list = []  # (time, world_steps) of the first report: the rate leaves compilation out
 
   def update(world_steps: int, finished: int, total: int) -> None:
+    now = time.perf_counter()
+    if not first:
+      first.append((now, world_steps))
     bar.n = finished
-    elapsed = time.perf_counter() - start
-    bar.set_postfix_str(f"{world_steps / max(elapsed, 1e-9) / 1e3:,.0f}k world-steps/s", refresh=False)
+    (start, steps0), elapsed = first[0], now - first[0][0]
+    if elapsed > 0:
+      bar.set_postfix_str(f"{(world_steps - steps0) / elapsed / 1e3:,.0f}k world-steps/s", refresh=False)
     bar.refresh()
 
   return update, bar
