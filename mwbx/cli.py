@@ -32,7 +32,8 @@ def _progress_bar(n_worlds: int, desc: str):
     if not first:
       first.append((now, world_steps))
     bar.n = finished
-    (start, steps0), elapsed = first[0], now - first[0][0]
+    start, steps0 = first[0]
+    elapsed = now - start
     if elapsed > 0:
       bar.set_postfix_str(f"{(world_steps - steps0) / elapsed / 1e3:,.0f}k world-steps/s", refresh=False)
     bar.refresh()

@@ -21,7 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import pathlib
-from typing import Literal, Sequence
+from typing import Literal
 
 import pydantic
 import yaml

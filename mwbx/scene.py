@@ -11,7 +11,6 @@ config file and field.
 from __future__ import annotations
 
 import dataclasses
-import pathlib
 from typing import Sequence
 
 import jax

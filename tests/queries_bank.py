@@ -27,8 +27,8 @@ def scene_xml(n_bodies: int) -> str:
     if i % 2 == 0:
       geom = f'<geom type="sphere" size="{0.03 + 0.01 * i}" mass="0.1"/>'
     else:
-      geom = (f'<geom type="box" size="0.04 0.02 0.01" pos="0.05 0 0" mass="0.1"/>'
-              f'<geom type="sphere" size="0.02" pos="-0.05 0 0" mass="0.1"/>')
+      geom = ('<geom type="box" size="0.04 0.02 0.01" pos="0.05 0 0" mass="0.1"/>'
+              '<geom type="sphere" size="0.02" pos="-0.05 0 0" mass="0.1"/>')
     parts.append(f'<body name="b{i}" pos="{0.3 * i} 0 1"><freejoint/>{geom}</body>')
   if n_bodies >= 3:
     parts.append(

@@ -6,7 +6,6 @@ import pytest
 import jax
 import mwbx
 from mwbx import bank as bank_lib
-from mwbx.batch_sim import sampler as sampler_lib
 from mwbx.codec import CodecError, CompressedQposStore
 
 from test_codec_properties import _angles

@@ -1,7 +1,6 @@
 """The MJX backend: physics against MuJoCo C, and the same sampler as native."""
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest

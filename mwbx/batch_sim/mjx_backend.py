@@ -56,7 +56,6 @@ class MjxBackend:
     cache_key = (id(params), n_frames)
     if cache_key in self._blocks:
       return self._blocks[cache_key][1]
-    spf = params.steps_per_frame
     nbody = self.model.nbody
     ids = jnp.asarray(body_ids)
 

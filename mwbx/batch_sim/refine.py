@@ -230,7 +230,7 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
   count = np.where((status == world_lib.AT_REST) & (count < path.n_parent),
                    np.minimum(path.n_parent, f0 + cat("qpos").shape[1]), count).astype(np.int32)
   new_qpos, new_com = cat("qpos"), cat("com")
-  w, n_frames = len(count), sampler.n_frames
+  w = len(count)
   active = cat("active")
   activated = cat("activated")
   body_obj = np.array([object_names.index(next(o for o, bs in bank.objects.items() if b in bs))

@@ -19,7 +19,7 @@ import numpy as np
 from mwbx.codec import rice
 from mwbx.codec.decode import KIND_ID, decode_world, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
-from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, WIDTH, Quanta,
+from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, Quanta,
                                Segments, _residuals, _velocities, channel_starts,
                                gravity_increment, initial_bytes, initial_codes, lattice_exponent, parse,
                                read_initial)

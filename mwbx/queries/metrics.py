@@ -14,7 +14,7 @@ the eligible worlds; unstable worlds are never ranked.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import jax
 import numpy as np
