@@ -80,6 +80,28 @@ class NativeBackend:
         chunk_size=max(1, n // (4 * self.threads)))
     return out_state, out_sensor
 
+  def absorb_frame(self, before: np.ndarray, after: np.ndarray, sensors: np.ndarray):
+    """What one frame of :meth:`step` output means for the sampling loop.
+
+    Args:
+      before: f64[n, nstate] states s_k the frame started from.
+      after: f64[n, S, nstate] states returned by :meth:`step`.
+      sensors: f64[n, S, nsensordata] sensors returned by :meth:`step`.
+
+    Returns:
+      (sensors, NaN for worlds MuJoCo reset; f64[n, nv] warm start for the
+      next frame; f64[n, nstate] states s_{k+S}).
+    """
+    m = self.model
+    n_steps = after.shape[1]
+    # mj_step resets a diverging world to time 0: its NaN sensors mark it unstable.
+    bad = ~np.isclose(after[:, -1, 0], before[:, 0] + n_steps * m.opt.timestep, rtol=0, atol=1e-6)
+    sensors[bad] = np.nan
+    qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
+    previous = after[:, -2] if n_steps > 1 else before
+    warmstart = (after[:, -1, qvel] - previous[:, qvel]) / m.opt.timestep
+    return sensors, warmstart, after[:, -1]
+
   def kernel(self, params: world.WorldParams):
     """The jitted, vmapped bookkeeping kernel for these params (cached)."""
     key = id(params)
@@ -109,11 +131,9 @@ class NativeBackend:
     body_ids = scene.body_ids
     nq, nv = m.nq, m.nv
     qpos_adr = slice(1, 1 + nq)
-    qvel_adr = slice(1 + nq, 1 + nq + nv)
     kernel = self.kernel(params)
 
     spf = params.steps_per_frame
-    dt = m.opt.timestep
     states = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
     warmstart = np.zeros((c, nv))
     wrench_full = np.zeros((c, spf, m.nbody, 6))
@@ -143,13 +163,7 @@ class NativeBackend:
       physics_start = time.perf_counter()
       after, sensors = self.step(before, wrench_in, warm_in)
       physics_seconds += time.perf_counter() - physics_start
-      # mj_step resets a diverging world to time 0: treat as unstable.
-      bad = ~np.isclose(after[:, -1, 0], before[:, 0] + spf * dt, rtol=0, atol=1e-6)
-      sensors[bad] = np.nan
-      sensordata[idx] = sensors
-      previous = after[:, -2] if spf > 1 else before
-      warmstart[idx] = (after[:, -1, qvel_adr] - previous[:, qvel_adr]) / dt
-      states[idx] = after[:, -1]
+      sensordata[idx], warmstart[idx], states[idx] = self.absorb_frame(before, after, sensors)
       world_steps += len(idx) * spf
 
       carry, *outputs = kernel(carry, jnp.asarray(sensordata), step_keys)

@@ -284,12 +284,7 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Fal
                                       warmstart[idx], qmask, vmask, inp, frame)
     else:
       after, sensors = backend.step(before, wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx])
-    bad = ~np.isclose(after[:, -1, 0], before[:, 0] + spf * dt, rtol=0, atol=1e-6)
-    sensors[bad] = np.nan
-    sensordata[idx] = sensors
-    previous = after[:, -2] if spf > 1 else before
-    warmstart[idx] = (after[:, -1, vadr] - previous[:, vadr]) / dt
-    states[idx] = after[:, -1]
+    sensordata[idx], warmstart[idx], states[idx] = backend.absorb_frame(before, after, sensors)
 
     carry, outs = kernel(carry, sensordata, inp.step_keys, active, np.int32(frame), stored, inter)
     wrench, record, still, com, nxt, worst, stray = jax.device_get(outs)
