@@ -20,9 +20,9 @@ from mwbx.codec import rice
 from mwbx.codec.decode import KIND_ID, decode_world, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, Quanta,
-                               Segments, _residuals, _velocities, channel_starts,
+                               Segments, _velocities, channel_starts,
                                gravity_increment, initial_bytes, initial_codes, lattice_exponent, parse,
-                               read_initial)
+                               read_initial, segment_codes)
 
 
 @dataclasses.dataclass
@@ -87,17 +87,11 @@ def serialize_batch(bc: BatchCode) -> list[bytes]:
   for kind in KINDS:
     seg = bc.segs[kind]
     seg_world = np.repeat(np.arange(n_w), counts[:, cols[kind]].sum(axis=1))
-    first = channel_starts(seg.seg_count)
-    if kind == "pos":
-      pieces.append(2 * (seg.lengths - 1) + seg.flags)
-      inc = gravity_increment(seg.flags, seg.lengths, first, g_fp)
-    else:
-      pieces.append(seg.lengths - 1)
-      inc = None
+    lengths, res = segment_codes(seg, kind, g_fp, coarse)
+    pieces.append(lengths)
     worlds.append(seg_world)
-    m = lattice_exponent(seg.lengths, coarse[kind])
     # Coordinate-major; the stable sort by world below keeps that order per world.
-    res_pieces.append(_residuals(np.asarray(seg.vel, np.int64), first, inc, m).T.reshape(-1))
+    res_pieces.append(res)
     res_worlds.append(np.tile(seg_world, DIM[kind]))
   values = np.concatenate(pieces + res_pieces)
   world = np.concatenate(worlds + res_worlds)

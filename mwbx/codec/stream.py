@@ -178,6 +178,24 @@ def gravity_increment(flags: np.ndarray, lengths: np.ndarray, first: np.ndarray,
   return np.where(prev_flag, (prev_len * g_fp + 128) >> 8, 0).astype(np.int64)
 
 
+def segment_codes(seg, kind: str, g_fp, coarse) -> tuple[np.ndarray, np.ndarray]:
+  """Length codes and velocity residuals of one kind's segments.
+
+  Returns:
+    (i64[n_seg] length codes: ``2·(length-1) + gravity flag`` for positions,
+     ``length-1`` otherwise; the residuals component by component, since each
+     coordinate's residuals have their own statistics).
+  """
+  first = channel_starts(seg.seg_count)
+  if kind == "pos":
+    lengths = 2 * (seg.lengths - 1) + seg.flags
+    inc = gravity_increment(seg.flags, seg.lengths, first, g_fp)
+  else:
+    lengths, inc = seg.lengths - 1, None
+  m = lattice_exponent(seg.lengths, coarse[kind])
+  return lengths, _residuals(np.asarray(seg.vel, np.int64), first, inc, m).T.reshape(-1)
+
+
 def _residuals(vel, first, increment, m) -> np.ndarray:
   """r with ``vel = prev + increment + r * 2**m`` (prev = 0 at a channel start)."""
   prev = np.concatenate([np.zeros((1, vel.shape[1]), np.int64), vel[:-1]])
@@ -230,16 +248,9 @@ def serialize(code: WorldCode) -> bytes:
   for kind in KINDS:
     seg = code.segs[kind]
     counts.append(seg.seg_count)
-    first = channel_starts(seg.seg_count)
-    if kind == "pos":
-      length_codes.append(2 * (seg.lengths - 1) + seg.flags)
-      inc = gravity_increment(seg.flags, seg.lengths, first, g_fp)
-    else:
-      length_codes.append(seg.lengths - 1)
-      inc = None
-    m = lattice_exponent(seg.lengths, coarse[kind])
-    # Component by component: each coordinate's residuals have their own statistics.
-    residuals.append(_residuals(np.asarray(seg.vel, np.int64), first, inc, m).T.reshape(-1))
+    lengths, res = segment_codes(seg, kind, g_fp, coarse)
+    length_codes.append(lengths)
+    residuals.append(res)
   out += rice.encode_ints(np.concatenate(counts + length_codes + residuals))
   out += struct.pack("<I", zlib.crc32(out))
   return bytes(out)
