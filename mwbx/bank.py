@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
-import shutil
 from typing import Sequence
 
 import numpy as np
@@ -333,8 +332,3 @@ class _manager:
 
   def __exit__(self, *exc):
     self.manager.close()
-
-
-def remove(path: str | pathlib.Path) -> None:
-  """Deletes a bank directory."""
-  shutil.rmtree(path, ignore_errors=True)

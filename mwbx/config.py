@@ -246,7 +246,3 @@ def load_config(path: str | pathlib.Path) -> Config:
   except yaml.YAMLError as err:
     raise MwbxError(f"{path}: malformed YAML: {err}") from None
   return config_from_dict(data if data is not None else {}, source=str(path))
-
-
-
-
