@@ -16,13 +16,12 @@ import zlib
 
 import numpy as np
 
-from mwbx.codec import rice
+from mwbx.codec import kernels, rice
 from mwbx.codec.decode import KIND_ID, decode_world, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
-from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, Quanta,
-                               Segments, _velocities, channel_starts,
-                               gravity_increment, initial_bytes, initial_codes, lattice_exponent, parse,
-                               read_initial, segment_codes)
+from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, WIDTH, Quanta,
+                               Segments, initial_bytes, initial_codes, initial_steps, parse,
+                               segment_codes)
 
 
 @dataclasses.dataclass
@@ -114,143 +113,78 @@ class _Fallback(Exception):
   """The batch path does not cover these streams; decode world by world."""
 
 
-def parse_batch(data: np.ndarray, offsets: np.ndarray) -> BatchCode:
-  """Parse the streams ``data[offsets[w]:offsets[w + 1]]`` of W worlds together.
-
-  Raises _Fallback if they differ in layout or hold raw channels, CodecError if
-  they are inconsistent.
-  """
-  data = np.ascontiguousarray(data, np.uint8)
-  view = memoryview(data)
-  n_w = offsets.size - 1
-  first = parse(view[offsets[0]:offsets[1]])
-  lay = first.layout
-  if np.any(first.modes != 0):
-    raise _Fallback()
-  sig = _signature(lay, first.bounds, first.fps, first.quanta)
-  n_ch = lay.n_channels
-  kinds = first.kinds()
-  n_frames = np.zeros(n_w, np.int64)
-  initial = np.zeros((n_w, n_ch, 4))
-  blob_start = np.zeros(n_w, np.int64)
-  blob_end = np.zeros(n_w, np.int64)
-  head = _HEAD.pack(MAGIC, VERSION)
-  modes = bytes(n_ch)
-  for w in range(n_w):
-    lo, hi = int(offsets[w]), int(offsets[w + 1])
-    if hi - lo < len(head) + 4 or view[lo:lo + len(head)] != head:
-      raise _Fallback()
-    (crc,) = struct.unpack_from("<I", view, hi - 4)
-    if zlib.crc32(view[lo:hi - 4]) != crc:
-      raise _Fallback()
-    n, pos = rice.read_varint(view, lo + len(head), "n_frames")
-    end = pos + len(sig)
-    if view[pos:end] != sig or view[end:end + n_ch] != modes:
-      raise _Fallback()
-    n_frames[w] = n
-    initial[w], blob_start[w] = read_initial(view, end + n_ch, kinds, first.bounds)
-    blob_end[w] = hi - 4
-  if np.any(blob_start > blob_end) or np.any(n_frames > (1 << 24)):
-    raise _Fallback()
-  expect = np.maximum(n_frames - 1, 0)
-  values, counts = rice.decode_ints_batch(data, blob_start, blob_end, n_ch + 7 * expect * n_ch)
-  starts = np.cumsum(counts) - counts
-  if np.any(counts < n_ch):
-    raise CodecError("corrupt stream: missing segment counts")
-  seg_counts = values[starts[:, None] + np.arange(n_ch)[None, :]]
-  if (np.any(seg_counts < 0) or np.any(seg_counts > expect[:, None])
-      or np.any((seg_counts == 0) & (expect[:, None] > 0))):
-    raise CodecError("corrupt stream: segment count out of range")
-  cols = _kind_columns(lay)
-  n_seg = {k: seg_counts[:, cols[k]].sum(axis=1) for k in KINDS}
-  total = sum(n_seg.values())
-  n_res = sum(DIM[k] * n_seg[k] for k in KINDS)
-  if np.any(counts != n_ch + total + n_res):
-    raise CodecError("corrupt stream: segment data size does not match segment counts")
-
-  def gather(offset, sizes):
-    world = np.repeat(np.arange(n_w), sizes)
-    local = np.arange(int(sizes.sum())) - (np.cumsum(sizes) - sizes)[world]
-    return values[offset[world] + local]
-
-  q = first.quanta
-  ratio = 2.0 * q.quad / q.steps(first.bounds)[0] * 256.0
-  if not abs(ratio) < 2.0**40:
-    raise CodecError("corrupt stream header: gravity term out of range")
-  g_fp, coarse = q.g_fp(first.bounds), q.coarse()
-  l_off = starts + n_ch
-  r_off = starts + n_ch + total
-  segs = {}
-  for kind in KINDS:
-    codes = gather(l_off, n_seg[kind])
-    l_off = l_off + n_seg[kind]
-    flat = gather(r_off, DIM[kind] * n_seg[kind])  # per world: coordinate-major
-    world = np.repeat(np.arange(n_w), DIM[kind] * n_seg[kind])
-    local = np.arange(flat.size) - (np.cumsum(DIM[kind] * n_seg[kind]) - DIM[kind] * n_seg[kind])[world]
-    per = np.maximum(n_seg[kind][world], 1)
-    res = np.zeros((int(n_seg[kind].sum()), DIM[kind]), np.int64)
-    res[(np.cumsum(n_seg[kind]) - n_seg[kind])[world] + local % per, local // per] = flat
-    r_off = r_off + DIM[kind] * n_seg[kind]
-    if kind == "pos":
-      lengths, flags = (codes >> 1) + 1, (codes & 1).astype(bool)
-    else:
-      lengths, flags = codes + 1, np.zeros(codes.size, bool)
-    seg_count = seg_counts[:, cols[kind]].reshape(-1)
-    if np.any(lengths < 1):
-      raise CodecError("corrupt stream: segment length out of range")
-    first_seg = channel_starts(seg_count)
-    if lengths.size:
-      per_channel = np.add.reduceat(lengths, np.flatnonzero(first_seg))
-      chan_world = np.repeat(np.arange(n_w), cols[kind].size)[seg_count > 0]
-      if np.any(per_channel != expect[chan_world]):
-        raise CodecError("corrupt stream: segment lengths do not add up to the frame count")
-    inc = gravity_increment(flags, lengths, first_seg, g_fp) if kind == "pos" else None
-    m = lattice_exponent(lengths, coarse[kind])
-    vel = _velocities(res, first_seg, inc, m) if lengths.size else res
-    if np.any(np.abs(vel) >= rice.VALUE_CAP):
-      raise CodecError("corrupt stream: velocity out of range")
-    segs[kind] = Segments(seg_count, lengths, vel, flags)
-  return BatchCode(n_frames=n_frames, layout=lay, bounds=first.bounds, fps=first.fps,
-                   quanta=q, initial=initial, segs=segs)
-
-
-def _batchable(data: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-  """Worlds whose header matches the first all-fitted stream (cheap byte checks)."""
-  view = memoryview(data)
-  n_w = offsets.size - 1
-  ref = None
-  for w in range(n_w):
+def _reference(view: memoryview, offsets: np.ndarray):
+  """The first stream that parses and has every channel fitted, or None."""
+  for w in range(offsets.size - 1):
     try:
       code = parse(view[offsets[w]:offsets[w + 1]])
     except CodecError:
       continue
     if not np.any(code.modes):
-      ref = code
-      break
+      return code
+  return None
+
+
+def parse_batch(data: np.ndarray, offsets: np.ndarray) -> tuple[BatchCode, np.ndarray]:
+  """Parse together the streams ``data[offsets[w]:offsets[w + 1]]`` that can be.
+
+  Returns (the BatchCode of the worlds ``fast``, i64 ``fast``): the streams with
+  a valid CRC and the header of the first all-fitted stream (same layout,
+  bounds, fps and quanta; no raw channel). Raises _Fallback if there is none,
+  CodecError if their segment data are inconsistent.
+  """
+  data = np.ascontiguousarray(data, np.uint8)
+  offsets = np.asarray(offsets, np.int64)
+  view = memoryview(data)
+  ref = _reference(view, offsets)
   if ref is None:
-    return np.zeros(0, np.int64)
-  sig = _signature(ref.layout, ref.bounds, ref.fps, ref.quanta) + bytes(ref.layout.n_channels)
-  head = _HEAD.pack(MAGIC, VERSION)
-  keep = []
-  for w in range(n_w):
+    raise _Fallback()
+  lay = ref.layout
+  n_ch = lay.n_channels
+  kinds = ref.kinds()
+  head = np.frombuffer(_HEAD.pack(MAGIC, VERSION), np.uint8)
+  sig = np.frombuffer(_signature(lay, ref.bounds, ref.fps, ref.quanta) + bytes(n_ch), np.uint8)
+  widths = np.array([WIDTH[k] for k in kinds], np.int64)
+  init_steps = initial_steps(ref.bounds)
+  steps = np.array([init_steps[k] for k in kinds], np.float64)
+  ok, n_frames, initial, blob_start = kernels.scan_headers(data, offsets, head, sig, widths, steps)
+  for w in np.flatnonzero(ok).tolist():
     lo, hi = int(offsets[w]), int(offsets[w + 1])
-    if hi - lo < len(head) + len(sig) + 5 or view[lo:lo + len(head)] != head:
-      continue
-    try:
-      _, pos = rice.read_varint(view, lo + len(head), "n_frames")
-    except CodecError:
-      continue
-    if view[pos:pos + len(sig)] == sig:
-      keep.append(w)
-  return np.asarray(keep, np.int64)
+    ok[w] = zlib.crc32(view[lo:hi - 4]) == struct.unpack_from("<I", view, hi - 4)[0]
+  fast = np.flatnonzero(ok)
+  if fast.size == 0:
+    raise _Fallback()
+  n_frames, initial, blob_start = n_frames[fast], initial[fast], blob_start[fast]
+  blob_end = offsets[fast + 1] - 4
+  if np.any(blob_start > blob_end):
+    raise _Fallback()
+  expect = np.maximum(n_frames - 1, 0)
+  values, counts = rice.decode_ints_batch(data, blob_start, blob_end, n_ch + 7 * expect * n_ch)
+  q = ref.quanta
+  g_fp, coarse = q.g_fp(ref.bounds), q.coarse()
+  if abs(g_fp) >= 1 << 30:
+    raise _Fallback()
+  n_kind = np.array([len(lay.pos_adr), len(lay.rot_adr), len(lay.scalar_adr)], np.int64)
+  status, world, seg_counts, lengths, vels, flags = kernels.segments_from_values(
+      values, np.cumsum(counts) - counts, counts, n_kind, expect, int(g_fp),
+      np.array([coarse[k] for k in KINDS], np.int64))
+  if status != kernels.STATUS_OK:
+    raise CodecError(f"corrupt stream: {kernels.STATUS_TEXT[status]} (world {fast[world]})")
+  segs = {kind: Segments(seg_counts[i], lengths[i], vels[i], flags[i])
+          for i, kind in enumerate(KINDS)}
+  code = BatchCode(n_frames=n_frames, layout=lay, bounds=ref.bounds, fps=ref.fps, quanta=q,
+                   initial=initial, segs=segs)
+  return code, fast
 
 
 def decode_batch(data: np.ndarray, offsets: np.ndarray, start: int = 0,
-                 stop: int | None = None) -> list[np.ndarray]:
+                 stop: int | None = None, channels=None) -> list[np.ndarray]:
   """Frames ``start:stop`` of every stream ``data[offsets[w]:offsets[w + 1]]``.
 
-  Returns one f32[n, nq] array per world. Worlds sharing a layout with all
-  channels fitted are decoded in one vectorized pass; the others (raw channels,
+  Returns one f32[n, nq] array per world. channels: optional bool[C] over the
+  layout's channels (translations, rotations, scalars, each in layout order):
+  only those are decoded, the other columns stay zero. Worlds sharing a layout
+  with all channels fitted are decoded in one pass; the others (raw channels,
   another layout, corruption) one by one, and a corrupt stream raises
   CodecError naming its world.
   """
@@ -260,26 +194,22 @@ def decode_batch(data: np.ndarray, offsets: np.ndarray, start: int = 0,
   if n_w <= 0:
     return []
   result = [None] * n_w
-  fast = _batchable(data, offsets)
-  if fast.size:
-    if fast.size == n_w:
-      sub_data, sub_off = data, offsets
-    else:
-      lo, hi = offsets[fast], offsets[fast + 1]
-      sub_data = np.concatenate([data[a:b] for a, b in zip(lo, hi)])
-      sub_off = np.concatenate([[0], np.cumsum(hi - lo)])
-    try:
-      bc = parse_batch(sub_data, sub_off)
-      out, row_off = evaluate(bc.n_frames, bc.initial, bc.segs, bc.channel_kinds(),
-                              bc.addresses(), bc.layout.nq, bc.quanta, bc.bounds, start, stop)
-      for i, w in enumerate(fast):
-        result[w] = out[row_off[i]:row_off[i + 1]]
-    except (_Fallback, CodecError, ArithmeticError, IndexError, ValueError):
-      pass
+  try:
+    bc, fast = parse_batch(data, offsets)
+    if channels is not None and np.size(channels) != bc.layout.n_channels:
+      raise CodecError(f"channels has {np.size(channels)} entries, the streams "
+                       f"{bc.layout.n_channels} channels")
+    out, row_off = evaluate(bc.n_frames, bc.initial, bc.segs, bc.channel_kinds(),
+                            bc.addresses(), bc.layout.nq, bc.quanta, bc.bounds, start, stop,
+                            channels)
+    for i, w in enumerate(fast.tolist()):
+      result[w] = out[row_off[i]:row_off[i + 1]]
+  except (_Fallback, CodecError, ArithmeticError, IndexError, ValueError):
+    pass
   for w in range(n_w):
     if result[w] is None:
       try:
-        result[w] = decode_world(data[offsets[w]:offsets[w + 1]], start, stop)
+        result[w] = decode_world(data[offsets[w]:offsets[w + 1]], start, stop, channels)
       except CodecError as err:
         raise CodecError(f"world {w}: {err}") from None
   return result

@@ -14,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mwbx.codec import fit as fit_lib
+from mwbx.codec import kernels
 from mwbx.codec.batch import BatchCode, parse_batch, serialize_batch
 from mwbx.codec.decode import decode_code, evaluate, normalize, quat_mul
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
@@ -242,27 +243,14 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
   sizes = np.array([len(b) for b in fast], np.int64)
   data = np.frombuffer(b"".join(fast), np.uint8)
   offsets = np.concatenate([[0], np.cumsum(sizes)])
-  parsed = parse_batch(data, offsets)
+  parsed, parsed_worlds = parse_batch(data, offsets)
   out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, parsed.channel_kinds(),
                           parsed.addresses(), layout.nq, parsed.quanta, parsed.bounds)
-  world = np.repeat(np.arange(num_w), frame_count)
-  frame = np.arange(world.size) - row_off[world]
-  true = qpos[world, frame]
-  errs = np.zeros((world.size, n_ch))
-  c = 0
-  for kind, adrs in (("pos", layout.pos_adr), ("rot", layout.rot_adr),
-                     ("scalar", layout.scalar_adr)):
-    if adrs:
-      cols = np.asarray(adrs)[:, None] + np.arange(WIDTH[kind])[None, :]
-      width = WIDTH[kind]
-      per_row = _errors(kind, out[:, cols].transpose(1, 0, 2).reshape(-1, 1, width),
-                        true[:, cols].transpose(1, 0, 2).reshape(-1, 1, width))
-      errs[:, c:c + len(adrs)] = per_row.reshape(len(adrs), -1).T
-      c += len(adrs)
-  has = frame_count > 0
-  world_err = np.zeros((num_w, n_ch))
-  if world.size:
-    world_err[has] = np.maximum.reduceat(errs, row_off[:-1][has], axis=0)
+  world_err = np.full((num_w, n_ch), np.inf)
+  world_err[parsed_worlds] = kernels.max_errors(
+      out, row_off, np.ascontiguousarray(qpos[parsed_worlds], np.float32),
+      frame_count[parsed_worlds], parsed.channel_kinds(),
+      np.asarray(parsed.addresses(), np.int64))
   ok = finite & np.all(world_err <= bound_vec[None, :], axis=1)
   c = 0
   for j, (kind, k) in enumerate(per_kind.items()):
