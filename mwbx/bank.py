@@ -55,9 +55,16 @@ class RawQposStore:
   def copy(self) -> "RawQposStore":
     return RawQposStore(self.nq, self.data.copy(), self.offsets.copy())
 
-  def frames(self, world: int, start: int = 0, stop: int | None = None) -> np.ndarray:
+  def frames(self, world: int, start: int = 0, stop: int | None = None,
+             columns=None) -> np.ndarray:
+    """f32[n, nq] frames ``start:stop``; with ``columns`` the others are zero."""
     lo, hi = self.offsets[world], self.offsets[world + 1]
-    return self.data[lo:hi][start:stop]
+    out = self.data[lo:hi][start:stop]
+    if columns is None:
+      return out
+    keep = np.zeros(self.nq, bool)
+    keep[np.asarray(columns, np.int64)] = True
+    return np.where(keep, out, np.float32(0))
 
   @property
   def n_worlds(self) -> int:
@@ -155,11 +162,38 @@ class Bank:
     sampled = self.world_ids[self.parent_world < 0]
     return int(sampled.max()) + 1 if len(sampled) else 0
 
-  def qpos_frames(self, world: int, start: int = 0, stop: int | None = None) -> np.ndarray:
-    """f32[T, nq] decoded qpos of bank row ``world`` (frame f at f / record_fps s)."""
+  def qpos_frames(self, world: int, start: int = 0, stop: int | None = None, *,
+                  bodies: str | Sequence[str] | None = None) -> np.ndarray:
+    """f32[T, nq] decoded qpos of bank row ``world`` (frame f at f / record_fps s).
+
+    Args:
+      world: bank row.
+      start, stop: frame range, slice semantics; only those frames are decoded.
+      bodies: body, object or group names; only the joints that place them (their
+        own and their ancestors') are decoded, the other qpos columns are zero.
+
+    Example:
+      >>> q = bank.qpos_frames(3, 0, 60, bodies="ball_6")  # first half second of one ball
+    """
     if not 0 <= world < self.n_worlds:
       raise MwbxError(f"world {world}: out of range (bank has {self.n_worlds} worlds)")
-    return self.qpos_store.frames(world, start, stop)
+    if bodies is None:
+      return self.qpos_store.frames(world, start, stop)
+    return self.qpos_store.frames(world, start, stop, columns=self.qpos_columns(bodies))
+
+  def qpos_columns(self, bodies: str | Sequence[str]) -> np.ndarray:
+    """i64[k] qpos columns of the joints placing the named bodies (body, object or
+    group names): the joints of each body and of its ancestors."""
+    model = self.model()
+    columns = []
+    for b in self.select_bodies(bodies).tolist():
+      body = int(self.body_ids[b])
+      while body > 0:
+        for j in range(model.body_jntadr[body], model.body_jntadr[body] + model.body_jntnum[body]):
+          width = {0: 7, 1: 4}.get(int(model.jnt_type[j]), 1)  # free, ball, hinge/slide
+          columns.extend(range(model.jnt_qposadr[j], model.jnt_qposadr[j] + width))
+        body = int(model.body_parentid[body])
+    return np.unique(np.asarray(columns, np.int64))
 
   def select_bodies(self, names: str | Sequence[str]) -> np.ndarray:
     """i32[k] indices into the tracked-body axis for body, object or group names."""

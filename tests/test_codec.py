@@ -333,3 +333,56 @@ def test_slow_drift_after_a_huge_jump_is_fitted_not_stored_raw():
   assert enc.raw_channels[0] == 0
   decoded = decode_world(enc.streams[0])[:, 0]
   assert np.abs(decoded - x.astype(np.float32)).max() <= BOUNDS.e_scalar
+
+
+# -- decoding a subset of objects ------------------------------------------------------
+
+
+def test_channel_subset_decodes_exactly_those_columns(boxes, chain):
+  from mwbx.codec.batch import decode_batch
+  for enc, layout in ((boxes[4], boxes[3]), (chain[3], chain[2])):
+    data = np.frombuffer(b"".join(enc.streams), np.uint8)
+    offsets = np.concatenate([[0], np.cumsum([len(s) for s in enc.streams])])
+    for columns in ([0], [layout.rot_adr[-1] + 1], list(range(layout.nq - 1, layout.nq))):
+      channels = layout.channels_for(columns)
+      assert channels.sum() == 1
+      adr = np.concatenate([np.asarray(a, np.int64)[None] + np.arange(w) for adrs, w in
+                            ((layout.pos_adr, 3), (layout.rot_adr, 4), (layout.scalar_adr, 1))
+                            for a in adrs])
+      widths = [w for adrs, w in ((layout.pos_adr, 3), (layout.rot_adr, 4),
+                                  (layout.scalar_adr, 1)) for _ in adrs]
+      starts = np.cumsum([0] + widths[:-1])
+      c = int(np.flatnonzero(channels)[0])
+      cols = adr[starts[c]:starts[c] + widths[c]]
+      others = np.setdiff1d(np.arange(layout.nq), cols)
+      batch = decode_batch(data, offsets, 2, 40, channels)
+      for got, stream in zip(batch, enc.streams):
+        full = decode_world(stream, 2, 40)
+        one = decode_world(stream, 2, 40, channels)
+        np.testing.assert_array_equal(one[:, cols], full[:, cols])
+        np.testing.assert_array_equal(one[:, others], 0.0)
+        np.testing.assert_array_equal(got, one)
+  with pytest.raises(CodecError, match="channels has 2 entries"):
+    decode_world(boxes[4].streams[0], channels=[True, False])
+
+
+def test_error_kernel_matches_numpy_errors():
+  """kernels.max_errors against encode._errors (float64 numpy), NaNs included."""
+  from mwbx.codec import kernels
+  from mwbx.codec.encode import _errors
+  rng = np.random.default_rng(4)
+  layout = ChannelLayout(nq=8, pos_adr=(0,), rot_adr=(3,), scalar_adr=(7,))
+  qpos = rng.normal(size=(3, 20, 8)).astype(np.float32)
+  decoded = (qpos + rng.normal(scale=1e-3, size=qpos.shape)).astype(np.float32)
+  qpos[1, 4, 0] = decoded[1, 4, 0] = np.nan      # NaN in both: exact
+  qpos[2, 7, 7] = np.nan                          # NaN in one: unbounded
+  frame_count = np.array([20, 11, 20])
+  row_off = np.concatenate([[0], np.cumsum(frame_count)])
+  rows = np.concatenate([decoded[w, :n] for w, n in enumerate(frame_count)])
+  got = kernels.max_errors(rows, row_off, qpos, frame_count, np.array([0, 1, 2]),
+                           np.array([0, 3, 7]))
+  for w, n in enumerate(frame_count):
+    for c, (kind, a, width) in enumerate((("pos", 0, 3), ("rot", 3, 4), ("scalar", 7, 1))):
+      want = _errors(kind, decoded[w, :n, a:a + width][None], qpos[w, :n, a:a + width][None])[0]
+      np.testing.assert_allclose(got[w, c], want, rtol=1e-12)
+  assert np.isinf(got[2, 2]) and np.isfinite(got[1, 0])

@@ -69,3 +69,23 @@ def test_mwbx_info_shows_codec_stats(quickstart, tmp_path, capsys):
   out = capsys.readouterr().out
   for key in ("bits_per_body_frame", "ratio_vs_float32", "max_error_pos_m", "max_error_rot_deg"):
     assert f"qpos {key}" in out
+
+
+def test_qpos_frames_of_some_bodies_decodes_only_their_joints(quickstart):
+  _, bank, raw = quickstart
+  model = bank.model()
+  name = bank.body_names[1]
+  body = int(bank.body_ids[1])
+  joint = int(model.body_jntadr[body])
+  adr = int(model.jnt_qposadr[joint])
+  assert model.jnt_type[joint] == 0  # the quickstart objects are free bodies
+  cols = bank.qpos_columns(name)
+  np.testing.assert_array_equal(cols, np.arange(adr, adr + 7))
+  others = np.setdiff1d(np.arange(model.nq), cols)
+  for b in (bank, raw):
+    full = b.qpos_frames(2, 5, 30)
+    part = b.qpos_frames(2, 5, 30, bodies=name)
+    np.testing.assert_array_equal(part[:, cols], full[:, cols])
+    np.testing.assert_array_equal(part[:, others], 0.0)
+  with pytest.raises(mwbx.MwbxError, match="no_such_body"):
+    bank.qpos_frames(0, bodies="no_such_body")

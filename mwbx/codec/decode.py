@@ -66,8 +66,10 @@ def evaluate(n_frames, initial, segs, channel_kind, addresses, nq, quanta, bound
   n_frames = np.asarray(n_frames, np.int64).reshape(-1)
   n_w = n_frames.size
   lo, hi, row_off = frame_ranges(n_frames, start, stop)
-  out = np.zeros((int(row_off[-1]), nq), np.float32)
   channel_kind = np.asarray(channel_kind)
+  # A layout covers every qpos column once, so a full decode writes every entry.
+  full = channels is None and bool(np.all(channel_kind >= 0))
+  out = (np.empty if full else np.zeros)((int(row_off[-1]), nq), np.float32)
   addresses = np.asarray(addresses, np.int64)
   wanted_channels = (np.ones(channel_kind.size, bool) if channels is None
                      else np.asarray(channels, bool))

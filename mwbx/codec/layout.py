@@ -125,6 +125,18 @@ class ChannelLayout:
   def n_channels(self) -> int:
     return len(self.pos_adr) + len(self.rot_adr) + len(self.scalar_adr)
 
+  def channels_for(self, columns: Sequence[int]) -> np.ndarray:
+    """bool[C]: the channels (translations, rotations, scalars) holding any of
+    the qpos ``columns``."""
+    wanted = np.zeros(self.nq, bool)
+    columns = np.asarray(columns, np.int64).reshape(-1)
+    if columns.size and (columns.min() < 0 or columns.max() >= self.nq):
+      raise CodecError(f"qpos columns must be in [0, {self.nq}), got {columns.tolist()}")
+    wanted[columns] = True
+    return np.array([wanted[a:a + w].any() for adrs, w in ((self.pos_adr, 3), (self.rot_adr, 4),
+                                                            (self.scalar_adr, 1)) for a in adrs],
+                    bool)
+
   def to_json(self) -> dict:
     return {"nq": self.nq, "pos_adr": list(self.pos_adr), "rot_adr": list(self.rot_adr),
             "scalar_adr": list(self.scalar_adr)}

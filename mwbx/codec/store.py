@@ -106,18 +106,27 @@ class CompressedQposStore:
       raise CodecError(f"world {world} out of range [0, {self.n_worlds})")
     return self.data[self.offsets[world]:self.offsets[world + 1]]
 
-  def frames(self, world: int, start: int = 0, stop: int | None = None) -> np.ndarray:
-    """Decoded frames ``start:stop`` of one world, f32[n, nq]."""
+  def frames(self, world: int, start: int = 0, stop: int | None = None,
+             columns=None) -> np.ndarray:
+    """Decoded frames ``start:stop`` of one world, f32[n, nq].
+
+    columns: optional qpos columns; only the channels holding them are decoded
+    (other channels' columns stay zero).
+    """
+    channels = None if columns is None else self.layout.channels_for(columns)
     try:
-      return decode_world(self.stream(world), start, stop)
+      return decode_world(self.stream(world), start, stop, channels)
     except CodecError as err:
       raise CodecError(f"compressed qpos of world {world}: {err}") from None
 
-  def frames_batch(self, worlds=None, start: int = 0, stop: int | None = None) -> list:
+  def frames_batch(self, worlds=None, start: int = 0, stop: int | None = None,
+                   columns=None) -> list:
     """Decoded frames ``start:stop`` of many worlds at once (all by default).
 
-    One vectorized pass over their streams; returns one f32[n, nq] per world.
+    One pass over their streams; returns one f32[n, nq] per world. columns: as
+    ``frames``.
     """
+    channels = None if columns is None else self.layout.channels_for(columns)
     worlds = np.arange(self.n_worlds) if worlds is None else np.asarray(worlds, np.int64)
     if worlds.size and (worlds.min() < 0 or worlds.max() >= self.n_worlds):
       raise CodecError(f"worlds out of range [0, {self.n_worlds})")
@@ -126,7 +135,7 @@ class CompressedQposStore:
         np.zeros(0, np.int64)
     offsets = np.concatenate([[0], np.cumsum(hi - lo)])
     try:
-      return decode_batch(self.data[index], offsets, start, stop)
+      return decode_batch(self.data[index], offsets, start, stop, channels)
     except CodecError as err:
       raise CodecError(f"compressed qpos: {err}") from None
 
