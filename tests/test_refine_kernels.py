@@ -124,6 +124,26 @@ def test_step_targets_interpolate_between_frames_like_lerp_and_slerp():
   np.testing.assert_allclose(v[:3], (x[3] - x[1]) / (2 * h), rtol=1e-4, atol=1e-5)
 
 
+def test_contact_free_models_switch_off_only_the_inactive_objects(arm):
+  models = kinematic.ContactFreeModels(arm, ("ball", "arm"))
+  assert models.enabled
+  inactive = np.array([[False, False], [True, False], [False, True], [True, False]])
+  out = models(inactive)
+  assert out[0] is arm and out[1] is out[3] and out[1] is not arm
+  ball = arm.body_rootid[arm.geom_bodyid] == arm.body("ball").id
+  limbs = arm.body_rootid[arm.geom_bodyid] == arm.body("arm").id  # box, forearm and hand
+  assert ball.sum() == 1 and limbs.sum() == 3
+  for model, off in ((out[1], ball), (out[2], limbs)):
+    np.testing.assert_array_equal(model.geom_contype == 0, off)
+    np.testing.assert_array_equal(model.geom_conaffinity == 0, off)
+    np.testing.assert_array_equal(model.geom_size, arm.geom_size)  # a copy: nothing else differs
+  assert np.all(arm.geom_contype == 1) and np.all(arm.geom_conaffinity == 1)  # the scene's model untouched
+  # The arm moves and is no object of this refinement: it could touch an
+  # inactive ball, so the ball keeps its contacts.
+  only_ball = kinematic.ContactFreeModels(arm, ("ball",))
+  assert not only_ball.enabled and only_ball(np.array([[True]]))[0] is arm
+
+
 def test_prefix_metrics_match_plain_loops():
   model, frames, rot, x = _free_path(n=30, seed=3)
   h = 1 / 120

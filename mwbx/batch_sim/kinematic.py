@@ -14,6 +14,7 @@ of one world); the per-step work is array indexing in the loops.
 
 from __future__ import annotations
 
+import copy
 from typing import NamedTuple
 
 import mujoco
@@ -165,3 +166,58 @@ def prefix_metrics(path: StoredPath, frame: int, frame_time: float, dt: float, g
       since = np.where(row, 0, since + 1)
     out[:, 2] = count
   return out
+
+
+class ContactFreeModels:
+  """Copies of the scene model in which chosen objects collide with nothing,
+  one per set of objects (made on first use and kept): the native loop's
+  models for worlds whose inactive objects are those sets.
+
+  An inactive object is put back on its stored path before the physics steps
+  and reports its stored motion, so contacts of its own would only cost
+  collision and solver time: an active object never touches it (the
+  interaction test activates it first), and what it does to the scene or to
+  other inactive objects is overwritten. Where another moving body could
+  touch an object (a moving body that is not an object of the scene, or a
+  flex), the model is used unchanged.
+
+  Args:
+    model: the scene model.
+    object_names: the O objects (root body names).
+  """
+
+  MAX_CACHED = 256  # sets of objects kept; beyond that the cache starts over
+
+  def __init__(self, model: mujoco.MjModel, object_names):
+    self.model = model
+    roots = np.array([model.body(name).id for name in object_names], np.int64)
+    geom_root = model.body_rootid[model.geom_bodyid]
+    self.geom_object = geom_root[None, :] == roots[:, None]  # bool[O, ngeom]
+    body_moves = (model.body_weldid != 0) | (model.body_mocapid >= 0)
+    may_collide = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    stranger = body_moves[model.geom_bodyid] & ~self.geom_object.any(axis=0) & may_collide
+    self.enabled = model.nflex == 0 and not stranger.any()
+    self._cache: dict = {}
+
+  def __call__(self, inactive: np.ndarray) -> list:
+    """One model per row of ``inactive: bool[n, O]``."""
+    if not self.enabled:
+      return [self.model] * len(inactive)
+    models = []
+    for i, row in enumerate(np.packbits(inactive, axis=1)):
+      key = row.tobytes()
+      variant = self._cache.get(key)
+      models.append(variant if variant is not None else self._make(key, inactive[i]))
+    return models
+
+  def _make(self, key: bytes, inactive: np.ndarray) -> mujoco.MjModel:
+    if len(self._cache) >= self.MAX_CACHED:
+      self._cache.clear()
+    variant = self.model
+    if inactive.any():
+      variant = copy.copy(self.model)  # mj_copyModel
+      off = self.geom_object[inactive].any(axis=0)
+      variant.geom_contype[off] = 0
+      variant.geom_conaffinity[off] = 0
+    self._cache[key] = variant
+    return variant

@@ -57,13 +57,15 @@ class NativeBackend:
       mujoco.mj_getState(m, data, states[w], _STATE)
     return states
 
-  def step(self, states: np.ndarray, wrench: np.ndarray, warmstart: np.ndarray):
+  def step(self, states: np.ndarray, wrench: np.ndarray, warmstart: np.ndarray, models: list | None = None):
     """The S physics steps of one frame for a batch.
 
     Args:
       states: f64[n, nstate] full physics states s_k.
       wrench: f64[n, S, nbody * 6] ``xfrc_applied`` during each step.
       warmstart: f64[n, nv] solver warm start.
+      models: optional model per world, each a copy of :attr:`model` that
+        differs only in values (default: :attr:`model` for all).
 
     Returns:
       (f64[n, S, nstate] states s_{k+1} … s_{k+S},
@@ -72,10 +74,12 @@ class NativeBackend:
     n, n_steps = wrench.shape[:2]
     out_state = np.empty((n, n_steps, self.nstate))
     out_sensor = np.empty((n, n_steps, self.model.nsensordata))
-    if len(self._models) < n:
-      self._models = [self.model] * n
+    if models is None:
+      if len(self._models) < n:
+        self._models = [self.model] * n
+      models = self._models[:n]
     self.pool.rollout(
-        self._models[:n], self.datas, states, wrench, control_spec=_CONTROL, nstep=n_steps,
+        models, self.datas, states, wrench, control_spec=_CONTROL, nstep=n_steps,
         initial_warmstart=warmstart, state=out_state, sensordata=out_sensor, skip_checks=True,
         chunk_size=max(1, n // (4 * self.threads)))
     return out_state, out_sensor

@@ -111,7 +111,7 @@ class RefineStats(SampleStats):
 
 def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
                key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
-               margin: float = DEFAULT_MARGIN, playback: str = "frame", progress=None):
+               margin: float = DEFAULT_MARGIN, playback: str = "step", progress=None):
   """:func:`refine` that also returns :class:`RefineStats` and only the new worlds."""
   start_wall = time.perf_counter()
   world = int(world)
@@ -162,6 +162,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   targets = kinematic.step_targets(model, path, spf, model.opt.timestep) if mjx or playback == "step" else None
   object_names = tuple(scene.object_names)
   qm, vm = _object_masks(model, object_names)
+  models = None if mjx else kinematic.ContactFreeModels(model, object_names)
   asked = np.array([o in names for o in object_names])
   cfg = scene.config
   inter = interactions.interaction_params(
@@ -194,7 +195,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
         params=params, inter=inter, path=path, step_targets=targets, first_frame=f0,
         qpos0=np.tile(qpos0, (chunk, 1)), qvel0=np.tile(qvel0, (chunk, 1)),
         active0=np.tile(asked, (chunk, 1)), carry0=carry, qpos_object=qm, dof_object=vm,
-        step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids)
+        step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=models)
     if mjx:
       run = refine_loop.run_mjx
     else:
@@ -279,7 +280,7 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
 
 def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
            key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
-           margin: float = DEFAULT_MARGIN, playback: str = "frame", progress=None):
+           margin: float = DEFAULT_MARGIN, playback: str = "step", progress=None):
   """Resamples the marked objects of one world from t_min on (paper §5).
 
   Args:
@@ -294,12 +295,12 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
     backend: ``auto`` | ``native`` | ``mjx`` (default: the config's).
     chunk_size: worlds per lockstep batch.
     margin: contact margin of the interaction test, m (larger is safer).
-    playback: native backend only: ``frame`` (default) puts inactive objects
-      on their stored path at every frame boundary (one rollout call per
-      frame; inside a frame they move freely from the stored state, which the
-      interaction margin covers, and report their stored motion); ``step``
-      before every physics step (S one-step rollout calls per frame, about
-      1.2x the cost). The MJX backend always does it every step.
+    playback: native backend only: ``step`` (default) puts inactive objects
+      on their stored path before every physics step (S one-step rollout
+      calls per frame); ``frame`` only at every frame boundary (one call per
+      frame, a few per cent cheaper; inside a frame they move freely from the
+      stored state, touching nothing, and report their stored motion). The
+      MJX backend always does it every step.
     progress: optional callback(world_steps, worlds_finished, n_samples).
 
   Returns:

@@ -9,15 +9,15 @@ frame f (both backends):
 2. objects inactive before that update are put on their stored state
    (decoded ``qpos[f]``, chord ``qvel[f]``), so a newly activated object
    starts exactly where its stored motion is;
-3. the frame's S physics steps run for every object. On MJX inactive objects
-   are put back on the stored path before every step inside the jitted scan
-   (playback between frames by ``mj_integratePos``). The native loop hands
-   whole frames to one ``mujoco.rollout`` call: inactive objects are reset
-   at every frame and may drift from the path inside it by at most the
-   frame's free motion, which the interaction margin covers (they never touch
-   an active object inside a frame, or they would have been activated); with
-   ``every_step=True`` it makes S one-step calls and resets them before every
-   step, at about 1.2× the cost;
+3. the frame's S physics steps run for every object, inactive objects put
+   back on the stored path before every step (playback between frames by
+   ``mj_integratePos``): on MJX inside the jitted scan, on the native
+   backend by S one-step ``mujoco.rollout`` calls (``every_step=False``:
+   one call per frame, reset at frame boundaries only). Native rollouts use
+   a model in which the world's inactive objects collide with nothing
+   (:class:`kinematic.ContactFreeModels`): they are overwritten anyway, an
+   active object never touches one (it would have been activated), and
+   their contacts with the scene were most of the cost of stepping them;
 4. the bookkeeping kernel runs with only active bodies perturbable.
 
 Frames are recorded at the frame start, after step 2: an inactive object's
@@ -33,9 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mwbx.batch_sim import interactions, world
+from mwbx.batch_sim import interactions, kinematic, world
 from mwbx.batch_sim.backend import fill_tail
-from mwbx.batch_sim.kinematic import StoredPath
 
 
 class RefineInputs(NamedTuple):
@@ -54,11 +53,12 @@ class RefineInputs(NamedTuple):
     running0: bool[C] false for padding slots.
     n_frames: end_frame + 1.
     body_ids: i32[B] tracked body ids.
+    models: rollout models by inactive objects (native loop only, else None).
   """
 
   params: world.WorldParams
   inter: interactions.InteractionParams
-  path: StoredPath
+  path: kinematic.StoredPath
   step_targets: np.ndarray | None
   first_frame: int
   qpos0: np.ndarray
@@ -71,6 +71,7 @@ class RefineInputs(NamedTuple):
   running0: np.ndarray
   n_frames: int
   body_ids: np.ndarray
+  models: kinematic.ContactFreeModels | None = None
 
 
 class RefineOutput(NamedTuple):
@@ -196,55 +197,60 @@ def _native_kernel(params: world.WorldParams, n_sensor: int):
   return _KERNELS[cache_key][1]
 
 
-def _steps_on_path(backend, states, wrench, warmstart, qmask, vmask, inp: RefineInputs, frame: int):
+def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, targets, qvel):
   """One frame as S one-step rollouts, inactive objects put on the stored
   path before each step after the first (``every_step`` playback).
 
   Args:
     states: f64[n, nstate] at the frame start (already on the path).
-    wrench: f64[n, S, nbody * 6]; warmstart: f64[n, nv].
+    wrench: f64[n, S, nbody * 6]; warmstart: f64[n, nv]; models: one per world.
     qmask: bool[n, nq]; vmask: bool[n, nv] coordinates of the objects
       inactive during the frame.
+    targets: f32[S, nq] stored qpos at the frame's steps; qvel: f32[nv] the
+      frame's chord velocity.
 
   Returns:
     as :meth:`NativeBackend.step`.
   """
   m = backend.model
-  nq, nv, dt = m.nq, m.nv, m.opt.timestep
-  qadr, vadr = slice(1, 1 + nq), slice(1 + nq, 1 + nq + nv)
-  spf = wrench.shape[1]
-  current = states.copy()
-  out_states, out_sensors = [], []
+  qadr, vadr = slice(1, 1 + m.nq), slice(1 + m.nq, 1 + m.nq + m.nv)
+  n, spf = wrench.shape[:2]
+  out_states = np.empty((n, spf, backend.nstate))
+  out_sensors = np.empty((n, spf, m.nsensordata))
+  current = states
   for j in range(spf):
     if j > 0:
-      current[:, qadr] = np.where(qmask, inp.step_targets[frame * spf + j], current[:, qadr])
-      current[:, vadr] = np.where(vmask, inp.path.qvel[frame], current[:, vadr])
-    after, sensors = backend.step(current, wrench[:, j:j + 1], warmstart)
-    warmstart = (after[:, -1, vadr] - current[:, vadr]) / dt
-    current = after[:, -1].copy()
-    out_states.append(after[:, -1])
-    out_sensors.append(sensors[:, 0])
-  return np.stack(out_states, axis=1), np.stack(out_sensors, axis=1)
+      # `current` is the last call's own output (already copied out): reset in place.
+      np.copyto(current[:, qadr], targets[j], where=qmask)
+      np.copyto(current[:, vadr], qvel, where=vmask)
+    after, sensors = backend.step(current, wrench[:, j:j + 1], warmstart, models)
+    warmstart = (after[:, 0, vadr] - current[:, vadr]) / m.opt.timestep
+    out_states[:, j] = after[:, 0]
+    out_sensors[:, j] = sensors[:, 0]
+    current = after[:, 0]
+  return out_states, out_sensors
 
 
-def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = False) -> RefineOutput:
+def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = True) -> RefineOutput:
   """Refined worlds on the native backend (``mujoco.rollout`` per frame).
 
   ``every_step``: put inactive objects on the stored path before every
-  physics step (S one-step rollout calls per frame) instead of at every
-  frame boundary (one call per frame).
+  physics step (S one-step rollout calls per frame); False: at every frame
+  boundary only (one call per frame). Either way the rollout models of a
+  world are :class:`kinematic.ContactFreeModels` for its inactive objects.
   """
   m = backend.model
   params, inter, path = inp.params, inp.inter, inp.path
   c, spf, f0 = len(inp.qpos0), params.steps_per_frame, inp.first_frame
-  nq, nv, dt = m.nq, m.nv, m.opt.timestep
+  nq, nv = m.nq, m.nv
   qadr, vadr = slice(1, 1 + nq), slice(1 + nq, 1 + nq + nv)
   n_sensor = len(inter.radius) * world.SENSOR_WIDTH
   body_ids = np.asarray(inp.body_ids)
+  targets = None if inp.step_targets is None else inp.step_targets.reshape(-1, spf, nq)  # [F, S, nq]
 
   kernel = _native_kernel(params, n_sensor)
   states = backend.initial_states(inp.qpos0, inp.qvel0)
-  states[:, 0] = f0 * spf * dt
+  states[:, 0] = f0 * spf * m.opt.timestep
   warmstart = np.zeros((c, nv))
   wrench_full = np.zeros((c, spf, m.nbody, 6))
   sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
@@ -274,16 +280,19 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Fal
   frame = f0
   while running.any():
     qmask, vmask = masks(prev_inactive)
-    states[:, qadr] = np.where(qmask, path.qpos[frame], states[:, qadr])
-    states[:, vadr] = np.where(vmask, path.qvel[frame], states[:, vadr])
+    np.copyto(states[:, qadr], path.qpos[frame], where=qmask)
+    np.copyto(states[:, vadr], path.qvel[frame], where=vmask)
     idx = np.flatnonzero(running)
     before = states[idx]
+    inactive = ~active[idx]
+    models = inp.models(inactive)
+    wrench_in = wrench_full[idx].reshape(len(idx), spf, -1)
     if every_step:
-      qmask, vmask = masks(~active[idx])
-      after, sensors = _steps_on_path(backend, before, wrench_full[idx].reshape(len(idx), spf, -1),
-                                      warmstart[idx], qmask, vmask, inp, frame)
+      qmask, vmask = masks(inactive)
+      after, sensors = _steps_on_path(backend, before, wrench_in, warmstart[idx], models, qmask, vmask,
+                                      targets[frame], path.qvel[frame])
     else:
-      after, sensors = backend.step(before, wrench_full[idx].reshape(len(idx), spf, -1), warmstart[idx])
+      after, sensors = backend.step(before, wrench_in, warmstart[idx], models)
     sensordata[idx], warmstart[idx], states[idx] = backend.absorb_frame(before, after, sensors)
 
     carry, outs = kernel(carry, sensordata, inp.step_keys, active, np.int32(frame), stored, inter)
