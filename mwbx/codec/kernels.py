@@ -93,12 +93,24 @@ def _read_bits(buf, bit, width):
 
 
 @_jit
-def _write_bits(out, bit, value, width):
-  """Write the low ``width`` bits of ``value`` at bit offset ``bit`` (``out`` zeroed)."""
-  for j in range(width):
-    if (value >> (width - 1 - j)) & 1:
-      p = bit + j
-      out[p >> 3] |= np.uint8(1 << (7 - (p & 7)))
+def _put(out, pos, acc, n_bits, value, width):
+  """Bit writer: append the low ``width`` (<= 32) bits of ``value``, whole bytes go
+  to ``out[pos...]``; returns the new (pos, acc, n_bits)."""
+  acc = (acc << width) | value
+  n_bits += width
+  while n_bits >= 8:
+    n_bits -= 8
+    out[pos] = np.uint8((acc >> n_bits) & 0xFF)
+    pos += 1
+  acc &= (np.int64(1) << n_bits) - 1
+  return pos, acc, n_bits
+
+
+@_jit
+def _flush(out, pos, acc, n_bits):
+  """Write a bit writer's last partial byte, zero-padded."""
+  if n_bits > 0:
+    out[pos] = np.uint8((acc << (8 - n_bits)) & 0xFF)
 
 
 @_jit
@@ -214,13 +226,15 @@ def rice_encode_blobs(values, counts):
     if n == 0:
       continue
     nb = (n + BLOCK - 1) // BLOCK
+    k_pos, k_acc, k_bits = pos, np.int64(0), 0
     for j in range(nb):
-      _write_bits(out, 8 * pos + 5 * j, ks[b + j], 5)
+      k_pos, k_acc, k_bits = _put(out, k_pos, k_acc, k_bits, ks[b + j], 5)
+    _flush(out, k_pos, k_acc, k_bits)
     pos += (5 * nb + 7) // 8
     pos = _write_varint(out, pos, unary_bits[w])
-    unary_bit = 8 * pos
-    rem_bit = 8 * (pos + (unary_bits[w] + 7) // 8)
-    esc_pos = rem_bit // 8 + (rem_bits[w] + 7) // 8
+    u_pos, u_acc, u_bits = pos, np.int64(0), 0
+    r_pos, r_acc, r_bits = pos + (unary_bits[w] + 7) // 8, np.int64(0), 0
+    esc_pos = r_pos + (rem_bits[w] + 7) // 8
     for i in range(start, start + n):
       k = ks[b + (i - start) // BLOCK]
       q = u[i] >> k
@@ -231,11 +245,11 @@ def rice_encode_blobs(values, counts):
           out[esc_pos + byte] = np.uint8((value >> (8 * byte)) & 0xFF)
         esc_pos += 8
       else:
-        _write_bits(out, rem_bit, u[i] & ((np.int64(1) << k) - 1), k)
-        rem_bit += k
-      # q ones and a zero (the buffer starts zeroed).
-      _write_bits(out, unary_bit, (np.int64(1) << (q + 1)) - 2, q + 1)
-      unary_bit += q + 1
+        r_pos, r_acc, r_bits = _put(out, r_pos, r_acc, r_bits, u[i] & ((np.int64(1) << k) - 1), k)
+      # q ones and a zero.
+      u_pos, u_acc, u_bits = _put(out, u_pos, u_acc, u_bits, (np.int64(1) << (q + 1)) - 2, q + 1)
+    _flush(out, u_pos, u_acc, u_bits)
+    _flush(out, r_pos, r_acc, r_bits)
     start += n
     b += nb
   return out, offsets, STATUS_OK
@@ -732,3 +746,45 @@ def max_errors(decoded, row_off, qpos, frame_count, kinds, columns):
             if e > err[w, c]:
               err[w, c] = e
   return err
+
+
+# -- fit input ------------------------------------------------------------------------
+
+
+@_jit
+def finite_paths(qpos, frame_count, columns, width):
+  """bool[W, C]: channel c of world w (qpos columns ``columns[c] + 0..width-1``) is
+  finite over its ``frame_count[w]`` recorded frames. qpos: f32[W, T, nq]."""
+  n_w, n_ch = frame_count.size, columns.size
+  out = np.ones((n_w, n_ch), np.bool_)
+  for w in range(n_w):
+    for f in range(frame_count[w]):
+      for c in range(n_ch):
+        for d in range(width):
+          if not math.isfinite(qpos[w, f, columns[c] + d]):
+            out[w, c] = False
+  return out
+
+
+@_jit
+def gather_paths(qpos, rows, n_ch, columns, initial, relative, finite, out):
+  """Fill ``out: f32[m, T', width]`` with paths ``rows`` (path p: world p // n_ch,
+  channel p % n_ch at qpos columns ``columns[p % n_ch] + d``), frames 0..T'-1.
+
+  relative: subtract the path's ``initial: f64[P, width]`` (in float64, then
+  rounded), else frame 0 becomes ``initial``. Paths that are not ``finite`` are
+  left zero (their channels are stored raw).
+  """
+  m, t, width = out.shape
+  for i in range(m):
+    p = rows[i]
+    if not finite[p]:
+      continue
+    w, col = p // n_ch, columns[p % n_ch]
+    for f in range(t):
+      for d in range(width):
+        x = np.float64(qpos[w, f, col + d])
+        out[i, f, d] = np.float32(x - initial[p, d]) if relative else np.float32(x)
+    if not relative:
+      for d in range(width):
+        out[i, 0, d] = np.float32(initial[p, d])
