@@ -9,38 +9,47 @@ import numpy as np
 from mwbx.codec import rice
 
 
-def rice_encode_reference(values) -> bytes:
+def rice_encode_reference(values, version: int = 2) -> bytes:
   """Same format as ``rice.encode_ints``, written bit by bit."""
   values = [int(v) for v in values]
   out = bytearray(rice.write_varint(len(values)))
   if not values:
     return bytes(out)
+  qmax = rice.QMAX_V1 if version == 1 else rice.QMAX
   us = [(v << 1) if v >= 0 else ((-v) << 1) - 1 for v in values]
   blocks = [us[i:i + rice.BLOCK] for i in range(0, len(us), rice.BLOCK)]
+
+  def exp_golomb(x):  # order 0: N zeros, then the N + 1 bits of x + 1
+    bits = format(x + 1, "b")
+    return "0" * (len(bits) - 1) + bits
+
+  def value_bits(u, k):
+    q = u >> k
+    if q < qmax:
+      return q + 1 + k
+    return qmax + 1 + 64 if version == 1 else qmax + len(exp_golomb(q - qmax)) + k
+
   ks = []
   for block in blocks:
     k0 = (sum(block) // len(block) + 1).bit_length() - 1
     candidates = sorted({min(max(k0 + d, 0), rice.KMAX) for d in (-1, 0, 1)})
-    costs = []
-    for k in candidates:
-      cost = 0
-      for u in block:
-        q = u >> k
-        cost += rice.QMAX + 1 + 64 if q >= rice.QMAX else q + 1 + k
-      costs.append(cost)
+    costs = [sum(value_bits(u, k) for u in block) for k in candidates]
     ks.append(candidates[costs.index(min(costs))])
   kbits = "".join(format(k, "05b") for k in ks)
   unary, rem, esc = [], [], bytearray()
   for i, u in enumerate(us):
     k = ks[i // rice.BLOCK]
     q = u >> k
-    if q >= rice.QMAX:
-      unary.append("1" * rice.QMAX + "0")
+    low = format(u & ((1 << k) - 1), f"0{k}b") if k else ""
+    if q < qmax:
+      unary.append("1" * q + "0")
+      rem.append(low)
+    elif version == 1:
+      unary.append("1" * qmax + "0")
       esc += u.to_bytes(8, "little")
     else:
-      unary.append("1" * q + "0")
-      if k:
-        rem.append(format(u & ((1 << k) - 1), f"0{k}b"))
+      unary.append("1" * qmax)
+      rem.append(exp_golomb(q - qmax) + low)
   unary = "".join(unary)
   rem = "".join(rem)
 

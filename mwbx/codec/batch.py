@@ -20,8 +20,8 @@ from mwbx.codec import kernels, rice
 from mwbx.codec.decode import KIND_ID, decode_world, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, WIDTH, Quanta,
-                               Segments, initial_bytes, initial_codes, initial_steps, parse,
-                               segment_codes)
+                               Segments, initial_bytes, initial_codes, initial_steps,
+                               mode_bytes, parse, segment_codes)
 
 
 @dataclasses.dataclass
@@ -97,7 +97,7 @@ def serialize_batch(bc: BatchCode) -> list[bytes]:
   order = np.argsort(world, kind="stable")
   blobs = rice.encode_ints_batch(values[order], np.bincount(world, minlength=n_w))
   sig = _signature(lay, bc.bounds, bc.fps, q)
-  modes = bytes(n_ch)
+  modes = mode_bytes(np.zeros(n_ch, np.uint8))
   kinds = [k for k in KINDS for _ in cols[k]]
   init_codes = initial_codes(bc.initial, kinds, bc.bounds).tolist()
   head = _HEAD.pack(MAGIC, VERSION)
@@ -142,8 +142,9 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> tuple[BatchCode, np.nd
   lay = ref.layout
   n_ch = lay.n_channels
   kinds = ref.kinds()
-  head = np.frombuffer(_HEAD.pack(MAGIC, VERSION), np.uint8)
-  sig = np.frombuffer(_signature(lay, ref.bounds, ref.fps, ref.quanta) + bytes(n_ch), np.uint8)
+  head = np.frombuffer(_HEAD.pack(MAGIC, ref.version), np.uint8)
+  sig = np.frombuffer(_signature(lay, ref.bounds, ref.fps, ref.quanta)
+                      + mode_bytes(np.zeros(n_ch, np.uint8), ref.version), np.uint8)
   widths = np.array([WIDTH[k] for k in kinds], np.int64)
   init_steps = initial_steps(ref.bounds)
   steps = np.array([init_steps[k] for k in kinds], np.float64)
@@ -159,7 +160,8 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> tuple[BatchCode, np.nd
   if np.any(blob_start > blob_end):
     raise _Fallback()
   expect = np.maximum(n_frames - 1, 0)
-  values, counts = rice.decode_ints_batch(data, blob_start, blob_end, n_ch + 7 * expect * n_ch)
+  values, counts = rice.decode_ints_batch(data, blob_start, blob_end, n_ch + 7 * expect * n_ch,
+                                          ref.version)
   q = ref.quanta
   g_fp, coarse = q.g_fp(ref.bounds), q.coarse()
   if abs(g_fp) >= 1 << 30:

@@ -6,12 +6,15 @@ it shortest among ``floor(log2(floor(mean) + 1)) + {-1, 0, 1}`` (5 bits per
 block). A value is written as ``q = u >> k`` in unary
 (``q`` one-bits and a zero) and its low ``k`` bits. Unary parts and remainders
 go to two separate bit strings, so the unary string alone says where every
-value ends and its length says where the remainders begin. Values with
-``q >= QMAX`` (outliers) are written as ``QMAX`` in unary and their ``u`` raw
-(8 bytes, an escape).
+value ends and its length says where the remainders begin. A value with ``q >=
+QMAX`` (an outlier) is an escape: ``QMAX`` one-bits without the zero, and among
+the remainder bits ``q - QMAX`` as an order-0 exp-Golomb code before its ``k``
+low bits, so an outlier costs about twice the bits of its magnitude.
 
-Stream layout: varint n | k per block, 5 bits each, packed | varint
-unary_bits | unary bytes | remainder bytes | escapes u64 little-endian.
+Blob layout: varint n | k per block, 5 bits each, packed | varint unary_bits |
+unary bytes | remainder bytes. Version 1 streams (still read) ended escapes'
+unary parts with a zero after ``QMAX_V1`` ones and kept their ``u`` as u64
+little-endian after the remainder bytes.
 
 The bit loops are compiled (``kernels.py``); this module is their checked,
 numpy-facing front.
@@ -22,7 +25,10 @@ from __future__ import annotations
 import numpy as np
 
 from mwbx.codec import kernels
-from mwbx.codec.kernels import BLOCK, KMAX, QMAX, VALUE_CAP  # noqa: F401  (part of this API)
+from mwbx.codec.kernels import BLOCK, KMAX, QMAX, QMAX_V1, VALUE_CAP  # noqa: F401  (part of this API)
+
+# Blob format of current streams (see the module docstring for version 1).
+VERSION = 2
 from mwbx.codec.layout import CodecError
 
 
@@ -72,20 +78,21 @@ def read_varint(buf: memoryview | bytes, pos: int, what: str) -> tuple[int, int]
       raise CodecError(f"corrupt stream: {what} is not a valid varint")
 
 
-def encode_ints(values: np.ndarray) -> bytes:
+def encode_ints(values: np.ndarray, version: int = VERSION) -> bytes:
   """Rice-code a signed integer sequence (|v| < 2**52) into a self-delimiting blob."""
   values = np.asarray(values, np.int64).reshape(-1)
-  return encode_ints_batch(values, np.array([values.size]))[0]
+  return encode_ints_batch(values, np.array([values.size]), version)[0]
 
 
-def decode_ints(buf: bytes | memoryview, pos: int, what: str,
-                max_count: int) -> tuple[np.ndarray, int]:
+def decode_ints(buf: bytes | memoryview, pos: int, what: str, max_count: int,
+                version: int = VERSION) -> tuple[np.ndarray, int]:
   """Inverse of ``encode_ints``; returns (int64 values, position after the blob).
 
   ``max_count`` bounds n so corrupt input cannot ask for huge allocations.
   """
   data = np.frombuffer(buf, np.uint8)
-  values, end, status = kernels.rice_decode_one(data, int(pos), data.size, int(max_count))
+  values, end, status = kernels.rice_decode_one(data, int(pos), data.size, int(max_count),
+                                                version == 1)
   if status == kernels.STATUS_COUNT:
     n, _ = read_varint(buf, pos, what)
     raise CodecError(f"corrupt stream: {what} claims {n} values (at most {max_count})")
@@ -97,30 +104,32 @@ def decode_ints(buf: bytes | memoryview, pos: int, what: str,
 # -- many sequences at once ------------------------------------------------------------
 
 
-def encode_ints_batch(values: np.ndarray, counts: np.ndarray) -> list[bytes]:
+def encode_ints_batch(values: np.ndarray, counts: np.ndarray,
+                      version: int = VERSION) -> list[bytes]:
   """``encode_ints`` of W sequences given back to back (``counts[w]`` values each).
 
   Returns the W blobs, byte for byte what ``encode_ints`` gives for each.
   """
-  data, offsets = encode_ints_joined(values, counts)
+  data, offsets = encode_ints_joined(values, counts, version)
   raw = data.tobytes()
   return [raw[a:b] for a, b in zip(offsets[:-1].tolist(), offsets[1:].tolist())]
 
 
-def encode_ints_joined(values: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def encode_ints_joined(values: np.ndarray, counts: np.ndarray,
+                       version: int = VERSION) -> tuple[np.ndarray, np.ndarray]:
   """The blobs of ``encode_ints_batch`` back to back: (u8[N], i64[W + 1] offsets)."""
   values = np.ascontiguousarray(values, np.int64).reshape(-1)
   counts = np.ascontiguousarray(counts, np.int64).reshape(-1)
   if counts.sum() != values.size or np.any(counts < 0):
     raise ValueError("counts must be >= 0 and add up to the number of values")
-  data, offsets, status = kernels.rice_encode_blobs(values, counts)
+  data, offsets, status = kernels.rice_encode_blobs(values, counts, version == 1)
   if status != kernels.STATUS_OK:
     raise CodecError("integer residual too large to code (|v| >= 2**52)")
   return data, offsets
 
 
 def decode_ints_batch(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray,
-                      max_counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                      max_counts: np.ndarray, version: int = VERSION) -> tuple[np.ndarray, np.ndarray]:
   """Decode W blobs of the uint8 array ``buf`` at once.
 
   Blob w occupies exactly ``buf[starts[w]:ends[w]]``. Returns (values i64, counts
@@ -129,7 +138,8 @@ def decode_ints_batch(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray,
   """
   values, counts, status, world = kernels.rice_decode_blobs(
       np.ascontiguousarray(buf, np.uint8), np.ascontiguousarray(starts, np.int64),
-      np.ascontiguousarray(ends, np.int64), np.ascontiguousarray(max_counts, np.int64))
+      np.ascontiguousarray(ends, np.int64), np.ascontiguousarray(max_counts, np.int64),
+      version == 1)
   if status != kernels.STATUS_OK:
     raise CodecError(f"corrupt stream: {kernels.STATUS_TEXT[status]} (world {world})")
   return values, counts

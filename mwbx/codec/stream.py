@@ -3,13 +3,18 @@
 Layout (little-endian):
 
   magic b"MWQC" | version u8 | n_frames varint | nq varint | n_pos, n_rot,
-  n_scalar varint | fps, e_pos, e_rot, e_scalar, quad f64 | vel_shift,
-  rot_shift, scalar_shift u8 | qpos address per channel varint | mode per
-  channel u8 (0 fitted, 1 raw) | frame-0 value of every channel f32 | raw
-  channels f32[n_frames, width] | one Rice blob of integers: segments per
-  fitted channel, then per segment its length code (translation: 2 * (L - 1)
-  + vertical-quadratic flag; others: L - 1), then the velocity residuals
+  n_scalar varint | fps, e_pos, e_rot, e_scalar, quad f32 | vel_shift,
+  rot_shift, scalar_shift, lattice_shift u8 | qpos address per channel varint |
+  mode per channel, one bit, packed from the low bit (0 fitted, 1 raw; version
+  1: one byte per channel) | frame-0 value of every component as a
+  zigzag varint on its grid (``initial_steps``) | raw channels f32[n_frames,
+  width] | one Rice blob of integers (``rice.py``): segments per fitted
+  channel, then per segment its length code (translation: 2 * (L - 1) +
+  vertical-quadratic flag; others: L - 1), then the velocity residuals
   (translation, rotation, scalar) | CRC32 u32 of everything before it.
+
+Version 2 (written) and version 1 (read) differ in how modes are stored and
+how the Rice blob codes outliers.
 
 Residual of segment k of a channel: ``r_k`` with ``v_k = v_{k-1} + g_k + r_k *
 2**m_k`` (``v_{-1} = 0``), ``g_k`` the gravity increment predicted from the
@@ -32,7 +37,8 @@ from mwbx.codec import rice
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 
 MAGIC = b"MWQC"
-VERSION = 1
+VERSION = rice.VERSION
+VERSIONS = (1, 2)  # read; VERSION is written
 MODE_FIT = 0
 MODE_RAW = 1
 WIDTH = {"pos": 3, "rot": 4, "scalar": 1}
@@ -131,6 +137,7 @@ class WorldCode:
   modes: u8[C] per channel (MODE_FIT or MODE_RAW), channel order pos, rot, scalar.
   raw: dict channel index -> f32[n_frames, width].
   segs: kind -> Segments of that kind's fitted channels.
+  version: stream format it was read from (``serialize`` writes ``VERSION``).
   """
 
   n_frames: int
@@ -142,6 +149,7 @@ class WorldCode:
   initial: np.ndarray
   raw: dict
   segs: dict
+  version: int = VERSION
 
   def kinds(self) -> list[str]:
     lay = self.layout
@@ -226,10 +234,11 @@ def _velocities(r, first, increment, m) -> np.ndarray:
 _HEAD = struct.Struct("<4sB")
 
 
-def serialize(code: WorldCode) -> bytes:
+def serialize(code: WorldCode, version: int = VERSION) -> bytes:
+  """The stream of ``code``; ``version`` 1 writes the old escape format."""
   lay = code.layout
   q = code.quanta
-  out = bytearray(_HEAD.pack(MAGIC, VERSION))
+  out = bytearray(_HEAD.pack(MAGIC, version))
   for v in (code.n_frames, lay.nq, len(lay.pos_adr), len(lay.rot_adr), len(lay.scalar_adr)):
     out += rice.write_varint(int(v))
   out += _FLOATS.pack(code.fps, code.bounds.e_pos, code.bounds.e_rot, code.bounds.e_scalar,
@@ -237,7 +246,7 @@ def serialize(code: WorldCode) -> bytes:
   out += bytes([q.vel_shift, q.rot_shift, q.scalar_shift, q.lattice_shift])
   for adr in code.addresses():
     out += rice.write_varint(int(adr))
-  out += np.asarray(code.modes, np.uint8).tobytes()
+  out += mode_bytes(code.modes, version)
   kinds = code.kinds()
   out += initial_bytes(initial_codes(code.initial, kinds, code.bounds).tolist())
   for c, kind in enumerate(kinds):
@@ -251,9 +260,17 @@ def serialize(code: WorldCode) -> bytes:
     lengths, res = segment_codes(seg, kind, g_fp, coarse)
     length_codes.append(lengths)
     residuals.append(res)
-  out += rice.encode_ints(np.concatenate(counts + length_codes + residuals))
+  out += rice.encode_ints(np.concatenate(counts + length_codes + residuals), version)
   out += struct.pack("<I", zlib.crc32(out))
   return bytes(out)
+
+
+def mode_bytes(modes: np.ndarray, version: int = VERSION) -> bytes:
+  """Channel modes as stored: one bit per channel (version 1: one byte each)."""
+  modes = np.asarray(modes, np.uint8)
+  if version == 1:
+    return modes.tobytes()
+  return np.packbits(modes, bitorder="little").tobytes()
 
 
 def initial_codes(initial: np.ndarray, kinds: list[str], bounds: CodecBounds) -> np.ndarray:
@@ -310,8 +327,9 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
   if zlib.crc32(memoryview(buf)[:-4]) != crc:
     raise CodecError("corrupt stream: CRC32 mismatch")
   buf = buf[:-4]
-  if version != VERSION:
-    raise CodecError(f"unsupported codec stream version {version} (this build reads {VERSION})")
+  if version not in VERSIONS:
+    raise CodecError(f"unsupported codec stream version {version} (this build reads "
+                     f"{', '.join(map(str, VERSIONS))})")
   pos = _HEAD.size
   header = []
   for what in ("n_frames", "nq", "n_pos", "n_rot", "n_scalar"):
@@ -339,9 +357,17 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
     bounds = CodecBounds(e_pos, e_rot, e_scalar)
   except CodecError as err:
     raise CodecError(f"corrupt stream header: {err}") from None
-  end = _take(buf, pos, n_ch, "channel modes")
-  modes = np.frombuffer(buf, np.uint8, n_ch, pos).copy()
+  size = len(mode_bytes(np.zeros(n_ch, np.uint8), version))
+  end = _take(buf, pos, size, "channel modes")
+  stored = np.frombuffer(buf, np.uint8, size, pos)
   pos = end
+  if version == 1:
+    modes = stored.copy()
+  else:
+    bits = np.unpackbits(stored, bitorder="little")
+    modes, unused = bits[:n_ch].astype(np.uint8), bits[n_ch:]
+    if np.any(unused):
+      raise CodecError("corrupt stream: unknown channel mode")
   if np.any(modes > MODE_RAW):
     raise CodecError("corrupt stream: unknown channel mode")
   kinds = ["pos"] * n_pos + ["rot"] * n_rot + ["scalar"] * n_scalar
@@ -357,7 +383,7 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
            "scalar": int(fit[n_pos + n_rot:].sum())}
   cf = sum(n_fit.values())
   expect = max(n_frames - 1, 0)
-  values, pos = rice.decode_ints(buf, pos, "segment data",
+  values, pos = rice.decode_ints(buf, pos, "segment data", version=version,
                                  max_count=cf + 7 * expect * cf)
   if pos != len(buf):
     raise CodecError("corrupt stream: trailing bytes after the segment data")
@@ -408,4 +434,4 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
       raise CodecError("corrupt stream: velocity out of range")
     segs[kind] = Segments(seg_count, lengths, vel, flags)
   return WorldCode(n_frames=n_frames, layout=layout, bounds=bounds, fps=fps, quanta=quanta,
-                   modes=modes, initial=initial, raw=raw, segs=segs)
+                   modes=modes, initial=initial, raw=raw, segs=segs, version=version)
