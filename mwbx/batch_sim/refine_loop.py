@@ -192,9 +192,23 @@ def _native_kernel(params: world.WorldParams, n_sensor: int):
       speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)
       nxt = _activate_batch(active, obs.com_pos[:, -1], speed, com_now, com_next, inter)
       worst, stray = _audit(obs, out, active, params, inter)
-      return carry, (out.wrench, out.record, out.running, obs.com_pos[:, 0], nxt, worst, stray)
+      # One array back to the host: each output fetched costs a transfer and a sync.
+      n = carry.step.shape[0]
+      columns = (out.wrench, obs.com_pos[:, 0], nxt, out.record, out.running, worst, stray)
+      return carry, jnp.concatenate([x.reshape(n, -1).astype(jnp.float32) for x in columns], axis=1)
     _KERNELS[cache_key] = (params, jax.jit(kernel))
   return _KERNELS[cache_key][1]
+
+
+def _unpack(packed: np.ndarray, spf: int, n_bodies: int, n_objects: int):
+  """The native kernel's f32[C, K] output as (wrench f32[C, S, B, 6],
+  com f32[C, B, 3], next active bool[C, O], record bool[C], running bool[C],
+  worst ratio f32[C], stray perturbations i64[C])."""
+  c = len(packed)
+  ends = np.cumsum([spf * n_bodies * 6, n_bodies * 3, n_objects, 1, 1, 1, 1])
+  wrench, com, nxt, record, running, worst, stray = np.split(packed, ends[:-1], axis=1)
+  return (wrench.reshape(c, spf, n_bodies, 6), com.reshape(c, n_bodies, 3), nxt > 0.5, record[:, 0] > 0.5,
+          running[:, 0] > 0.5, worst[:, 0], stray[:, 0].astype(np.int64))
 
 
 def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, targets, qvel):
@@ -246,6 +260,7 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
   qadr, vadr = slice(1, 1 + nq), slice(1 + nq, 1 + nq + nv)
   n_sensor = len(inter.radius) * world.SENSOR_WIDTH
   body_ids = np.asarray(inp.body_ids)
+  n_objects = inp.active0.shape[1]
   targets = None if inp.step_targets is None else inp.step_targets.reshape(-1, spf, nq)  # [F, S, nq]
 
   kernel = _native_kernel(params, n_sensor)
@@ -295,8 +310,8 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
       after, sensors = backend.step(before, wrench_in, warmstart[idx], models)
     sensordata[idx], warmstart[idx], states[idx] = backend.absorb_frame(before, after, sensors)
 
-    carry, outs = kernel(carry, sensordata, inp.step_keys, active, np.int32(frame), stored, inter)
-    wrench, record, still, com, nxt, worst, stray = jax.device_get(outs)
+    carry, packed = kernel(carry, sensordata, inp.step_keys, active, np.int32(frame), stored, inter)
+    wrench, com, nxt, record, still, worst, stray = _unpack(np.asarray(packed), spf, len(body_ids), n_objects)
     audit_ratio = np.maximum(audit_ratio, worst)
     audit_stray += stray
     if record.any():
