@@ -20,7 +20,7 @@ from mwbx.codec import kernels, rice
 from mwbx.codec.decode import KIND_ID, decode_world, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, WIDTH, Quanta,
-                               Segments, initial_bytes, initial_codes, initial_steps,
+                               Segments, initial_codes, initial_steps,
                                mode_bytes, parse, segment_codes)
 
 
@@ -99,12 +99,15 @@ def serialize_batch(bc: BatchCode) -> list[bytes]:
   sig = _signature(lay, bc.bounds, bc.fps, q)
   modes = mode_bytes(np.zeros(n_ch, np.uint8))
   kinds = [k for k in KINDS for _ in cols[k]]
-  init_codes = initial_codes(bc.initial, kinds, bc.bounds).tolist()
+  # Zigzag codes are < 2**53, so they fit int64 for the compiled varint writer.
+  init_data, init_off = kernels.varint_rows(
+      initial_codes(bc.initial, kinds, bc.bounds).astype(np.int64).reshape(n_w, -1))
+  init_data = init_data.tobytes()
   head = _HEAD.pack(MAGIC, VERSION)
   out = []
   for w in range(n_w):
     body = b"".join((head, rice.write_varint(int(bc.n_frames[w])), sig, modes,
-                     initial_bytes(init_codes[w]), blobs[w]))
+                     init_data[init_off[w]:init_off[w + 1]], blobs[w]))
     out.append(body + struct.pack("<I", zlib.crc32(body)))
   return out
 

@@ -880,3 +880,22 @@ def gather_paths(qpos, rows, n_ch, columns, initial, relative, finite, out):
     if not relative:
       for d in range(width):
         out[i, 0, d] = np.float32(initial[p, d])
+
+
+@_jit
+def varint_rows(codes):
+  """The varints of every row of ``codes: i64[W, n]`` (values >= 0), back to back:
+  (u8[N], i64[W + 1] row offsets)."""
+  n_w, n = codes.shape
+  offsets = np.zeros(n_w + 1, np.int64)
+  for w in range(n_w):
+    size = 0
+    for j in range(n):
+      size += _varint_size(codes[w, j])
+    offsets[w + 1] = offsets[w] + size
+  out = np.empty(offsets[n_w], np.uint8)
+  for w in range(n_w):
+    pos = offsets[w]
+    for j in range(n):
+      pos = _write_varint(out, pos, codes[w, j])
+  return out, offsets
