@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from mwbx.batch_sim import world
+from mwbx.batch_sim import host_loops, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -84,27 +84,24 @@ class NativeBackend:
         chunk_size=max(1, n // (4 * self.threads)))
     return out_state, out_sensor
 
-  def absorb_frame(self, before: np.ndarray, after: np.ndarray, sensors: np.ndarray):
-    """What one frame of :meth:`step` output means for the sampling loop.
+  def absorb_frame(self, rows: np.ndarray, before: np.ndarray, after: np.ndarray,
+                   sensors: np.ndarray, sensordata: np.ndarray, warmstart: np.ndarray,
+                   states: np.ndarray) -> None:
+    """What one frame of :meth:`step` output means for the sampling loop, in place.
 
     Args:
+      rows: i64[n] chunk row of each stepped world.
       before: f64[n, nstate] states s_k the frame started from.
       after: f64[n, S, nstate] states returned by :meth:`step`.
       sensors: f64[n, S, nsensordata] sensors returned by :meth:`step`.
-
-    Returns:
-      (sensors, NaN for worlds MuJoCo reset; f64[n, nv] warm start for the
-      next frame; f64[n, nstate] states s_{k+S}).
+      sensordata: f32[C, S, nsensordata] out: the sensors, NaN for worlds MuJoCo
+        reset (mj_step resets a diverging world to time 0: NaN marks it unstable).
+      warmstart: f64[C, nv] out: warm start for the next frame.
+      states: f64[C, nstate] out: states s_{k+S}.
     """
-    m = self.model
-    n_steps = after.shape[1]
-    # mj_step resets a diverging world to time 0: its NaN sensors mark it unstable.
-    bad = ~(np.abs(after[:, -1, 0] - (before[:, 0] + n_steps * m.opt.timestep)) <= 1e-6)
-    sensors[bad] = np.nan
-    qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
-    previous = after[:, -2] if n_steps > 1 else before
-    warmstart = (after[:, -1, qvel] - previous[:, qvel]) / m.opt.timestep
-    return sensors, warmstart, after[:, -1]
+    host_loops.absorb_rows(np.asarray(rows, np.int64), before, after, sensors,
+                           self.model.opt.timestep, 1 + self.model.nq, sensordata, warmstart,
+                           states)
 
   def kernel(self, params: world.WorldParams):
     """The jitted, vmapped bookkeeping kernel for these params (cached)."""
@@ -142,8 +139,6 @@ class NativeBackend:
     kernel = self.kernel(params)
 
     spf = params.steps_per_frame
-    n_tracked = len(body_ids)
-    n_wrench = spf * n_tracked * 6
     states = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
     warmstart = np.zeros((c, nv))
     wrench_full = np.zeros((c, spf, m.nbody, 6))
@@ -153,9 +148,6 @@ class NativeBackend:
     fresh_carry = jax.vmap(world.init_carry, in_axes=(None, 0))(len(body_ids), jnp.asarray(active))
     active = np.asarray(active)
     running = active.copy()
-    # Tracked bodies are usually consecutive ids: a slice avoids a gather per frame.
-    contiguous = len(body_ids) and np.array_equal(body_ids, np.arange(body_ids[0], body_ids[0] + len(body_ids)))
-    tracked = slice(int(body_ids[0]), int(body_ids[0]) + len(body_ids)) if contiguous else body_ids
 
     t0 = time.perf_counter()
     jax.block_until_ready(kernel(fresh_carry, sensordata, step_keys))  # compile
@@ -166,31 +158,28 @@ class NativeBackend:
     frame = 0
     world_steps = 0
     physics_seconds = 0.0
+    tracked_ids = np.asarray(body_ids, np.int64)
+    all_rows = np.arange(c)
+    record_rows = np.full(c, -1, np.int64)
     while running.any():
       everyone = running.all()
-      # While every world runs, whole arrays stand in for gathers and scatters.
-      idx = slice(None) if everyone else np.flatnonzero(running)
+      # While every world runs, whole arrays stand in for gathers.
+      idx = all_rows if everyone else np.flatnonzero(running)
       before = states.copy() if everyone else states[idx]  # s_k, kept: states moves on below
       n_run = len(before)
-      wrench_in, warm_in = wrench_full[idx].reshape(n_run, spf, -1), warmstart[idx]
+      wrench_in = wrench_full.reshape(c, spf, -1) if everyone else wrench_full[idx].reshape(n_run, spf, -1)
+      warm_in = warmstart if everyone else warmstart[idx]
       physics_start = time.perf_counter()
       after, sensors = self.step(before, wrench_in, warm_in)
       physics_seconds += time.perf_counter() - physics_start
-      sensordata[idx], warmstart[idx], states[idx] = self.absorb_frame(before, after, sensors)
+      self.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states)
       world_steps += n_run * spf
 
       carry, packed = kernel(carry, sensordata, step_keys)
-      packed = np.asarray(packed)  # one sync per frame
-      wrench = packed[:, :n_wrench].reshape(c, spf, n_tracked, 6)
-      com = packed[:, n_wrench:n_wrench + 3 * n_tracked].reshape(c, n_tracked, 3)
-      record, running = packed[:, -2] > 0, packed[:, -1] > 0
-      if record.any():
-        recorded = np.flatnonzero(record)
-        # s_k of the recorded worlds: rows of `before`, found through idx.
-        rows = recorded if everyone else np.searchsorted(idx, recorded)
-        qpos_buf[recorded, frame] = before[rows, qpos_adr]
-        com_buf[recorded, frame] = com[recorded]
-      wrench_full[:, :, tracked] = wrench
+      record_rows[:] = -1
+      record_rows[idx] = np.arange(n_run)
+      running = host_loops.take_frame(np.asarray(packed), spf, tracked_ids, record_rows, before,
+                                      qpos_adr.start, frame, qpos_buf, com_buf, wrench_full)
       frame += 1
       if progress is not None and frame % 16 == 0:
         progress(world_steps, int((~running & active).sum()))

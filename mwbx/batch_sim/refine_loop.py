@@ -308,7 +308,7 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
                                       targets[frame], path.qvel[frame])
     else:
       after, sensors = backend.step(before, wrench_in, warmstart[idx], models)
-    sensordata[idx], warmstart[idx], states[idx] = backend.absorb_frame(before, after, sensors)
+    backend.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states)
 
     carry, packed = kernel(carry, sensordata, inp.step_keys, active, np.int32(frame), stored, inter)
     wrench, com, nxt, record, still, worst, stray = _unpack(np.asarray(packed), spf, len(body_ids), n_objects)
