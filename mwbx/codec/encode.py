@@ -182,9 +182,9 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     n = np.repeat(frame_count, len(adrs))
     finite = kernels.finite_paths(qpos, frame_count, columns, width).reshape(-1)
     # Frame 0 is stored on a grid; the fit starts from that stored value.
-    first = qpos[:, 0][:, columns[:, None] + np.arange(width)] if num_t else np.zeros(
+    frame0 = qpos[:, 0][:, columns[:, None] + np.arange(width)] if num_t else np.zeros(
         (num_w, len(adrs), width), np.float32)
-    initial = quantize_initial(kind, first.reshape(-1, width), bounds) * initial_steps(bounds)[kind]
+    initial = quantize_initial(kind, frame0.reshape(-1, width), bounds) * initial_steps(bounds)[kind]
     initial[n == 0] = 0.0
     p_idx, f_idx, vel, flag = _run_fit(kind, qpos, adrs, n, initial, finite,
                                        fit_bound[kind] * (1 - FIT_MARGIN), steps[kind],
