@@ -200,11 +200,31 @@ class Bank:
     from mwbx.scene import select_bodies
     return select_bodies(names, self.body_names, self.objects, self.groups, "selection", "bank")
 
+  def mjcf_dir(self) -> str | None:
+    """Directory the MJCF's relative file names (meshes, textures, includes)
+    resolve against: where it was when the bank was sampled, if it still exists."""
+    from mwbx.config import ASSET_DIR
+    source = self.config.get("source")
+    mjcf = (self.config.get("scene") or {}).get("mjcf")
+    if not mjcf:
+      return None
+    candidates = ([pathlib.Path(source).parent / mjcf] if source and not source.startswith("<")
+                  else []) + [ASSET_DIR / mjcf]
+    for path in candidates:
+      if path.exists():
+        return str(path.resolve().parent)
+    return None
+
   def model(self):
     """The scene's ``MjModel`` (with the mwbx observation sensors)."""
     if self._model is None:
       from mwbx.scene import build_model
-      self._model = build_model(self.mjcf_text, self.body_names)
+      try:
+        self._model = build_model(self.mjcf_text, self.body_names, self.mjcf_dir())
+      except ValueError as err:
+        raise MwbxError(f"bank: its MJCF does not compile here ({err}); files it names are "
+                        f"looked up relative to {self.mjcf_dir() or 'the working directory'}")
+
       self._model.opt.timestep = self.timestep
     return self._model
 

@@ -95,7 +95,7 @@ class Scene:
     perturbable: bool[B] false for bodies opted out of perturbations.
   """
 
-  def __init__(self, config: Config, mjcf_text: str | None = None):
+  def __init__(self, config: Config, mjcf_text: str | None = None, mjcf_dir: str | None = None):
     self.config = config
     source = config.source or "<config>"
     if mjcf_text is None:
@@ -106,7 +106,7 @@ class Scene:
       except OSError as err:
         raise MwbxError(f"{source}: scene.mjcf: cannot read {path}: {err.strerror}") from None
     else:
-      self.mjcf_dir = None
+      self.mjcf_dir = mjcf_dir  # where its relative file names resolve, if given
     self.mjcf_text = mjcf_text
     try:
       plain = mujoco.MjSpec.from_string(mjcf_text)

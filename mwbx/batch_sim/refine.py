@@ -41,7 +41,8 @@ def _scene_of(bank):
   from mwbx.scene import Scene
   data = dict(bank.config)
   data.pop("source", None)
-  scene = Scene(config_from_dict(data, source="<bank config>"), mjcf_text=bank.mjcf_text)
+  scene = Scene(config_from_dict(data, source="<bank config>"), mjcf_text=bank.mjcf_text,
+                mjcf_dir=bank.mjcf_dir())
   if scene.body_names != tuple(bank.body_names):
     raise MwbxError("refine: the bank's tracked bodies do not match its own config")
   return scene
