@@ -9,6 +9,8 @@ a guarantee checked on the decoded data.
 
 from __future__ import annotations
 
+import concurrent.futures
+import os
 from typing import NamedTuple
 
 import numpy as np
@@ -54,6 +56,18 @@ def _bucket(n: int, multiple: int) -> int:
 FIT_BATCH = 256
 
 
+_POOL = None
+
+
+def _fit_pool() -> concurrent.futures.ThreadPoolExecutor:
+  """Threads for the fit's batches, one per core (made on first use)."""
+  global _POOL
+  if _POOL is None:
+    _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=os.cpu_count() or 1,
+                                                  thread_name_prefix="mwbx-codec-fit")
+  return _POOL
+
+
 def _columns(adrs: tuple[int, ...]) -> np.ndarray:
   return np.asarray(adrs, np.int64).reshape(-1)
 
@@ -77,12 +91,8 @@ def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
     return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, d), np.int64),
             np.zeros(0, bool))
   columns = _columns(adrs)
-  # Paths sorted by length so each call scans only as many frames as its longest
-  # path, padded to a multiple of 128 so few shapes compile.
-  order = np.argsort(n, kind="stable")
-  out = []
-  for lo in range(0, num, FIT_BATCH):
-    rows = order[lo:lo + FIT_BATCH]
+
+  def fit_batch(rows):
     m = rows.size
     t_fit = int(min(t, max(n[rows].max(), 1)))
     t_pad = -(-t_fit // 128) * 128
@@ -106,7 +116,14 @@ def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
     p_idx, f_idx = np.nonzero(np.asarray(res.ends)[:m, :t_fit])
     vel = np.asarray(res.vel)[p_idx, f_idx].astype(np.int64)
     flag = np.zeros(p_idx.size, bool) if flag is None else np.asarray(flag)[p_idx, f_idx]
-    out.append((rows[p_idx], f_idx, vel, flag))
+    return rows[p_idx], f_idx, vel, flag
+
+  # Paths sorted by length so each call scans only as many frames as its longest
+  # path, padded to a multiple of 128 so few shapes compile. A jitted call runs
+  # on one core: batches go to a thread per core.
+  order = np.argsort(n, kind="stable")
+  batches = [order[lo:lo + FIT_BATCH] for lo in range(0, num, FIT_BATCH)]
+  out = list(_fit_pool().map(fit_batch, batches)) if len(batches) > 1 else [fit_batch(batches[0])]
   path, frame, vel, flag = (np.concatenate(parts) for parts in zip(*out))
   back = np.lexsort((frame, path))
   return path[back], frame[back], vel[back], flag[back]
