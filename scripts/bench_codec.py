@@ -27,6 +27,7 @@ from mwbx.codec import ChannelLayout, CodecBounds, decode_world, encode_batch_ch
 from mwbx.codec.batch import decode_batch
 
 ZSTD_LEVEL = 19
+DECODE_TRIES = 5
 OUT = pathlib.Path("out/bench")
 
 
@@ -269,12 +270,13 @@ def codec_run(data: Data, bounds: CodecBounds, repeats: int = 1) -> dict:
   one_object = lay.channels_for(np.arange(first, first + 7 if lay.pos_adr else first + 1))
   best_dec = best_single = best_one = np.inf
   for _ in range(repeats):
-    start = time.perf_counter()
-    decode_batch(blob, offsets)
-    best_dec = min(best_dec, time.perf_counter() - start)
-    start = time.perf_counter()
-    decode_batch(blob, offsets, channels=one_object)
-    best_one = min(best_one, time.perf_counter() - start)
+    for _ in range(DECODE_TRIES):  # a decode takes ~10 ms: a few tries per repeat, best kept
+      start = time.perf_counter()
+      decode_batch(blob, offsets)
+      best_dec = min(best_dec, time.perf_counter() - start)
+      start = time.perf_counter()
+      decode_batch(blob, offsets, channels=one_object)
+      best_one = min(best_one, time.perf_counter() - start)
     start = time.perf_counter()
     for stream in enc.streams[:32]:
       decode_world(stream)
@@ -302,12 +304,13 @@ def baseline_speed(data: Data, bounds: CodecBounds, repeats: int) -> dict:
       blobs.append((cctx.compress(np.ascontiguousarray(((d << 1) ^ (d >> 63)).astype(np.uint32).T)
                                   .tobytes()), codes.shape))
     best_enc = min(best_enc, time.perf_counter() - start)
-    start = time.perf_counter()
-    for blob, shape in blobs:
-      zz = np.frombuffer(dctx.decompress(blob), np.uint32).reshape(shape[::-1]).T.astype(np.int64)
-      d = (zz >> 1) ^ -(zz & 1)
-      np.cumsum(np.cumsum(d, axis=0), axis=0)
-    best_dec = min(best_dec, time.perf_counter() - start)
+    for _ in range(DECODE_TRIES):  # as many tries as the codec's decode gets
+      start = time.perf_counter()
+      for blob, shape in blobs:
+        zz = np.frombuffer(dctx.decompress(blob), np.uint32).reshape(shape[::-1]).T.astype(np.int64)
+        d = (zz >> 1) ^ -(zz & 1)
+        np.cumsum(np.cumsum(d, axis=0), axis=0)
+      best_dec = min(best_dec, time.perf_counter() - start)
   return {"encode_body_frames_per_s": data.body_frames / best_enc,
           "decode_body_frames_per_s": data.body_frames / best_dec}
 
