@@ -38,11 +38,6 @@ def zigzag(v: np.ndarray) -> np.ndarray:
   return ((v << 1) ^ (v >> 63)).astype(np.uint64)
 
 
-def unzigzag(u: np.ndarray) -> np.ndarray:
-  u = np.asarray(u, np.uint64)
-  return ((u >> np.uint64(1)).astype(np.int64)) ^ (-(u & np.uint64(1)).astype(np.int64))
-
-
 def floor_log2(x: np.ndarray) -> np.ndarray:
   """floor(log2(x)) of integers x >= 1, exactly."""
   # frexp is exact on integers below 2**53: x = m * 2**e with m in [0.5, 1).

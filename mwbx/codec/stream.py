@@ -123,11 +123,6 @@ class Segments(NamedTuple):
   flags: np.ndarray
 
 
-def empty_segments(dim: int) -> Segments:
-  return Segments(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, dim), np.int64),
-                  np.zeros(0, bool))
-
-
 @dataclasses.dataclass
 class WorldCode:
   """Everything one stream holds, as arrays.
