@@ -167,8 +167,6 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> tuple[BatchCode, np.nd
                                           ref.version)
   q = ref.quanta
   g_fp, coarse = q.g_fp(ref.bounds), q.coarse()
-  if abs(g_fp) >= 1 << 30:
-    raise _Fallback()
   n_kind = np.array([len(lay.pos_adr), len(lay.rot_adr), len(lay.scalar_adr)], np.int64)
   status, world, seg_counts, lengths, vels, flags = kernels.segments_from_values(
       values, np.cumsum(counts) - counts, counts, n_kind, expect, int(g_fp),

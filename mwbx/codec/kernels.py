@@ -548,7 +548,7 @@ def segments_from_values(values, starts, counts, n_kind, expect, g_fp, coarse):
   values, starts, counts: the integers of each world's blob; n_kind: i64[3]
   channels per kind (translation, rotation, scalar); expect: i64[W] frames to
   cover (n_frames - 1); g_fp: vertical velocity gained per ballistic frame (fine
-  steps * 256, |g_fp| < 2**30); coarse: i64[3] lattice exponent of a 1-frame
+  steps * 256); coarse: i64[3] lattice exponent of a 1-frame
   segment per kind. Velocities: ``v_k = v_{k-1} + g_k + r_k * 2**m_k``.
 
   Returns (status, world of the first problem or -1, then per kind: seg_count
@@ -628,6 +628,8 @@ def segments_from_values(values, starts, counts, n_kind, expect, g_fp, coarse):
               return STATUS_VELOCITY, w, seg_counts, lengths, vels, flags
             v = prev[d] + (r << m)
             if kind == 0 and d == dim - 1 and prev_flag:
+              if abs(g_fp) >= (np.int64(1) << 62) // prev_len:  # the product would overflow
+                return STATUS_VELOCITY, w, seg_counts, lengths, vels, flags
               v += (prev_len * g_fp + 128) >> 8
             if abs(v) >= VALUE_CAP:
               return STATUS_VELOCITY, w, seg_counts, lengths, vels, flags

@@ -20,7 +20,7 @@ Residual of segment k of a channel: ``r_k`` with ``v_k = v_{k-1} + g_k + r_k *
 2**m_k`` (``v_{-1} = 0``), ``g_k`` the gravity increment predicted from the
 previous segment's flag and length, ``m_k`` the lattice exponent of its length
 (``Quanta``); constant-velocity and ballistic motion code to zeros, and decoding
-velocities is one segmented cumulative sum. Channel
+velocities is a running sum per channel. Channel
 order is all translations, then rotations, then scalars, each in layout order.
 """
 
@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mwbx.codec import rice
+from mwbx.codec import kernels, rice
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 
 MAGIC = b"MWQC"
@@ -212,20 +212,6 @@ def _residuals(vel, first, increment, m) -> np.ndarray:
   return r
 
 
-def _velocities(r, first, increment, m) -> np.ndarray:
-  if np.any(np.abs(r) >= rice.VALUE_CAP >> 20) or np.any(m > 40):
-    raise CodecError("corrupt stream: velocity residuals out of range")
-  res = r << m[:, None]
-  if increment is not None:
-    res[:, -1] += increment
-  if np.abs(res.astype(np.float64)).sum() >= 2.0**62:
-    raise CodecError("corrupt stream: velocity residuals out of range")
-  total = np.cumsum(res, axis=0)
-  # Segmented cumulative sum: subtract the running total before each channel.
-  chan_start = np.maximum.accumulate(np.where(first, np.arange(first.size), 0))
-  return total - (total - res)[chan_start]
-
-
 _HEAD = struct.Struct("<4sB")
 
 
@@ -382,51 +368,20 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
                                  max_count=cf + 7 * expect * cf)
   if pos != len(buf):
     raise CodecError("corrupt stream: trailing bytes after the segment data")
-  if values.size < cf:
-    raise CodecError("corrupt stream: missing segment counts")
-  counts = values[:cf]
-  if np.any(counts < 0) or np.any(counts > expect) or (expect > 0 and np.any(counts == 0)):
-    raise CodecError("corrupt stream: segment count out of range")
-  n_seg = {}
-  off = 0
-  for kind in KINDS:
-    n_seg[kind] = int(counts[off:off + n_fit[kind]].sum())
-    off += n_fit[kind]
-  total = sum(n_seg.values())
-  n_res = sum(DIM[k] * n_seg[k] for k in KINDS)
-  if values.size != cf + total + n_res:
-    raise CodecError("corrupt stream: segment data size does not match segment counts")
   quanta = Quanta(quad=quad, vel_shift=shifts[0], rot_shift=shifts[1], scalar_shift=shifts[2],
                   lattice_shift=shifts[3])
   ratio = 2.0 * quad / quanta.steps(bounds)[0] * 256.0
   if not abs(ratio) < 2.0**40:
     raise CodecError("corrupt stream header: gravity term out of range")
-  g_fp, coarse = quanta.g_fp(bounds), quanta.coarse()
-  segs = {}
-  c_off, l_off, r_off = 0, cf, cf + total
-  for kind in KINDS:
-    seg_count = counts[c_off:c_off + n_fit[kind]]
-    c_off += n_fit[kind]
-    codes = values[l_off:l_off + n_seg[kind]]
-    l_off += n_seg[kind]
-    if kind == "pos":
-      lengths, flags = (codes >> 1) + 1, (codes & 1).astype(bool)
-    else:
-      lengths, flags = codes + 1, np.zeros(codes.size, bool)
-    res = values[r_off:r_off + DIM[kind] * n_seg[kind]].reshape(DIM[kind], n_seg[kind]).T
-    r_off += DIM[kind] * n_seg[kind]
-    if np.any(lengths < 1):
-      raise CodecError("corrupt stream: segment length out of range")
-    first = channel_starts(seg_count)
-    if lengths.size:
-      per_channel = np.add.reduceat(lengths, np.flatnonzero(first))
-      if np.any(per_channel != expect):
-        raise CodecError(f"corrupt stream: segment lengths do not add up to {expect} frames")
-    inc = gravity_increment(flags, lengths, first, g_fp) if kind == "pos" else None
-    m = lattice_exponent(lengths, coarse[kind])
-    vel = _velocities(res, first, inc, m) if lengths.size else res
-    if np.any(np.abs(vel) >= rice.VALUE_CAP):
-      raise CodecError("corrupt stream: velocity out of range")
-    segs[kind] = Segments(seg_count, lengths, vel, flags)
+  coarse = quanta.coarse()
+  # The same segment assembly as a batch of streams (batch.parse_batch), for one.
+  status, _, seg_counts, lengths, vels, flags = kernels.segments_from_values(
+      values, np.zeros(1, np.int64), np.array([values.size], np.int64),
+      np.array([n_fit[k] for k in KINDS], np.int64), np.array([expect], np.int64),
+      int(quanta.g_fp(bounds)), np.array([coarse[k] for k in KINDS], np.int64))
+  if status != kernels.STATUS_OK:
+    raise CodecError(f"corrupt stream: {kernels.STATUS_TEXT[status]}")
+  segs = {kind: Segments(seg_counts[i], lengths[i], vels[i], flags[i])
+          for i, kind in enumerate(KINDS)}
   return WorldCode(n_frames=n_frames, layout=layout, bounds=bounds, fps=fps, quanta=quanta,
                    modes=modes, initial=initial, raw=raw, segs=segs, version=version)
