@@ -135,3 +135,32 @@ def decode_reference(code) -> np.ndarray:
       value = out[frame + length, adr:adr + width].copy()
       frame += length
   return out
+
+
+def max_errors_reference(kind: str, decoded: np.ndarray, true: np.ndarray) -> np.ndarray:
+  """Per channel largest error over frames (numpy, float64); decoded/true: f[C, n, width].
+
+  Translation and scalars: largest coordinate difference; rotation: angle of
+  conj(decoded) (x) normalize(true). NaN in both is exact, NaN in one infinite.
+  """
+  if decoded.shape[1] == 0:
+    return np.zeros(decoded.shape[0])
+  d = decoded.astype(np.float64)
+  x = true.astype(np.float64)
+  if kind == "rot":
+    norm = np.linalg.norm(x, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+      x = np.where(norm > 0, x / norm, x)
+    aw, ax, ay, az = np.moveaxis(d * np.array([1.0, -1.0, -1.0, -1.0]), -1, 0)
+    bw, bx, by, bz = np.moveaxis(x, -1, 0)
+    rel = np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                    aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw],
+                   axis=-1)
+    err = 2.0 * np.arctan2(np.linalg.norm(rel[..., 1:], axis=-1), np.abs(rel[..., 0]))
+    both_nan = np.isnan(d).any(axis=-1) & np.isnan(x).any(axis=-1)
+  else:
+    both_nan = np.isnan(d) & np.isnan(x)
+    err = np.where(both_nan, 0.0, np.abs(d - x)).max(axis=-1)
+    both_nan = np.zeros(err.shape, bool)
+  err = np.where(both_nan, 0.0, np.where(np.isnan(err), np.inf, err))
+  return err.max(axis=1)

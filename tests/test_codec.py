@@ -383,11 +383,9 @@ def test_channel_subset_decodes_exactly_those_columns(boxes, chain):
 
 
 def test_error_kernel_matches_numpy_errors():
-  """kernels.max_errors against encode._errors (float64 numpy), NaNs included."""
+  """kernels.max_errors against the numpy reference, NaNs included."""
   from mwbx.codec import kernels
-  from mwbx.codec.encode import _errors
   rng = np.random.default_rng(4)
-  layout = ChannelLayout(nq=8, pos_adr=(0,), rot_adr=(3,), scalar_adr=(7,))
   qpos = rng.normal(size=(3, 20, 8)).astype(np.float32)
   decoded = (qpos + rng.normal(scale=1e-3, size=qpos.shape)).astype(np.float32)
   qpos[1, 4, 0] = decoded[1, 4, 0] = np.nan      # NaN in both: exact
@@ -399,6 +397,7 @@ def test_error_kernel_matches_numpy_errors():
                            np.array([0, 3, 7]))
   for w, n in enumerate(frame_count):
     for c, (kind, a, width) in enumerate((("pos", 0, 3), ("rot", 3, 4), ("scalar", 7, 1))):
-      want = _errors(kind, decoded[w, :n, a:a + width][None], qpos[w, :n, a:a + width][None])[0]
+      want = ref.max_errors_reference(kind, decoded[w, :n, a:a + width][None],
+                                      qpos[w, :n, a:a + width][None])[0]
       np.testing.assert_allclose(got[w, c], want, rtol=1e-12)
   assert np.isinf(got[2, 2]) and np.isfinite(got[1, 0])

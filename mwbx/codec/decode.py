@@ -17,18 +17,6 @@ from mwbx.codec.stream import KINDS, MODE_FIT, WorldCode, parse
 KIND_ID = {"pos": 0, "rot": 1, "scalar": 2}
 
 
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-  """Hamilton product of (w, x, y, z) quaternions, [..., 4]."""
-  aw, ax, ay, az = np.moveaxis(a, -1, 0)
-  bw, bx, by, bz = np.moveaxis(b, -1, 0)
-  return np.stack([
-      aw * bw - ax * bx - ay * by - az * bz,
-      aw * bx + ax * bw + ay * bz - az * by,
-      aw * by - ax * bz + ay * bw + az * bx,
-      aw * bz + ax * by - ay * bx + az * bw,
-  ], axis=-1)
-
-
 def normalize(q: np.ndarray) -> np.ndarray:
   norm = np.linalg.norm(q, axis=-1, keepdims=True)
   with np.errstate(invalid="ignore", divide="ignore"):

@@ -18,7 +18,7 @@ import numpy as np
 from mwbx.codec import fit as fit_lib
 from mwbx.codec import kernels
 from mwbx.codec.batch import BatchCode, parse_batch, serialize_batch
-from mwbx.codec.decode import decode_code, evaluate, normalize, quat_mul
+from mwbx.codec.decode import KIND_ID, decode_code, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
                                initial_steps, parse, quantize_initial, serialize)
@@ -129,36 +129,13 @@ def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
   return path[back], frame[back], vel[back], flag[back]
 
 
-def _errors(kind: str, decoded: np.ndarray, true: np.ndarray) -> np.ndarray:
-  """Per channel largest error over frames; decoded/true: f[C, n, width]; NaN-equal."""
-  if decoded.shape[1] == 0:
-    return np.zeros(decoded.shape[0])
-  d = decoded.astype(np.float64)
-  x = true.astype(np.float64)
-  if kind == "rot":
-    rel = quat_mul(d * np.array([1.0, -1.0, -1.0, -1.0]), normalize(x))
-    err = 2.0 * np.arctan2(np.linalg.norm(rel[..., 1:], axis=-1), np.abs(rel[..., 0]))
-    both_nan = np.isnan(d).any(axis=-1) & np.isnan(x).any(axis=-1)
-  else:
-    both_nan = np.isnan(d) & np.isnan(x)
-    err = np.where(both_nan, 0.0, np.abs(d - x)).max(axis=-1)
-    both_nan = np.zeros(err.shape, bool)
-  # A NaN kept as NaN is exact; any other NaN is an unbounded error.
-  err = np.where(both_nan, 0.0, np.where(np.isnan(err), np.inf, err))
-  return err.max(axis=1)
-
-
 def _measure(code: WorldCode, stream: bytes, qpos_w: np.ndarray):
   """Decode ``stream`` and return per-channel errors (f64[C]) in channel order."""
   decoded = decode_code(parse(stream))
-  errs = []
-  for kind, adrs in (("pos", code.layout.pos_adr), ("rot", code.layout.rot_adr),
-                     ("scalar", code.layout.scalar_adr)):
-    if adrs:
-      cols = np.asarray(adrs)[:, None] + np.arange(WIDTH[kind])[None, :]
-      errs.append(_errors(kind, decoded[:, cols].transpose(1, 0, 2),
-                          qpos_w[:, cols].transpose(1, 0, 2)))
-  return np.concatenate(errs) if errs else np.zeros(0)
+  kinds = np.array([KIND_ID[k] for k in code.kinds()], np.int64)
+  return kernels.max_errors(decoded, np.zeros(1, np.int64), np.ascontiguousarray(qpos_w[None]),
+                            np.array([len(qpos_w)], np.int64), kinds,
+                            np.asarray(code.addresses(), np.int64))[0]
 
 
 def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: ChannelLayout,
