@@ -36,32 +36,3 @@ def test_absorb_rows_matches_numpy():
   assert np.isnan(sensordata[rows[2]]).all() and not np.isnan(sensordata[rows[1]]).any()
   untouched = np.setdiff1d(np.arange(c), rows)
   assert not sensordata[untouched].any() and not warmstart[untouched].any()
-
-
-def test_take_frame_matches_numpy():
-  rng = np.random.default_rng(1)
-  c, n_steps, n_frames, nbody, nq, nstate = 6, 4, 5, 5, 7, 15
-  tracked = np.array([1, 3, 4])
-  b = tracked.size
-  packed = rng.normal(size=(c, n_steps * b * 6 + b * 3 + 2)).astype(np.float32)
-  packed[:, -2] = [1, 0, 1, 1, 0, 1]  # record
-  packed[:, -1] = [1, 0, 1, 0, 1, 1]  # running
-  stepped = np.array([0, 2, 3, 5])
-  record_rows = np.full(c, -1)
-  record_rows[stepped] = np.arange(stepped.size)
-  before = rng.normal(size=(stepped.size, nstate))
-  qpos_buf = np.zeros((c, n_frames, nq), np.float32)
-  com_buf = np.zeros((c, n_frames, b, 3), np.float32)
-  wrench_full = np.zeros((c, n_steps, nbody, 6))
-  running = host_loops.take_frame(packed, n_steps, tracked, record_rows, before, 1, 2, qpos_buf,
-                                  com_buf, wrench_full)
-  np.testing.assert_array_equal(running, packed[:, -1] > 0)
-  np.testing.assert_array_equal(wrench_full[:, :, tracked],
-                                packed[:, :n_steps * b * 6].reshape(c, n_steps, b, 6))
-  assert not wrench_full[:, :, [0, 2]].any()
-  recorded = np.array([0, 2, 3, 5])  # record flag set and stepped
-  np.testing.assert_array_equal(qpos_buf[recorded, 2],
-                                before[record_rows[recorded], 1:1 + nq].astype(np.float32))
-  np.testing.assert_array_equal(com_buf[recorded, 2],
-                                packed[recorded, n_steps * b * 6:-2].reshape(-1, b, 3))
-  assert not qpos_buf[[1, 4]].any() and not qpos_buf[:, [0, 1, 3, 4]].any()

@@ -3,8 +3,8 @@
 One ``rollout`` call per frame (steps_per_frame physics steps) advances every
 running world of the batch (finished worlds are left out), with the
 perturbation wrenches of each step passed as ``xfrc_applied`` controls; the
-bookkeeping kernel runs jitted on the batch between calls. This is the fast
-path on CPUs.
+bookkeeping of the worlds that ran (:mod:`host_bookkeeping`, compiled) runs
+between calls. This is the fast path on CPUs.
 """
 
 from __future__ import annotations
@@ -13,12 +13,11 @@ import os
 import time
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from mwbx.batch_sim import host_loops, world
+from mwbx.batch_sim import host_bookkeeping, host_loops, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -103,21 +102,6 @@ class NativeBackend:
                            self.model.opt.timestep, 1 + self.model.nq, sensordata, warmstart,
                            states)
 
-  def kernel(self, params: world.WorldParams):
-    """The jitted, vmapped bookkeeping kernel for these params (cached)."""
-    key = id(params)
-    if key not in self._kernels:
-      def run(carry, sensordata, keys):
-        obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensordata)
-        carry, out = world.frame_update(carry, obs, keys, params)
-        # One array back to the host: each device_get costs a transfer and a sync.
-        n = sensordata.shape[0]
-        packed = jnp.concatenate([out.wrench.reshape(n, -1), obs.com_pos[:, 0].reshape(n, -1),
-                                  out.record[:, None], out.running[:, None]], axis=1)
-        return carry, packed
-      self._kernels[key] = (params, jax.jit(run))
-    return self._kernels[key][1]
-
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                 n_frames: int, progress=None) -> ChunkResult:
     """Runs C worlds in lockstep until all have finished.
@@ -136,7 +120,8 @@ class NativeBackend:
     body_ids = scene.body_ids
     nq, nv = m.nq, m.nv
     qpos_adr = slice(1, 1 + nq)
-    kernel = self.kernel(params)
+    host_params = host_bookkeeping.HostParams.from_world_params(params)
+    key_data = np.asarray(jax.random.key_data(step_keys), np.uint32)
 
     spf = params.steps_per_frame
     states = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
@@ -145,22 +130,24 @@ class NativeBackend:
     sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
     qpos_buf = np.zeros((c, n_frames, nq), np.float32)
     com_buf = np.zeros((c, n_frames, len(body_ids), 3), np.float32)
-    fresh_carry = jax.vmap(world.init_carry, in_axes=(None, 0))(len(body_ids), jnp.asarray(active))
     active = np.asarray(active)
+    carry = host_bookkeeping.init_carry(len(body_ids), active)
     running = active.copy()
+    tracked_ids = np.asarray(body_ids, np.int64)
+
+    def bookkeeping(rows, before, frame):
+      host_bookkeeping.frame_update(rows, sensordata, key_data, host_params, carry, tracked_ids, before,
+                                    qpos_adr.start, frame, qpos_buf, com_buf, wrench_full, running)
 
     t0 = time.perf_counter()
-    jax.block_until_ready(kernel(fresh_carry, sensordata, step_keys))  # compile
+    bookkeeping(np.zeros(0, np.int64), states[:0], 0)  # compile, or load from numba's cache
     compile_seconds = time.perf_counter() - t0
-    carry = fresh_carry
 
     t0 = time.perf_counter()
     frame = 0
     world_steps = 0
     physics_seconds = 0.0
-    tracked_ids = np.asarray(body_ids, np.int64)
     all_rows = np.arange(c)
-    record_rows = np.full(c, -1, np.int64)
     while running.any():
       everyone = running.all()
       # While every world runs, whole arrays stand in for gathers.
@@ -174,12 +161,7 @@ class NativeBackend:
       physics_seconds += time.perf_counter() - physics_start
       self.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states)
       world_steps += n_run * spf
-
-      carry, packed = kernel(carry, sensordata, step_keys)
-      record_rows[:] = -1
-      record_rows[idx] = np.arange(n_run)
-      running = host_loops.take_frame(np.asarray(packed), spf, tracked_ids, record_rows, before,
-                                      qpos_adr.start, frame, qpos_buf, com_buf, wrench_full)
+      bookkeeping(idx, before, frame)
       frame += 1
       if progress is not None and frame % 16 == 0:
         progress(world_steps, int((~running & active).sum()))
@@ -187,10 +169,10 @@ class NativeBackend:
     if progress is not None:
       progress(world_steps, int(active.sum()))
 
-    frame_count = np.asarray(carry.frame_count)
+    frame_count = carry.frame_count.astype(np.int32)
     return ChunkResult(
         qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),
-        frame_count=frame_count, status=np.asarray(carry.status),
-        metrics=world.finalize_metrics(carry), perturbations=np.asarray(carry.perturbations),
-        steps=np.asarray(carry.step), compile_seconds=compile_seconds, run_seconds=run_seconds,
+        frame_count=frame_count, status=carry.status.astype(np.int32),
+        metrics=world.finalize_metrics(carry).astype(np.float32), perturbations=carry.perturbations.astype(np.int32),
+        steps=carry.step.astype(np.int32), compile_seconds=compile_seconds, run_seconds=run_seconds,
         physics_seconds=physics_seconds)

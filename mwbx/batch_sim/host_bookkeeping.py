@@ -1,0 +1,344 @@
+"""The bookkeeping of :mod:`mwbx.batch_sim.world`, compiled for the host.
+
+The native backend steps worlds on CPU threads, and between two ``rollout``
+calls it needs each world's bookkeeping for the frame just stepped:
+perturbations, metrics, rest and instability, and the frame to record. As the
+jitted, vmapped :func:`world.frame_update` that cost about 1 ms per frame of
+256 worlds (dispatch, and every world of the chunk whether it still runs or
+not), 10–25 % on top of the physics. Here the same arithmetic is one numba loop
+over the worlds that ran, in float64 from the float32 sensors; it costs tens of
+microseconds.
+
+:func:`world.frame_update` stays the definition (MJX and refinement use it);
+the tests run both on the same observations and compare them. The uniforms of
+a perturbation are drawn exactly as :func:`mwbx.perturb.sparse.body_step_uniforms`
+draws them (threefry-2x32 as in ``jax.random``, checked bit for bit), so the
+two give the same perturbations up to float rounding.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from mwbx.batch_sim import world
+from mwbx.scene import SENSOR_WIDTH
+
+_jit = numba.njit(cache=True, nogil=True)
+_MASK32 = np.uint64(0xFFFFFFFF)
+
+
+class HostParams(NamedTuple):
+  """:class:`world.WorldParams` as host values (float64 arrays and Python scalars).
+
+  Attributes:
+    gravity: f64[3] m/s².
+    mass: f64[B] kg.
+    inertia: f64[B, 3] principal moments, kg·m².
+    perturbable: bool[B].
+    enabled: perturbations on.
+    alpha, lobe_exponent, linear_threshold, angular_threshold: as in
+      :class:`mwbx.perturb.PerturbParams`.
+    dt: physics timestep, s.
+    rest_linear_speed, rest_angular_speed: m/s, rad/s.
+    rest_steps, max_speed, collision_gap_steps, steps_per_frame, end_frame:
+      as in :class:`world.WorldParams`.
+  """
+
+  gravity: np.ndarray
+  mass: np.ndarray
+  inertia: np.ndarray
+  perturbable: np.ndarray
+  enabled: bool
+  alpha: float
+  lobe_exponent: float
+  linear_threshold: float
+  angular_threshold: float
+  dt: float
+  rest_linear_speed: float
+  rest_angular_speed: float
+  rest_steps: int
+  max_speed: float
+  collision_gap_steps: int
+  steps_per_frame: int
+  end_frame: int
+
+  @classmethod
+  def from_world_params(cls, params: world.WorldParams) -> "HostParams":
+    f64 = lambda x: np.ascontiguousarray(np.asarray(x, np.float64))
+    pp = params.perturb
+    return cls(
+        gravity=f64(params.gravity), mass=f64(params.mass), inertia=f64(params.inertia),
+        perturbable=np.ascontiguousarray(np.asarray(params.perturbable, np.bool_)),
+        enabled=bool(params.enabled), alpha=float(pp.alpha), lobe_exponent=float(pp.lobe_exponent),
+        linear_threshold=float(pp.linear_threshold), angular_threshold=float(pp.angular_threshold),
+        dt=float(params.dt), rest_linear_speed=float(params.rest_linear_speed),
+        rest_angular_speed=float(params.rest_angular_speed), rest_steps=int(params.rest_steps),
+        max_speed=float(params.max_speed), collision_gap_steps=int(params.collision_gap_steps),
+        steps_per_frame=int(params.steps_per_frame), end_frame=int(params.end_frame))
+
+
+def init_carry(n_bodies: int, active: np.ndarray) -> world.WorldCarry:
+  """:func:`world.init_carry` for C worlds as writable host arrays (float64 accumulators)."""
+  c = len(active)
+  metrics = np.zeros((c, n_bodies, len(world.METRIC_NAMES)))
+  metrics[:, :, 5] = -np.inf
+  return world.WorldCarry(
+      step=np.zeros(c, np.int64),
+      status=np.where(np.asarray(active), world.RUNNING, world.END_TIME).astype(np.int64),
+      frame_count=np.zeros(c, np.int64),
+      still_steps=np.zeros(c, np.int64),
+      since_impact=np.full((c, n_bodies), 1 << 30, np.int64),
+      perturbations=np.zeros(c, np.int64),
+      metrics=metrics,
+      prev_com=np.zeros((c, n_bodies, 3)),
+      init_quat=np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (c, n_bodies, 1)),
+  )
+
+
+# --- jax.random, bit for bit -------------------------------------------------
+
+@_jit
+def _rotl32(x, r):
+  return ((x << np.uint64(r)) | (x >> np.uint64(32 - r))) & _MASK32
+
+
+@_jit
+def threefry2x32(key0, key1, x0, x1):
+  """The Threefry-2x32 block (20 rounds) of ``jax.random``, on uint32 values held in uint64."""
+  k0 = np.uint64(key0)
+  k1 = np.uint64(key1)
+  k2 = k0 ^ k1 ^ np.uint64(0x1BD11BDA)
+  ks = (k0, k1, k2)
+  a = (np.uint64(x0) + k0) & _MASK32
+  b = (np.uint64(x1) + k1) & _MASK32
+  for block in range(5):
+    for i in range(4):
+      r = (13, 15, 26, 6)[i] if block % 2 == 0 else (17, 29, 16, 24)[i]
+      a = (a + b) & _MASK32
+      b = _rotl32(b, r) ^ a
+    a = (a + ks[(block + 1) % 3]) & _MASK32
+    b = (b + ks[(block + 2) % 3] + np.uint64(block + 1)) & _MASK32
+  return a, b
+
+
+@_jit
+def fold_in(key0, key1, data):
+  """``jax.random.fold_in`` of a threefry key (two uint32 words) with a uint32."""
+  return threefry2x32(key0, key1, np.uint64(0), np.uint64(data) & _MASK32)
+
+
+@_jit
+def body_step_uniforms(key0, key1, step, body, out):
+  """``mwbx.perturb.sparse.body_step_uniforms``: six float32 uniforms into ``out``."""
+  k0, k1 = fold_in(key0, key1, step)
+  k0, k1 = fold_in(k0, k1, body)
+  for i in range(out.size):
+    a, b = threefry2x32(k0, k1, np.uint64(0), np.uint64(i))
+    out[i] = ((a ^ b) >> np.uint64(9)) * (1.0 / 8388608.0)  # mantissa bits / 2^23, exact
+
+
+# --- one body at one step ----------------------------------------------------
+
+@_jit
+def _norm3(x, y, z):
+  return math.sqrt(x * x + y * y + z * z)
+
+
+@_jit
+def _perturbation(u0, u1, u2, delta, alpha, exponent, out):
+  """``perturb.perturbation_from_uniforms`` into ``out`` (f64[3])."""
+  norm = _norm3(delta[0], delta[1], delta[2])
+  ax = np.array([1.0, 0.0, 0.0])
+  if norm > 0:
+    ax[:] = delta / norm
+  cos_theta = u0 ** (1.0 / (exponent + 1.0))
+  sin_theta = math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta))
+  phi = 2.0 * math.pi * u1
+  # orthonormal_basis: cross with the world axis least aligned with ax.
+  helper = np.zeros(3)
+  helper[np.argmin(np.abs(ax))] = 1.0
+  e1 = np.cross(ax, helper)
+  e1 /= _norm3(e1[0], e1[1], e1[2])
+  e2 = np.cross(ax, e1)
+  d = cos_theta * ax + sin_theta * (math.cos(phi) * e1 + math.sin(phi) * e2)
+  d /= _norm3(d[0], d[1], d[2])
+  magnitude = (2.0 * u2 - 1.0) * alpha * norm
+  out[:] = magnitude * d
+
+
+@_jit
+def _impulse_wrench(dv, dw, mass, inertia, quat, dt, out):
+  """``perturb.impulse_wrench`` into ``out`` (f64[6]): force, torque in the world frame."""
+  q = quat / math.sqrt(np.sum(quat * quat))
+  w, x, y, z = q[0], q[1], q[2], q[3]
+  rot = np.array([
+      [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+  ])
+  body_dw = rot.T @ dw
+  torque = rot @ (inertia * body_dw)
+  for i in range(3):
+    out[i] = mass * dv[i] / dt
+    out[3 + i] = torque[i] / dt
+
+
+@_jit
+def _finite_step(sensors, n_bodies):
+  """``world._finite`` of one step: COM, orientation and velocities of every body finite."""
+  for b in range(n_bodies):
+    for i in range(13):
+      if not np.isfinite(sensors[b * SENSOR_WIDTH + i]):
+        return False
+  return True
+
+
+# --- one frame of a batch ----------------------------------------------------
+
+@_jit
+def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_start, frame,
+                 qpos_buf, com_buf, wrench_full, running):
+  """:func:`world.frame_update` for the worlds that ran a frame, and the recording.
+
+  Args:
+    rows: i64[n] chunk row of each world that stepped the frame.
+    sensordata: f32[C, S, B * SENSOR_WIDTH] sensors of the frame's steps (NaN
+      where MuJoCo reset the world).
+    key_data: u32[C, 2] per-world step key roots (``jax.random.key_data``).
+    p: :class:`HostParams`.
+    carry: :class:`world.WorldCarry` of host arrays (:func:`init_carry`), updated.
+    tracked: i64[B] MuJoCo body id of each tracked body.
+    before: f64[n, nstate] state s_k each world started the frame from.
+    qpos_start: index of qpos in a state.
+    frame: frame index to record into.
+    qpos_buf: f32[C, T, nq] out; com_buf: f32[C, T, B, 3] out: the recording.
+    wrench_full: f64[C, S, nbody, 6] out: ``xfrc_applied`` of the next frame.
+    running: bool[C] out: whether each stepped world needs the next frame.
+  """
+  n_steps = sensordata.shape[1]
+  n_bodies = tracked.size
+  nq = qpos_buf.shape[2]
+  dt = p.dt
+  delta_v = np.empty((n_steps, n_bodies, 3))
+  delta_w = np.empty((n_steps, n_bodies, 3))
+  impact_v = np.empty((n_steps, n_bodies), np.bool_)
+  impact_w = np.empty((n_steps, n_bodies), np.bool_)
+  u = np.empty(6)
+  dv = np.empty(3)
+  dw = np.empty(3)
+  quat = np.empty(4)
+  wrench = np.empty(6)
+  for i in range(rows.size):
+    r = rows[i]
+    obs = sensordata[r]
+    k0 = carry.step[r]
+    was_running = carry.status[r] == world.RUNNING
+    record = was_running and _finite_step(obs[0], n_bodies)
+
+    for j in range(n_steps):
+      for b in range(n_bodies):
+        o = b * SENSOR_WIDTH
+        for a in range(3):
+          delta_v[j, b, a] = dt * (obs[j, o + 13 + a] - p.gravity[a])
+          delta_w[j, b, a] = dt * obs[j, o + 16 + a]
+        impact_v[j, b] = _norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2]) > p.linear_threshold * dt
+        impact_w[j, b] = _norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2]) > p.angular_threshold * dt
+
+    healthy = True
+    still = carry.still_steps[r]
+    for j in range(n_steps):
+      k = k0 + j
+      healthy = healthy and _finite_step(obs[j], n_bodies)
+      for b in range(n_bodies):
+        o = b * SENSOR_WIDTH
+        if _norm3(obs[j, o + 7], obs[j, o + 8], obs[j, o + 9]) > p.max_speed:
+          healthy = False
+      # The last frame is recorded at its first step; later steps of it are
+      # not part of the world (its simulation ends there).
+      keep = healthy and was_running and (k0 // p.steps_per_frame < p.end_frame or j == 0)
+      any_moving = False
+      for b in range(n_bodies):
+        o = b * SENSOR_WIDTH
+        speed = _norm3(obs[j, o + 7], obs[j, o + 8], obs[j, o + 9])
+        spin = _norm3(obs[j, o + 10], obs[j, o + 11], obs[j, o + 12])
+        moving = speed >= p.rest_linear_speed or spin >= p.rest_angular_speed
+        any_moving = any_moving or moving
+        if k == 0:
+          for a in range(4):
+            carry.init_quat[r, b, a] = obs[j, o + 3 + a]
+        if not keep:
+          continue
+        m = carry.metrics[r, b]
+        impact = impact_v[j, b] or impact_w[j, b]
+        m[0] += spin * dt
+        if moving:
+          # k·dt rounded as float32 arithmetic rounds it (the product of two
+          # float32 values is exact in float64): rest times are the same
+          # discrete values on every backend.
+          m[1] = np.float32(float(np.float32(k)) * float(np.float32(dt)))
+        if impact and carry.since_impact[r, b] > p.collision_gap_steps:
+          m[2] += 1.0
+        dot = 0.0
+        for a in range(4):
+          dot += carry.init_quat[r, b, a] * obs[j, o + 3 + a]
+        m[3] = 2.0 * math.acos(min(abs(dot), 1.0))
+        if k > 0:
+          m[4] += _norm3(obs[j, o] - carry.prev_com[r, b, 0], obs[j, o + 1] - carry.prev_com[r, b, 1],
+                         obs[j, o + 2] - carry.prev_com[r, b, 2])
+        m[5] = max(m[5], obs[j, o + 2])
+        carry.since_impact[r, b] = 0 if impact else carry.since_impact[r, b] + 1
+        for a in range(3):
+          carry.prev_com[r, b, a] = obs[j, o + a]
+      still = 0 if any_moving else still + 1
+
+    status = carry.status[r]
+    if was_running:
+      if not healthy:
+        status = world.UNSTABLE
+      elif still >= p.rest_steps:
+        status = world.AT_REST
+      elif k0 // p.steps_per_frame >= p.end_frame:
+        status = world.END_TIME
+      else:
+        status = world.RUNNING
+    keep_going = was_running and status == world.RUNNING
+
+    n_applied = 0
+    for j in range(n_steps):
+      for b in range(n_bodies):
+        for a in range(6):
+          wrench_full[r, j, tracked[b], a] = 0.0
+        if not (keep_going and p.enabled and p.perturbable[b] and (impact_v[j, b] or impact_w[j, b])):
+          continue
+        body_step_uniforms(key_data[r, 0], key_data[r, 1], k0 + j, b, u)
+        dv[:] = 0.0
+        dw[:] = 0.0
+        if impact_v[j, b]:
+          _perturbation(u[0], u[1], u[2], delta_v[j, b], p.alpha, p.lobe_exponent, dv)
+        if impact_w[j, b]:
+          _perturbation(u[3], u[4], u[5], delta_w[j, b], p.alpha, p.lobe_exponent, dw)
+        if np.any(dv != 0.0) or np.any(dw != 0.0):
+          n_applied += 1
+        for a in range(4):
+          quat[a] = obs[j, b * SENSOR_WIDTH + 3 + a]
+        _impulse_wrench(dv, dw, p.mass[b], p.inertia[b], quat, dt, wrench)
+        for a in range(6):
+          wrench_full[r, j, tracked[b], a] = wrench[a]
+
+    if was_running:
+      carry.step[r] = k0 + n_steps
+      carry.still_steps[r] = still
+    carry.status[r] = status
+    carry.perturbations[r] += n_applied
+    if record:
+      carry.frame_count[r] += 1
+      for a in range(nq):
+        qpos_buf[r, frame, a] = np.float32(before[i, qpos_start + a])
+      for b in range(n_bodies):
+        for a in range(3):
+          com_buf[r, frame, b, a] = obs[0, b * SENSOR_WIDTH + a]
+    running[r] = keep_going
