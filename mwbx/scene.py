@@ -24,7 +24,10 @@ from mwbx.errors import MwbxError
 # Per tracked body the model gets these sensors, all on the body's inertial
 # frame (its centre of mass), in this order. The acceleration sensors give the
 # velocity change of the step just taken (MuJoCo integrates qvel += h·qacc), so
-# impacts are detected without differencing states.
+# impacts are detected without differencing states; the linear one reports the
+# proper acceleration a - gravity (free fall reads zero). The native backend
+# computes the same block from the states for free bodies and steps with
+# sensors disabled (batch_sim.host_loops.observe_free_bodies).
 SENSORS = (
     ("com_pos", mujoco.mjtSensor.mjSENS_FRAMEPOS, 3),
     ("quat", mujoco.mjtSensor.mjSENS_FRAMEQUAT, 4),

@@ -8,9 +8,11 @@ For each scene (quickstart, pachinko) and the same randomized initial states:
   (e) the mwbx sampler on the mjx backend
 in world-steps per second, each with its batch size, plus the sampler's own
 overhead (perturb + record + metrics) over the time spent inside the physics
-engine. (a), (b) and (d) alternate for a few repeats and each keeps its best,
-since the machine may be shared. Compile time and compression time are
-reported apart and never counted in the rates.
+engine. The baselines (a), (b), (c) step the scene's MJCF as written, without
+the observation sensors mwbx adds: what those cost counts against the sampler.
+(a), (b) and (d) alternate for a few repeats, as do (c) and (e), and each keeps
+its best, since the machine may be shared. Compile time and compression time
+are reported apart and never counted in the rates.
 
   .venv/bin/python scripts/bench_sampler.py [--worlds 256] [--mjx-worlds 32] [--skip-mjx]
 
@@ -35,6 +37,7 @@ from mujoco import rollout as mj_rollout
 
 import mwbx
 from mwbx.batch_sim.sampler import world_keys
+from mwbx.scene import build_model
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -72,6 +75,14 @@ def bench_rollout(model, qpos0, qvel0, n_steps, threads):
   return len(qpos0) * n_steps / seconds
 
 
+def baseline_model(sampler):
+  """The scene's MJCF compiled without mwbx's sensors, same timestep."""
+  scene = sampler.scene
+  model = build_model(scene.mjcf_text, (), scene.mjcf_dir)
+  model.opt.timestep = scene.model.opt.timestep
+  return model
+
+
 def bench_mjx(model, qpos0, qvel0, n_steps):
   mx = mjx.put_model(model, impl="jax")
   base = mjx.make_data(model, impl="jax")
@@ -94,11 +105,11 @@ def bench_scene(name, args):
   config = mwbx.load_config(REPO / "configs" / f"{name}.yaml")
   rows = []
   with mwbx.Sampler(config, backend="native", chunk_size=args.worlds) as sampler:
-    model = sampler.scene.model
+    model = baseline_model(sampler)
     n_steps = sampler.n_frames * sampler.params.steps_per_frame
     qpos0, qvel0 = initial_states(sampler, args.worlds)
     threads = sampler.backend.threads
-    sampler.run(min(args.worlds, 8), jax.random.key(1))  # warm up: compile the kernels
+    sampler.run(args.worlds, jax.random.key(1))  # warm up: compile the loops and the codec fit
     # The machine is shared: alternate (a), (b), (d) and keep each one's best.
     best = {"a": 0.0, "b": 0.0, "d": 0.0}
     for _ in range(args.repeats):
@@ -118,16 +129,21 @@ def bench_scene(name, args):
   if not args.skip_mjx:
     short = config.with_overrides(end_time=args.mjx_end_time, chunk_size=args.mjx_worlds)
     with mwbx.Sampler(short, backend="mjx") as sampler:
-      model = sampler.scene.model
+      model = baseline_model(sampler)
       n_steps = sampler.n_frames * sampler.params.steps_per_frame
       qpos0, qvel0 = initial_states(sampler, args.mjx_worlds)
-      rate_c, compile_c = bench_mjx(model, qpos0, qvel0, n_steps)
+      rate_c, rate_e = 0.0, 0.0
+      for _ in range(args.mjx_repeats):
+        rate, compile_c = bench_mjx(model, qpos0, qvel0, n_steps)
+        rate_c = max(rate_c, rate)
+        _, stats = sampler.run(args.mjx_worlds, jax.random.key(0))
+        if stats.world_steps_per_second > rate_e:
+          rate_e, stats_e = stats.world_steps_per_second, stats
       rows.append(("c", f"bare MJX step ({jax.default_backend()})", args.mjx_worlds, rate_c,
                    {"compile_s": compile_c, "end_time": args.mjx_end_time}))
-      _, stats = sampler.run(args.mjx_worlds, jax.random.key(0))
-      rows.append(("e", f"mwbx sampler, {stats.backend}", args.mjx_worlds, stats.world_steps_per_second,
-                   {"compile_s": stats.compile_seconds, "end_time": args.mjx_end_time,
-                    "overhead_over_bare_mjx": rate_c / stats.world_steps_per_second - 1}))
+      rows.append(("e", f"mwbx sampler, {stats_e.backend}", args.mjx_worlds, rate_e,
+                   {"compile_s": stats_e.compile_seconds, "end_time": args.mjx_end_time,
+                    "overhead_over_bare_mjx": rate_c / rate_e - 1}))
   return rows
 
 
@@ -139,6 +155,7 @@ def main():
   parser.add_argument("--mjx-worlds", type=int, default=32, help="batch of (c) and (e)")
   parser.add_argument("--mjx-end-time", type=float, default=0.5, help="simulated seconds for (c) and (e)")
   parser.add_argument("--repeats", type=int, default=3, help="alternating repeats of (a), (b), (d)")
+  parser.add_argument("--mjx-repeats", type=int, default=2, help="alternating repeats of (c), (e)")
   parser.add_argument("--skip-mjx", action="store_true")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "sampler.json"))
   args = parser.parse_args()

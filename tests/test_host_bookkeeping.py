@@ -44,7 +44,7 @@ def _observations(rng, n_worlds, n_frames, n_steps, n_bodies):
   quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
   lin_vel = rng.normal(size=shape + (3,))
   ang_vel = 3 * rng.normal(size=shape + (3,))
-  lin_acc = np.broadcast_to([0.0, 0.0, -9.81], shape + (3,)) + rng.normal(size=shape + (3,))
+  lin_acc = rng.normal(size=shape + (3,))  # as MuJoCo reports it: a - gravity
   ang_acc = 10 * rng.normal(size=shape + (3,))
   impacts = rng.random(shape) < 0.08
   lin_acc = np.where(impacts[..., None], 400 * rng.normal(size=shape + (3,)), lin_acc)
@@ -54,7 +54,7 @@ def _observations(rng, n_worlds, n_frames, n_steps, n_bodies):
   resting = np.arange(n_worlds) % 4 == 1  # still from frame 6 on: comes to rest
   lin_vel[6:, resting] *= 1e-3
   ang_vel[6:, resting] *= 1e-3
-  lin_acc[6:, resting] = [0.0, 0.0, -9.81]
+  lin_acc[6:, resting] = [0.0, 0.0, 9.81]
   ang_acc[6:, resting] = 0.0
   lin_vel[9, 2, 1, 0] = [80.0, 0.0, 0.0]  # faster than max_speed: unstable
   com[13, 3, 2, 1, 2] = np.nan  # a NaN observation mid-frame: unstable
@@ -77,7 +77,8 @@ def test_frame_update_matches_world_frame_update(enabled):
   key_data = np.asarray(jax.random.key_data(keys), np.uint32)
 
   jax_update = jax.jit(lambda carry, sensors: world.frame_update(
-      carry, jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensors), keys, params))
+      carry, jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(sensors),
+      keys, params))
   jax_carry = jax.vmap(world.init_carry, in_axes=(None, 0))(n_bodies, jnp.asarray(active))
   carry = host_bookkeeping.init_carry(n_bodies, active)
   running = active.copy()

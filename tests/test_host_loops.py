@@ -36,3 +36,63 @@ def test_absorb_rows_matches_numpy():
   assert np.isnan(sensordata[rows[2]]).all() and not np.isnan(sensordata[rows[1]]).any()
   untouched = np.setdiff1d(np.arange(c), rows)
   assert not sensordata[untouched].any() and not warmstart[untouched].any()
+
+
+# Sensors are float32 in the block; velocities of a few m/s and accelerations
+# of thousands of m/s² at impacts round at these magnitudes.
+_POSE_TOLERANCE = 1e-6
+_VELOCITY_TOLERANCE = 1e-5
+_ACCELERATION_RTOL = 1e-5
+
+
+def test_observe_free_bodies_matches_mujoco_sensors(quickstart_config):
+  """The block computed from states is what MuJoCo's sensors report, acceleration included."""
+  import jax
+  import mujoco
+  from mujoco import rollout
+
+  import mwbx
+  from mwbx.batch_sim.native_backend import NativeBackend
+  from mwbx.batch_sim.sampler import world_keys
+
+  scene = mwbx.Scene(quickstart_config)
+  model = scene.model
+  model.opt.timestep = quickstart_config.sim.timestep
+  backend = NativeBackend(model, threads=1)
+  free = backend.free_bodies(scene.body_ids)
+  assert free is not None
+  n_worlds, n_steps, n_frames = 4, 4, 60
+  _, init_keys, _ = world_keys(jax.random.key(0), np.arange(n_worlds))
+  qpos0, qvel0 = jax.vmap(scene.initial_state)(init_keys)
+  start = backend.initial_states(np.asarray(qpos0), np.asarray(qvel0))
+  with rollout.Rollout(nthread=1) as pool:
+    states, sensors = pool.rollout(model, mujoco.MjData(model), start, nstep=n_steps * n_frames)
+  backend.close()
+  got = np.zeros((n_worlds, n_frames * n_steps, model.nsensordata), np.float32)
+  for f in range(n_frames):
+    before = start if f == 0 else states[:, f * n_steps - 1]
+    frame = np.zeros((n_worlds, n_steps, model.nsensordata), np.float32)
+    host_loops.observe_free_bodies(np.arange(n_worlds), before, states[:, f * n_steps:(f + 1) * n_steps],
+                                   model.opt.timestep, model.opt.gravity, 1, 1 + model.nq, *free, frame)
+    got[:, f * n_steps:(f + 1) * n_steps] = frame
+  got = got.reshape(n_worlds, -1, len(scene.body_ids), 19).astype(np.float64)
+  want = sensors.reshape(got.shape)
+  # The horizon must contain impacts, or accelerations would only be gravity.
+  assert np.linalg.norm(want[..., 13:16], axis=-1).max() > 2 * quickstart_config.perturb.linear_threshold
+  np.testing.assert_allclose(got[..., 0:3], want[..., 0:3], atol=_POSE_TOLERANCE)
+  sign = np.sign(np.sum(got[..., 3:7] * want[..., 3:7], axis=-1, keepdims=True))  # q and -q: one rotation
+  np.testing.assert_allclose(sign * got[..., 3:7], want[..., 3:7], atol=_POSE_TOLERANCE)
+  np.testing.assert_allclose(got[..., 7:13], want[..., 7:13], atol=_VELOCITY_TOLERANCE)
+  scale = np.abs(want[..., 13:19]).max()
+  np.testing.assert_allclose(got[..., 13:19], want[..., 13:19], atol=_ACCELERATION_RTOL * scale)
+
+
+def test_free_bodies_only_for_free_roots(tiny_config):
+  from mwbx.batch_sim.native_backend import NativeBackend
+  import mwbx
+
+  scene = mwbx.Scene(tiny_config)
+  backend = NativeBackend(scene.model, threads=1)
+  assert backend.free_bodies(scene.body_ids) is not None
+  assert backend.free_bodies(np.array([0])) is None  # the world body has no free joint
+  backend.close()

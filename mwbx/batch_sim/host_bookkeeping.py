@@ -35,7 +35,6 @@ class HostParams(NamedTuple):
   """:class:`world.WorldParams` as host values (float64 arrays and Python scalars).
 
   Attributes:
-    gravity: f64[3] m/s².
     mass: f64[B] kg.
     inertia: f64[B, 3] principal moments, kg·m².
     perturbable: bool[B].
@@ -48,7 +47,6 @@ class HostParams(NamedTuple):
       as in :class:`world.WorldParams`.
   """
 
-  gravity: np.ndarray
   mass: np.ndarray
   inertia: np.ndarray
   perturbable: np.ndarray
@@ -71,7 +69,7 @@ class HostParams(NamedTuple):
     f64 = lambda x: np.ascontiguousarray(np.asarray(x, np.float64))
     pp = params.perturb
     return cls(
-        gravity=f64(params.gravity), mass=f64(params.mass), inertia=f64(params.inertia),
+        mass=f64(params.mass), inertia=f64(params.inertia),
         perturbable=np.ascontiguousarray(np.asarray(params.perturbable, np.bool_)),
         enabled=bool(params.enabled), alpha=float(pp.alpha), lobe_exponent=float(pp.lobe_exponent),
         linear_threshold=float(pp.linear_threshold), angular_threshold=float(pp.angular_threshold),
@@ -243,7 +241,8 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
       for b in range(n_bodies):
         o = b * SENSOR_WIDTH
         for a in range(3):
-          delta_v[j, b, a] = dt * (obs[j, o + 13 + a] - p.gravity[a])
+          # The sensor reads a - gravity: the velocity change contacts made.
+          delta_v[j, b, a] = dt * obs[j, o + 13 + a]
           delta_w[j, b, a] = dt * obs[j, o + 16 + a]
         impact_v[j, b] = _norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2]) > p.linear_threshold * dt
         impact_w[j, b] = _norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2]) > p.angular_threshold * dt

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from mwbx.scene import SENSOR_WIDTH
+
 _jit = numba.njit(cache=True, nogil=True)
 
 
@@ -46,3 +48,84 @@ def absorb_rows(rows, before, after, sensors, timestep, qvel_start, sensordata, 
       warmstart[r, j] = (after[i, n_steps - 1, qvel_start + j] - previous) / timestep
     for j in range(nstate):
       states[r, j] = after[i, n_steps - 1, j]
+
+
+@_jit
+def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel_start, qpos_adr,
+                        dof_adr, ipos, iquat, sensordata):
+  """The sensor block of tracked free bodies, computed from the states of a frame.
+
+  For a body whose only joint is a free joint hanging off the world body, the
+  state gives everything :data:`mwbx.scene.SENSORS` would report: the COM is
+  ``pos + R·ipos``, its orientation ``quat ⊗ iquat``, the angular velocity
+  ``R·ω_local`` and the COM velocity ``v + ω × R·ipos``. The accelerations are
+  the velocity changes across each step over ``dt`` (the linear one minus
+  gravity, as MuJoCo's sensor reports it), the change the perturbations are
+  defined on. So the model can step with sensors disabled (the acceleration
+  sensors cost MuJoCo up to 15–25 % of a step).
+
+  Args:
+    rows: i64[n] chunk row of each stepped world.
+    before: f64[n, nstate] states s_k the frame started from.
+    after: f64[n, S, nstate] states s_{k+1} … s_{k+S}.
+    timestep: physics step, s.
+    gravity: f64[3] m/s².
+    qpos_start, qvel_start: index of qpos and of qvel in a state.
+    qpos_adr: i64[B] qpos address of each body's free joint; dof_adr: i64[B]
+      its dof address.
+    ipos: f64[B, 3] COM in the body frame; iquat: f64[B, 4] inertial frame
+      orientation in the body frame.
+    sensordata: f32[C, S, B * SENSOR_WIDTH] out (NaN for worlds MuJoCo reset).
+  """
+  n, n_steps, _ = after.shape
+  n_bodies = qpos_adr.size
+  vel = np.empty((n_steps + 1, n_bodies, 6))
+  pose = np.empty((n_steps + 1, n_bodies, 7))
+  for i in range(n):
+    r = rows[i]
+    if not abs(after[i, n_steps - 1, 0] - (before[i, 0] + n_steps * timestep)) <= 1e-6:
+      for s in range(n_steps):
+        for j in range(sensordata.shape[2]):
+          sensordata[r, s, j] = np.float32(np.nan)
+      continue
+    for s in range(n_steps + 1):
+      x = before[i] if s == 0 else after[i, s - 1]
+      for b in range(n_bodies):
+        a = qpos_start + qpos_adr[b]
+        w, qx, qy, qz = x[a + 3], x[a + 4], x[a + 5], x[a + 6]
+        norm = np.sqrt(w * w + qx * qx + qy * qy + qz * qz)
+        w, qx, qy, qz = w / norm, qx / norm, qy / norm, qz / norm
+        r00, r01, r02 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - w * qz), 2 * (qx * qz + w * qy)
+        r10, r11, r12 = 2 * (qx * qy + w * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - w * qx)
+        r20, r21, r22 = 2 * (qx * qz - w * qy), 2 * (qy * qz + w * qx), 1 - 2 * (qx * qx + qy * qy)
+        ox = r00 * ipos[b, 0] + r01 * ipos[b, 1] + r02 * ipos[b, 2]
+        oy = r10 * ipos[b, 0] + r11 * ipos[b, 1] + r12 * ipos[b, 2]
+        oz = r20 * ipos[b, 0] + r21 * ipos[b, 1] + r22 * ipos[b, 2]
+        pose[s, b, 0] = x[a] + ox
+        pose[s, b, 1] = x[a + 1] + oy
+        pose[s, b, 2] = x[a + 2] + oz
+        iw, ix, iy, iz = iquat[b, 0], iquat[b, 1], iquat[b, 2], iquat[b, 3]
+        pose[s, b, 3] = w * iw - qx * ix - qy * iy - qz * iz
+        pose[s, b, 4] = w * ix + qx * iw + qy * iz - qz * iy
+        pose[s, b, 5] = w * iy - qx * iz + qy * iw + qz * ix
+        pose[s, b, 6] = w * iz + qx * iy - qy * ix + qz * iw
+        d = qvel_start + dof_adr[b]
+        lx, ly, lz = x[d + 3], x[d + 4], x[d + 5]
+        wx = r00 * lx + r01 * ly + r02 * lz
+        wy = r10 * lx + r11 * ly + r12 * lz
+        wz = r20 * lx + r21 * ly + r22 * lz
+        vel[s, b, 0] = x[d] + wy * oz - wz * oy
+        vel[s, b, 1] = x[d + 1] + wz * ox - wx * oz
+        vel[s, b, 2] = x[d + 2] + wx * oy - wy * ox
+        vel[s, b, 3] = wx
+        vel[s, b, 4] = wy
+        vel[s, b, 5] = wz
+    for s in range(n_steps):
+      for b in range(n_bodies):
+        o = b * SENSOR_WIDTH
+        for j in range(7):
+          sensordata[r, s, o + j] = np.float32(pose[s, b, j])
+        for j in range(6):
+          sensordata[r, s, o + 7 + j] = np.float32(vel[s, b, j])
+          acc = (vel[s + 1, b, j] - vel[s, b, j]) / timestep
+          sensordata[r, s, o + 13 + j] = np.float32(acc - gravity[j] if j < 3 else acc)

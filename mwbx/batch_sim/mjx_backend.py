@@ -68,7 +68,8 @@ class MjxBackend:
       d, carry, wrench, keys = state  # wrench: f32[W, S, B, 6]
       qpos = d.qpos  # s_k at the frame boundary, recorded if `record`.
       d_next, sensordata = jax.lax.scan(physics_step, d, jnp.swapaxes(wrench, 0, 1))
-      obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(jnp.swapaxes(sensordata, 0, 1))
+      obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(
+          jnp.swapaxes(sensordata, 0, 1))
       carry, out = world.frame_update(carry, obs, keys, params)
       keep = out.running
       d = jax.tree.map(

@@ -9,6 +9,7 @@ between calls. This is the fast path on CPUs.
 
 from __future__ import annotations
 
+import copy
 import os
 import time
 
@@ -38,8 +39,34 @@ class NativeBackend:
     self.pool = mj_rollout.Rollout(nthread=self.threads)
     self.datas = [mujoco.MjData(model) for _ in range(self.threads)]
     self.nstate = mujoco.mj_stateSize(model, _STATE)
-    self._kernels: dict = {}
     self._models: list = []  # rollout wants one model per world with skip_checks
+    self._quiet_model = None
+
+  @property
+  def quiet_model(self) -> mujoco.MjModel:
+    """A copy of :attr:`model` that steps with sensors disabled."""
+    if self._quiet_model is None:
+      self._quiet_model = copy.copy(self.model)
+      self._quiet_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+    return self._quiet_model
+
+  def free_bodies(self, body_ids: np.ndarray):
+    """What :func:`host_loops.observe_free_bodies` needs, or None.
+
+    Returns:
+      (qpos_adr i64[B], dof_adr i64[B], ipos f64[B, 3], iquat f64[B, 4]) when
+      every tracked body is a free body hanging off the world body (its only
+      joint a free joint), else None: then the sensors observe.
+    """
+    m = self.model
+    ids = np.asarray(body_ids, np.int64)
+    joints = m.body_jntadr[ids]
+    free = ((m.body_parentid[ids] == 0) & (m.body_jntnum[ids] == 1) & (joints >= 0)
+            & (m.jnt_type[np.maximum(joints, 0)] == mujoco.mjtJoint.mjJNT_FREE))
+    if not free.all():
+      return None
+    return (m.jnt_qposadr[joints].astype(np.int64), m.jnt_dofadr[joints].astype(np.int64),
+            np.ascontiguousarray(m.body_ipos[ids]), np.ascontiguousarray(m.body_iquat[ids]))
 
   def close(self) -> None:
     self.pool.close()
@@ -56,7 +83,8 @@ class NativeBackend:
       mujoco.mj_getState(m, data, states[w], _STATE)
     return states
 
-  def step(self, states: np.ndarray, wrench: np.ndarray, warmstart: np.ndarray, models: list | None = None):
+  def step(self, states: np.ndarray, wrench: np.ndarray, warmstart: np.ndarray, models: list | None = None,
+           *, sensors: bool = True):
     """The S physics steps of one frame for a batch.
 
     Args:
@@ -65,27 +93,30 @@ class NativeBackend:
       warmstart: f64[n, nv] solver warm start.
       models: optional model per world, each a copy of :attr:`model` that
         differs only in values (default: :attr:`model` for all).
+      sensors: False steps :attr:`quiet_model` (unless ``models`` are given)
+        and returns no sensors.
 
     Returns:
       (f64[n, S, nstate] states s_{k+1} … s_{k+S},
-       f64[n, S, nsensordata] sensors of steps k … k+S-1).
+       f64[n, S, nsensordata] sensors of steps k … k+S-1; width 0 without sensors).
     """
     n, n_steps = wrench.shape[:2]
     out_state = np.empty((n, n_steps, self.nstate))
-    out_sensor = np.empty((n, n_steps, self.model.nsensordata))
+    out_sensor = np.empty((n, n_steps, self.model.nsensordata if sensors else 0))
     if models is None:
-      if len(self._models) < n:
-        self._models = [self.model] * n
+      model = self.model if sensors else self.quiet_model
+      if len(self._models) < n or self._models[0] is not model:
+        self._models = [model] * max(n, len(self._models))
       models = self._models[:n]
     self.pool.rollout(
         models, self.datas, states, wrench, control_spec=_CONTROL, nstep=n_steps,
-        initial_warmstart=warmstart, state=out_state, sensordata=out_sensor, skip_checks=True,
-        chunk_size=max(1, n // (4 * self.threads)))
+        initial_warmstart=warmstart, state=out_state, sensordata=out_sensor if sensors else None,
+        skip_checks=True, chunk_size=max(1, n // (4 * self.threads)))
     return out_state, out_sensor
 
   def absorb_frame(self, rows: np.ndarray, before: np.ndarray, after: np.ndarray,
                    sensors: np.ndarray, sensordata: np.ndarray, warmstart: np.ndarray,
-                   states: np.ndarray) -> None:
+                   states: np.ndarray, free_bodies=None) -> None:
     """What one frame of :meth:`step` output means for the sampling loop, in place.
 
     Args:
@@ -97,10 +128,16 @@ class NativeBackend:
         reset (mj_step resets a diverging world to time 0: NaN marks it unstable).
       warmstart: f64[C, nv] out: warm start for the next frame.
       states: f64[C, nstate] out: states s_{k+S}.
+      free_bodies: :meth:`free_bodies` to compute the sensor block from the
+        states (``sensors`` then has width 0).
     """
-    host_loops.absorb_rows(np.asarray(rows, np.int64), before, after, sensors,
-                           self.model.opt.timestep, 1 + self.model.nq, sensordata, warmstart,
-                           states)
+    m = self.model
+    rows = np.asarray(rows, np.int64)
+    host_loops.absorb_rows(rows, before, after, sensors, m.opt.timestep, 1 + m.nq, sensordata,
+                           warmstart, states)
+    if free_bodies is not None:
+      host_loops.observe_free_bodies(rows, before, after, m.opt.timestep, m.opt.gravity, 1, 1 + m.nq,
+                                     *free_bodies, sensordata)
 
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                 n_frames: int, progress=None) -> ChunkResult:
@@ -123,6 +160,8 @@ class NativeBackend:
     host_params = host_bookkeeping.HostParams.from_world_params(params)
     key_data = np.asarray(jax.random.key_data(step_keys), np.uint32)
 
+    # Free bodies are observed from their states: MuJoCo then steps without sensors.
+    free_bodies = self.free_bodies(body_ids)
     spf = params.steps_per_frame
     states = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
     warmstart = np.zeros((c, nv))
@@ -157,9 +196,9 @@ class NativeBackend:
       wrench_in = wrench_full.reshape(c, spf, -1) if everyone else wrench_full[idx].reshape(n_run, spf, -1)
       warm_in = warmstart if everyone else warmstart[idx]
       physics_start = time.perf_counter()
-      after, sensors = self.step(before, wrench_in, warm_in)
+      after, sensors = self.step(before, wrench_in, warm_in, sensors=free_bodies is None)
       physics_seconds += time.perf_counter() - physics_start
-      self.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states)
+      self.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states, free_bodies)
       world_steps += n_run * spf
       bookkeeping(idx, before, frame)
       frame += 1

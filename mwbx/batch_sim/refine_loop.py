@@ -185,7 +185,8 @@ def _native_kernel(params: world.WorldParams, n_sensor: int):
   cache_key = (id(params), n_sensor)
   if cache_key not in _KERNELS:
     def kernel(carry, sensordata, keys, active, frame, stored, inter):
-      obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensordata[..., :n_sensor])
+      obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(
+          sensordata[..., :n_sensor])
       obs = _with_stored_motion(obs, active, frame, stored, params, inter)
       com_now, com_next = stored[0][frame + 1], stored[0][frame + 2]
       carry, out = world.frame_update(carry, obs, keys, params, _body_mask(active, inter))
@@ -423,7 +424,7 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
 
     d_next, sensordata = jax.lax.scan(physics_step, d, (jnp.arange(spf), jnp.swapaxes(wrench, 0, 1)))
     sensordata = jnp.swapaxes(sensordata, 0, 1)[..., :n_sensor]
-    obs = jax.vmap(jax.vmap(world.Observation.from_sensordata))(sensordata)
+    obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(sensordata)
     obs = _with_stored_motion(obs, active, frame, consts[6], params, inter)
     carry, out = world.frame_update(carry, obs, keys, params, _body_mask(active, inter))
     speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)

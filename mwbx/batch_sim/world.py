@@ -50,7 +50,7 @@ class Observation(NamedTuple):
     quat: f32[B, 4] inertial-frame orientation (w, x, y, z).
     lin_vel: f32[B, 3] COM velocity, m/s.
     ang_vel: f32[B, 3] angular velocity, rad/s, world frame.
-    lin_acc: f32[B, 3] COM acceleration over the step, m/s².
+    lin_acc: f32[B, 3] COM acceleration over the step, m/s² (free fall: gravity).
     ang_acc: f32[B, 3] angular acceleration over the step, rad/s².
   """
 
@@ -62,10 +62,15 @@ class Observation(NamedTuple):
   ang_acc: jax.Array
 
   @classmethod
-  def from_sensordata(cls, sensordata: jax.Array) -> "Observation":
-    """Splits ``f32[B * SENSOR_WIDTH]`` sensor data (mwbx.scene.SENSORS order)."""
+  def from_sensordata(cls, sensordata: jax.Array, gravity: jax.Array) -> "Observation":
+    """Splits ``f32[B * SENSOR_WIDTH]`` sensor data (mwbx.scene.SENSORS order).
+
+    MuJoCo's linear acceleration sensor reports the proper acceleration
+    ``a - gravity`` (free fall reads zero, like an accelerometer); ``lin_acc``
+    is ``a``.
+    """
     s = sensordata.reshape(-1, SENSOR_WIDTH).astype(jnp.float32)
-    return cls(s[:, 0:3], s[:, 3:7], s[:, 7:10], s[:, 10:13], s[:, 13:16], s[:, 16:19])
+    return cls(s[:, 0:3], s[:, 3:7], s[:, 7:10], s[:, 10:13], s[:, 13:16] + gravity, s[:, 16:19])
 
 
 class WorldParams(NamedTuple):
