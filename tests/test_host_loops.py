@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from mwbx.batch_sim import host_loops
+from mwbx.batch_sim import free_bodies, host_loops
 
 
 def _absorb_numpy(before, after, sensors, timestep, qvel_start, nv):
@@ -43,6 +43,11 @@ def test_absorb_rows_matches_numpy():
 _POSE_TOLERANCE = 1e-6
 _VELOCITY_TOLERANCE = 1e-5
 _ACCELERATION_RTOL = 1e-5
+# The JAX kernel runs in float32 from float32 states: velocity differences over
+# one 2 ms step lose about 1e-7 · |v| / dt.
+_F32_POSE_TOLERANCE = 2e-6
+_F32_VELOCITY_TOLERANCE = 1e-4
+_F32_ACCELERATION_RTOL = 1e-4
 
 
 def test_observe_free_bodies_matches_mujoco_sensors(quickstart_config):
@@ -59,7 +64,7 @@ def test_observe_free_bodies_matches_mujoco_sensors(quickstart_config):
   model = scene.model
   model.opt.timestep = quickstart_config.sim.timestep
   backend = NativeBackend(model, threads=1)
-  free = backend.free_bodies(scene.body_ids)
+  free = free_bodies.free_bodies(model, scene.body_ids)
   assert free is not None
   n_worlds, n_steps, n_frames = 4, 4, 60
   _, init_keys, _ = world_keys(jax.random.key(0), np.arange(n_worlds))
@@ -86,13 +91,22 @@ def test_observe_free_bodies_matches_mujoco_sensors(quickstart_config):
   scale = np.abs(want[..., 13:19]).max()
   np.testing.assert_allclose(got[..., 13:19], want[..., 13:19], atol=_ACCELERATION_RTOL * scale)
 
+  # The JAX kernel (MJX) computes the same block in float32.
+  path = np.concatenate([start[:, None], states], axis=1).astype(np.float32)
+  qpos, qvel = path[..., 1:1 + model.nq], path[..., 1 + model.nq:1 + model.nq + model.nv]
+  block = jax.vmap(free_bodies.observe, in_axes=(0, 0, None, None, None))(
+      qpos, qvel, free, model.opt.timestep, jax.numpy.asarray(model.opt.gravity, np.float32))
+  block = np.asarray(block).reshape(got.shape).astype(np.float64)
+  sign = np.sign(np.sum(block[..., 3:7] * want[..., 3:7], axis=-1, keepdims=True))
+  np.testing.assert_allclose(block[..., 0:3], want[..., 0:3], atol=_F32_POSE_TOLERANCE)
+  np.testing.assert_allclose(sign * block[..., 3:7], want[..., 3:7], atol=_F32_POSE_TOLERANCE)
+  np.testing.assert_allclose(block[..., 7:13], want[..., 7:13], atol=_F32_VELOCITY_TOLERANCE)
+  np.testing.assert_allclose(block[..., 13:19], want[..., 13:19], atol=_F32_ACCELERATION_RTOL * scale)
+
 
 def test_free_bodies_only_for_free_roots(tiny_config):
-  from mwbx.batch_sim.native_backend import NativeBackend
   import mwbx
 
   scene = mwbx.Scene(tiny_config)
-  backend = NativeBackend(scene.model, threads=1)
-  assert backend.free_bodies(scene.body_ids) is not None
-  assert backend.free_bodies(np.array([0])) is None  # the world body has no free joint
-  backend.close()
+  assert free_bodies.free_bodies(scene.model, scene.body_ids) is not None
+  assert free_bodies.free_bodies(scene.model, np.array([0])) is None  # the world body has no joint

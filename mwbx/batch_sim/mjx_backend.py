@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
@@ -37,7 +38,15 @@ class MjxBackend:
     self.model = model
     self.impl = impl
     self.mx = mjx.put_model(model, impl=impl)
+    self._quiet_mx = None
     self._blocks: dict = {}
+
+  @property
+  def quiet_mx(self):
+    """The MJX model with sensors disabled (put on the device when first needed)."""
+    if self._quiet_mx is None:
+      self._quiet_mx = mjx.put_model(free_bodies_lib.quiet_copy(self.model), impl=self.impl)
+    return self._quiet_mx
 
   def close(self) -> None:
     pass
@@ -58,18 +67,30 @@ class MjxBackend:
       return self._blocks[cache_key][1]
     nbody = self.model.nbody
     ids = jnp.asarray(body_ids)
+    # Free bodies are observed from their states: MJX then steps without sensors.
+    bodies = free_bodies_lib.free_bodies(self.model, body_ids)
+    mx = self.mx if bodies is None else self.quiet_mx
 
     def physics_step(d, xfrc_tracked):
       xfrc = jnp.zeros((xfrc_tracked.shape[0], nbody, 6), jnp.float32).at[:, ids].set(xfrc_tracked)
-      d = self.step(d, xfrc)
-      return d, d.sensordata
+      d_next = jax.vmap(mjx.step, in_axes=(None, 0))(mx, d.replace(xfrc_applied=xfrc))
+      return d_next, (d_next.sensordata if bodies is None else (d.qpos, d.qvel))
+
+    def observe(d_next, out):
+      """f32[W, S, B * SENSOR_WIDTH] sensor block of the frame's steps."""
+      if bodies is None:
+        return jnp.swapaxes(out, 0, 1)
+      qpos = jnp.concatenate([out[0], d_next.qpos[None]])  # [S + 1, W, nq]
+      qvel = jnp.concatenate([out[1], d_next.qvel[None]])
+      return jax.vmap(free_bodies_lib.observe, in_axes=(1, 1, None, None, None))(
+          qpos, qvel, bodies, params.dt, params.gravity)
 
     def frame(state, _):
       d, carry, wrench, keys = state  # wrench: f32[W, S, B, 6]
       qpos = d.qpos  # s_k at the frame boundary, recorded if `record`.
-      d_next, sensordata = jax.lax.scan(physics_step, d, jnp.swapaxes(wrench, 0, 1))
+      d_next, out = jax.lax.scan(physics_step, d, jnp.swapaxes(wrench, 0, 1))
       obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(
-          jnp.swapaxes(sensordata, 0, 1))
+          observe(d_next, out))
       carry, out = world.frame_update(carry, obs, keys, params)
       keep = out.running
       d = jax.tree.map(

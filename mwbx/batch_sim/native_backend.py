@@ -9,7 +9,6 @@ between calls. This is the fast path on CPUs.
 
 from __future__ import annotations
 
-import copy
 import os
 import time
 
@@ -18,6 +17,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
+from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import host_bookkeeping, host_loops, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
@@ -46,27 +46,8 @@ class NativeBackend:
   def quiet_model(self) -> mujoco.MjModel:
     """A copy of :attr:`model` that steps with sensors disabled."""
     if self._quiet_model is None:
-      self._quiet_model = copy.copy(self.model)
-      self._quiet_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+      self._quiet_model = free_bodies_lib.quiet_copy(self.model)
     return self._quiet_model
-
-  def free_bodies(self, body_ids: np.ndarray):
-    """What :func:`host_loops.observe_free_bodies` needs, or None.
-
-    Returns:
-      (qpos_adr i64[B], dof_adr i64[B], ipos f64[B, 3], iquat f64[B, 4]) when
-      every tracked body is a free body hanging off the world body (its only
-      joint a free joint), else None: then the sensors observe.
-    """
-    m = self.model
-    ids = np.asarray(body_ids, np.int64)
-    joints = m.body_jntadr[ids]
-    free = ((m.body_parentid[ids] == 0) & (m.body_jntnum[ids] == 1) & (joints >= 0)
-            & (m.jnt_type[np.maximum(joints, 0)] == mujoco.mjtJoint.mjJNT_FREE))
-    if not free.all():
-      return None
-    return (m.jnt_qposadr[joints].astype(np.int64), m.jnt_dofadr[joints].astype(np.int64),
-            np.ascontiguousarray(m.body_ipos[ids]), np.ascontiguousarray(m.body_iquat[ids]))
 
   def close(self) -> None:
     self.pool.close()
@@ -128,8 +109,8 @@ class NativeBackend:
         reset (mj_step resets a diverging world to time 0: NaN marks it unstable).
       warmstart: f64[C, nv] out: warm start for the next frame.
       states: f64[C, nstate] out: states s_{k+S}.
-      free_bodies: :meth:`free_bodies` to compute the sensor block from the
-        states (``sensors`` then has width 0).
+      free_bodies: :class:`free_bodies.FreeBodies` to compute the sensor block
+        from the states (``sensors`` then has width 0).
     """
     m = self.model
     rows = np.asarray(rows, np.int64)
@@ -161,7 +142,7 @@ class NativeBackend:
     key_data = np.asarray(jax.random.key_data(step_keys), np.uint32)
 
     # Free bodies are observed from their states: MuJoCo then steps without sensors.
-    free_bodies = self.free_bodies(body_ids)
+    free_bodies = free_bodies_lib.free_bodies(m, body_ids)
     spf = params.steps_per_frame
     states = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
     warmstart = np.zeros((c, nv))
