@@ -53,16 +53,10 @@ def absorb_rows(rows, before, after, sensors, timestep, qvel_start, sensordata, 
 @_jit
 def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel_start, qpos_adr,
                         dof_adr, ipos, iquat, sensordata):
-  """The sensor block of tracked free bodies, computed from the states of a frame.
+  """:func:`mwbx.batch_sim.free_bodies.observe` for the worlds of a frame, compiled.
 
-  For a body whose only joint is a free joint hanging off the world body, the
-  state gives everything :data:`mwbx.scene.SENSORS` would report: the COM is
-  ``pos + R·ipos``, its orientation ``quat ⊗ iquat``, the angular velocity
-  ``R·ω_local`` and the COM velocity ``v + ω × R·ipos``. The accelerations are
-  the velocity changes across each step over ``dt`` (the linear one minus
-  gravity, as MuJoCo's sensor reports it), the change the perturbations are
-  defined on. So the model can step with sensors disabled (the acceleration
-  sensors cost MuJoCo up to 15–25 % of a step).
+  The sensor block of tracked free bodies from the states of the frame (see
+  :mod:`mwbx.batch_sim.free_bodies`), in float64, rounded to float32.
 
   Args:
     rows: i64[n] chunk row of each stepped world.
