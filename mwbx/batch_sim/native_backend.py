@@ -65,7 +65,7 @@ class NativeBackend:
     return states
 
   def step(self, states: np.ndarray, wrench: np.ndarray, warmstart: np.ndarray, models: list | None = None,
-           *, sensors: bool = True):
+           *, sensors: bool = True, out: tuple[np.ndarray, np.ndarray] | None = None):
     """The S physics steps of one frame for a batch.
 
     Args:
@@ -76,14 +76,17 @@ class NativeBackend:
         differs only in values (default: :attr:`model` for all).
       sensors: False steps :attr:`quiet_model` (unless ``models`` are given)
         and returns no sensors.
+      out: optional (f64[N, S, nstate], f64[N, S, nsensordata or 0]) buffers,
+        N ≥ n, whose first n rows receive the result (no allocation per frame).
 
     Returns:
       (f64[n, S, nstate] states s_{k+1} … s_{k+S},
        f64[n, S, nsensordata] sensors of steps k … k+S-1; width 0 without sensors).
     """
     n, n_steps = wrench.shape[:2]
-    out_state = np.empty((n, n_steps, self.nstate))
-    out_sensor = np.empty((n, n_steps, self.model.nsensordata if sensors else 0))
+    if out is None:
+      out = (np.empty((n, n_steps, self.nstate)), np.empty((n, n_steps, self.model.nsensordata if sensors else 0)))
+    out_state, out_sensor = out[0][:n], out[1][:n]
     if models is None:
       model = self.model if sensors else self.quiet_model
       if len(self._models) < n or self._models[0] is not model:
@@ -168,16 +171,23 @@ class NativeBackend:
     world_steps = 0
     physics_seconds = 0.0
     all_rows = np.arange(c)
+    # Buffers reused every frame; the running worlds use their first rows.
+    before_buf = np.empty_like(states)
+    out = (np.empty((c, spf, self.nstate)), np.empty((c, spf, m.nsensordata if free_bodies is None else 0)))
     while running.any():
       everyone = running.all()
       # While every world runs, whole arrays stand in for gathers.
       idx = all_rows if everyone else np.flatnonzero(running)
-      before = states.copy() if everyone else states[idx]  # s_k, kept: states moves on below
-      n_run = len(before)
+      n_run = len(idx)
+      before = before_buf[:n_run]  # s_k, kept: states moves on below
+      if everyone:
+        np.copyto(before, states)
+      else:
+        np.take(states, idx, axis=0, out=before)
       wrench_in = wrench_full.reshape(c, spf, -1) if everyone else wrench_full[idx].reshape(n_run, spf, -1)
       warm_in = warmstart if everyone else warmstart[idx]
       physics_start = time.perf_counter()
-      after, sensors = self.step(before, wrench_in, warm_in, sensors=free_bodies is None)
+      after, sensors = self.step(before, wrench_in, warm_in, sensors=free_bodies is None, out=out)
       physics_seconds += time.perf_counter() - physics_start
       self.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states, free_bodies)
       world_steps += n_run * spf
