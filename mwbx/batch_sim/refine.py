@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from mwbx import bank as bank_lib
-from mwbx.batch_sim import interactions, kinematic, refine_loop, refine_store
+from mwbx.batch_sim import free_bodies, interactions, kinematic, refine_loop, refine_store
 from mwbx.batch_sim import world as world_lib
 from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
 from mwbx.errors import MwbxError
@@ -163,7 +163,11 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   targets = kinematic.step_targets(model, path, spf, model.opt.timestep) if mjx or playback == "step" else None
   object_names = tuple(scene.object_names)
   qm, vm = _object_masks(model, object_names)
-  models = None if mjx else kinematic.ContactFreeModels(model, object_names)
+  # Native: free bodies are observed from their states, so the rollout models
+  # (and their contact-free copies) step with sensors disabled.
+  bodies = None if mjx else free_bodies.free_bodies(model, scene.body_ids)
+  models = None if mjx else kinematic.ContactFreeModels(
+      model if bodies is None else sampler.backend.quiet_model, object_names)
   asked = np.array([o in names for o in object_names])
   cfg = scene.config
   inter = interactions.interaction_params(
@@ -196,7 +200,8 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
         params=params, inter=inter, path=path, step_targets=targets, first_frame=f0,
         qpos0=np.tile(qpos0, (chunk, 1)), qvel0=np.tile(qvel0, (chunk, 1)),
         active0=np.tile(asked, (chunk, 1)), carry0=carry, qpos_object=qm, dof_object=vm,
-        step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=models)
+        step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=models,
+        free_bodies=bodies)
     if mjx:
       run = refine_loop.run_mjx
     else:

@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import interactions, kinematic, world
 from mwbx.batch_sim.backend import fill_tail
 
@@ -54,6 +55,9 @@ class RefineInputs(NamedTuple):
     n_frames: end_frame + 1.
     body_ids: i32[B] tracked body ids.
     models: rollout models by inactive objects (native loop only, else None).
+    free_bodies: native loop only: the tracked bodies' state addresses when
+      they are all free bodies; the sensor block then comes from the states
+      and ``models`` step with sensors disabled (:mod:`free_bodies`).
   """
 
   params: world.WorldParams
@@ -72,6 +76,7 @@ class RefineInputs(NamedTuple):
   n_frames: int
   body_ids: np.ndarray
   models: kinematic.ContactFreeModels | None = None
+  free_bodies: free_bodies_lib.FreeBodies | None = None
 
 
 class RefineOutput(NamedTuple):
@@ -212,7 +217,7 @@ def _unpack(packed: np.ndarray, spf: int, n_bodies: int, n_objects: int):
           running[:, 0] > 0.5, worst[:, 0], stray[:, 0].astype(np.int64))
 
 
-def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, targets, qvel):
+def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, targets, qvel, sensors=True):
   """One frame as S one-step rollouts, inactive objects put on the stored
   path before each step after the first (``every_step`` playback).
 
@@ -223,6 +228,7 @@ def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, tar
       inactive during the frame.
     targets: f32[S, nq] stored qpos at the frame's steps; qvel: f32[nv] the
       frame's chord velocity.
+    sensors: as in :meth:`NativeBackend.step`.
 
   Returns:
     as :meth:`NativeBackend.step`.
@@ -231,17 +237,17 @@ def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, tar
   qadr, vadr = slice(1, 1 + m.nq), slice(1 + m.nq, 1 + m.nq + m.nv)
   n, spf = wrench.shape[:2]
   out_states = np.empty((n, spf, backend.nstate))
-  out_sensors = np.empty((n, spf, m.nsensordata))
+  out_sensors = np.empty((n, spf, m.nsensordata if sensors else 0))
   current = states
   for j in range(spf):
     if j > 0:
       # `current` is the last call's own output (already copied out): reset in place.
       np.copyto(current[:, qadr], targets[j], where=qmask)
       np.copyto(current[:, vadr], qvel, where=vmask)
-    after, sensors = backend.step(current, wrench[:, j:j + 1], warmstart, models)
+    after, step_sensors = backend.step(current, wrench[:, j:j + 1], warmstart, models, sensors=sensors)
     warmstart = (after[:, 0, vadr] - current[:, vadr]) / m.opt.timestep
     out_states[:, j] = after[:, 0]
-    out_sensors[:, j] = sensors[:, 0]
+    out_sensors[:, j] = step_sensors[:, 0]
     current = after[:, 0]
   return out_states, out_sensors
 
@@ -265,6 +271,7 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
   targets = None if inp.step_targets is None else inp.step_targets.reshape(-1, spf, nq)  # [F, S, nq]
 
   kernel = _native_kernel(params, n_sensor)
+  use_sensors = inp.free_bodies is None  # else the sensor block comes from the states
   states = backend.initial_states(inp.qpos0, inp.qvel0)
   states[:, 0] = f0 * spf * m.opt.timestep
   warmstart = np.zeros((c, nv))
@@ -306,10 +313,12 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
     if every_step:
       qmask, vmask = masks(inactive)
       after, sensors = _steps_on_path(backend, before, wrench_in, warmstart[idx], models, qmask, vmask,
-                                      targets[frame], path.qvel[frame])
+                                      targets[frame], path.qvel[frame], sensors=use_sensors)
     else:
-      after, sensors = backend.step(before, wrench_in, warmstart[idx], models)
-    backend.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states)
+      after, sensors = backend.step(before, wrench_in, warmstart[idx], models, sensors=use_sensors)
+    # Inactive objects' observations are replaced by their stored motion in
+    # the kernel, so observing them from un-reset states is harmless.
+    backend.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states, inp.free_bodies)
 
     carry, packed = kernel(carry, sensordata, inp.step_keys, active, np.int32(frame), stored, inter)
     wrench, com, nxt, record, still, worst, stray = _unpack(np.asarray(packed), spf, len(body_ids), n_objects)
