@@ -650,6 +650,13 @@ def segments_from_values(values, starts, counts, n_kind, expect, g_fp, coarse):
 
 
 @_jit
+def _channel_rows(c, n_per_world, columns, lo, hi, row_off):
+  """(first column, frame range lo:hi, row of frame 0) of channel c's output."""
+  w = c // n_per_world
+  return columns[c % n_per_world], lo[w], hi[w], row_off[w] - lo[w]
+
+
+@_jit
 def eval_linear(out, initial, seg_count, lengths, vel, flags, step, quad, n_per_world, columns,
                 wanted, lo, hi, row_off):
   """Write decoded linear channels (translations when ``quad`` != 0) into ``out``.
@@ -671,9 +678,7 @@ def eval_linear(out, initial, seg_count, lengths, vel, flags, step, quad, n_per_
   s = 0
   for c in range(seg_count.size):
     n_seg = seg_count[c]
-    w = c // n_per_world
-    col = columns[c % n_per_world]
-    f_lo, f_hi, row0 = lo[w], hi[w], row_off[w] - lo[w]
+    col, f_lo, f_hi, row0 = _channel_rows(c, n_per_world, columns, lo, hi, row_off)
     if not wanted[c] or f_lo >= f_hi:
       s += n_seg
       continue
@@ -736,9 +741,7 @@ def eval_rotation(out, initial, seg_count, lengths, vel, step, n_per_world, colu
   s = 0
   for c in range(seg_count.size):
     n_seg = seg_count[c]
-    w = c // n_per_world
-    col = columns[c % n_per_world]
-    f_lo, f_hi, row0 = lo[w], hi[w], row_off[w] - lo[w]
+    col, f_lo, f_hi, row0 = _channel_rows(c, n_per_world, columns, lo, hi, row_off)
     if not wanted[c] or f_lo >= f_hi:
       s += n_seg
       continue
