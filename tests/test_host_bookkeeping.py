@@ -68,7 +68,7 @@ def _observations(rng, n_worlds, n_frames, n_steps, n_bodies):
 def test_frame_update_matches_world_frame_update(enabled):
   rng = np.random.default_rng(1)
   params = _params(enabled)
-  host_params = host_bookkeeping.HostParams.from_world_params(params)
+  host_params = host_bookkeeping.host_params(params)
   n_worlds, n_frames, n_steps, n_bodies, nq, nbody = 12, 30, 4, 3, 5, 6
   tracked = np.array([1, 3, 4])
   active = np.arange(n_worlds) != 11  # a padding slot

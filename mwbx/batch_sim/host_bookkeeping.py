@@ -20,64 +20,29 @@ two give the same perturbations up to float rounding.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
-
 import numba
 import numpy as np
 
-from mwbx.batch_sim import world
+from mwbx.batch_sim import host_loops, world
 from mwbx.scene import SENSOR_WIDTH
 
 _jit = numba.njit(cache=True, nogil=True)
 _MASK32 = np.uint64(0xFFFFFFFF)
 
 
-class HostParams(NamedTuple):
-  """:class:`world.WorldParams` as host values (float64 arrays and Python scalars).
-
-  Attributes:
-    mass: f64[B] kg.
-    inertia: f64[B, 3] principal moments, kg·m².
-    perturbable: bool[B].
-    enabled: perturbations on.
-    alpha, lobe_exponent, linear_threshold, angular_threshold: as in
-      :class:`mwbx.perturb.PerturbParams`.
-    dt: physics timestep, s.
-    rest_linear_speed, rest_angular_speed: m/s, rad/s.
-    rest_steps, max_speed, collision_gap_steps, steps_per_frame, end_frame:
-      as in :class:`world.WorldParams`.
-  """
-
-  mass: np.ndarray
-  inertia: np.ndarray
-  perturbable: np.ndarray
-  enabled: bool
-  alpha: float
-  lobe_exponent: float
-  linear_threshold: float
-  angular_threshold: float
-  dt: float
-  rest_linear_speed: float
-  rest_angular_speed: float
-  rest_steps: int
-  max_speed: float
-  collision_gap_steps: int
-  steps_per_frame: int
-  end_frame: int
-
-  @classmethod
-  def from_world_params(cls, params: world.WorldParams) -> "HostParams":
-    f64 = lambda x: np.ascontiguousarray(np.asarray(x, np.float64))
-    pp = params.perturb
-    return cls(
-        mass=f64(params.mass), inertia=f64(params.inertia),
-        perturbable=np.ascontiguousarray(np.asarray(params.perturbable, np.bool_)),
-        enabled=bool(params.enabled), alpha=float(pp.alpha), lobe_exponent=float(pp.lobe_exponent),
-        linear_threshold=float(pp.linear_threshold), angular_threshold=float(pp.angular_threshold),
-        dt=float(params.dt), rest_linear_speed=float(params.rest_linear_speed),
-        rest_angular_speed=float(params.rest_angular_speed), rest_steps=int(params.rest_steps),
-        max_speed=float(params.max_speed), collision_gap_steps=int(params.collision_gap_steps),
-        steps_per_frame=int(params.steps_per_frame), end_frame=int(params.end_frame))
+def host_params(params: world.WorldParams) -> world.WorldParams:
+  """``params`` with host values numba can read: float64 / bool numpy arrays,
+  Python scalars of fixed types (one compiled loop whatever the config wrote)."""
+  f64 = lambda x: np.ascontiguousarray(np.asarray(x, np.float64))
+  return params._replace(
+      gravity=f64(params.gravity), mass=f64(params.mass), inertia=f64(params.inertia),
+      perturbable=np.ascontiguousarray(np.asarray(params.perturbable, np.bool_)),
+      perturb=params.perturb._make(float(x) for x in params.perturb),
+      enabled=bool(params.enabled), dt=float(params.dt),
+      rest_linear_speed=float(params.rest_linear_speed), rest_angular_speed=float(params.rest_angular_speed),
+      rest_steps=int(params.rest_steps), max_speed=float(params.max_speed),
+      collision_gap_steps=int(params.collision_gap_steps), steps_per_frame=int(params.steps_per_frame),
+      end_frame=int(params.end_frame))
 
 
 def init_carry(n_bodies: int, active: np.ndarray) -> world.WorldCarry:
@@ -188,9 +153,7 @@ def _impulse_wrench(dv, dw, mass, inertia, quat, dt, out):
   """``perturb.impulse_wrench`` into ``out`` (f64[6]): force, torque in the world frame."""
   norm = math.sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2] + quat[3] * quat[3])
   w, x, y, z = quat[0] / norm, quat[1] / norm, quat[2] / norm, quat[3] / norm
-  r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-  r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-  r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+  r00, r01, r02, r10, r11, r12, r20, r21, r22 = host_loops.rotation_matrix(w, x, y, z)
   # I_world · dw = R · diag(inertia) · Rᵀ · dw
   bx = (r00 * dw[0] + r10 * dw[1] + r20 * dw[2]) * inertia[0]
   by = (r01 * dw[0] + r11 * dw[1] + r21 * dw[2]) * inertia[1]
@@ -224,7 +187,7 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
     sensordata: f32[C, S, B * SENSOR_WIDTH] sensors of the frame's steps (NaN
       where MuJoCo reset the world).
     key_data: u32[C, 2] per-world step key roots (``jax.random.key_data``).
-    p: :class:`HostParams`.
+    p: :func:`host_params` of the scene's :class:`world.WorldParams`.
     carry: :class:`world.WorldCarry` of host arrays (:func:`init_carry`), updated.
     tracked: i64[B] MuJoCo body id of each tracked body.
     before: f64[n, nstate] state s_k each world started the frame from.
@@ -261,8 +224,10 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
           # The sensor reads a - gravity: the velocity change contacts made.
           delta_v[j, b, a] = dt * obs[j, o + 13 + a]
           delta_w[j, b, a] = dt * obs[j, o + 16 + a]
-        impact_v[j, b] = _norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2]) > p.linear_threshold * dt
-        impact_w[j, b] = _norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2]) > p.angular_threshold * dt
+        impact_v[j, b] = (_norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2])
+                          > p.perturb.linear_threshold * dt)
+        impact_w[j, b] = (_norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2])
+                          > p.perturb.angular_threshold * dt)
 
     healthy = True
     still = carry.still_steps[r]
@@ -335,10 +300,10 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
         dw[:] = 0.0
         if impact_v[j, b]:
           _perturbation(u[0], u[1], u[2], delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2],
-                        p.alpha, p.lobe_exponent, dv)
+                        p.perturb.alpha, p.perturb.lobe_exponent, dv)
         if impact_w[j, b]:
           _perturbation(u[3], u[4], u[5], delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2],
-                        p.alpha, p.lobe_exponent, dw)
+                        p.perturb.alpha, p.perturb.lobe_exponent, dw)
         if (dv[0] != 0.0 or dv[1] != 0.0 or dv[2] != 0.0 or dw[0] != 0.0 or dw[1] != 0.0
             or dw[2] != 0.0):
           n_applied += 1

@@ -51,6 +51,14 @@ def absorb_rows(rows, before, after, sensors, timestep, qvel_start, sensordata, 
 
 
 @_jit
+def rotation_matrix(w, x, y, z):
+  """The 3x3 rotation matrix of the unit quaternion (w, x, y, z), row by row."""
+  return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+          2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+          2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+
+
+@_jit
 def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel_start, qpos_adr,
                         dof_adr, ipos, iquat, sensordata):
   """:func:`mwbx.batch_sim.free_bodies.observe` for the worlds of a frame, compiled.
@@ -89,9 +97,7 @@ def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel
         w, qx, qy, qz = x[a + 3], x[a + 4], x[a + 5], x[a + 6]
         norm = np.sqrt(w * w + qx * qx + qy * qy + qz * qz)
         w, qx, qy, qz = w / norm, qx / norm, qy / norm, qz / norm
-        r00, r01, r02 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - w * qz), 2 * (qx * qz + w * qy)
-        r10, r11, r12 = 2 * (qx * qy + w * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - w * qx)
-        r20, r21, r22 = 2 * (qx * qz - w * qy), 2 * (qy * qz + w * qx), 1 - 2 * (qx * qx + qy * qy)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation_matrix(w, qx, qy, qz)
         ox = r00 * ipos[b, 0] + r01 * ipos[b, 1] + r02 * ipos[b, 2]
         oy = r10 * ipos[b, 0] + r11 * ipos[b, 1] + r12 * ipos[b, 2]
         oz = r20 * ipos[b, 0] + r21 * ipos[b, 1] + r22 * ipos[b, 2]

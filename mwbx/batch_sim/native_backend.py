@@ -141,7 +141,7 @@ class NativeBackend:
     body_ids = scene.body_ids
     nq, nv = m.nq, m.nv
     qpos_adr = slice(1, 1 + nq)
-    host_params = host_bookkeeping.HostParams.from_world_params(params)
+    host_params = host_bookkeeping.host_params(params)
     key_data = np.asarray(jax.random.key_data(step_keys), np.uint32)
 
     # Free bodies are observed from their states: MuJoCo then steps without sensors.
