@@ -154,7 +154,7 @@ def test_rotation_fit_respects_angle_bound():
   n = 150
   omega = rng.normal(0, 0.05, (n, 3)).cumsum(axis=0) * 0.1
   q = np.stack([ref.quat_exp(w) for w in np.cumsum(omega, axis=0)]).astype(np.float32)
-  e = BOUNDS.e_rot / np.sqrt(3)
+  e = BOUNDS.e_rot * (1 - 1e-3)
   step = BOUNDS.e_rot / 64
   res = fit_lib.fit_rotation_batch(q[None], np.array([n], np.int32), np.array([e], np.float32),
                                    np.float32(step), np.int32(5))
@@ -169,6 +169,36 @@ def test_rotation_fit_respects_angle_bound():
     q_s = ref.quat_mul(ref.quat_exp((end - s) * vel[end] * step), q_s)
     s = end
   assert worst <= BOUNDS.e_rot
+
+
+def test_rotation_fit_uses_the_whole_error_ball():
+  # A spin about z (on every velocity lattice) with a wobble of 0.7 e_rot about x: the constant spin stays
+  # within the ball (radius e_rot) all along, but not within the cube of
+  # half-width e_rot / sqrt(3) that a per-axis fit would have to use.
+  n = 120
+  e = BOUNDS.e_rot * (1 - 1e-3)
+  step = BOUNDS.e_rot / 64
+  t = np.arange(n)
+  omega = np.stack([0.7 * BOUNDS.e_rot * np.sin(2 * np.pi * t / n), 0 * t, 64 * step * t], -1)
+  q = np.stack([ref.quat_exp(w) for w in omega]).astype(np.float32)
+  res = fit_lib.fit_rotation_batch(q[None], np.array([n], np.int32), np.array([e], np.float32),
+                                   np.float32(step), np.int32(6))
+  ends = np.flatnonzero(np.asarray(res.ends[0]))
+  assert ends.tolist() == [n - 1]
+  assert np.asarray(res.vel[0, n - 1]).tolist() == [0, 0, 64]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(
+    lambda v: np.linalg.norm(v) > 0.1))
+def test_stored_frame0_is_where_the_fit_starts(components):
+  # The encoder fits from the frame-0 value on its grid; the stream must store
+  # exactly that grid point (renormalizing it could move it by a grid step).
+  from mwbx.codec.stream import initial_codes, initial_steps, quantize_initial
+  codes = quantize_initial("rot", np.array([components]), BOUNDS)
+  grid = codes * initial_steps(BOUNDS)["rot"]
+  stored = initial_codes(np.pad(grid, ((0, 0), (0, 0)))[None], ["rot"], BOUNDS).astype(np.int64)
+  assert np.array_equal((stored >> 1) ^ -(stored & 1), codes)
 
 
 # -- streams and the guarantee -------------------------------------------------------

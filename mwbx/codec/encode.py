@@ -165,7 +165,7 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     raise CodecError(f"fps must be a finite number > 0, got {fps!r}")
   quanta = quanta or default_quanta(fps, gravity)
   steps = dict(zip(("pos", "rot", "scalar"), quanta.steps(bounds)))
-  fit_bound = {"pos": bounds.e_pos, "rot": bounds.e_rot / np.sqrt(3.0),
+  fit_bound = {"pos": bounds.e_pos, "rot": bounds.e_rot,
                "scalar": bounds.e_scalar}
   bound = {"pos": bounds.e_pos, "rot": bounds.e_rot, "scalar": bounds.e_scalar}
   kinds = (("pos", layout.pos_adr), ("rot", layout.rot_adr), ("scalar", layout.scalar_adr))

@@ -37,6 +37,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 # Velocities are kept in int32; windows are clipped to this magnitude first.
 _INT_CAP = 2.0**30
@@ -96,6 +97,23 @@ def rel_log(q: jax.Array, q_start: jax.Array) -> jax.Array:
 
 # Segments are cut at this length so integer products stay within int32.
 MAX_SEGMENT = 4096
+
+# Half-widths (per axis, in units of the ball radius) of the boxes that the
+# rotation fit tracks side by side; every row has norm <= 1, so each box lies in
+# the error ball. The cube first, then one long axis, then two.
+ROTATION_BOXES = np.array([
+    [0.577, 0.577, 0.577],
+    [0.900, 0.305, 0.305],
+    [0.305, 0.900, 0.305],
+    [0.305, 0.305, 0.900],
+    [0.680, 0.680, 0.270],
+    [0.680, 0.270, 0.680],
+    [0.270, 0.680, 0.680],
+], np.float32)
+
+# Rotation segments up to this many frames are also checked frame by frame
+# against the ball itself (the log-map deviations of the segment are kept).
+EXACT_SPAN = 32
 
 
 def lattice_exponent(length, coarse):
@@ -227,52 +245,97 @@ def _fit_linear_path(x, n, e, step, quad, coarse, g_fp, gravity: bool) -> Linear
   return LinearFit(ends, vel, flag)
 
 
+def _pick_near(lo, hi, pred, target, m):
+  """Like ``_pick`` but the lattice point ``pred + r * 2**m`` nearest ``target``."""
+  spacing = jnp.left_shift(jnp.int32(1), m)
+  r_t = jnp.round((jnp.clip(target, -_INT_CAP, _INT_CAP) - pred) / spacing).astype(jnp.int32)
+  v, r, ok = _pick(lo, hi, pred + r_t * spacing, m)
+  return v, r + r_t, ok
+
+
 def _fit_rotation_path(q, n, e, step, coarse) -> RotationFit:
   """Fit one rotation path.
 
   Args:
     q: f32[T, 4] unit quaternions (w, x, y, z); signs may flip between frames.
     n: i32 valid frames.
-    e: f32 half-width of the per-component box on the log-map error (radians).
+    e: f32 radius of the ball that bounds the log-map error (radians).
     step: f32 finest angular velocity quantum (radians per frame).
     coarse: i32 lattice exponent of a 1-frame segment.
   """
+  boxes = jnp.concatenate([jnp.asarray(ROTATION_BOXES, q.dtype) * e,
+                           jnp.full((1, 3), e, q.dtype)])  # last: the ball's bounding box
+  n_box = boxes.shape[0]
+  span = EXACT_SPAN
 
-  def constraint(q_t, q_s, tau):
-    omega = rel_log(q_t, q_s)
+  def windows(omega, tau):
     inv = 1.0 / (tau * step)
-    return (omega - e) * inv, (omega + e) * inv
+    return (omega - boxes) * inv, (omega + boxes) * inv  # [K+1, 3] each
+
+  def inside_ball(w, logs, tau):
+    """Every frame 1..tau of the segment within the ball (``logs[i]``: frame i + 1)."""
+    taus = jnp.arange(1, span + 1, dtype=q.dtype)[:, None]
+    dev = taus * w.astype(q.dtype) * step - logs
+    inside = jnp.sum(dev * dev, axis=-1) <= e * e
+    return jnp.all(inside | (jnp.arange(1, span + 1) > tau))
+
+  def best(lo, hi, pred, logs, tau):
+    """(velocity, feasible) for a segment of ``tau`` frames, the one with the
+    smallest residual among: each box's pick, and (segments up to ``span``
+    frames) three lattice points of the ball's bounding box that pass the
+    frame-by-frame check, those nearest the prediction, the window centre and the
+    least-squares velocity."""
+    m = lattice_exponent(tau, coarse)
+    w_box, r_box, ok_box = _pick(lo[:-1], hi[:-1], pred[None], m)
+    taus = jnp.arange(1, span + 1, dtype=q.dtype)[:, None]
+    in_segment = jnp.arange(1, span + 1)[:, None] <= tau
+    w_ls = jnp.sum(jnp.where(in_segment, taus * logs, 0.0), axis=0) / (
+        jnp.sum(jnp.where(in_segment, taus * taus, 0.0)) * step)
+    targets = jnp.stack([pred.astype(q.dtype), 0.5 * (lo[-1] + hi[-1]), w_ls])
+    w_ball, r_ball, ok_ball = jax.vmap(lambda tg: _pick_near(lo[-1], hi[-1], pred, tg, m))(targets)
+    checked = jax.vmap(lambda w: inside_ball(w, logs, tau))(w_ball) & (tau <= span)
+    cand = jnp.concatenate([w_box, w_ball])
+    good = jnp.concatenate([jnp.all(ok_box, axis=-1), jnp.all(ok_ball, axis=-1) & checked])
+    cost = jnp.sum(jnp.abs(jnp.concatenate([r_box, r_ball])), axis=-1)
+    cost = jnp.where(good, cost, jnp.iinfo(jnp.int32).max)
+    return cand[jnp.argmin(cost)], jnp.any(good)
 
   def end_value(q_s, w, length):
     q_e = quat_mul(quat_exp(length.astype(q.dtype) * w.astype(q.dtype) * step), q_s)
     return q_e / jnp.linalg.norm(q_e)
 
   def body(carry, inp):
-    t_s, q_s, lo, hi, pred = carry
+    t_s, q_s, lo, hi, pred, logs, w_prev = carry
     t, q_t = inp
     tau_i = t - t_s
-    clo, chi = constraint(q_t, q_s, tau_i.astype(q.dtype))
+    omega = rel_log(q_t, q_s)
+    clo, chi = windows(omega, tau_i.astype(q.dtype))
     nlo, nhi = jnp.maximum(lo, clo), jnp.minimum(hi, chi)
-    ok = _pick(nlo, nhi, pred, lattice_exponent(tau_i, coarse))[2]
-    cont = jnp.all(ok) & (tau_i <= MAX_SEGMENT)
+    nlogs = logs.at[jnp.minimum(tau_i, span) - 1].set(
+        jnp.where(tau_i <= span, omega, logs[span - 1]))
+    w_cur, ok = best(nlo, nhi, pred, nlogs, tau_i)
+    cont = ok & (tau_i <= MAX_SEGMENT)
     valid = t < n
     end = valid & ~cont
+    # The segment [t_s, t - 1] closes with the velocity found for it last frame.
     length = tau_i - 1
-    w = _pick(lo, hi, pred, lattice_exponent(length, coarse))[0]
-    q_e = end_value(q_s, w, length)
-    rlo, rhi = constraint(q_t, q_e, jnp.asarray(1.0, q.dtype))
-    closed = (t - 1, q_e, rlo, rhi, w)
-    extended = (t_s, q_s, nlo, nhi, pred)
+    q_e = end_value(q_s, w_prev, length)
+    omega1 = rel_log(q_t, q_e)
+    rlo, rhi = windows(omega1, jnp.asarray(1.0, q.dtype))
+    rlogs = jnp.zeros_like(logs).at[0].set(omega1)
+    w_one = best(rlo, rhi, w_prev, rlogs, jnp.int32(1))[0]
+    closed = (t - 1, q_e, rlo, rhi, w_prev, rlogs, w_one)
+    extended = (t_s, q_s, nlo, nhi, pred, nlogs, w_cur)
     new = jax.tree.map(lambda c, e_, o: jnp.where(end, c, jnp.where(valid, e_, o)),
                        closed, extended, carry)
-    return new, (end, w)
+    return new, (end, w_prev)
 
-  init = (jnp.int32(0), q[0], jnp.full(3, -jnp.inf, q.dtype), jnp.full(3, jnp.inf, q.dtype),
-          jnp.zeros(3, jnp.int32))
+  init = (jnp.int32(0), q[0], jnp.full((n_box, 3), -jnp.inf, q.dtype),
+          jnp.full((n_box, 3), jnp.inf, q.dtype), jnp.zeros(3, jnp.int32),
+          jnp.zeros((span, 3), q.dtype), jnp.zeros(3, jnp.int32))
   ts = jnp.arange(1, q.shape[0], dtype=jnp.int32)
   carry, (ends, vel) = jax.lax.scan(body, init, (ts, q[1:]))
-  t_s, _, lo, hi, pred = carry
-  last_w = _pick(lo, hi, pred, lattice_exponent(n - 1 - t_s, coarse))[0]
+  last_w = carry[-1]
   ends = jnp.concatenate([ends, jnp.zeros(1, bool)])
   vel = jnp.concatenate([vel, jnp.zeros((1, 3), jnp.int32)])
   last = jnp.maximum(n - 1, 0)
