@@ -27,7 +27,13 @@ be fitted finely; the stream stores the small integer ``r``.
 
 For rotations the bound on the rotation angle is enforced through
 ``angle(exp(a), exp(b)) <= |a - b|`` (the exponential map of SO(3) does not
-expand distances), with a box of half-width ``e_rot / sqrt(3)`` inside that ball.
+expand distances): every frame's log-map deviation must lie in the ball of
+radius ``e_rot``. Per-coordinate windows only describe a box, and the largest
+box inside that ball (half-width ``e_rot / sqrt(3)``) holds 37 % of it. So the
+fit keeps the cube's windows (always safe) and, for segments of up to
+``EXACT_SPAN`` frames, also tests a few lattice points of the ball's bounding
+box against the ball frame by frame; it takes the allowed velocity with the
+smallest residual. The decoder never needs to know which test admitted it.
 """
 
 from __future__ import annotations
@@ -63,57 +69,15 @@ class RotationFit(NamedTuple):
   vel: jax.Array
 
 
-def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
-  """Hamilton product of (w, x, y, z) quaternions, f32[..., 4]."""
-  aw, ax, ay, az = jnp.moveaxis(a, -1, 0)
-  bw, bx, by, bz = jnp.moveaxis(b, -1, 0)
-  return jnp.stack([
-      aw * bw - ax * bx - ay * by - az * bz,
-      aw * bx + ax * bw + ay * bz - az * by,
-      aw * by - ax * bz + ay * bw + az * bx,
-      aw * bz + ax * by - ay * bx + az * bw,
-  ], axis=-1)
-
-
-def quat_exp(omega: jax.Array) -> jax.Array:
-  """Unit quaternion of rotation vector ``omega: f32[..., 3]`` (radians)."""
-  theta = jnp.linalg.norm(omega, axis=-1, keepdims=True)
-  safe = jnp.where(theta > 1e-12, theta, 1.0)
-  factor = jnp.where(theta > 1e-12, jnp.sin(0.5 * theta) / safe, 0.5)
-  return jnp.concatenate([jnp.cos(0.5 * theta), factor * omega], axis=-1)
-
-
-def rel_log(q: jax.Array, q_start: jax.Array) -> jax.Array:
-  """Rotation vector of ``q (x) q_start^-1``, angle in [0, pi]; f32[3]."""
-  conj = q_start * jnp.array([1.0, -1.0, -1.0, -1.0], q_start.dtype)
-  rel = quat_mul(q, conj)
-  rel = jnp.where(rel[0] < 0, -rel, rel)  # q and -q are the same rotation
-  s = jnp.linalg.norm(rel[1:])
-  angle = 2.0 * jnp.arctan2(s, rel[0])
-  factor = jnp.where(s > 1e-12, angle / jnp.where(s > 1e-12, s, 1.0),
-                     2.0 / jnp.maximum(rel[0], 1e-12))
-  return factor * rel[1:]
-
-
 # Segments are cut at this length so integer products stay within int32.
 MAX_SEGMENT = 4096
 
-# Half-widths (per axis, in units of the ball radius) of the boxes that the
-# rotation fit tracks side by side; every row has norm <= 1, so each box lies in
-# the error ball. The cube first, then one long axis, then two.
-ROTATION_BOXES = np.array([
-    [0.577, 0.577, 0.577],
-    [0.900, 0.305, 0.305],
-    [0.305, 0.900, 0.305],
-    [0.305, 0.305, 0.900],
-    [0.680, 0.680, 0.270],
-    [0.680, 0.270, 0.680],
-    [0.270, 0.680, 0.680],
-], np.float32)
-
-# Rotation segments up to this many frames are also checked frame by frame
-# against the ball itself (the log-map deviations of the segment are kept).
-EXACT_SPAN = 32
+# Rotation segments of up to EXACT_SPAN frames are also tested frame by frame
+# against the error ball (their log-map deviations are kept); longer ones must
+# stay inside the cube of half-width e_rot / sqrt(3). 8 frames kept most of the
+# gain of 32 on the shipped scenes at a quarter of the cost.
+EXACT_SPAN = 8
+_CUBE = float(1.0 / np.sqrt(3.0)) * (1.0 - 2.0**-20)
 
 
 def lattice_exponent(length, coarse):
@@ -253,67 +217,117 @@ def _pick_near(lo, hi, pred, target, m):
   return v, r + r_t, ok
 
 
-def _fit_rotation_path(q, n, e, step, coarse) -> RotationFit:
-  """Fit one rotation path.
+def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
+  """Hamilton product of (w, x, y, z) quaternions, components first: f32[4, ...]."""
+  aw, ax, ay, az = a
+  bw, bx, by, bz = b
+  return jnp.stack([
+      aw * bw - ax * bx - ay * by - az * bz,
+      aw * bx + ax * bw + ay * bz - az * by,
+      aw * by - ax * bz + ay * bw + az * bx,
+      aw * bz + ax * by - ay * bx + az * bw,
+  ])
+
+
+def rel_log(q: jax.Array, q_start: jax.Array) -> jax.Array:
+  """Rotation vector of ``q (x) q_start^-1`` (angle in [0, pi]), components first:
+  f32[4, N] -> f32[3, N]."""
+  conj = q_start * jnp.array([1.0, -1.0, -1.0, -1.0], q_start.dtype)[:, None]
+  rel = quat_mul(q, conj)
+  rel = jnp.where(rel[0] < 0, -rel, rel)  # q and -q are the same rotation
+  s = jnp.sqrt(jnp.sum(rel[1:] * rel[1:], axis=0))
+  angle = 2.0 * jnp.arctan2(s, rel[0])
+  factor = jnp.where(s > 1e-12, angle / jnp.where(s > 1e-12, s, 1.0),
+                     2.0 / jnp.maximum(rel[0], 1e-12))
+  return factor * rel[1:]
+
+
+def quat_exp(omega: jax.Array) -> jax.Array:
+  """Unit quaternion of rotation vector ``omega`` (radians), components first:
+  f32[3, N] -> f32[4, N]."""
+  theta = jnp.sqrt(jnp.sum(omega * omega, axis=0))
+  safe = jnp.where(theta > 1e-12, theta, 1.0)
+  factor = jnp.where(theta > 1e-12, jnp.sin(0.5 * theta) / safe, 0.5)
+  return jnp.concatenate([jnp.cos(0.5 * theta)[None], factor * omega])
+
+
+def _fit_rotation_paths(q, n, e, step, coarse):
+  """Fit many rotation paths, the path axis last.
+
+  This kernel is written for a batch with the path axis LAST rather than for one
+  path under ``vmap``: vmap puts the path axis first, which leaves the inner
+  loops of the per-frame ball test 3 (or span x 3) long; with the paths last
+  XLA's CPU loops run across paths (the same fit, 256 paths x 512 frames: 16 ms
+  against 44-68 ms under vmap, measured). Every operation is still per path.
 
   Args:
-    q: f32[T, 4] unit quaternions (w, x, y, z); signs may flip between frames.
-    n: i32 valid frames.
-    e: f32 radius of the ball that bounds the log-map error (radians).
+    q: f32[T, 4, N] unit quaternions (w, x, y, z); signs may flip between frames.
+    n: i32[N] valid frames.
+    e: f32[N] radius of the ball that bounds the log-map error (radians).
     step: f32 finest angular velocity quantum (radians per frame).
     coarse: i32 lattice exponent of a 1-frame segment.
+
+  Returns:
+    (ends: bool[T - 1, N], vel: i32[T - 1, 3, N], last_w: i32[3, N]); entry i of
+    ends and vel describes the segment closing at frame i; last_w is the
+    velocity of the final segment (closing at frame n - 1).
   """
-  boxes = jnp.concatenate([jnp.asarray(ROTATION_BOXES, q.dtype) * e,
-                           jnp.full((1, 3), e, q.dtype)])  # last: the ball's bounding box
-  n_box = boxes.shape[0]
   span = EXACT_SPAN
+  dtype = q.dtype
+  num = q.shape[-1]
+  # Velocity windows (lo, hi: f32[2, 3, N]): the cube, the ball's bounding box.
+  half = jnp.asarray([[_CUBE], [1.0]], dtype)[:, :, None] * e
+  frame_of_row = jnp.arange(1, span + 1)[:, None, None]  # row i holds frame i + 1
+  taus = frame_of_row.astype(dtype)
+  int_max = jnp.iinfo(jnp.int32).max
 
   def windows(omega, tau):
     inv = 1.0 / (tau * step)
-    return (omega - boxes) * inv, (omega + boxes) * inv  # [K+1, 3] each
+    return (omega - half) * inv, (omega + half) * inv
 
-  def inside_ball(w, logs, tau):
-    """Every frame 1..tau of the segment within the ball (``logs[i]``: frame i + 1)."""
-    taus = jnp.arange(1, span + 1, dtype=q.dtype)[:, None]
-    dev = taus * w.astype(q.dtype) * step - logs
-    inside = jnp.sum(dev * dev, axis=-1) <= e * e
-    return jnp.all(inside | (jnp.arange(1, span + 1) > tau))
+  def inside_ball(w, logs, tau_i):
+    """bool[N]: frames 1..tau of the segment all within the ball."""
+    rate = w.astype(dtype) * step
+    d2 = sum((taus[:, 0] * rate[k] - logs[:, k]) ** 2 for k in range(3))  # [span, N]
+    outside = (d2 > e * e) & (frame_of_row[:, 0] <= tau_i)
+    return ~jnp.any(outside, axis=0)
 
-  def best(lo, hi, pred, logs, tau):
-    """(velocity, feasible) for a segment of ``tau`` frames, the one with the
-    smallest residual among: each box's pick, and (segments up to ``span``
-    frames) three lattice points of the ball's bounding box that pass the
-    frame-by-frame check, those nearest the prediction, the window centre and the
-    least-squares velocity."""
-    m = lattice_exponent(tau, coarse)
-    w_box, r_box, ok_box = _pick(lo[:-1], hi[:-1], pred[None], m)
-    taus = jnp.arange(1, span + 1, dtype=q.dtype)[:, None]
-    in_segment = jnp.arange(1, span + 1)[:, None] <= tau
-    w_ls = jnp.sum(jnp.where(in_segment, taus * logs, 0.0), axis=0) / (
-        jnp.sum(jnp.where(in_segment, taus * taus, 0.0)) * step)
-    targets = jnp.stack([pred.astype(q.dtype), 0.5 * (lo[-1] + hi[-1]), w_ls])
-    w_ball, r_ball, ok_ball = jax.vmap(lambda tg: _pick_near(lo[-1], hi[-1], pred, tg, m))(targets)
-    checked = jax.vmap(lambda w: inside_ball(w, logs, tau))(w_ball) & (tau <= span)
-    cand = jnp.concatenate([w_box, w_ball])
-    good = jnp.concatenate([jnp.all(ok_box, axis=-1), jnp.all(ok_ball, axis=-1) & checked])
-    cost = jnp.sum(jnp.abs(jnp.concatenate([r_box, r_ball])), axis=-1)
-    cost = jnp.where(good, cost, jnp.iinfo(jnp.int32).max)
-    return cand[jnp.argmin(cost)], jnp.any(good)
+  def best(lo, hi, pred, logs, sums, tau_i):
+    """(velocity i32[3, N], feasible bool[N]) for segments of ``tau_i`` frames:
+    the smallest residual among the cube's pick and (segments up to ``span``
+    frames) the lattice points of the ball's bounding box nearest the
+    prediction, the window centre and the least-squares velocity, those whose
+    every frame lies within the ball."""
+    m = lattice_exponent(tau_i, coarse)
+    w, r, ok = _pick(lo[0], hi[0], pred, m)
+    feasible = jnp.all(ok, axis=0)
+    cost = jnp.where(feasible, jnp.sum(jnp.abs(r), axis=0), int_max)
+    short = tau_i <= span
+    least_squares = sums[0] / (jnp.maximum(sums[1], 1.0) * step)
+    for target in (pred.astype(dtype), 0.5 * (lo[1] + hi[1]), least_squares):
+      w_c, r_c, ok_c = _pick_near(lo[1], hi[1], pred, target, m)
+      good = jnp.all(ok_c, axis=0) & short & inside_ball(w_c, logs, tau_i)
+      c = jnp.where(good, jnp.sum(jnp.abs(r_c), axis=0), int_max)
+      better = c < cost
+      w, cost = jnp.where(better, w_c, w), jnp.where(better, c, cost)
+      feasible = feasible | good
+    return w, feasible
 
   def end_value(q_s, w, length):
-    q_e = quat_mul(quat_exp(length.astype(q.dtype) * w.astype(q.dtype) * step), q_s)
-    return q_e / jnp.linalg.norm(q_e)
+    q_e = quat_mul(quat_exp(length.astype(dtype) * w.astype(dtype) * step), q_s)
+    return q_e / jnp.sqrt(jnp.sum(q_e * q_e, axis=0))
 
   def body(carry, inp):
-    t_s, q_s, lo, hi, pred, logs, w_prev = carry
+    t_s, q_s, lo, hi, pred, logs, sums, w_prev = carry
     t, q_t = inp
     tau_i = t - t_s
+    tau = tau_i.astype(dtype)
     omega = rel_log(q_t, q_s)
-    clo, chi = windows(omega, tau_i.astype(q.dtype))
+    clo, chi = windows(omega, tau)
     nlo, nhi = jnp.maximum(lo, clo), jnp.minimum(hi, chi)
-    nlogs = logs.at[jnp.minimum(tau_i, span) - 1].set(
-        jnp.where(tau_i <= span, omega, logs[span - 1]))
-    w_cur, ok = best(nlo, nhi, pred, nlogs, tau_i)
+    nlogs = jnp.where(frame_of_row == tau_i, omega, logs)
+    nsums = (sums[0] + tau * omega, sums[1] + tau * tau)
+    w_cur, ok = best(nlo, nhi, pred, nlogs, nsums, tau_i)
     cont = ok & (tau_i <= MAX_SEGMENT)
     valid = t < n
     end = valid & ~cont
@@ -321,28 +335,25 @@ def _fit_rotation_path(q, n, e, step, coarse) -> RotationFit:
     length = tau_i - 1
     q_e = end_value(q_s, w_prev, length)
     omega1 = rel_log(q_t, q_e)
-    rlo, rhi = windows(omega1, jnp.asarray(1.0, q.dtype))
-    rlogs = jnp.zeros_like(logs).at[0].set(omega1)
-    w_one = best(rlo, rhi, w_prev, rlogs, jnp.int32(1))[0]
-    closed = (t - 1, q_e, rlo, rhi, w_prev, rlogs, w_one)
-    extended = (t_s, q_s, nlo, nhi, pred, nlogs, w_cur)
+    one = jnp.ones(num, dtype)
+    rlo, rhi = windows(omega1, one)
+    rlogs = jnp.where(frame_of_row == 1, omega1, 0.0)
+    # A 1-frame segment: the cube always holds a lattice point (its width is
+    # more than the coarsest spacing, the bound per frame).
+    w_one = _pick(rlo[0], rhi[0], w_prev, lattice_exponent(jnp.ones(num, jnp.int32), coarse))[0]
+    closed = (jnp.broadcast_to(t - 1, (num,)), q_e, rlo, rhi, w_prev, rlogs, (omega1, one), w_one)
+    extended = (t_s, q_s, nlo, nhi, pred, nlogs, nsums, w_cur)
     new = jax.tree.map(lambda c, e_, o: jnp.where(end, c, jnp.where(valid, e_, o)),
                        closed, extended, carry)
     return new, (end, w_prev)
 
-  init = (jnp.int32(0), q[0], jnp.full((n_box, 3), -jnp.inf, q.dtype),
-          jnp.full((n_box, 3), jnp.inf, q.dtype), jnp.zeros(3, jnp.int32),
-          jnp.zeros((span, 3), q.dtype), jnp.zeros(3, jnp.int32))
+  zeros3 = jnp.zeros((3, num), jnp.int32)
+  init = (jnp.zeros(num, jnp.int32), q[0], jnp.full((2, 3, num), -jnp.inf, dtype),
+          jnp.full((2, 3, num), jnp.inf, dtype), zeros3, jnp.zeros((span, 3, num), dtype),
+          (jnp.zeros((3, num), dtype), jnp.zeros(num, dtype)), zeros3)
   ts = jnp.arange(1, q.shape[0], dtype=jnp.int32)
   carry, (ends, vel) = jax.lax.scan(body, init, (ts, q[1:]))
-  last_w = carry[-1]
-  ends = jnp.concatenate([ends, jnp.zeros(1, bool)])
-  vel = jnp.concatenate([vel, jnp.zeros((1, 3), jnp.int32)])
-  last = jnp.maximum(n - 1, 0)
-  has_last = n >= 2
-  ends = ends.at[last].set(jnp.where(has_last, True, ends[last]))
-  vel = vel.at[last].set(jnp.where(has_last, last_w, vel[last]))
-  return RotationFit(ends, vel)
+  return ends, vel, carry[-1]
 
 
 @functools.partial(jax.jit, static_argnames=("gravity",))
@@ -355,7 +366,13 @@ def fit_linear_batch(x, n, e, step, quad, coarse, g_fp, gravity: bool) -> Linear
 
 @jax.jit
 def fit_rotation_batch(q, n, e, step, coarse) -> RotationFit:
-  """Vmapped rotation fit. q: f32[N, T, 4] (normalized inside); n: i32[N]; e: f32[N]."""
+  """Rotation fit of many paths. q: f32[N, T, 4] (normalized inside); n: i32[N]; e: f32[N]."""
   norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
   q = q / jnp.where(norm > 0, norm, 1.0)
-  return jax.vmap(_fit_rotation_path, in_axes=(0, 0, 0, None, None))(q, n, e, step, coarse)
+  num, num_t = q.shape[:2]
+  ends, vel, last_w = _fit_rotation_paths(jnp.transpose(q, (1, 2, 0)), n, e, step, coarse)
+  ends = jnp.concatenate([ends.T, jnp.zeros((num, 1), bool)], axis=1)
+  vel = jnp.concatenate([jnp.transpose(vel, (2, 0, 1)), jnp.zeros((num, 1, 3), jnp.int32)], axis=1)
+  # The final segment closes at frame n - 1 (paths of 2 frames or more).
+  last = (jnp.arange(num_t)[None] == jnp.maximum(n - 1, 0)[:, None]) & (n >= 2)[:, None]
+  return RotationFit(ends | last, jnp.where(last[..., None], last_w.T[:, None], vel))
