@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import jax
+import mujoco
 import numpy as np
 import pytest
 
@@ -210,4 +211,93 @@ def test_state_observation_samples_like_the_sensors(tiny_config, monkeypatch):
     b = from_sensors.metric(name).sum(axis=1)
     assert stats.ks_2samp(a, b).pvalue > 1e-3, name
   ratio = from_states.perturbations.mean() / from_sensors.perturbations.mean()
+  assert 0.8 < ratio < 1.25
+
+
+def _reference_chunk(sampler, qpos0, qvel0, step_keys):
+  """Worlds one after another through ``mujoco.mj_step`` and the host loops,
+  the slow and obvious form of the compiled per-world loop (world_loop)."""
+  from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops
+
+  backend, scene, params = sampler.backend, sampler.scene, sampler.params
+  m = backend.model
+  fb = free_bodies.free_bodies(m, scene.body_ids)
+  model = backend.quiet_model if fb is not None else m
+  c, spf, n_frames = len(qpos0), params.steps_per_frame, sampler.n_frames
+  spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+  initial = backend.initial_states(qpos0, qvel0)
+  sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
+  qpos_buf = np.zeros((c, n_frames, m.nq), np.float32)
+  com_buf = np.zeros((c, n_frames, len(scene.body_ids), 3), np.float32)
+  wrench_full = np.zeros((c, spf, m.nbody, 6))
+  carry = host_bookkeeping.init_carry(len(scene.body_ids), np.ones(c, bool))
+  running = np.ones(c, bool)
+  key_data = np.asarray(jax.random.key_data(step_keys), np.uint32)
+  p = host_bookkeeping.host_params(params)
+  tracked = np.asarray(scene.body_ids, np.int64)
+  nstate = initial.shape[1]
+  for r in range(c):
+    d = mujoco.MjData(model)
+    mujoco.mj_setState(model, d, initial[r], spec)
+    frame = 0
+    while running[r]:
+      before = np.empty((1, nstate))
+      after = np.empty((1, spf, nstate))
+      sensors = np.zeros((1, spf, 0 if fb is not None else m.nsensordata))
+      mujoco.mj_getState(model, d, before[0], spec)
+      for s in range(spf):
+        d.xfrc_applied[:] = wrench_full[r, s]
+        mujoco.mj_step(model, d)
+        mujoco.mj_getState(model, d, after[0, s], spec)
+        if fb is None:
+          sensors[0, s] = d.sensordata
+      rows = np.array([r])
+      host_loops.absorb_rows(rows, before, after, sensors, m.opt.timestep, 1 + m.nq, sensordata,
+                             np.zeros((c, m.nv)), np.zeros((c, nstate)))
+      if fb is not None:
+        host_loops.observe_free_bodies(rows, before, after, m.opt.timestep,
+                                       np.asarray(m.opt.gravity), 1, 1 + m.nq, *fb, sensordata)
+      host_bookkeeping.frame_update(rows, sensordata, key_data, p, carry, tracked, before, 1, frame,
+                                    qpos_buf, com_buf, wrench_full, running)
+      frame += 1
+  return carry, qpos_buf
+
+
+def test_compiled_world_loop_matches_mj_step_one_world_at_a_time(tiny_native):
+  from mwbx.batch_sim import mujoco_c
+
+  assert mujoco_c.available()
+  sampler = tiny_native
+  _, init_keys, step_keys = mwbx.batch_sim.sampler.world_keys(jax.random.key(3), np.arange(6))
+  qpos0, qvel0 = (np.asarray(x) for x in sampler._init(init_keys))
+  result = sampler.backend.run_chunk(sampler.scene, sampler.params, qpos0, qvel0, step_keys,
+                                     np.ones(6, bool), sampler.n_frames)
+  carry, qpos_buf = _reference_chunk(sampler, qpos0, qvel0, step_keys)
+  assert carry.perturbations.sum() > 0
+  np.testing.assert_array_equal(result.frame_count, carry.frame_count)
+  np.testing.assert_array_equal(result.steps, carry.step)
+  np.testing.assert_array_equal(result.perturbations, carry.perturbations)
+  np.testing.assert_array_equal(result.status, carry.status)
+  for w in range(6):
+    n = result.frame_count[w]
+    np.testing.assert_array_equal(result.qpos[w, :n], qpos_buf[w, :n])
+
+
+def test_compiled_world_loop_samples_like_lockstep_rollout(tiny_config, monkeypatch):
+  """The per-world compiled loop and the lockstep rollout loop give the same
+  sampler (rollout restarts the solver's warm start from the last step's
+  accelerations at every frame, so worlds diverge, not their distribution)."""
+  from scipy import stats
+
+  from mwbx.batch_sim import mujoco_c
+
+  key = jax.random.key(5)
+  compiled = mwbx.sample(tiny_config, n_worlds=64, key=key, backend="native")
+  monkeypatch.setattr(mujoco_c, "available", lambda: False)
+  lockstep = mwbx.sample(tiny_config, n_worlds=64, key=key, backend="native")
+  for name in ("rest_time", "collisions", "path_length"):
+    a = compiled.metric(name).sum(axis=1)
+    b = lockstep.metric(name).sum(axis=1)
+    assert stats.ks_2samp(a, b).pvalue > 1e-3, name
+  ratio = compiled.perturbations.mean() / lockstep.perturbations.mean()
   assert 0.8 < ratio < 1.25

@@ -1,15 +1,22 @@
-"""The native backend: MuJoCo C through ``mujoco.rollout``'s thread pool.
+"""The native backend: MuJoCo C on a thread per core. The fast path on CPUs.
 
-One ``rollout`` call per frame (steps_per_frame physics steps) advances every
-running world of the batch (finished worlds are left out), with the
-perturbation wrenches of each step passed as ``xfrc_applied`` controls; the
-bookkeeping of the worlds that ran (:mod:`host_bookkeeping`, compiled) runs
-between calls. This is the fast path on CPUs.
+Sampling runs each world from start to finish in one compiled call
+(:mod:`world_loop`: ``mj_step`` through MuJoCo's C library, then the
+observation, bookkeeping and recording of each frame), a thread per core
+pulling worlds from a shared counter, each thread with its own ``MjData``.
+
+Where MuJoCo's C library cannot be bound (:func:`mujoco_c.available`), and for
+refinement (:meth:`NativeBackend.step`), worlds advance in lockstep through
+``mujoco.rollout``'s thread pool instead: one call per frame (steps_per_frame
+physics steps) for every running world, the perturbation wrenches of each step
+passed as ``xfrc_applied`` controls, the bookkeeping of the worlds that ran
+(:mod:`host_bookkeeping`, compiled) between calls.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 import time
 
 import jax
@@ -18,7 +25,7 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
-from mwbx.batch_sim import host_bookkeeping, host_loops, world
+from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, world_loop
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -125,7 +132,113 @@ class NativeBackend:
 
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                 n_frames: int, progress=None) -> ChunkResult:
-    """Runs C worlds in lockstep until all have finished.
+    """Runs C worlds until all have finished, each from start to finish on one
+    thread (:mod:`world_loop`), or in lockstep where that is not available.
+
+    Args:
+      scene: the :class:`mwbx.scene.Scene`.
+      params: bookkeeping constants.
+      qpos0: f32[C, nq]; qvel0: f32[C, nv] initial states.
+      step_keys: key[C] per-world step key roots.
+      active: bool[C] false for padding slots.
+      n_frames: frames per world at most (end_frame + 1).
+      progress: optional callback(world_steps_done, worlds_finished).
+    """
+    if not mujoco_c.available():
+      return self.run_chunk_lockstep(scene, params, qpos0, qvel0, step_keys, active, n_frames,
+                                     progress)
+    m = self.model
+    c = len(qpos0)
+    body_ids = scene.body_ids
+    host_params = host_bookkeeping.host_params(params)
+    key_data = np.asarray(jax.random.key_data(step_keys), np.uint32)
+    free_bodies = free_bodies_lib.free_bodies(m, body_ids)
+    free = free_bodies is not None
+    if free:
+      qpos_adr, dof_adr, ipos, iquat = free_bodies
+    else:
+      qpos_adr = dof_adr = np.zeros(0, np.int64)
+      ipos, iquat = np.zeros((0, 3)), np.zeros((0, 4))
+    # Free bodies are observed from their states: MuJoCo then steps without sensors.
+    model = self.quiet_model if free else m
+    spf = params.steps_per_frame
+    initial = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
+    states = initial.copy()
+    warmstart = np.zeros((c, m.nv))
+    wrench_full = np.zeros((c, spf, m.nbody, 6))
+    sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
+    qpos_buf = np.zeros((c, n_frames, m.nq), np.float32)
+    com_buf = np.zeros((c, n_frames, len(body_ids), 3), np.float32)
+    active = np.asarray(active)
+    carry = host_bookkeeping.init_carry(len(body_ids), active)
+    running = active.copy()
+    tracked_ids = np.asarray(body_ids, np.int64)
+    gravity = np.asarray(m.opt.gravity, np.float64)
+    datas = [mujoco.MjData(model) for _ in range(self.threads)]
+
+    def run(row, data):
+      return world_loop.run_world(
+          row, model._address, data._address, data.xfrc_applied, data.sensordata, initial, n_frames,
+          m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
+          states, key_data, host_params, carry, tracked_ids, qpos_buf, com_buf, wrench_full, running)
+
+    # The first call compiles the loop, or loads it from numba's cache.
+    t0 = time.perf_counter()
+    spare = mujoco.MjData(model)
+    probe = np.zeros(c, bool)
+    world_loop.run_world(
+        0, model._address, spare._address, spare.xfrc_applied, spare.sensordata, initial, n_frames,
+        m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
+        states, key_data, host_params, carry, tracked_ids, qpos_buf, com_buf, wrench_full, probe)
+    compile_seconds = time.perf_counter() - t0
+
+    rows = iter(np.flatnonzero(active).tolist())
+    lock = threading.Lock()
+    physics = np.zeros(self.threads)
+    busy = np.zeros(self.threads)
+    errors = []
+
+    def worker(t):
+      start = time.perf_counter()
+      try:
+        while True:
+          with lock:
+            row = next(rows, None)
+          if row is None or errors:
+            break
+          physics[t] += run(row, datas[t])
+      except BaseException as exc:  # noqa: BLE001 - re-raised on the calling thread
+        errors.append(exc)
+      busy[t] = time.perf_counter() - start
+
+    t0 = time.perf_counter()
+    threads = [threading.Thread(target=worker, args=(t,), daemon=True) for t in range(self.threads)]
+    for thread in threads:
+      thread.start()
+    while any(thread.is_alive() for thread in threads):
+      threads[0].join(0.25)
+      if progress is not None:
+        progress(int(carry.step.sum()), int((~running & active).sum()))
+    for thread in threads:
+      thread.join()
+    run_seconds = time.perf_counter() - t0
+    if errors:
+      raise errors[0]
+    if progress is not None:
+      progress(int(carry.step.sum()), int(active.sum()))
+    # The share of the threads' time spent inside mj_step, applied to the wall time.
+    physics_seconds = run_seconds * float(physics.sum() / max(busy.sum(), 1e-12))
+    frame_count = carry.frame_count.astype(np.int32)
+    return ChunkResult(
+        qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),
+        frame_count=frame_count, status=carry.status.astype(np.int32),
+        metrics=world.finalize_metrics(carry).astype(np.float32), perturbations=carry.perturbations.astype(np.int32),
+        steps=carry.step.astype(np.int32), compile_seconds=compile_seconds, run_seconds=run_seconds,
+        physics_seconds=physics_seconds)
+
+  def run_chunk_lockstep(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
+                         n_frames: int, progress=None) -> ChunkResult:
+    """Runs C worlds in lockstep through ``mujoco.rollout`` until all have finished.
 
     Args:
       scene: the :class:`mwbx.scene.Scene`.
