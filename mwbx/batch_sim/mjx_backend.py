@@ -22,7 +22,8 @@ from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
 # Frames per jitted block: long enough to amortize dispatch, short enough for a
-# live progress bar and an early exit once every world has finished.
+# live progress bar and an early exit once every world has finished. The last
+# block runs only the frames left (a traced loop bound, the same compiled code).
 FRAMES_PER_BLOCK = 30
 
 
@@ -97,8 +98,19 @@ class MjxBackend:
           lambda new, old: jnp.where(keep.reshape((-1,) + (1,) * (new.ndim - 1)), new, old), d_next, d)
       return (d, carry, out.wrench, keys), (out.record, qpos, obs.com_pos[:, 0])
 
-    def run(d, carry, wrench, keys):
-      return jax.lax.scan(frame, (d, carry, wrench, keys), None, length=n_frames)
+    def run(d, carry, wrench, keys, count):
+      # ``count`` (<= n_frames) frames, a traced bound: one compiled block
+      # serves the last, shorter one too (no frames stepped past the end time).
+      c = d.qpos.shape[0]
+      outputs = (jnp.zeros((n_frames, c), bool), jnp.zeros((n_frames, c, self.model.nq), d.qpos.dtype),
+                 jnp.zeros((n_frames, c, len(body_ids), 3), jnp.float32))
+
+      def body(i, loop):
+        state, outputs = loop
+        state, new = frame(state, None)
+        return state, tuple(buf.at[i].set(x) for buf, x in zip(outputs, new))
+
+      return jax.lax.fori_loop(0, count, body, ((d, carry, wrench, keys), outputs))
 
     fn = jax.jit(run)
     self._blocks[cache_key] = (params, fn)
@@ -111,10 +123,7 @@ class MjxBackend:
     c = len(qpos0)
     active = np.asarray(active)
     body_ids = scene.body_ids
-    # Equal blocks of at most FRAMES_PER_BLOCK frames: the last block would
-    # otherwise step up to a whole block past the end time.
-    n_blocks = -(-n_frames // FRAMES_PER_BLOCK)
-    block_frames = -(-n_frames // n_blocks)
+    block_frames = min(FRAMES_PER_BLOCK, n_frames)
     fn = self.block(params, body_ids, block_frames)
 
     d = self.make_data(jnp.asarray(qpos0), jnp.asarray(qvel0))
@@ -123,7 +132,7 @@ class MjxBackend:
     state = (d, carry, wrench, step_keys)
 
     t0 = time.perf_counter()
-    compiled = fn.lower(*state).compile()
+    compiled = fn.lower(*state, jnp.int32(block_frames)).compile()
     compile_seconds = time.perf_counter() - t0
 
     qpos_buf = np.zeros((c, n_frames, m.nq), np.float32)
@@ -131,9 +140,9 @@ class MjxBackend:
     t0 = time.perf_counter()
     start = 0
     while start < n_frames:
-      state, (record, qpos, com) = compiled(*state)
-      record, qpos, com = (np.asarray(x) for x in (record, qpos, com))  # [F, C, ...]
       stop = min(start + block_frames, n_frames)
+      state, (record, qpos, com) = compiled(*state, jnp.int32(stop - start))
+      record, qpos, com = (np.asarray(x) for x in (record, qpos, com))  # [F, C, ...]
       f, w = np.nonzero(record[: stop - start])
       qpos_buf[w, start + f] = qpos[f, w]
       com_buf[w, start + f] = com[f, w]
