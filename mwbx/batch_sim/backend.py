@@ -2,10 +2,10 @@
 
 A backend steps a batch of worlds of one scene, applying a wrench at each
 tracked body's centre of mass, and reports the tracked bodies' sensor block
-(see :data:`mwbx.scene.SENSORS`). The lockstep loops live with each backend
-(``mjx_backend.run_chunk`` as one jitted scan per block of frames,
-``native_backend.run_chunk`` as a host loop around ``mujoco.rollout``); both
-call :func:`mwbx.batch_sim.world.post_frame` and return a :class:`ChunkResult`.
+(see :data:`mwbx.scene.SENSORS`). The sampling loops live with each backend
+(``mjx_backend.run_chunk`` as one jitted scan per block of frames in lockstep,
+``native_backend.run_chunk`` as one compiled call per world on a thread per
+core, :mod:`world_loop`); both return a :class:`ChunkResult`.
 """
 
 from __future__ import annotations

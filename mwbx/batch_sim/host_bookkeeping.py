@@ -1,7 +1,7 @@
 """The bookkeeping of :mod:`mwbx.batch_sim.world`, compiled for the host.
 
-The native backend steps worlds on CPU threads, and between two ``rollout``
-calls it needs each world's bookkeeping for the frame just stepped:
+The native backend steps worlds on CPU threads, and after each frame it needs
+each world's bookkeeping for the frame just stepped:
 perturbations, metrics, rest and instability, and the frame to record. As the
 jitted, vmapped :func:`world.frame_update` that cost about 1 ms per frame of
 256 worlds (dispatch, and every world of the chunk whether it still runs or

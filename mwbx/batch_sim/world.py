@@ -10,9 +10,10 @@ Step k takes state s_k to s_{k+1}. Its observation describes s_k (positions,
 orientations, velocities) and the accelerations that turned s_k into s_{k+1},
 so impacts are detected on the very step they happen. The perturbation drawn
 for an impact at step k is applied as a wrench during step k + S, one frame
-later (8 ms at 120 fps, far below what a viewer notices): that lets the native
-backend hand a whole frame to ``mujoco.rollout`` in one call, and both
-backends share the same semantics.
+later (8 ms at 120 fps, far below what a viewer notices): that lets a frame's
+physics steps run with no bookkeeping between them (one ``mujoco.rollout``
+call, or one stretch of ``mj_step`` calls), and both backends share the same
+semantics.
 """
 
 from __future__ import annotations
