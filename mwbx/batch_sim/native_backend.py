@@ -176,51 +176,53 @@ class NativeBackend:
     gravity = np.asarray(m.opt.gravity, np.float64)
     datas = [mujoco.MjData(model) for _ in range(self.threads)]
 
-    def run(row, data):
+    def run(row, data, running_flags):
       return world_loop.run_world(
           row, model._address, data._address, data.xfrc_applied, data.sensordata, initial, n_frames,
           m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
-          states, key_data, host_params, carry, tracked_ids, qpos_buf, com_buf, wrench_full, running)
+          states, key_data, host_params, carry, tracked_ids, qpos_buf, com_buf, wrench_full,
+          running_flags)
 
-    # The first call compiles the loop, or loads it from numba's cache.
+    # The first call compiles the loop, or loads it from numba's cache (no world
+    # is marked running, so it returns at once).
     t0 = time.perf_counter()
-    spare = mujoco.MjData(model)
-    probe = np.zeros(c, bool)
-    world_loop.run_world(
-        0, model._address, spare._address, spare.xfrc_applied, spare.sensordata, initial, n_frames,
-        m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
-        states, key_data, host_params, carry, tracked_ids, qpos_buf, com_buf, wrench_full, probe)
+    run(0, mujoco.MjData(model), np.zeros(c, bool))
     compile_seconds = time.perf_counter() - t0
 
     rows = iter(np.flatnonzero(active).tolist())
     lock = threading.Lock()
     physics = np.zeros(self.threads)
     busy = np.zeros(self.threads)
-    errors = []
+    errors: list = []
+    stop = threading.Event()
 
     def worker(t):
       start = time.perf_counter()
       try:
-        while True:
+        while not stop.is_set():
           with lock:
             row = next(rows, None)
-          if row is None or errors:
+          if row is None:
             break
-          physics[t] += run(row, datas[t])
+          physics[t] += run(row, datas[t], running)
       except BaseException as exc:  # noqa: BLE001 - re-raised on the calling thread
         errors.append(exc)
+        stop.set()
       busy[t] = time.perf_counter() - start
 
     t0 = time.perf_counter()
     threads = [threading.Thread(target=worker, args=(t,), daemon=True) for t in range(self.threads)]
     for thread in threads:
       thread.start()
-    while any(thread.is_alive() for thread in threads):
-      threads[0].join(0.25)
-      if progress is not None:
-        progress(int(carry.step.sum()), int((~running & active).sum()))
-    for thread in threads:
-      thread.join()
+    try:
+      while any(thread.is_alive() for thread in threads):
+        threads[0].join(0.25)
+        if progress is not None:
+          progress(int(carry.step.sum()), int((~running & active).sum()))
+    finally:
+      stop.set()  # e.g. on Ctrl-C: the threads stop after the world they are on
+      for thread in threads:
+        thread.join()
     run_seconds = time.perf_counter() - t0
     if errors:
       raise errors[0]

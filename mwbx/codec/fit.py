@@ -1,7 +1,9 @@
 """Greedy error-bounded segment fit (paper Fig. 4), as jitted JAX kernels.
 
-Each kernel fits ONE path and is ``jax.vmap``-ped over many paths (all worlds x
-channels of a kind) at the edge.
+Every operation acts on one path at a time. The linear kernel is written for
+ONE path and ``jax.vmap``-ped over many (all worlds x channels of a kind) at the
+edge; the rotation kernel carries the path axis last instead, so that XLA's CPU
+loops run across paths (see :func:`_fit_rotation_paths`).
 
 Model of a segment that starts at frame ``s`` with the *decoded* value ``p_s``
 (the previous segment's quantized end, so errors never accumulate) and lasts
