@@ -200,7 +200,7 @@ def test_stored_frame0_is_where_the_fit_starts(components):
   from mwbx.codec.stream import initial_codes, initial_steps, quantize_initial
   codes = quantize_initial("rot", np.array([components]), BOUNDS)
   grid = codes * initial_steps(BOUNDS)["rot"]
-  stored = initial_codes(np.pad(grid, ((0, 0), (0, 0)))[None], ["rot"], BOUNDS).astype(np.int64)
+  stored = initial_codes(grid[None], ["rot"], BOUNDS).astype(np.int64)
   assert np.array_equal((stored >> 1) ^ -(stored & 1), codes)
 
 
