@@ -196,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--worlds", type=int, default=None, help="worlds to sample (default 256)")
   p.add_argument("--seed", type=int, default=None, help="run seed (default 0, or the bank's)")
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
-  p.add_argument("--chunk-size", type=int, default=None, help="worlds per lockstep batch")
+  p.add_argument("--chunk-size", type=int, default=None, help="worlds per chunk (simulated and compressed together)")
   p.add_argument("--out", default=None, help="bank directory; an existing bank is continued")
   p.set_defaults(func=_cmd_sample)
 

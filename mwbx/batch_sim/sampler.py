@@ -1,4 +1,4 @@
-"""The sampling loop: worlds in lockstep batches, recorded into a bank.
+"""The sampling loop: worlds in chunks (batches), recorded into a bank.
 
 World ``i`` of a run draws all its randomness from ``fold_in(run_key, i)``:
 its initial state from one half of that key, the perturbation of step ``k``
@@ -82,7 +82,8 @@ class Sampler:
   Args:
     scene: the loaded scene (or a config, loaded here).
     backend: ``auto``, ``mjx`` or ``native`` (default: the config's).
-    chunk_size: worlds per lockstep batch (default: the config's).
+    chunk_size: worlds per chunk, simulated and compressed together (default: the
+      config's).
   """
 
   def __init__(self, scene: Scene | Config, backend: str | None = None, chunk_size: int | None = None):
@@ -230,7 +231,7 @@ def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str
     n_worlds: number of worlds.
     key: run key, e.g. ``jax.random.key(0)``; world i uses ``fold_in(key, i)``.
     backend: ``auto`` | ``mjx`` | ``native`` (default: the config's ``sim.backend``).
-    chunk_size: worlds per lockstep batch (default: ``sim.chunk_size``).
+    chunk_size: worlds per chunk (default: ``sim.chunk_size``).
     first_world: id of the first world, to continue a bank.
     progress: optional callback(world_steps, worlds_finished, n_worlds).
 
