@@ -165,8 +165,8 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     raise CodecError(f"fps must be a finite number > 0, got {fps!r}")
   quanta = quanta or default_quanta(fps, gravity)
   steps = dict(zip(("pos", "rot", "scalar"), quanta.steps(bounds)))
-  fit_bound = {"pos": bounds.e_pos, "rot": bounds.e_rot,
-               "scalar": bounds.e_scalar}
+  # The fits take the bounds themselves (the rotation fit its ball radius),
+  # less a margin for float32 rounding.
   bound = {"pos": bounds.e_pos, "rot": bounds.e_rot, "scalar": bounds.e_scalar}
   kinds = (("pos", layout.pos_adr), ("rot", layout.rot_adr), ("scalar", layout.scalar_adr))
   per_kind = {}
@@ -181,7 +181,7 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     initial = quantize_initial(kind, frame0.reshape(-1, width), bounds) * initial_steps(bounds)[kind]
     initial[n == 0] = 0.0
     p_idx, f_idx, vel, flag = _run_fit(kind, qpos, adrs, n, initial, finite,
-                                       fit_bound[kind] * (1 - FIT_MARGIN), steps[kind],
+                                       bound[kind] * (1 - FIT_MARGIN), steps[kind],
                                        quanta.quad, quanta.coarse()[kind], quanta.g_fp(bounds))
     seg_per_path = np.bincount(p_idx, minlength=n.size)
     first = np.ones(p_idx.size, bool)
