@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from typing import NamedTuple
 
 import jax
 import mujoco
@@ -30,6 +31,25 @@ from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL = mujoco.mjtState.mjSTATE_XFRC_APPLIED
+
+
+class _Chunk(NamedTuple):
+  """Host buffers of one chunk of C worlds (shapes as in :meth:`NativeBackend.step`
+  and :func:`host_bookkeeping.frame_update`)."""
+
+  host_params: world.WorldParams
+  key_data: np.ndarray
+  free_bodies: object  # free_bodies.FreeBodies or None
+  tracked_ids: np.ndarray
+  states: np.ndarray
+  warmstart: np.ndarray
+  wrench_full: np.ndarray
+  sensordata: np.ndarray
+  qpos_buf: np.ndarray
+  com_buf: np.ndarray
+  carry: world.WorldCarry
+  active: np.ndarray
+  running: np.ndarray
 
 
 class NativeBackend:
@@ -130,6 +150,42 @@ class NativeBackend:
       host_loops.observe_free_bodies(rows, before, after, m.opt.timestep, m.opt.gravity, 1, 1 + m.nq,
                                      *free_bodies, sensordata)
 
+  def _chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
+             n_frames: int) -> _Chunk:
+    """The host buffers both sampling loops share, for C worlds at time 0."""
+    m = self.model
+    c = len(qpos0)
+    n_bodies = len(scene.body_ids)
+    spf = params.steps_per_frame
+    active = np.asarray(active)
+    return _Chunk(
+        host_params=host_bookkeeping.host_params(params),
+        key_data=np.asarray(jax.random.key_data(step_keys), np.uint32),
+        # Free bodies are observed from their states: MuJoCo then steps without sensors.
+        free_bodies=free_bodies_lib.free_bodies(m, scene.body_ids),
+        tracked_ids=np.asarray(scene.body_ids, np.int64),
+        states=self.initial_states(np.asarray(qpos0), np.asarray(qvel0)),
+        warmstart=np.zeros((c, m.nv)),
+        wrench_full=np.zeros((c, spf, m.nbody, 6)),
+        sensordata=np.zeros((c, spf, m.nsensordata), np.float32),
+        qpos_buf=np.zeros((c, n_frames, m.nq), np.float32),
+        com_buf=np.zeros((c, n_frames, n_bodies, 3), np.float32),
+        carry=host_bookkeeping.init_carry(n_bodies, active),
+        active=active,
+        running=active.copy())
+
+  @staticmethod
+  def _result(ch: _Chunk, compile_seconds: float, run_seconds: float,
+              physics_seconds: float) -> ChunkResult:
+    carry = ch.carry
+    frame_count = carry.frame_count.astype(np.int32)
+    return ChunkResult(
+        qpos=fill_tail(ch.qpos_buf, frame_count), com=fill_tail(ch.com_buf, frame_count),
+        frame_count=frame_count, status=carry.status.astype(np.int32),
+        metrics=world.finalize_metrics(carry).astype(np.float32), perturbations=carry.perturbations.astype(np.int32),
+        steps=carry.step.astype(np.int32), compile_seconds=compile_seconds, run_seconds=run_seconds,
+        physics_seconds=physics_seconds)
+
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                 n_frames: int, progress=None) -> ChunkResult:
     """Runs C worlds until all have finished, each from start to finish on one
@@ -149,39 +205,25 @@ class NativeBackend:
                                      progress)
     m = self.model
     c = len(qpos0)
-    body_ids = scene.body_ids
-    host_params = host_bookkeeping.host_params(params)
-    key_data = np.asarray(jax.random.key_data(step_keys), np.uint32)
-    free_bodies = free_bodies_lib.free_bodies(m, body_ids)
-    free = free_bodies is not None
+    ch = self._chunk(scene, params, qpos0, qvel0, step_keys, active, n_frames)
+    carry, running, active = ch.carry, ch.running, ch.active
+    initial = ch.states.copy()  # ch.states moves on with each world
+    free = ch.free_bodies is not None
     if free:
-      qpos_adr, dof_adr, ipos, iquat = free_bodies
+      qpos_adr, dof_adr, ipos, iquat = ch.free_bodies
     else:
       qpos_adr = dof_adr = np.zeros(0, np.int64)
       ipos, iquat = np.zeros((0, 3)), np.zeros((0, 4))
-    # Free bodies are observed from their states: MuJoCo then steps without sensors.
     model = self.quiet_model if free else m
-    spf = params.steps_per_frame
-    initial = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
-    states = initial.copy()
-    warmstart = np.zeros((c, m.nv))
-    wrench_full = np.zeros((c, spf, m.nbody, 6))
-    sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
-    qpos_buf = np.zeros((c, n_frames, m.nq), np.float32)
-    com_buf = np.zeros((c, n_frames, len(body_ids), 3), np.float32)
-    active = np.asarray(active)
-    carry = host_bookkeeping.init_carry(len(body_ids), active)
-    running = active.copy()
-    tracked_ids = np.asarray(body_ids, np.int64)
     gravity = np.asarray(m.opt.gravity, np.float64)
     datas = [mujoco.MjData(model) for _ in range(self.threads)]
 
     def run(row, data, running_flags):
       return world_loop.run_world(
           row, model._address, data._address, data.xfrc_applied, data.sensordata, initial, n_frames,
-          m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
-          states, key_data, host_params, carry, tracked_ids, qpos_buf, com_buf, wrench_full,
-          running_flags)
+          m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, ch.sensordata, ch.warmstart,
+          ch.states, ch.key_data, ch.host_params, carry, ch.tracked_ids, ch.qpos_buf, ch.com_buf,
+          ch.wrench_full, running_flags)
 
     # The first call compiles the loop, or loads it from numba's cache (no world
     # is marked running, so it returns at once).
@@ -230,13 +272,7 @@ class NativeBackend:
       progress(int(carry.step.sum()), int(active.sum()))
     # The share of the threads' time spent inside mj_step, applied to the wall time.
     physics_seconds = run_seconds * float(physics.sum() / max(busy.sum(), 1e-12))
-    frame_count = carry.frame_count.astype(np.int32)
-    return ChunkResult(
-        qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),
-        frame_count=frame_count, status=carry.status.astype(np.int32),
-        metrics=world.finalize_metrics(carry).astype(np.float32), perturbations=carry.perturbations.astype(np.int32),
-        steps=carry.step.astype(np.int32), compile_seconds=compile_seconds, run_seconds=run_seconds,
-        physics_seconds=physics_seconds)
+    return self._result(ch, compile_seconds, run_seconds, physics_seconds)
 
   def run_chunk_lockstep(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                          n_frames: int, progress=None) -> ChunkResult:
@@ -253,29 +289,14 @@ class NativeBackend:
     """
     m = self.model
     c = len(qpos0)
-    body_ids = scene.body_ids
-    nq, nv = m.nq, m.nv
-    qpos_adr = slice(1, 1 + nq)
-    host_params = host_bookkeeping.host_params(params)
-    key_data = np.asarray(jax.random.key_data(step_keys), np.uint32)
-
-    # Free bodies are observed from their states: MuJoCo then steps without sensors.
-    free_bodies = free_bodies_lib.free_bodies(m, body_ids)
     spf = params.steps_per_frame
-    states = self.initial_states(np.asarray(qpos0), np.asarray(qvel0))
-    warmstart = np.zeros((c, nv))
-    wrench_full = np.zeros((c, spf, m.nbody, 6))
-    sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
-    qpos_buf = np.zeros((c, n_frames, nq), np.float32)
-    com_buf = np.zeros((c, n_frames, len(body_ids), 3), np.float32)
-    active = np.asarray(active)
-    carry = host_bookkeeping.init_carry(len(body_ids), active)
-    running = active.copy()
-    tracked_ids = np.asarray(body_ids, np.int64)
+    ch = self._chunk(scene, params, qpos0, qvel0, step_keys, active, n_frames)
+    states, warmstart, wrench_full, sensordata = ch.states, ch.warmstart, ch.wrench_full, ch.sensordata
+    running, active, free_bodies = ch.running, ch.active, ch.free_bodies
 
     def bookkeeping(rows, before, frame):
-      host_bookkeeping.frame_update(rows, sensordata, key_data, host_params, carry, tracked_ids, before,
-                                    qpos_adr.start, frame, qpos_buf, com_buf, wrench_full, running)
+      host_bookkeeping.frame_update(rows, sensordata, ch.key_data, ch.host_params, ch.carry, ch.tracked_ids,
+                                    before, 1, frame, ch.qpos_buf, ch.com_buf, wrench_full, running)
 
     t0 = time.perf_counter()
     bookkeeping(np.zeros(0, np.int64), states[:0], 0)  # compile, or load from numba's cache
@@ -313,11 +334,4 @@ class NativeBackend:
     run_seconds = time.perf_counter() - t0
     if progress is not None:
       progress(world_steps, int(active.sum()))
-
-    frame_count = carry.frame_count.astype(np.int32)
-    return ChunkResult(
-        qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),
-        frame_count=frame_count, status=carry.status.astype(np.int32),
-        metrics=world.finalize_metrics(carry).astype(np.float32), perturbations=carry.perturbations.astype(np.int32),
-        steps=carry.step.astype(np.int32), compile_seconds=compile_seconds, run_seconds=run_seconds,
-        physics_seconds=physics_seconds)
+    return self._result(ch, compile_seconds, run_seconds, physics_seconds)
