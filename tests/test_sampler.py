@@ -25,6 +25,18 @@ def same_world(a, i, b, j):
   assert a.perturbations[i] == b.perturbations[j]
 
 
+def _assert_same_sampler(a, b):
+  """Banks a and b come from the same sampler: two-sample KS tests on per-world
+  metrics, and mean perturbation counts within 25 %."""
+  from scipy import stats
+
+  for name in ("rest_time", "collisions", "path_length"):
+    pvalue = stats.ks_2samp(a.metric(name).sum(axis=1), b.metric(name).sum(axis=1)).pvalue
+    assert pvalue > 1e-3, name
+  ratio = a.perturbations.mean() / b.perturbations.mean()
+  assert 0.8 < ratio < 1.25
+
+
 def test_world_depends_only_on_config_key_and_id(tiny_config):
   key = jax.random.key(42)
   banks = {}
@@ -196,8 +208,6 @@ def test_state_observation_samples_like_the_sensors(tiny_config, monkeypatch):
   """Free bodies observed from states and from MuJoCo's sensors give the same
   sampler (the two differ only in rounding, so worlds diverge, not their
   distribution)."""
-  from scipy import stats
-
   from mwbx.batch_sim import free_bodies, native_backend
 
   scene = mwbx.Scene(tiny_config)
@@ -206,12 +216,7 @@ def test_state_observation_samples_like_the_sensors(tiny_config, monkeypatch):
   from_states = mwbx.sample(tiny_config, n_worlds=64, key=key, backend="native")
   monkeypatch.setattr(native_backend.free_bodies_lib, "free_bodies", lambda model, ids: None)
   from_sensors = mwbx.sample(tiny_config, n_worlds=64, key=key, backend="native")
-  for name in ("rest_time", "collisions", "path_length"):
-    a = from_states.metric(name).sum(axis=1)
-    b = from_sensors.metric(name).sum(axis=1)
-    assert stats.ks_2samp(a, b).pvalue > 1e-3, name
-  ratio = from_states.perturbations.mean() / from_sensors.perturbations.mean()
-  assert 0.8 < ratio < 1.25
+  _assert_same_sampler(from_states, from_sensors)
 
 
 def _reference_chunk(sampler, qpos0, qvel0, step_keys):
@@ -287,17 +292,10 @@ def test_compiled_world_loop_samples_like_lockstep_rollout(tiny_config, monkeypa
   """The per-world compiled loop and the lockstep rollout loop give the same
   sampler (rollout restarts the solver's warm start from the last step's
   accelerations at every frame, so worlds diverge, not their distribution)."""
-  from scipy import stats
-
   from mwbx.batch_sim import mujoco_c
 
   key = jax.random.key(5)
   compiled = mwbx.sample(tiny_config, n_worlds=64, key=key, backend="native")
   monkeypatch.setattr(mujoco_c, "available", lambda: False)
   lockstep = mwbx.sample(tiny_config, n_worlds=64, key=key, backend="native")
-  for name in ("rest_time", "collisions", "path_length"):
-    a = compiled.metric(name).sum(axis=1)
-    b = lockstep.metric(name).sum(axis=1)
-    assert stats.ks_2samp(a, b).pvalue > 1e-3, name
-  ratio = compiled.perturbations.mean() / lockstep.perturbations.mean()
-  assert 0.8 < ratio < 1.25
+  _assert_same_sampler(compiled, lockstep)
