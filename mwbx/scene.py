@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mwbx import quaternion
 from mwbx.config import Config, Distribution
 from mwbx.errors import MwbxError
 
@@ -255,7 +256,7 @@ class Scene:
         a = init.free_qpos
         qpos = qpos.at[a:a + 3].add(_draw(keys[0], init.position, 3))
         rotvec = _draw(keys[1], init.rotation, 3)
-        qpos = qpos.at[a + 3:a + 7].set(_quat_mul(_quat_from_rotvec(rotvec), qpos[a + 3:a + 7]))
+        qpos = qpos.at[a + 3:a + 7].set(quaternion.multiply(_quat_from_rotvec(rotvec), qpos[a + 3:a + 7]))
         v = init.free_dof
         qvel = qvel.at[v:v + 3].add(_draw(keys[2], init.linear_velocity, 3))
         qvel = qvel.at[v + 3:v + 6].add(_draw(keys[3], init.angular_velocity, 3))
@@ -300,17 +301,6 @@ def _quat_from_rotvec(rotvec: jax.Array) -> jax.Array:
   safe = jnp.where(angle > 1e-12, angle, 1.0)
   axis = jnp.where(angle > 1e-12, rotvec / safe, jnp.array([1.0, 0.0, 0.0]))
   return jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) * axis])
-
-
-def _quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
-  w1, x1, y1, z1 = a
-  w2, x2, y2, z2 = b
-  return jnp.array([
-      w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-      w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-      w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-      w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-  ])
 
 
 def load_scene(config: Config) -> Scene:

@@ -27,6 +27,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mwbx import quaternion
+
 
 class FreeBodies(NamedTuple):
   """Where each tracked free body lives in the state (static, host arrays).
@@ -73,13 +75,6 @@ def _quat_to_mat(q: jax.Array) -> jax.Array:
   ], -2)
 
 
-def _quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
-  aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-  bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-  return jnp.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                    aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
-
-
 def observe(qpos: jax.Array, qvel: jax.Array, bodies: FreeBodies, dt: float, gravity: jax.Array) -> jax.Array:
   """The sensor block of ONE world's S steps from its S + 1 states.
 
@@ -103,7 +98,7 @@ def observe(qpos: jax.Array, qvel: jax.Array, bodies: FreeBodies, dt: float, gra
   ang_vel = jnp.einsum("sbij,sbj->sbi", rot, qvel[:, da + np.arange(3, 6)])
   lin_vel = qvel[:, da + np.arange(3)] + jnp.cross(ang_vel, offset)
   com = pos + offset
-  inertial_quat = _quat_mul(quat, jnp.asarray(bodies.iquat, qpos.dtype))
+  inertial_quat = quaternion.multiply(quat, jnp.asarray(bodies.iquat, qpos.dtype))
   lin_acc = (lin_vel[1:] - lin_vel[:-1]) / dt - gravity
   ang_acc = (ang_vel[1:] - ang_vel[:-1]) / dt
   block = jnp.concatenate([com[:-1], inertial_quat[:-1], lin_vel[:-1], ang_vel[:-1], lin_acc, ang_acc], -1)

@@ -47,6 +47,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mwbx import quaternion
+
 # Velocities are kept in int32; windows are clipped to this magnitude first.
 _INT_CAP = 2.0**30
 
@@ -219,23 +221,11 @@ def _pick_near(lo, hi, pred, target, m):
   return v, r + r_t, ok
 
 
-def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
-  """Hamilton product of (w, x, y, z) quaternions, components first: f32[4, ...]."""
-  aw, ax, ay, az = a
-  bw, bx, by, bz = b
-  return jnp.stack([
-      aw * bw - ax * bx - ay * by - az * bz,
-      aw * bx + ax * bw + ay * bz - az * by,
-      aw * by - ax * bz + ay * bw + az * bx,
-      aw * bz + ax * by - ay * bx + az * bw,
-  ])
-
-
 def rel_log(q: jax.Array, q_start: jax.Array) -> jax.Array:
   """Rotation vector of ``q (x) q_start^-1`` (angle in [0, pi]), components first:
   f32[4, N] -> f32[3, N]."""
   conj = q_start * jnp.array([1.0, -1.0, -1.0, -1.0], q_start.dtype)[:, None]
-  rel = quat_mul(q, conj)
+  rel = quaternion.multiply(q, conj, axis=0)
   rel = jnp.where(rel[0] < 0, -rel, rel)  # q and -q are the same rotation
   s = jnp.sqrt(jnp.sum(rel[1:] * rel[1:], axis=0))
   angle = 2.0 * jnp.arctan2(s, rel[0])
@@ -316,7 +306,7 @@ def _fit_rotation_paths(q, n, e, step, coarse):
     return w, feasible
 
   def end_value(q_s, w, length):
-    q_e = quat_mul(quat_exp(length.astype(dtype) * w.astype(dtype) * step), q_s)
+    q_e = quaternion.multiply(quat_exp(length.astype(dtype) * w.astype(dtype) * step), q_s, axis=0)
     return q_e / jnp.sqrt(jnp.sum(q_e * q_e, axis=0))
 
   def body(carry, inp):
