@@ -276,17 +276,8 @@ class NativeBackend:
 
   def run_chunk_lockstep(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                          n_frames: int, progress=None) -> ChunkResult:
-    """Runs C worlds in lockstep through ``mujoco.rollout`` until all have finished.
-
-    Args:
-      scene: the :class:`mwbx.scene.Scene`.
-      params: bookkeeping constants.
-      qpos0: f32[C, nq]; qvel0: f32[C, nv] initial states.
-      step_keys: key[C] per-world step key roots.
-      active: bool[C] false for padding slots.
-      n_frames: frames per world at most (end_frame + 1).
-      progress: optional callback(world_steps_done, worlds_finished).
-    """
+    """Runs C worlds in lockstep through ``mujoco.rollout`` until all have
+    finished; arguments as :meth:`run_chunk`."""
     m = self.model
     c = len(qpos0)
     spf = params.steps_per_frame
