@@ -19,7 +19,7 @@ from mwbx.batch_sim import METRIC_NAMES
 from mwbx.batch_sim import SampleStats
 from mwbx.batch_sim import Sampler
 from mwbx.batch_sim import sample
-from mwbx.batch_sim.refine import refine
+from mwbx.refinement import refine
 from mwbx.codec import CodecBounds
 from mwbx.codec import CodecError
 from mwbx.config import Config

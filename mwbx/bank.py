@@ -17,77 +17,16 @@ from typing import Sequence
 
 import numpy as np
 
+from mwbx.codec import CompressedQposStore
 from mwbx.errors import MwbxError
+from mwbx.joints import QPOS_WIDTH
+from mwbx.qpos_store import QposStore, RawQposStore
 
 FLAG_FINISHED = 1
 FLAG_AT_REST = 2
 FLAG_UNSTABLE = 4
 
 BANK_FORMAT = 1
-
-
-class RawQposStore:
-  """``qpos`` frames of every world as one float32 array plus offsets.
-
-  Implements the qpos-store protocol the bank uses (``append``, ``extend``,
-  ``copy``, ``frames``, ``n_worlds``, ``nbytes``, ``stats``, ``state``,
-  ``restore``).
-  """
-
-  kind = "raw"
-
-  def __init__(self, nq: int, data: np.ndarray | None = None, offsets: np.ndarray | None = None):
-    self.nq = nq
-    self.data = np.zeros((0, nq), np.float32) if data is None else np.asarray(data, np.float32)
-    self.offsets = np.zeros(1, np.int64) if offsets is None else np.asarray(offsets, np.int64)
-
-  def append(self, qpos: np.ndarray, frame_count: np.ndarray) -> None:
-    """Adds worlds: qpos f32[W, T, nq] (padded), frame_count i32[W]."""
-    pieces = [qpos[w, :n] for w, n in enumerate(frame_count)]
-    self.data = np.concatenate([self.data, *pieces]).astype(np.float32)
-    self.offsets = np.concatenate([self.offsets, self.offsets[-1] + np.cumsum(frame_count)])
-
-  def extend(self, other: "RawQposStore") -> None:
-    """Adds every world of another store of the same kind, as stored."""
-    self.data = np.concatenate([self.data, other.data])
-    self.offsets = np.concatenate([self.offsets, self.offsets[-1] + other.offsets[1:]])
-
-  def copy(self) -> "RawQposStore":
-    return RawQposStore(self.nq, self.data.copy(), self.offsets.copy())
-
-  def frames(self, world: int, start: int = 0, stop: int | None = None,
-             columns=None) -> np.ndarray:
-    """f32[n, nq] frames ``start:stop``; with ``columns`` the others are zero."""
-    lo, hi = self.offsets[world], self.offsets[world + 1]
-    out = self.data[lo:hi][start:stop]
-    if columns is None:
-      return out
-    keep = np.zeros(self.nq, bool)
-    keep[np.asarray(columns, np.int64)] = True
-    return np.where(keep, out, np.float32(0))
-
-  @property
-  def n_worlds(self) -> int:
-    return len(self.offsets) - 1
-
-  @property
-  def nbytes(self) -> int:
-    return int(self.data.nbytes + self.offsets.nbytes)
-
-  def stats(self) -> dict:
-    frames = int(self.offsets[-1])
-    return {"codec": "raw float32", "bytes": self.nbytes,
-            "bytes_per_world": self.nbytes / max(1, self.n_worlds), "frames": frames}
-
-  def state(self) -> tuple[dict, dict]:
-    return {"data": self.data, "offsets": self.offsets}, {"kind": self.kind, "nq": self.nq}
-
-  @classmethod
-  def restore(cls, arrays: dict, meta: dict) -> "RawQposStore":
-    return cls(meta["nq"], arrays["data"], arrays["offsets"])
-
-
-QPOS_STORES = {RawQposStore.kind: RawQposStore}
 
 
 @dataclasses.dataclass
@@ -110,7 +49,8 @@ class Bank:
     qpos_store: the recorded qpos frames (raw or compressed).
     body_names, body_ids, objects, groups, metric_names: scene layout.
     record_fps, query_fps, timestep: rates (Hz) and physics step (s).
-    config: resolved config (dict); mjcf_text: the MJCF; digest: sha256 of both.
+    config: resolved config (dict); mjcf_text: the MJCF; mjcf_includes: file name ->
+      text of each MJCF file it includes; digest: sha256 of all three.
     lineage: per refined world, the objects asked for and the final active set.
     run: how the worlds were drawn (e.g. ``{"seed": 0}``).
   """
@@ -126,7 +66,7 @@ class Bank:
   steps: np.ndarray
   parent_world: np.ndarray
   refine_time: np.ndarray
-  qpos_store: object
+  qpos_store: QposStore
   body_names: tuple[str, ...]
   body_ids: np.ndarray
   objects: dict[str, tuple[str, ...]]
@@ -138,6 +78,7 @@ class Bank:
   config: dict
   mjcf_text: str
   digest: str
+  mjcf_includes: dict = dataclasses.field(default_factory=dict)
   lineage: dict = dataclasses.field(default_factory=dict)
   run: dict = dataclasses.field(default_factory=dict)
   _model: object = dataclasses.field(default=None, repr=False, compare=False)
@@ -190,7 +131,7 @@ class Bank:
       body = int(self.body_ids[b])
       while body > 0:
         for j in range(model.body_jntadr[body], model.body_jntadr[body] + model.body_jntnum[body]):
-          width = {0: 7, 1: 4}.get(int(model.jnt_type[j]), 1)  # free, ball, hinge/slide
+          width = QPOS_WIDTH[int(model.jnt_type[j])]
           columns.extend(range(model.jnt_qposadr[j], model.jnt_qposadr[j] + width))
         body = int(model.body_parentid[body])
     return np.unique(np.asarray(columns, np.int64))
@@ -220,7 +161,7 @@ class Bank:
     if self._model is None:
       from mwbx.scene import build_model
       try:
-        self._model = build_model(self.mjcf_text, self.body_names, self.mjcf_dir())
+        self._model = build_model(self.mjcf_text, self.body_names, self.mjcf_dir(), self.mjcf_includes)
       except ValueError as err:
         raise MwbxError(f"bank: its MJCF does not compile here ({err}); files it names are "
                         f"looked up relative to {self.mjcf_dir() or 'the working directory'}")
@@ -299,7 +240,7 @@ class Bank:
         "groups": {k: list(v) for k, v in self.groups.items()},
         "metric_names": list(self.metric_names), "record_fps": self.record_fps,
         "query_fps": self.query_fps, "timestep": self.timestep, "config": self.config,
-        "mjcf_text": self.mjcf_text, "digest": self.digest, "lineage": self.lineage, "run": self.run,
+        "mjcf_text": self.mjcf_text, "mjcf_includes": self.mjcf_includes, "digest": self.digest, "lineage": self.lineage, "run": self.run,
     }
     with _manager(path) as manager:
       step = (manager.latest_step() or 0) + 1
@@ -338,7 +279,7 @@ class Bank:
           groups={k: tuple(v) for k, v in meta["groups"].items()},
           metric_names=tuple(meta["metric_names"]), record_fps=meta["record_fps"],
           query_fps=meta["query_fps"], timestep=meta["timestep"], config=meta["config"],
-          mjcf_text=meta["mjcf_text"], digest=meta["digest"], lineage=meta.get("lineage", {}),
+          mjcf_text=meta["mjcf_text"], mjcf_includes=meta.get("mjcf_includes", {}), digest=meta["digest"], lineage=meta.get("lineage", {}),
           run=meta.get("run", {}))
     except MwbxError:
       raise
@@ -359,14 +300,14 @@ class Bank:
       raise MwbxError(f"bank: com has shape {self.com.shape}, expected [W, P, {len(self.body_names)}, 3]")
 
 
+# The qpos stores a saved bank may name, by their ``kind``.
+QPOS_STORES: dict[str, type] = {RawQposStore.kind: RawQposStore,
+                                CompressedQposStore.kind: CompressedQposStore}
+
+
 def _store_class(kind: str):
   if kind not in QPOS_STORES:
-    try:  # the compressed store registers itself on import
-      import mwbx.codec  # noqa: F401
-    except ImportError:
-      pass
-  if kind not in QPOS_STORES:
-    raise MwbxError(f"bank: unknown qpos store {kind!r}")
+    raise MwbxError(f"bank: unknown qpos store {kind!r} (have: {', '.join(QPOS_STORES)})")
   return QPOS_STORES[kind]
 
 

@@ -53,7 +53,7 @@ def _cmd_sample(args) -> int:
   seed = args.seed
   first_world = 0
   if existing is not None:
-    if existing.digest != config.digest(scene.mjcf_text):
+    if existing.digest != scene.digest:
       raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
     if seed is None:
       seed = existing.run.get("seed", 0)
@@ -151,7 +151,7 @@ def _cmd_query(args) -> int:
 def _cmd_refine(args) -> int:
   import jax
   import mwbx
-  from mwbx.batch_sim.refine import refine_run
+  from mwbx.refinement import refine_run
   bank = mwbx.Bank.load(args.bank)
   frustum = None
   if (args.box is None) == (args.time is None):

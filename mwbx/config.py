@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import pathlib
 from typing import Literal
 
@@ -91,7 +92,8 @@ class SimSection(_Strict):
   """Time stepping, recording and batching.
 
   Attributes:
-    timestep: physics step, seconds; must divide ``1/record_fps``.
+    timestep: physics step, seconds; must divide ``1/record_fps``. Default: the
+      MJCF's own ``<option timestep>``.
     end_time: a world stops recording at this time if not at rest, seconds.
     record_fps: rate of the stored ``qpos`` frames, Hz.
     query_fps: rate of the COM polylines used by queries; divides record_fps.
@@ -103,7 +105,7 @@ class SimSection(_Strict):
     max_speed: a body faster than this (m/s) marks its world unstable.
   """
 
-  timestep: float = pydantic.Field(1.0 / 480.0, gt=0)
+  timestep: float | None = pydantic.Field(None, gt=0)
   end_time: float = pydantic.Field(4.0, gt=0)
   record_fps: float = pydantic.Field(120.0, gt=0)
   query_fps: float = pydantic.Field(30.0, gt=0)
@@ -148,11 +150,21 @@ class PerturbSection(_Strict):
   exclude: tuple[str, ...] = ()
 
 
+# The codec's rotation bound must stay below 0.5 rad (mwbx.codec.CodecBounds).
+MAX_ROTATION_BOUND_DEG = 0.5 * 180.0 / math.pi
+
+
 class CodecSection(_Strict):
-  """Error bounds of the stored trajectories."""
+  """Error bounds of the stored trajectories.
+
+  Attributes:
+    e_pos: free-joint translations, metres.
+    e_rot_deg: rotation angle, degrees (below 0.5 rad = 28.6 degrees).
+    e_scalar: hinge (radians) and slide (metres) joints.
+  """
 
   e_pos: float = pydantic.Field(1e-3, gt=0)
-  e_rot_deg: float = pydantic.Field(0.5, gt=0)
+  e_rot_deg: float = pydantic.Field(0.5, gt=0, lt=MAX_ROTATION_BOUND_DEG)
   e_scalar: float = pydantic.Field(1e-3, gt=0)
 
 
@@ -192,11 +204,14 @@ class Config(_Strict):
       return self
     return self.model_copy(update={"sim": self.sim.model_copy(update=fields)})
 
-  def digest(self, mjcf_text: str) -> str:
-    """sha256 of the resolved config (minus its file name) and the MJCF."""
+  def digest(self, mjcf_text: str, includes: dict[str, str] | None = None) -> str:
+    """sha256 of the resolved config (minus its file name), the MJCF and the
+    files it includes."""
     resolved = self.resolved()
     resolved.pop("source", None)
     blob = json.dumps(resolved, sort_keys=True) + "\0" + mjcf_text
+    for name in sorted(includes or {}):
+      blob += "\0" + name + "\0" + includes[name]
     return hashlib.sha256(blob.encode()).hexdigest()
 
 

@@ -11,6 +11,8 @@ config file and field.
 from __future__ import annotations
 
 import dataclasses
+import pathlib
+import xml.etree.ElementTree
 from typing import Sequence
 
 import jax
@@ -18,9 +20,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mwbx import quaternion
+from mwbx import rotations
 from mwbx.config import Config, Distribution
 from mwbx.errors import MwbxError
+from mwbx.joints import JNT_FREE, JNT_HINGE, JNT_SLIDE
 
 # Per tracked body the model gets these sensors, all on the body's inertial
 # frame (its centre of mass), in this order. The acceleration sensors give the
@@ -40,15 +43,47 @@ SENSORS = (
 SENSOR_WIDTH = sum(width for _, _, width in SENSORS)  # floats per tracked body
 
 
-def build_model(mjcf_text: str, tracked: Sequence[str], base_dir: str | None = None) -> mujoco.MjModel:
+def find_includes(path: pathlib.Path) -> dict[str, str]:
+  """Text of every MJCF file ``path`` includes (recursively), by the name its
+  ``<include file=…>`` gives; MuJoCo resolves them against the main file's folder."""
+  out: dict[str, str] = {}
+  base = path.parent
+  pending = [path.read_text()]
+  while pending:
+    try:
+      root = xml.etree.ElementTree.fromstring(pending.pop())
+    except xml.etree.ElementTree.ParseError:
+      continue  # MuJoCo's own parser reports it, with the line
+    for node in root.iter("include"):
+      name = node.get("file")
+      if name and name not in out:
+        try:
+          out[name] = (base / name).read_text()
+        except OSError:
+          continue  # MuJoCo names the missing file
+        pending.append(out[name])
+  return out
+
+
+def parse_mjcf(mjcf_text: str, base_dir: str | None = None,
+               includes: dict[str, str] | None = None) -> mujoco.MjSpec:
+  """The MjSpec of MJCF text; ``includes`` are the texts of files it includes,
+  ``base_dir`` where meshes and textures are found."""
+  include = {k: v.encode() for k, v in (includes or {}).items()} or None
+  spec = mujoco.MjSpec.from_string(mjcf_text, include=include)
+  if base_dir is not None:
+    spec.modelfiledir = base_dir
+  return spec
+
+
+def build_model(mjcf_text: str, tracked: Sequence[str], base_dir: str | None = None,
+                includes: dict[str, str] | None = None) -> mujoco.MjModel:
   """Compiles the MJCF with the observation sensors of every tracked body.
 
   Sensors already in the MJCF are removed so that ``sensordata`` is exactly
   ``f32[B, SENSOR_WIDTH]`` in :data:`SENSORS` order.
   """
-  spec = mujoco.MjSpec.from_string(mjcf_text)
-  if base_dir is not None:
-    spec.modelfiledir = base_dir
+  spec = parse_mjcf(mjcf_text, base_dir, includes)
   for sensor in list(spec.sensors):
     spec.delete(sensor)
   for body in tracked:
@@ -90,6 +125,9 @@ class Scene:
   Attributes:
     config: the validated config.
     mjcf_text: the MJCF file's text, stored in every bank.
+    mjcf_includes: file name -> text of every MJCF file it includes.
+    mjcf_dir: where its meshes and textures are found.
+    digest: sha256 of the config, the MJCF and its includes.
     model: ``MjModel`` with the observation sensors added.
     object_names: names of the objects (root bodies).
     objects: object name -> tracked body names.
@@ -99,7 +137,8 @@ class Scene:
     perturbable: bool[B] false for bodies opted out of perturbations.
   """
 
-  def __init__(self, config: Config, mjcf_text: str | None = None, mjcf_dir: str | None = None):
+  def __init__(self, config: Config, mjcf_text: str | None = None, mjcf_dir: str | None = None,
+               mjcf_includes: dict[str, str] | None = None):
     self.config = config
     source = config.source or "<config>"
     if mjcf_text is None:
@@ -107,16 +146,16 @@ class Scene:
       self.mjcf_dir = str(path.parent)
       try:
         mjcf_text = path.read_text()
+        mjcf_includes = find_includes(path)
       except OSError as err:
         raise MwbxError(f"{source}: scene.mjcf: cannot read {path}: {err.strerror}") from None
     else:
       self.mjcf_dir = mjcf_dir  # where its relative file names resolve, if given
     self.mjcf_text = mjcf_text
+    self.mjcf_includes = dict(mjcf_includes or {})
+    self.digest = config.digest(mjcf_text, self.mjcf_includes)
     try:
-      plain = mujoco.MjSpec.from_string(mjcf_text)
-      if self.mjcf_dir:
-        plain.modelfiledir = self.mjcf_dir
-      plain_model = plain.compile()
+      plain_model = parse_mjcf(mjcf_text, self.mjcf_dir, self.mjcf_includes).compile()
     except Exception as err:  # MuJoCo raises ValueError with the parser's text.
       raise MwbxError(f"{source}: scene.mjcf: MJCF failed to load: {err}") from None
 
@@ -157,7 +196,7 @@ class Scene:
     }
     self.groups = self._resolve_groups(source)
 
-    self.model = build_model(mjcf_text, self.body_names, self.mjcf_dir)
+    self.model = build_model(mjcf_text, self.body_names, self.mjcf_dir, self.mjcf_includes)
     self.body_ids = np.array(
         [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b) for b in self.body_names], np.int32
     )
@@ -215,8 +254,8 @@ class Scene:
     for obj, fields in per_object.items():
       root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, obj)
       joints = [j for j in range(m.njnt) if m.body_rootid[m.jnt_bodyid[j]] == root]
-      free = [j for j in joints if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE and m.jnt_bodyid[j] == root]
-      scalar = [j for j in joints if m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)]
+      free = [j for j in joints if int(m.jnt_type[j]) == JNT_FREE and m.jnt_bodyid[j] == root]
+      scalar = [j for j in joints if int(m.jnt_type[j]) in (JNT_HINGE, JNT_SLIDE)]
       for field in ("position", "rotation", "linear_velocity", "angular_velocity"):
         if field in fields and not free:
           raise MwbxError(f"{source}: randomize.{obj}.{field}: object {obj!r} has no free joint at its root")
@@ -256,7 +295,7 @@ class Scene:
         a = init.free_qpos
         qpos = qpos.at[a:a + 3].add(_draw(keys[0], init.position, 3))
         rotvec = _draw(keys[1], init.rotation, 3)
-        qpos = qpos.at[a + 3:a + 7].set(quaternion.multiply(_quat_from_rotvec(rotvec), qpos[a + 3:a + 7]))
+        qpos = qpos.at[a + 3:a + 7].set(rotations.quat_multiply(rotations.quat_from_rotvec(rotvec), qpos[a + 3:a + 7]))
         v = init.free_dof
         qvel = qvel.at[v:v + 3].add(_draw(keys[2], init.linear_velocity, 3))
         qvel = qvel.at[v + 3:v + 6].add(_draw(keys[3], init.angular_velocity, 3))
@@ -294,13 +333,6 @@ def _draw(key: jax.Array, dist: Distribution | None, width: int) -> jax.Array:
   if dist.dist == "uniform":
     return scale * jax.random.uniform(key, (width,), jnp.float32, -1.0, 1.0)
   return scale * jax.random.normal(key, (width,), jnp.float32)
-
-
-def _quat_from_rotvec(rotvec: jax.Array) -> jax.Array:
-  angle = jnp.linalg.norm(rotvec)
-  safe = jnp.where(angle > 1e-12, angle, 1.0)
-  axis = jnp.where(angle > 1e-12, rotvec / safe, jnp.array([1.0, 0.0, 0.0]))
-  return jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) * axis])
 
 
 def load_scene(config: Config) -> Scene:

@@ -55,22 +55,19 @@ def bank_data(config: str, n_worlds: int, seed: int = 1) -> tuple[Data, dict]:
   import jax
 
   import mwbx
-  from mwbx import bank as bank_lib
-  from mwbx.batch_sim import sampler as sampler_lib
+  from mwbx.qpos_store import RawQposStore
 
   cfg = mwbx.load_config(f"configs/{config}.yaml")
-  compressed_store = sampler_lib.Sampler._new_store
   timing = {}
   with mwbx.Sampler(cfg) as sampler:
     start = time.perf_counter()
     _, first = sampler.run(n_worlds, jax.random.key(seed + 1))  # compiles physics and codec
     timing["first_run_codec_s"] = first.codec_seconds
     timing["first_run_wall_s"] = time.perf_counter() - start
-    sampler._new_store = lambda: bank_lib.RawQposStore(sampler.scene.model.nq)
+    raw_store = RawQposStore(sampler.scene.model.nq)
     start = time.perf_counter()
-    raw_bank, raw_stats = sampler.run(n_worlds, jax.random.key(seed))
+    raw_bank, raw_stats = sampler.run(n_worlds, jax.random.key(seed), store=raw_store)
     timing["sample_raw_s"] = time.perf_counter() - start
-    sampler._new_store = lambda: compressed_store(sampler)
     start = time.perf_counter()
     bank, stats = sampler.run(n_worlds, jax.random.key(seed))
     timing["sample_codec_s"] = time.perf_counter() - start

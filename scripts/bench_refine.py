@@ -34,7 +34,7 @@ import jax
 import numpy as np
 
 import mwbx
-from mwbx.batch_sim.refine import refine_run
+from mwbx.refinement.refine import refine_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -85,7 +85,7 @@ def main() -> None:
                backend=args.backend, chunk_size=n, playback=playback)
   # Plain sampling of the same time span: every object simulated and perturbed
   # from the parent's state at t_min (same phase of the scene as refinement).
-  from mwbx.batch_sim import kinematic
+  from mwbx.refinement import kinematic
   from mwbx.batch_sim.sampler import world_keys
   model = sampler.scene.model
   f0 = int(np.floor(t_min * bank.record_fps + 1e-6))

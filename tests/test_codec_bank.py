@@ -5,7 +5,7 @@ import pytest
 
 import jax
 import mwbx
-from mwbx import bank as bank_lib
+from mwbx.qpos_store import RawQposStore
 from mwbx.codec import CodecError, CompressedQposStore
 
 from test_codec_properties import _angles
@@ -16,8 +16,8 @@ def _sample_both(config: str, n_worlds: int):
   cfg = mwbx.load_config(f"configs/{config}.yaml")
   with mwbx.Sampler(cfg) as sampler:
     bank, _ = sampler.run(n_worlds, jax.random.key(0))
-    sampler._new_store = lambda: bank_lib.RawQposStore(sampler.scene.model.nq)
-    raw, _ = sampler.run(n_worlds, jax.random.key(0))
+    raw_store = RawQposStore(sampler.scene.model.nq)
+    raw, _ = sampler.run(n_worlds, jax.random.key(0), store=raw_store)
   return cfg, bank, raw
 
 

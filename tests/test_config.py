@@ -3,6 +3,7 @@
 import pathlib
 import textwrap
 
+import numpy as np
 import pytest
 
 import mwbx
@@ -41,6 +42,7 @@ def test_packaged_assets_resolve_without_the_repo(tmp_path):
     ("scene: {mjcf: tiny.xml}\nperturb: {alpha: 2}\n", "perturb.alpha", "less than or equal"),
     ("scene: {mjcf: tiny.xml}\nsim: {backend: gpu}\n", "sim.backend", "auto"),
     ("sim: {end_time: 1}\n", "scene", "Field required"),
+    ("scene: {mjcf: tiny.xml}\ncodec: {e_rot_deg: 45}\n", "codec.e_rot_deg", "less than 28.6"),
     ("scene: {mjcf: tiny.xml}\nrandomize: {cube: {position: {dist: cauchy}}}\n",
      "randomize.cube.position.dist", "uniform"),
 ])
@@ -120,3 +122,27 @@ def test_articulated_objects_and_groups():
   assert scene.groups["gg"] == ("root", "puck")
   assert list(scene.select_bodies("gg")) == [0, 1, 2]
   assert list(scene.select_bodies(["link1", "puck"])) == [1, 2]
+
+
+def test_joint_types_match_mujoco():
+  import mujoco
+  from mwbx import joints
+  for name in ("FREE", "BALL", "SLIDE", "HINGE"):
+    assert getattr(joints, f"JNT_{name}") == int(getattr(mujoco.mjtJoint, f"mjJNT_{name}"))
+
+
+def test_joint_noise_varies_a_hinged_objects_angles():
+  import jax
+  cfg = mwbx.config_from_dict(
+      {"scene": {"mjcf": str(SCENES / "chain.xml")},
+       "randomize": {"root": {"joint_noise": {"dist": "uniform", "scale": 0.3}}}},
+      source=str(SCENES / "chain.yaml"))
+  scene = mwbx.Scene(cfg)
+  hinge = scene.model.jnt_qposadr[scene.model.joint("hinge1").id]
+  keys = jax.random.split(jax.random.key(0), 8)
+  qpos = np.stack([np.asarray(scene.initial_state(k)[0]) for k in keys])
+  angles = qpos[:, hinge]
+  assert np.all(np.abs(angles - scene.model.qpos0[hinge]) <= 0.3 + 1e-6)
+  assert np.unique(angles).size == 8 and np.ptp(angles) > 0.1  # varies across worlds
+  others = np.delete(qpos, hinge, axis=1)
+  np.testing.assert_array_equal(others, np.broadcast_to(others[0], others.shape))  # nothing else moves

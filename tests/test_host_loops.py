@@ -62,7 +62,6 @@ def test_observe_free_bodies_matches_mujoco_sensors(quickstart_config):
 
   scene = mwbx.Scene(quickstart_config)
   model = scene.model
-  model.opt.timestep = quickstart_config.sim.timestep
   backend = NativeBackend(model, threads=1)
   free = free_bodies.free_bodies(model, scene.body_ids)
   assert free is not None

@@ -1,5 +1,7 @@
-"""A scene whose MJCF names a mesh file by a relative path: banks sampled from
-it rebuild their model, save/load, and refine, from any working directory."""
+"""A scene whose MJCF names a mesh file by a relative path, and one that
+``<include>``s its robot file (the Menagerie ``scene.xml`` -> ``robot.xml``
+convention) with meshes in ``assets/``: banks sampled from them rebuild their
+model, save/load, and refine, from any working directory."""
 
 import os
 
@@ -19,6 +21,7 @@ f 2 3 4
 """
 
 MJCF = """<mujoco>
+  <option timestep="0.0020833333333333333"/>
   <asset><mesh name="tet" file="meshes/tet.obj"/></asset>
   <worldbody>
     <geom name="floor" type="plane" size="2 2 0.1"/>
@@ -56,3 +59,47 @@ def test_relative_mesh_paths_survive_save_load_and_refine(tmp_path, monkeypatch)
   assert refined.n_worlds == loaded.n_worlds + 2
   assert np.isfinite(refined.qpos_frames(refined.n_worlds - 1)).all()
   assert os.getcwd() == str(elsewhere)
+
+
+SCENE_WITH_INCLUDE = """<mujoco model="scene">
+  <compiler meshdir="assets"/>
+  <option timestep="0.0020833333333333333"/>
+  <include file="robot.xml"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="ball" pos="0.3 0 0.3"><freejoint/><geom type="sphere" size="0.04"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+ROBOT = """<mujoco model="robot">
+  <asset><mesh name="tet" file="tet.obj"/></asset>
+  <worldbody>
+    <body name="piece" pos="0 0 0.3"><freejoint/><geom type="mesh" mesh="tet"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_scene_that_includes_its_robot_file(tmp_path, monkeypatch):
+  scene_dir = tmp_path / "menagerie_style"
+  (scene_dir / "assets").mkdir(parents=True)
+  (scene_dir / "assets" / "tet.obj").write_text(MESH)
+  (scene_dir / "scene.xml").write_text(SCENE_WITH_INCLUDE)
+  (scene_dir / "robot.xml").write_text(ROBOT)
+  (scene_dir / "config.yaml").write_text(CONFIG)
+  monkeypatch.chdir(tmp_path)  # not the scene's folder: includes resolve against the MJCF
+  cfg = mwbx.load_config(scene_dir / "config.yaml")
+  scene = mwbx.Scene(cfg)
+  assert scene.object_names == ("piece", "ball") and scene.model.nmesh == 1
+  assert set(scene.mjcf_includes) == {"robot.xml"}
+  bank = mwbx.sample(cfg, n_worlds=2, key=jax.random.key(0), backend="native")
+  bank.save(tmp_path / "bank")
+  (scene_dir / "robot.xml").unlink()  # the bank keeps the included file's text
+  loaded = mwbx.Bank.load(tmp_path / "bank")
+  assert loaded.model().nmesh == 1 and loaded.digest == bank.digest
+  first = int(loaded.world_ids[0])
+  refined = mwbx.refine(loaded, first, ["ball"], t_min=0.1, n_samples=2, key=jax.random.key(1),
+                        backend="native")
+  assert refined.n_worlds == 4
+  np.testing.assert_array_equal(refined.qpos_frames(first), bank.qpos_frames(first))

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import mwbx
-from mwbx.batch_sim.refine import refine, refine_run
+from mwbx.refinement.refine import refine, refine_run
 
 SCENES = pathlib.Path(__file__).parent / "refine_scenes"
 T_MIN = 0.1

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from mwbx.batch_sim import interactions, kinematic, refine_store
+from mwbx.refinement import interactions, kinematic
 
 ARM = """
 <mujoco>
@@ -169,8 +169,7 @@ def test_splice_keeps_parent_channels_bit_for_bit(child_frames):
   store.append(np.stack([parent]), np.array([40]))
   keep = np.zeros(model.nq, bool)
   keep[7:14] = True  # the second box, translation and rotation channels
-  out = refine_store.store_refined(store, child[None], np.array([child_frames]), 0, store.frames(0),
-                                   keep[None])
+  out = store.refined(child[None], np.array([child_frames]), 0, store.frames(0), keep[None])
   got = out.frames(0)
   assert got.shape == (child_frames, model.nq)
   stored = store.frames(0)
@@ -190,7 +189,8 @@ def test_splice_keeps_parent_channels_bit_for_bit(child_frames):
 
 def test_stored_motion_and_audit_against_loops():
   from mwbx import perturb
-  from mwbx.batch_sim import refine_loop, world
+  from mwbx.batch_sim import world
+  from mwbx.refinement import loop as refine_loop
   rng = np.random.default_rng(4)
   w, s, b, f = 3, 4, 5, 6
   p = _params(b, 4, rng)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import mwbx
-from mwbx.batch_sim.refine import refine_run
+from mwbx.refinement.refine import refine_run
 
 SCENES = pathlib.Path(__file__).parent / "refine_scenes"
 

@@ -10,7 +10,7 @@ core, :mod:`world_loop`); both return a :class:`ChunkResult`.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple, Protocol
 
 import jax
 import numpy as np
@@ -46,6 +46,34 @@ class ChunkResult(NamedTuple):
   compile_seconds: float
   run_seconds: float
   physics_seconds: float = float("nan")
+
+
+class Backend(Protocol):
+  """What the sampler needs of a backend (``NativeBackend``, ``MjxBackend``).
+
+  A backend is bound to one ``MjModel`` (with the observation sensors) and
+  owns whatever it compiled or started for it (threads, jitted blocks).
+  """
+
+  model: object
+
+  def run_chunk(self, scene, params, qpos0: np.ndarray, qvel0: np.ndarray, step_keys: jax.Array,
+                active: np.ndarray, n_frames: int,
+                progress: Callable[[int, int], None] | None = None) -> ChunkResult:
+    """Runs C worlds from their initial states until every one has finished.
+
+    Args:
+      scene: the :class:`mwbx.scene.Scene`.
+      params: bookkeeping constants (:class:`mwbx.batch_sim.world.WorldParams`).
+      qpos0: f32[C, nq]; qvel0: f32[C, nv] initial states.
+      step_keys: key[C] per-world step key roots.
+      active: bool[C] false for padding slots.
+      n_frames: frames per world at most (end_frame + 1).
+      progress: optional callback(world_steps, worlds_finished) within the chunk.
+    """
+
+  def close(self) -> None:
+    """Releases threads and buffers; the backend is unusable afterwards."""
 
 
 def resolve_backend(name: str) -> str:

@@ -27,7 +27,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mwbx import quaternion
+from mwbx import rotations
+from mwbx.joints import JNT_FREE
 
 
 class FreeBodies(NamedTuple):
@@ -52,7 +53,7 @@ def free_bodies(model: mujoco.MjModel, body_ids) -> FreeBodies | None:
   ids = np.asarray(body_ids, np.int64)
   joints = model.body_jntadr[ids]
   free = ((model.body_parentid[ids] == 0) & (model.body_jntnum[ids] == 1) & (joints >= 0)
-          & (model.jnt_type[np.maximum(joints, 0)] == mujoco.mjtJoint.mjJNT_FREE))
+          & (model.jnt_type[np.maximum(joints, 0)] == JNT_FREE))
   if ids.size == 0 or not free.all():
     return None
   return FreeBodies(model.jnt_qposadr[joints].astype(np.int64), model.jnt_dofadr[joints].astype(np.int64),
@@ -64,15 +65,6 @@ def quiet_copy(model: mujoco.MjModel) -> mujoco.MjModel:
   quiet = copy.copy(model)
   quiet.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
   return quiet
-
-
-def _quat_to_mat(q: jax.Array) -> jax.Array:
-  w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-  return jnp.stack([
-      jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-      jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-      jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-  ], -2)
 
 
 def observe(qpos: jax.Array, qvel: jax.Array, bodies: FreeBodies, dt: float, gravity: jax.Array) -> jax.Array:
@@ -93,12 +85,12 @@ def observe(qpos: jax.Array, qvel: jax.Array, bodies: FreeBodies, dt: float, gra
   pos = qpos[:, qa + np.arange(3)]  # [S+1, B, 3]
   quat = qpos[:, qa + np.arange(3, 7)]
   quat = quat / jnp.linalg.norm(quat, axis=-1, keepdims=True)
-  rot = _quat_to_mat(quat)  # [S+1, B, 3, 3]
+  rot = rotations.quat_to_matrix(quat)  # [S+1, B, 3, 3]
   offset = jnp.einsum("sbij,bj->sbi", rot, jnp.asarray(bodies.ipos, qpos.dtype))
   ang_vel = jnp.einsum("sbij,sbj->sbi", rot, qvel[:, da + np.arange(3, 6)])
   lin_vel = qvel[:, da + np.arange(3)] + jnp.cross(ang_vel, offset)
   com = pos + offset
-  inertial_quat = quaternion.multiply(quat, jnp.asarray(bodies.iquat, qpos.dtype))
+  inertial_quat = rotations.quat_multiply(quat, jnp.asarray(bodies.iquat, qpos.dtype))
   lin_acc = (lin_vel[1:] - lin_vel[:-1]) / dt - gravity
   ang_acc = (ang_vel[1:] - ang_vel[:-1]) / dt
   block = jnp.concatenate([com[:-1], inertial_quat[:-1], lin_vel[:-1], ang_vel[:-1], lin_acc, ang_acc], -1)

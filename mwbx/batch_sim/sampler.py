@@ -21,6 +21,7 @@ from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
 from mwbx.config import Config
 from mwbx.errors import MwbxError
+from mwbx.qpos_store import QposStore
 from mwbx.scene import Scene
 
 
@@ -57,9 +58,11 @@ def frame_rates(config: Config, timestep: float) -> tuple[int, int, int]:
   sim = config.sim
   steps_per_frame = 1.0 / (sim.record_fps * timestep)
   if abs(steps_per_frame - round(steps_per_frame)) > 1e-6 * steps_per_frame:
+    given = "sim.timestep" if sim.timestep is not None else "the MJCF's <option timestep> (sim.timestep unset)"
     raise MwbxError(
-        f"{source}: sim.timestep: {timestep} s does not divide the frame time 1/record_fps"
-        f" = {1 / sim.record_fps} s (try {1 / (sim.record_fps * max(1, round(steps_per_frame)))})")
+        f"{source}: sim.timestep: {given} = {timestep} s does not divide the frame time"
+        f" 1/sim.record_fps = 1/{sim.record_fps:g} = {1 / sim.record_fps} s"
+        f" (try sim.timestep: {1 / (sim.record_fps * max(1, round(steps_per_frame)))})")
   stride = sim.record_fps / sim.query_fps
   if abs(stride - round(stride)) > 1e-6 * stride:
     raise MwbxError(f"{source}: sim.query_fps: {sim.query_fps} must divide record_fps = {sim.record_fps}")
@@ -84,15 +87,21 @@ class Sampler:
     backend: ``auto``, ``mjx`` or ``native`` (default: the config's).
     chunk_size: worlds per chunk, simulated and compressed together (default: the
       config's).
+    store: an empty :class:`~mwbx.qpos_store.QposStore` the runs' stores are made
+      like (``store.empty()``); default: compressed under the config's ``codec``
+      bounds. ``mwbx.qpos_store.RawQposStore(nq)`` keeps float32 frames.
   """
 
-  def __init__(self, scene: Scene | Config, backend: str | None = None, chunk_size: int | None = None):
+  def __init__(self, scene: Scene | Config, backend: str | None = None, chunk_size: int | None = None,
+               store: QposStore | None = None):
     self.scene = scene if isinstance(scene, Scene) else Scene(scene)
+    self.store = store if store is not None else compressed_store(self.scene)
     cfg = self.scene.config
     self.backend_name = resolve_backend(backend or cfg.sim.backend)
     self.chunk_size = int(chunk_size or cfg.sim.chunk_size)
     model = self.scene.model
-    model.opt.timestep = cfg.sim.timestep
+    if cfg.sim.timestep is not None:  # else the MJCF's own <option timestep>
+      model.opt.timestep = cfg.sim.timestep
     spf, self.query_stride, end_frame = frame_rates(cfg, model.opt.timestep)
     self.n_frames = end_frame + 1
     self.params = world.world_params(self.scene, spf, end_frame)
@@ -116,7 +125,7 @@ class Sampler:
   def __exit__(self, *exc):
     self.close()
 
-  def run(self, n_worlds: int, key: jax.Array, *, first_world: int = 0,
+  def run(self, n_worlds: int, key: jax.Array, *, first_world: int = 0, store: QposStore | None = None,
           progress: Callable[[int, int, int], None] | None = None) -> tuple[bank_lib.Bank, SampleStats]:
     """Samples worlds ``first_world … first_world + n_worlds - 1``.
 
@@ -124,6 +133,7 @@ class Sampler:
       n_worlds: how many worlds.
       key: the run key (``jax.random.key(seed)``).
       first_world: id of the first world (to continue an existing bank).
+      store: how this run keeps qpos (default: the sampler's ``store``).
       progress: optional callback(world_steps, worlds_finished, n_worlds).
 
     Returns:
@@ -136,7 +146,7 @@ class Sampler:
     ids = np.arange(first_world, first_world + n_worlds, dtype=np.int64)
     keys, init_keys, step_keys = world_keys(key, ids)
     results: list[ChunkResult] = []
-    store = self._new_store()
+    store = (self.store if store is None else store).empty()
     c = self.chunk_size
     done_worlds = 0
     for lo in range(0, n_worlds, c):
@@ -170,15 +180,6 @@ class Sampler:
     stats.wall_seconds = time.perf_counter() - start_wall
     return bank, stats
 
-  def _new_store(self):
-    """The compressed qpos store, bounds from the config's ``codec`` section."""
-    from mwbx.codec import CodecBounds, CompressedQposStore
-    cfg = self.scene.config
-    bounds = CodecBounds(e_pos=cfg.codec.e_pos, e_rot=float(np.deg2rad(cfg.codec.e_rot_deg)),
-                         e_scalar=cfg.codec.e_scalar)
-    return CompressedQposStore.from_model(self.scene.model, bounds, cfg.sim.record_fps,
-                                          n_bodies=len(self.scene.body_names))
-
   def _assemble(self, ids, keys, results: list[ChunkResult], store) -> bank_lib.Bank:
     scene = self.scene
     cat = lambda name: np.concatenate([getattr(r, name) for r in results])
@@ -201,8 +202,19 @@ class Sampler:
         qpos_store=store, body_names=scene.body_names, body_ids=scene.body_ids,
         objects=dict(scene.objects), groups=dict(scene.groups), metric_names=world.METRIC_NAMES,
         record_fps=cfg.sim.record_fps, query_fps=cfg.sim.query_fps, timestep=float(scene.model.opt.timestep),
-        config=cfg.resolved(), mjcf_text=scene.mjcf_text, digest=cfg.digest(scene.mjcf_text),
+        config=cfg.resolved(), mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes),
+        digest=scene.digest,
     )
+
+
+def compressed_store(scene: Scene):
+  """An empty compressed qpos store, bounds from the config's ``codec`` section."""
+  from mwbx.codec import CodecBounds, CompressedQposStore
+  cfg = scene.config
+  bounds = CodecBounds(e_pos=cfg.codec.e_pos, e_rot=float(np.deg2rad(cfg.codec.e_rot_deg)),
+                       e_scalar=cfg.codec.e_scalar)
+  return CompressedQposStore.from_model(scene.model, bounds, cfg.sim.record_fps,
+                                        n_bodies=len(scene.body_names))
 
 
 def _store_chunk(store, result: ChunkResult) -> ChunkResult:
@@ -223,7 +235,8 @@ def _store_chunk(store, result: ChunkResult) -> ChunkResult:
 
 
 def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str | None = None,
-           chunk_size: int | None = None, first_world: int = 0, progress=None) -> bank_lib.Bank:
+           chunk_size: int | None = None, first_world: int = 0, store: QposStore | None = None,
+           progress=None) -> bank_lib.Bank:
   """Samples ``n_worlds`` plausible worlds of a scene into a :class:`~mwbx.Bank`.
 
   Args:
@@ -233,6 +246,7 @@ def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str
     backend: ``auto`` | ``mjx`` | ``native`` (default: the config's ``sim.backend``).
     chunk_size: worlds per chunk (default: ``sim.chunk_size``).
     first_world: id of the first world, to continue a bank.
+    store: how qpos is kept (see :class:`Sampler`); default compressed.
     progress: optional callback(world_steps, worlds_finished, n_worlds).
 
   Returns:
@@ -243,6 +257,6 @@ def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str
     scene = mwbx.load_config("configs/quickstart.yaml")
     bank = mwbx.sample(scene, n_worlds=1024, key=jax.random.key(0))
   """
-  with Sampler(scene, backend, chunk_size) as sampler:
+  with Sampler(scene, backend, chunk_size, store=store) as sampler:
     bank, _ = sampler.run(n_worlds, key, first_world=first_world, progress=progress)
   return bank

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mwbx import perturb
+from mwbx import perturb, rotations
 from mwbx.scene import SENSOR_WIDTH
 
 METRIC_NAMES = (
@@ -228,7 +228,7 @@ def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: 
         metrics[:, 0] + spin * dt,
         jnp.where(moving, k * dt, metrics[:, 1]),
         metrics[:, 2] + (impact & (since_impact > gap_steps)),
-        _rotation_angle(init_quat, o.quat),
+        rotations.rotation_angle(init_quat, o.quat),
         metrics[:, 4] + jnp.where(k > 0, jnp.linalg.norm(com - prev_com, axis=-1), 0.0),
         jnp.maximum(metrics[:, 5], com[:, 2]),
     ], axis=-1)
@@ -311,12 +311,6 @@ def frame_update(carry: WorldCarry, obs: Observation, world_keys: jax.Array, par
 def _finite(o: Observation) -> jax.Array:
   return (jnp.all(jnp.isfinite(o.com_pos)) & jnp.all(jnp.isfinite(o.lin_vel))
           & jnp.all(jnp.isfinite(o.ang_vel)) & jnp.all(jnp.isfinite(o.quat)))
-
-
-def _rotation_angle(q1: jax.Array, q2: jax.Array) -> jax.Array:
-  """f32[...] angle in radians of the rotation between unit quaternions."""
-  dot = jnp.abs(jnp.sum(q1 * q2, axis=-1))
-  return 2.0 * jnp.arccos(jnp.clip(dot, 0.0, 1.0))
 
 
 def world_params(scene, steps_per_frame: int, end_frame: int) -> WorldParams:

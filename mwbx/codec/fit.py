@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mwbx import quaternion
+from mwbx import rotations
 
 # Velocities are kept in int32; windows are clipped to this magnitude first.
 _INT_CAP = 2.0**30
@@ -225,22 +225,13 @@ def rel_log(q: jax.Array, q_start: jax.Array) -> jax.Array:
   """Rotation vector of ``q (x) q_start^-1`` (angle in [0, pi]), components first:
   f32[4, N] -> f32[3, N]."""
   conj = q_start * jnp.array([1.0, -1.0, -1.0, -1.0], q_start.dtype)[:, None]
-  rel = quaternion.multiply(q, conj, axis=0)
+  rel = rotations.quat_multiply(q, conj, axis=0)
   rel = jnp.where(rel[0] < 0, -rel, rel)  # q and -q are the same rotation
   s = jnp.sqrt(jnp.sum(rel[1:] * rel[1:], axis=0))
   angle = 2.0 * jnp.arctan2(s, rel[0])
   factor = jnp.where(s > 1e-12, angle / jnp.where(s > 1e-12, s, 1.0),
                      2.0 / jnp.maximum(rel[0], 1e-12))
   return factor * rel[1:]
-
-
-def quat_exp(omega: jax.Array) -> jax.Array:
-  """Unit quaternion of rotation vector ``omega`` (radians), components first:
-  f32[3, N] -> f32[4, N]."""
-  theta = jnp.sqrt(jnp.sum(omega * omega, axis=0))
-  safe = jnp.where(theta > 1e-12, theta, 1.0)
-  factor = jnp.where(theta > 1e-12, jnp.sin(0.5 * theta) / safe, 0.5)
-  return jnp.concatenate([jnp.cos(0.5 * theta)[None], factor * omega])
 
 
 def _fit_rotation_paths(q, n, e, step, coarse):
@@ -306,7 +297,7 @@ def _fit_rotation_paths(q, n, e, step, coarse):
     return w, feasible
 
   def end_value(q_s, w, length):
-    q_e = quaternion.multiply(quat_exp(length.astype(dtype) * w.astype(dtype) * step), q_s, axis=0)
+    q_e = rotations.quat_multiply(rotations.quat_exp(length.astype(dtype) * w.astype(dtype) * step), q_s, axis=0)
     return q_e / jnp.sqrt(jnp.sum(q_e * q_e, axis=0))
 
   def body(carry, inp):

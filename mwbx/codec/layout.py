@@ -22,13 +22,8 @@ from typing import Sequence
 
 import numpy as np
 
-# MuJoCo's mjtJoint values.
-JNT_FREE = 0
-JNT_BALL = 1
-JNT_SLIDE = 2
-JNT_HINGE = 3
-
 from mwbx.errors import MwbxError
+from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE  # noqa: F401 (re-exported)
 
 
 class CodecError(MwbxError):

@@ -13,6 +13,7 @@ from mwbx.codec.batch import decode_batch
 from mwbx.codec.decode import decode_world
 from mwbx.codec.encode import DEFAULT_GRAVITY, encode_batch_checked
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
+from mwbx.codec.splice import splice_stream
 
 
 class CompressedQposStore:
@@ -100,6 +101,51 @@ class CompressedQposStore:
     return CompressedQposStore(self.layout, self.bounds, self.fps, self.gravity, self.n_bodies,
                                self._arrays(copy=True))
 
+  def empty(self) -> "CompressedQposStore":
+    return CompressedQposStore(self.layout, self.bounds, self.fps, self.gravity, self.n_bodies)
+
+  def take(self, rows: np.ndarray) -> "CompressedQposStore":
+    rows = np.asarray(rows, np.int64).reshape(-1)
+    data, offsets = self._gather(rows)
+    arrays = {"data": data, "offsets": offsets,
+              "frame_count": self.frame_count[rows], "max_error": self.max_error[rows],
+              "raw_channels": self.raw_channels[rows]}
+    return CompressedQposStore(self.layout, self.bounds, self.fps, self.gravity, self.n_bodies,
+                               arrays)
+
+  def _gather(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(u8[n], i64[k + 1]) the streams of ``rows`` back to back, and their offsets."""
+    lo, hi = self.offsets[rows], self.offsets[rows + 1]
+    index = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)] + [np.zeros(0, np.int64)])
+    return self.data[index], np.concatenate([[0], np.cumsum(hi - lo)]).astype(np.int64)
+
+  def refined(self, qpos: np.ndarray, frame_count: np.ndarray, parent: int,
+              parent_frames: np.ndarray, keep_qpos: np.ndarray) -> "CompressedQposStore":
+    """A new store (same settings) of refined worlds of the parent at row ``parent``.
+
+    The refined worlds are encoded as usual, then the channels of ``keep_qpos``
+    are spliced from the parent's stream (:func:`mwbx.codec.splice.splice_stream`),
+    so they decode to the parent's stored frames exactly.
+
+    Args:
+      qpos: f32[W, F, nq] refined frames (padded); frame_count: i32[W].
+      parent: row of the parent world in this store.
+      parent_frames: f32[T, nq] the parent's decoded frames.
+      keep_qpos: bool[W, nq] coordinates that follow the parent exactly.
+    """
+    out = self.empty()
+    out.append(qpos, frame_count)
+    if not keep_qpos.any():
+      return out
+    parent_stream = self.stream(parent)
+    streams = [splice_stream(out.stream(w), parent_stream, parent_frames, keep_qpos[w])
+               if keep_qpos[w].any() else out.stream(w).tobytes() for w in range(out.n_worlds)]
+    sizes = np.array([len(s) for s in streams], np.int64)
+    out.data = np.frombuffer(b"".join(streams), np.uint8).copy()
+    out.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    out.max_error = np.maximum(out.max_error, self.max_error[parent][None, :])
+    return out
+
   def stream(self, world: int) -> np.ndarray:
     """u8[n] the stored stream of one world."""
     if not 0 <= world < self.n_worlds:
@@ -130,12 +176,9 @@ class CompressedQposStore:
     worlds = np.arange(self.n_worlds) if worlds is None else np.asarray(worlds, np.int64)
     if worlds.size and (worlds.min() < 0 or worlds.max() >= self.n_worlds):
       raise CodecError(f"worlds out of range [0, {self.n_worlds})")
-    lo, hi = self.offsets[worlds], self.offsets[worlds + 1]
-    index = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)]) if worlds.size else \
-        np.zeros(0, np.int64)
-    offsets = np.concatenate([[0], np.cumsum(hi - lo)])
+    data, offsets = self._gather(worlds)
     try:
-      return decode_batch(self.data[index], offsets, start, stop, channels)
+      return decode_batch(data, offsets, start, stop, channels)
     except CodecError as err:
       raise CodecError(f"compressed qpos: {err}") from None
 
@@ -189,17 +232,3 @@ class CompressedQposStore:
       if isinstance(err, CodecError):
         raise
       raise CodecError(f"compressed qpos store: bad saved metadata ({err})") from None
-
-
-def _register():
-  """Lets ``Bank.load`` find this store by its ``kind``."""
-  try:
-    from mwbx import bank
-  except ImportError:  # pragma: no cover - the bank is optional for the codec
-    return
-  stores = getattr(bank, "QPOS_STORES", None)
-  if isinstance(stores, dict):
-    stores[CompressedQposStore.kind] = CompressedQposStore
-
-
-_register()

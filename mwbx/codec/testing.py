@@ -10,6 +10,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from mwbx.joints import JNT_BALL, JNT_FREE
+
 _BOXES = """
 <mujoco>
   <option timestep="{dt}"/>
@@ -72,7 +74,7 @@ def record(model: mujoco.MjModel, n_frames: int, fps: float = 120.0, seed: int =
   data = mujoco.MjData(model)
   for j in range(model.njnt):
     adr = model.jnt_dofadr[j]
-    if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+    if int(model.jnt_type[j]) == JNT_FREE:
       data.qvel[adr:adr + 3] = rng.normal(0, speed, 3) + np.array([0, 0, speed])
       data.qvel[adr + 3:adr + 6] = rng.normal(0, spin, 3)
     else:
@@ -83,8 +85,8 @@ def record(model: mujoco.MjModel, n_frames: int, fps: float = 120.0, seed: int =
     out[f] = data.qpos
     for _ in range(substeps):
       mujoco.mj_step(model, data)
-  quat_adr = [model.jnt_qposadr[j] + (3 if model.jnt_type[j] == 0 else 0)
-              for j in range(model.njnt) if model.jnt_type[j] in (0, 1)]
+  quat_adr = [model.jnt_qposadr[j] + (3 if int(model.jnt_type[j]) == JNT_FREE else 0)
+              for j in range(model.njnt) if int(model.jnt_type[j]) in (JNT_FREE, JNT_BALL)]
   for adr in quat_adr:
     flip = rng.random(n_frames) < 0.3
     out[flip, adr:adr + 4] *= -1

@@ -23,6 +23,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from mwbx import rotations
+
 
 class PerturbParams(NamedTuple):
   """Perturbation parameters (floats, may be traced).
@@ -38,26 +40,6 @@ class PerturbParams(NamedTuple):
   lobe_exponent: float = 20.0
   linear_threshold: float = 100.0
   angular_threshold: float = 2000.0
-
-
-class Perturbation(NamedTuple):
-  """The perturbation of one body at one step.
-
-  Attributes:
-    delta_v: f32[3] contact-induced velocity change of the step, m/s.
-    delta_w: f32[3] angular velocity change of the step, rad/s.
-    linear_impact: bool, ‖delta_v‖/dt > C_v.
-    angular_impact: bool, ‖delta_w‖/dt > C_ω.
-    dv: f32[3] linear velocity perturbation, m/s (zero without impact).
-    dw: f32[3] angular velocity perturbation, rad/s (zero without impact).
-  """
-
-  delta_v: jax.Array
-  delta_w: jax.Array
-  linear_impact: jax.Array
-  angular_impact: jax.Array
-  dv: jax.Array
-  dw: jax.Array
 
 
 def velocity_change(lin_acc: jax.Array, ang_acc: jax.Array, gravity: jax.Array, dt: float):
@@ -122,46 +104,6 @@ def perturbation_from_uniforms(u: jax.Array, delta: jax.Array, alpha: float, exp
   return magnitude * direction
 
 
-def sample_perturbation(key: jax.Array, delta: jax.Array, alpha: float, exponent: float) -> jax.Array:
-  """``m·d``: d from the lobe about ``delta``, m uniform in ±α‖delta‖."""
-  return perturbation_from_uniforms(jax.random.uniform(key, (3,), delta.dtype), delta, alpha, exponent)
-
-
-def perturb_body(
-    uniforms: jax.Array,
-    lin_acc: jax.Array,
-    ang_acc: jax.Array,
-    gravity: jax.Array,
-    dt: float,
-    params: PerturbParams,
-    enabled: jax.Array,
-) -> Perturbation:
-  """Detects an impact of one body at one step and samples its perturbation.
-
-  Args:
-    uniforms: f32[6] uniforms in [0, 1) for this body at this step (three for
-      the linear, three for the angular perturbation); one draw per world-step
-      keeps the random number generation cheap.
-    lin_acc: f32[3] COM acceleration over the step, m/s².
-    ang_acc: f32[3] angular acceleration over the step, rad/s².
-    gravity: f32[3] m/s².
-    dt: timestep, s.
-    params: thresholds, α and lobe exponent.
-    enabled: bool, false for bodies opted out (impacts still detected).
-
-  Returns:
-    the :class:`Perturbation` (zero ``dv``/``dw`` where no impact or disabled).
-  """
-  delta_v, delta_w = velocity_change(lin_acc, ang_acc, gravity, dt)
-  linear_impact = jnp.linalg.norm(delta_v) > params.linear_threshold * dt
-  angular_impact = jnp.linalg.norm(delta_w) > params.angular_threshold * dt
-  dv = perturbation_from_uniforms(uniforms[0:3], delta_v, params.alpha, params.lobe_exponent)
-  dw = perturbation_from_uniforms(uniforms[3:6], delta_w, params.alpha, params.lobe_exponent)
-  dv = jnp.where(linear_impact & enabled, dv, 0.0)
-  dw = jnp.where(angular_impact & enabled, dw, 0.0)
-  return Perturbation(delta_v, delta_w, linear_impact, angular_impact, dv, dw)
-
-
 def impulse_wrench(dv: jax.Array, dw: jax.Array, mass: jax.Array, inertia: jax.Array,
                    quat: jax.Array, dt: float) -> jax.Array:
   """The wrench at the COM that changes a free body's velocity by (dv, dw) in one step.
@@ -177,17 +119,6 @@ def impulse_wrench(dv: jax.Array, dw: jax.Array, mass: jax.Array, inertia: jax.A
   Returns:
     f32[6] (force N, torque N·m) in the world frame, as in ``xfrc_applied``.
   """
-  rot = quat_to_mat(quat)
+  rot = rotations.quat_to_matrix(quat / jnp.linalg.norm(quat))
   inertia_world = rot @ jnp.diag(inertia) @ rot.T
   return jnp.concatenate([mass * dv, inertia_world @ dw]) / dt
-
-
-def quat_to_mat(q: jax.Array) -> jax.Array:
-  """f32[3, 3] rotation matrix of a (w, x, y, z) quaternion (normalized here)."""
-  q = q / jnp.linalg.norm(q)
-  w, x, y, z = q
-  return jnp.array([
-      [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-  ])

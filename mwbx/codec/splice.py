@@ -1,5 +1,5 @@
-"""Writing refined worlds into the bank's qpos store so that objects the
-refinement never touched keep their stored path exactly.
+"""Splicing streams: a refined world keeps the parent's coded channels for
+the objects the refinement never touched, so their stored path is exact.
 
 A refined world's frames are the parent's decoded frames for those objects.
 The raw store keeps them bit for bit. Re-compressing decoded data would move
@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from mwbx.errors import MwbxError
+from mwbx.codec.decode import normalize
+from mwbx.codec.layout import CodecError
+from mwbx.codec.stream import (KINDS, MODE_FIT, MODE_RAW, WIDTH, Segments, channel_starts,
+                               gravity_increment, lattice_exponent, parse, serialize)
 
 
 def _channel_segments(code, kind: str):
   """Per fitted channel of ``kind`` (layout order): (lengths, vel, flags) slices."""
-  from mwbx.codec.stream import MODE_FIT
   seg = code.segs[kind]
   kinds = code.kinds()
   chans = [c for c, k in enumerate(kinds) if k == kind]
@@ -41,7 +43,6 @@ def _raw_that_decodes_to(values: np.ndarray, rotation: bool) -> np.ndarray:
   by one ulp; for such rows a neighbour within ±1 ulp per component that
   decodes back to the row is stored instead.
   """
-  from mwbx.codec.decode import normalize
   values = np.asarray(values, np.float32)
   if not rotation:
     return values.copy()
@@ -66,7 +67,6 @@ def _extended(channel, extra: int, kind: str, code):
   ballistic previous segment), so the hold drifts by less than one
   displacement quantum; the parent's own frames decode exactly as before.
   """
-  from mwbx.codec.stream import channel_starts, gravity_increment, lattice_exponent
   lengths, vel, flags = channel
   if extra == 0 or len(lengths) == 0:
     return channel
@@ -95,11 +95,10 @@ def splice_stream(new_stream: np.ndarray, parent_stream: np.ndarray, parent_fram
     keep_qpos: bool[nq] qpos coordinates whose channel comes from the parent
       (whole channels: a free joint's translation and rotation are separate).
   """
-  from mwbx.codec.stream import KINDS, MODE_FIT, MODE_RAW, WIDTH, Segments, parse, serialize
   new = parse(new_stream)
   parent = parse(parent_stream)
   if parent.quanta != new.quanta or parent.layout != new.layout or parent.bounds != new.bounds:
-    raise MwbxError("refine: the parent's stream was coded with other codec settings")
+    raise CodecError("splice: the parent's stream was coded with other codec settings")
   kinds, adrs = new.kinds(), new.addresses()
   take = [bool(keep_qpos[a]) for a in adrs]
   n = new.n_frames
@@ -134,36 +133,3 @@ def splice_stream(new_stream: np.ndarray, parent_stream: np.ndarray, parent_fram
   code = type(new)(n_frames=n, layout=new.layout, bounds=new.bounds, fps=new.fps, quanta=new.quanta,
                    modes=modes, initial=initial, raw=raw, segs=segs)
   return serialize(code)
-
-
-def store_refined(template, qpos: np.ndarray, frame_count: np.ndarray, parent_world: int,
-                  parent_frames: np.ndarray, keep_qpos: np.ndarray):
-  """A qpos store of the template's kind holding the refined worlds.
-
-  Args:
-    template: the bank's qpos store (raw or compressed).
-    qpos: f32[W, F, nq] refined frames (padded), frame_count: i32[W].
-    parent_world: bank row of the parent (its stream is reused).
-    parent_frames: f32[T, nq] the parent's decoded frames.
-    keep_qpos: bool[W, nq] coordinates that follow the parent exactly.
-  """
-  store = template
-  if getattr(store, "kind", "raw") == "raw":
-    from mwbx.bank import RawQposStore
-    out = RawQposStore(store.nq)
-    out.append(qpos, frame_count)
-    return out
-  from mwbx.codec import CompressedQposStore
-  out = CompressedQposStore(store.layout, store.bounds, store.fps, store.gravity, store.n_bodies)
-  out.append(qpos, frame_count)
-  if not keep_qpos.any():
-    return out
-  parent_stream = template.stream(parent_world)
-  streams = [splice_stream(out.stream(w), parent_stream, parent_frames, keep_qpos[w])
-             if keep_qpos[w].any() else out.stream(w).tobytes() for w in range(out.n_worlds)]
-  sizes = np.array([len(s) for s in streams], np.int64)
-  out.data = np.frombuffer(b"".join(streams), np.uint8).copy()
-  out.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-  parent_err = template.max_error[parent_world]
-  out.max_error = np.maximum(out.max_error, parent_err[None, :])
-  return out

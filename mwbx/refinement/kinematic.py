@@ -20,6 +20,8 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from mwbx import rotations
+
 
 class StoredPath(NamedTuple):
   """The parent world's decoded motion over the refined worlds' horizon.
@@ -123,11 +125,6 @@ def step_targets(model: mujoco.MjModel, path: StoredPath, steps_per_frame: int, 
   return out.astype(np.float32)
 
 
-def _angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-  dot = np.abs(np.sum(q1 * q2, axis=-1))
-  return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
-
-
 def prefix_metrics(path: StoredPath, frame: int, frame_time: float, dt: float, gravity: np.ndarray,
                    rest_linear_speed: float, rest_angular_speed: float, linear_threshold: float,
                    gap_frames: int) -> np.ndarray:
@@ -148,7 +145,7 @@ def prefix_metrics(path: StoredPath, frame: int, frame_time: float, dt: float, g
   out[:, 1] = -np.inf
   if frame == 0:
     return out
-  angles = _angle(quat[:-1], quat[1:])  # [frame, B]
+  angles = rotations.rotation_angle_np(quat[:-1], quat[1:])  # [frame, B]
   steps = np.linalg.norm(np.diff(com, axis=0), axis=-1)
   out[:, 0] = angles.sum(axis=0)
   out[:, 4] = steps.sum(axis=0)

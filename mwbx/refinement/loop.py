@@ -34,7 +34,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
-from mwbx.batch_sim import interactions, kinematic, world
+from mwbx.batch_sim import world
+from mwbx.refinement import interactions, kinematic
 from mwbx.batch_sim.backend import fill_tail
 
 

@@ -28,6 +28,7 @@ import mujoco
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.joints import JNT_SLIDE
 
 
 class InteractionParams(NamedTuple):
@@ -71,7 +72,7 @@ def body_radii(model: mujoco.MjModel, body_ids: np.ndarray, objects: dict, body_
     while anchor not in tracked:
       reach += float(np.linalg.norm(model.body_pos[anchor]))
       for j in range(model.body_jntadr[anchor], model.body_jntadr[anchor] + model.body_jntnum[anchor]):
-        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE:
+        if int(model.jnt_type[j]) == JNT_SLIDE:
           reach += float(np.abs(model.jnt_range[j]).max()) if model.jnt_limited[j] else 1.0
       if anchor == root:
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, root)

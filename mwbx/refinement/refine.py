@@ -5,7 +5,7 @@ the parent world's stored state at t_min (decoded ``qpos``, ``qvel`` by
 differentiating the decoded path), simulates the marked objects with fresh
 perturbations, replays every other object's stored motion, and activates an
 object as soon as an active object or a ghost of one may touch it (see
-:mod:`mwbx.batch_sim.interactions` and :mod:`mwbx.batch_sim.refine_loop`).
+:mod:`mwbx.refinement.interactions` and :mod:`mwbx.refinement.loop`).
 
 The new worlds are ordinary bank worlds: frames before t_min are the
 parent's, then the new motion; objects never activated keep the parent's
@@ -28,10 +28,13 @@ import mujoco
 import numpy as np
 
 from mwbx import bank as bank_lib
-from mwbx.batch_sim import free_bodies, interactions, kinematic, refine_loop, refine_store
+from mwbx.batch_sim import free_bodies
 from mwbx.batch_sim import world as world_lib
 from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
 from mwbx.errors import MwbxError
+from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
+from mwbx.refinement import interactions, kinematic
+from mwbx.refinement import loop as refine_loop
 
 DEFAULT_MARGIN = 0.01  # m, contact margin of the interaction test
 
@@ -42,6 +45,7 @@ def _scene_of(bank):
   data = dict(bank.config)
   data.pop("source", None)
   scene = Scene(config_from_dict(data, source="<bank config>"), mjcf_text=bank.mjcf_text,
+                mjcf_includes=bank.mjcf_includes,
                 mjcf_dir=bank.mjcf_dir())
   if scene.body_names != tuple(bank.body_names):
     raise MwbxError("refine: the bank's tracked bodies do not match its own config")
@@ -87,15 +91,13 @@ def _object_masks(model: mujoco.MjModel, object_names) -> tuple[np.ndarray, np.n
   """(bool[O, nq], bool[O, nv]) coordinates of each object's joints."""
   qm = np.zeros((len(object_names), model.nq), bool)
   vm = np.zeros((len(object_names), model.nv), bool)
-  nq_of = {0: 7, 1: 4, 2: 1, 3: 1}
-  nv_of = {0: 6, 1: 3, 2: 1, 3: 1}
   for o, name in enumerate(object_names):
     root = model.body(name).id
     for j in range(model.njnt):
       if model.body_rootid[model.jnt_bodyid[j]] == root:
         t = int(model.jnt_type[j])
-        qm[o, model.jnt_qposadr[j]:model.jnt_qposadr[j] + nq_of[t]] = True
-        vm[o, model.jnt_dofadr[j]:model.jnt_dofadr[j] + nv_of[t]] = True
+        qm[o, model.jnt_qposadr[j]:model.jnt_qposadr[j] + QPOS_WIDTH[t]] = True
+        vm[o, model.jnt_dofadr[j]:model.jnt_dofadr[j] + DOF_WIDTH[t]] = True
   return qm, vm
 
 
@@ -246,7 +248,7 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
 
   qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
   keep_qpos = (~active).astype(np.float32) @ qm.astype(np.float32) > 0.5
-  store = refine_store.store_refined(bank.qpos_store, qpos, count, world, parent, keep_qpos)
+  store = bank.qpos_store.refined(qpos, count, world, parent, keep_qpos)
 
   stride = sampler.query_stride
   n_points = bank.com.shape[1]

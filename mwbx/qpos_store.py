@@ -1,0 +1,145 @@
+"""How the bank stores each world's recorded ``qpos`` frames.
+
+:class:`QposStore` is the interface the bank, the sampler and refinement use;
+:class:`RawQposStore` keeps float32 frames as they are, and
+``mwbx.codec.CompressedQposStore`` keeps them compressed under error bounds
+(the default). Pass either to :class:`mwbx.Sampler` (``store=``) to choose.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+
+class QposStore(Protocol):
+  """The recorded ``qpos`` frames of every world of a bank, in bank row order.
+
+  Attributes:
+    kind: the name saved banks record (``raw``, ``codec``).
+  """
+
+  kind: str
+
+  def append(self, qpos: np.ndarray, frame_count: np.ndarray) -> None:
+    """Adds worlds: qpos f32[W, T, nq] (padded past each world's count), frame_count i32[W]."""
+
+  def extend(self, other: "QposStore") -> None:
+    """Adds every world of another store of the same kind and settings, as stored."""
+
+  def copy(self) -> "QposStore":
+    """An independent copy."""
+
+  def empty(self) -> "QposStore":
+    """A store with the same settings and no worlds."""
+
+  def take(self, rows: np.ndarray) -> "QposStore":
+    """A store (same settings) of the worlds at ``rows`` (i64[k]), in that order, as stored."""
+
+  def refined(self, qpos: np.ndarray, frame_count: np.ndarray, parent: int,
+              parent_frames: np.ndarray, keep_qpos: np.ndarray) -> "QposStore":
+    """A new store of refined worlds whose ``keep_qpos`` (bool[W, nq]) coordinates
+    decode exactly to ``parent_frames`` (f32[T, nq], the row ``parent``'s frames)."""
+
+  def frames(self, world: int, start: int = 0, stop: int | None = None,
+             columns=None) -> np.ndarray:
+    """f32[n, nq] frames ``start:stop`` of row ``world``; with ``columns`` the others are zero."""
+
+  @property
+  def n_worlds(self) -> int:
+    """Worlds stored."""
+
+  @property
+  def nbytes(self) -> int:
+    """Bytes held in memory."""
+
+  def stats(self) -> dict:
+    """Size and error figures for ``mwbx info``."""
+
+  def state(self) -> tuple[dict, dict]:
+    """(arrays, JSON metadata) to save; :meth:`restore` reads them back."""
+
+  @classmethod
+  def restore(cls, arrays: dict, meta: dict) -> "QposStore":
+    """The store saved by :meth:`state`."""
+
+
+class RawQposStore:
+  """``qpos`` frames of every world as one float32 array plus offsets.
+
+  Implements :class:`QposStore` without compression (tests and benchmarks
+  compare against it); ``mwbx.codec.CompressedQposStore`` is the other one.
+  """
+
+  kind = "raw"
+
+  def __init__(self, nq: int, data: np.ndarray | None = None, offsets: np.ndarray | None = None):
+    self.nq = nq
+    self.data = np.zeros((0, nq), np.float32) if data is None else np.asarray(data, np.float32)
+    self.offsets = np.zeros(1, np.int64) if offsets is None else np.asarray(offsets, np.int64)
+
+  def append(self, qpos: np.ndarray, frame_count: np.ndarray) -> None:
+    """Adds worlds: qpos f32[W, T, nq] (padded), frame_count i32[W]."""
+    pieces = [qpos[w, :n] for w, n in enumerate(frame_count)]
+    self.data = np.concatenate([self.data, *pieces]).astype(np.float32)
+    self.offsets = np.concatenate([self.offsets, self.offsets[-1] + np.cumsum(frame_count)])
+
+  def extend(self, other: "RawQposStore") -> None:
+    """Adds every world of another store of the same kind, as stored."""
+    self.data = np.concatenate([self.data, other.data])
+    self.offsets = np.concatenate([self.offsets, self.offsets[-1] + other.offsets[1:]])
+
+  def refined(self, qpos: np.ndarray, frame_count: np.ndarray, parent: int,
+              parent_frames: np.ndarray, keep_qpos: np.ndarray) -> "RawQposStore":
+    """A new store of refined worlds: raw frames already hold the parent's
+    values bit for bit where ``keep_qpos``, so nothing is spliced."""
+    out = RawQposStore(self.nq)
+    out.append(qpos, frame_count)
+    return out
+
+  def copy(self) -> "RawQposStore":
+    return RawQposStore(self.nq, self.data.copy(), self.offsets.copy())
+
+  def empty(self) -> "RawQposStore":
+    return RawQposStore(self.nq)
+
+  def take(self, rows: np.ndarray) -> "RawQposStore":
+    rows = np.asarray(rows, np.int64).reshape(-1)
+    lo, hi = self.offsets[rows], self.offsets[rows + 1]
+    index = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)] + [np.zeros(0, np.int64)])
+    return RawQposStore(self.nq, self.data[index], np.concatenate([[0], np.cumsum(hi - lo)]))
+
+  def frames(self, world: int, start: int = 0, stop: int | None = None,
+             columns=None) -> np.ndarray:
+    """f32[n, nq] frames ``start:stop``; with ``columns`` the others are zero."""
+    lo, hi = self.offsets[world], self.offsets[world + 1]
+    out = self.data[lo:hi][start:stop]
+    if columns is None:
+      return out
+    keep = np.zeros(self.nq, bool)
+    keep[np.asarray(columns, np.int64)] = True
+    return np.where(keep, out, np.float32(0))
+
+  @property
+  def n_worlds(self) -> int:
+    return len(self.offsets) - 1
+
+  @property
+  def nbytes(self) -> int:
+    return int(self.data.nbytes + self.offsets.nbytes)
+
+  def stats(self) -> dict:
+    frames = int(self.offsets[-1])
+    return {"codec": "raw float32", "bytes": self.nbytes,
+            "bytes_per_world": self.nbytes / max(1, self.n_worlds), "frames": frames}
+
+  def state(self) -> tuple[dict, dict]:
+    return {"data": self.data, "offsets": self.offsets}, {"kind": self.kind, "nq": self.nq}
+
+  @classmethod
+  def restore(cls, arrays: dict, meta: dict) -> "RawQposStore":
+    return cls(meta["nq"], arrays["data"], arrays["offsets"])
+
+
+QPOS_STORES = {RawQposStore.kind: RawQposStore}

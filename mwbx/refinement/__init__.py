@@ -1,0 +1,11 @@
+"""Refinement (paper §5): resample chosen objects of one world from a time on.
+
+Stored-state restarts, active/inactive/ghost sets, the interaction test and
+stored-motion playback. It calls the sampler's backends and the codec; it
+never writes the codec's format itself (``QposStore.refined`` does).
+"""
+
+from mwbx.refinement.refine import DEFAULT_MARGIN
+from mwbx.refinement.refine import RefineStats
+from mwbx.refinement.refine import refine
+from mwbx.refinement.refine import refine_run
