@@ -28,6 +28,7 @@ test: $(STAMP)
 
 # Every benchmark: tables on stdout, JSON (and plots) in out/bench/.
 bench: $(STAMP)
+	$(PY) -m pip install -q -e ".[dev,bench]"
 	$(PY) scripts/bench_sampler.py
 	$(PY) scripts/bench_codec.py
 	$(PY) scripts/bench_queries.py

@@ -40,5 +40,43 @@ from mwbx.queries import rank
 from mwbx.scene import Scene
 from mwbx.viewer import export_html
 from mwbx.viewer import view
+from mwbx.qpos_store import QposStore
+from mwbx.qpos_store import RawQposStore
+from mwbx.refinement import RefineStats
 
 __version__ = "0.1.0"
+
+__all__ = [
+    "Bank",
+    "Camera",
+    "CodecBounds",
+    "CodecError",
+    "Config",
+    "FLAG_AT_REST",
+    "FLAG_FINISHED",
+    "FLAG_UNSTABLE",
+    "Frustum",
+    "METRIC_NAMES",
+    "MwbxError",
+    "QposStore",
+    "Query",
+    "QuerySet",
+    "RawQposStore",
+    "RefineStats",
+    "SampleStats",
+    "Sampler",
+    "Scene",
+    "ScreenBox",
+    "config_from_dict",
+    "constraints_satisfied",
+    "evaluate",
+    "evaluate_each",
+    "export_html",
+    "first_entry",
+    "load_config",
+    "load_queries",
+    "rank",
+    "refine",
+    "sample",
+    "view",
+]

@@ -6,6 +6,10 @@ the tracked bodies' COM polylines at the query rate, the metric table and the
 perturbation count; per bank the config, the MJCF text and a hash of both.
 Banks are saved with orbax-checkpoint; appending worlds writes a new
 checkpoint step, so an interrupted save never loses the previous one.
+
+Worlds are named by **world ids**, unique within a bank forever (sampled,
+appended and refined worlds alike; a dropped world's id is never reused).
+Every public function takes ids; a bank row is internal (:meth:`Bank.row_of`).
 """
 
 from __future__ import annotations
@@ -26,7 +30,8 @@ FLAG_FINISHED = 1
 FLAG_AT_REST = 2
 FLAG_UNSTABLE = 4
 
-BANK_FORMAT = 1
+# 2: lineage keyed by world id (1: by bank row), parent_world holds ids, next_id.
+BANK_FORMAT = 2
 
 
 @dataclasses.dataclass
@@ -34,7 +39,8 @@ class Bank:
   """Sampled worlds of one scene.
 
   Attributes:
-    world_ids: i64[W] world index within the run (determines its randomness).
+    world_ids: i64[W] world ids, unique within the bank (a sampled world's id is
+      also its index in its run, which determines its randomness).
     keys: u32[W, 2] raw key data of each world.
     flags: u8[W] FLAG_FINISHED | FLAG_AT_REST | FLAG_UNSTABLE.
     frame_count: i32[W] recorded qpos frames per world (at ``record_fps``).
@@ -44,14 +50,16 @@ class Bank:
     metrics: f32[W, B, M] per-body metrics named by ``metric_names``.
     perturbations: i32[W] perturbations applied.
     steps: i32[W] physics steps simulated.
-    parent_world: i64[W] world this one was refined from (-1: sampled).
+    parent_world: i64[W] id of the world this one was refined from (-1: sampled).
     refine_time: f32[W] time the refinement started from, s (NaN: sampled).
     qpos_store: the recorded qpos frames (raw or compressed).
     body_names, body_ids, objects, groups, metric_names: scene layout.
     record_fps, query_fps, timestep: rates (Hz) and physics step (s).
     config: resolved config (dict); mjcf_text: the MJCF; mjcf_includes: file name ->
       text of each MJCF file it includes; digest: sha256 of all three.
-    lineage: per refined world, the objects asked for and the final active set.
+    lineage: per refined world (keyed by its id as a string): parent id, t_min,
+      the objects asked for, the final active set.
+    next_id: the smallest id never given to a world of this bank.
     run: how the worlds were drawn (e.g. ``{"seed": 0}``).
   """
 
@@ -81,6 +89,7 @@ class Bank:
   mjcf_includes: dict = dataclasses.field(default_factory=dict)
   lineage: dict = dataclasses.field(default_factory=dict)
   run: dict = dataclasses.field(default_factory=dict)
+  next_id: int = 0
   _model: object = dataclasses.field(default=None, repr=False, compare=False)
 
   # -- views --------------------------------------------------------------------
@@ -100,15 +109,81 @@ class Bank:
 
   @property
   def next_world_id(self) -> int:
-    sampled = self.world_ids[self.parent_world < 0]
-    return int(sampled.max()) + 1 if len(sampled) else 0
+    """The id the next new world gets (never one given before)."""
+    return max(int(self.next_id), int(self.world_ids.max()) + 1 if self.n_worlds else 0)
+
+  def __repr__(self) -> str:
+    refined = int((self.parent_world >= 0).sum())
+    ids = (f"ids {int(self.world_ids.min())}..{int(self.world_ids.max())}" if self.n_worlds
+           else "no worlds")
+    return (f"Bank({self.n_worlds} worlds ({int(self.valid.sum())} valid, {refined} refined), {ids}, "
+            f"{len(self.body_names)} bodies, com {tuple(self.com.shape)}, "
+            f"qpos {self.qpos_store.kind} {self.qpos_store.nbytes:,} bytes)")
+
+  # -- world ids ------------------------------------------------------------------
+
+  def row_of(self, ids):
+    """Bank rows of world ids: an int for an int, i64[k] for a sequence.
+
+    Raises:
+      MwbxError: naming the first id the bank does not hold.
+    """
+    return rows_of(self.world_ids, ids)
+
+  def children(self, world_id: int) -> np.ndarray:
+    """i64[k] ids of the worlds refined directly from ``world_id``."""
+    self.row_of(int(world_id))
+    return self.world_ids[self.parent_world == int(world_id)].copy()
+
+  def descendants(self, world_id: int) -> np.ndarray:
+    """i64[k] ids of every world refined from ``world_id``, directly or not."""
+    out, frontier = [], [int(world_id)]
+    self.row_of(int(world_id))
+    while frontier:
+      kids = self.world_ids[np.isin(self.parent_world, frontier)]
+      out.extend(kids.tolist())
+      frontier = kids.tolist()
+    return np.asarray(out, np.int64)
+
+  def ancestors(self, world_id: int) -> np.ndarray:
+    """i64[k] ids of the worlds ``world_id`` was refined from, its parent first,
+    up to the sampled world (or the first one dropped from the bank)."""
+    out = []
+    parent = int(self.parent_world[self.row_of(int(world_id))])
+    while parent >= 0:
+      out.append(parent)
+      hit = np.flatnonzero(self.world_ids == parent)
+      parent = int(self.parent_world[hit[0]]) if hit.size else -1
+    return np.asarray(out, np.int64)
+
+  def under(self, world_id: int) -> np.ndarray:
+    """bool[W] worlds in the family tree below ``world_id``, itself included."""
+    return np.isin(self.world_ids, np.concatenate([[int(world_id)], self.descendants(world_id)]))
+
+  def drop(self, ids) -> "Bank":
+    """A bank without the worlds ``ids`` (their ids are never given again).
+
+    Their lineage entries go; worlds refined from them keep their parent id.
+    Save the result to write it as a new checkpoint (earlier ones stay on disk
+    until the manager rotates them).
+    """
+    rows = self.row_of(np.atleast_1d(np.asarray(ids, np.int64)))
+    keep = np.setdiff1d(np.arange(self.n_worlds), rows)
+    dropped = {str(int(i)) for i in self.world_ids[rows]}
+    return self._take(keep, lineage={k: v for k, v in self.lineage.items() if k not in dropped})
+
+  def _take(self, rows: np.ndarray, **changes) -> "Bank":
+    """The bank of ``rows`` (i64[k], in that order); the store is copied."""
+    arrays = {name: getattr(self, name)[rows] for name in self._ARRAYS}
+    return dataclasses.replace(self, **arrays, qpos_store=self.qpos_store.take(rows),
+                               next_id=self.next_world_id, **changes)
 
   def qpos_frames(self, world: int, start: int = 0, stop: int | None = None, *,
                   bodies: str | Sequence[str] | None = None) -> np.ndarray:
-    """f32[T, nq] decoded qpos of bank row ``world`` (frame f at f / record_fps s).
+    """f32[T, nq] decoded qpos of world ``world`` (frame f at f / record_fps s).
 
     Args:
-      world: bank row.
+      world: world id.
       start, stop: frame range, slice semantics; only those frames are decoded.
       bodies: body, object or group names; only the joints that place them (their
         own and their ancestors') are decoded, the other qpos columns are zero.
@@ -116,11 +191,10 @@ class Bank:
     Example:
       >>> q = bank.qpos_frames(3, 0, 60, bodies="ball_6")  # first half second of one ball
     """
-    if not 0 <= world < self.n_worlds:
-      raise MwbxError(f"world {world}: out of range (bank has {self.n_worlds} worlds)")
+    row = self.row_of(int(world))
     if bodies is None:
-      return self.qpos_store.frames(world, start, stop)
-    return self.qpos_store.frames(world, start, stop, columns=self.qpos_columns(bodies))
+      return self.qpos_store.frames(row, start, stop)
+    return self.qpos_store.frames(row, start, stop, columns=self.qpos_columns(bodies))
 
   def qpos_columns(self, bodies: str | Sequence[str]) -> np.ndarray:
     """i64[k] qpos columns of the joints placing the named bodies (body, object or
@@ -198,13 +272,19 @@ class Bank:
   # -- growth -------------------------------------------------------------------
 
   def append(self, other: "Bank") -> "Bank":
-    """A bank with ``other``'s worlds after this one's (same scene and config)."""
+    """A bank with ``other``'s worlds after this one's (same scene and config).
+
+    Ids stay unique: if any of ``other``'s ids is below :attr:`next_world_id`,
+    all of ``other``'s worlds get new ids from there on (in order; parent ids
+    inside ``other`` follow), else they keep theirs.
+    """
     if other.digest != self.digest:
       raise MwbxError("append: the banks come from different configs or MJCF (digest mismatch)")
     if other.com.shape[1:] != self.com.shape[1:]:
       raise MwbxError("append: polyline shapes differ")
     if type(other.qpos_store) is not type(self.qpos_store):
       raise MwbxError("append: the banks store qpos differently (raw vs compressed)")
+    other = other._renumbered_after(self)
     store = self.qpos_store.copy()
     store.extend(other.qpos_store)
     cat = lambda a, b: np.concatenate([a, b])
@@ -215,7 +295,26 @@ class Bank:
         com=cat(self.com, other.com), com_count=cat(self.com_count, other.com_count),
         metrics=cat(self.metrics, other.metrics), perturbations=cat(self.perturbations, other.perturbations),
         steps=cat(self.steps, other.steps), parent_world=cat(self.parent_world, other.parent_world),
-        refine_time=cat(self.refine_time, other.refine_time), qpos_store=store, lineage=lineage)
+        refine_time=cat(self.refine_time, other.refine_time), qpos_store=store, lineage=lineage,
+        next_id=max(self.next_world_id, other.next_world_id))
+
+  def _renumbered_after(self, first: "Bank") -> "Bank":
+    """This bank with new ids from ``first.next_world_id`` on if any of its ids is
+    below that (ids ``first`` may have given); parent ids and lineage follow."""
+    start = first.next_world_id
+    if not self.n_worlds or self.world_ids.min() >= start:
+      return self
+    new_ids = np.arange(start, start + self.n_worlds, dtype=np.int64)
+    mapping = dict(zip(self.world_ids.tolist(), new_ids.tolist()))
+    parents = np.array([mapping.get(int(p), int(p)) for p in self.parent_world], np.int64)
+    lineage = {}
+    for key, entry in self.lineage.items():
+      entry = dict(entry)
+      if "parent" in entry:
+        entry["parent"] = mapping.get(int(entry["parent"]), int(entry["parent"]))
+      lineage[str(mapping.get(int(key), int(key)))] = entry
+    return dataclasses.replace(self, world_ids=new_ids, parent_world=parents, lineage=lineage,
+                               next_id=int(new_ids[-1]) + 1)
 
   # -- persistence --------------------------------------------------------------
 
@@ -240,7 +339,8 @@ class Bank:
         "groups": {k: list(v) for k, v in self.groups.items()},
         "metric_names": list(self.metric_names), "record_fps": self.record_fps,
         "query_fps": self.query_fps, "timestep": self.timestep, "config": self.config,
-        "mjcf_text": self.mjcf_text, "mjcf_includes": self.mjcf_includes, "digest": self.digest, "lineage": self.lineage, "run": self.run,
+        "mjcf_text": self.mjcf_text, "mjcf_includes": self.mjcf_includes, "digest": self.digest,
+        "lineage": self.lineage, "run": self.run, "next_id": self.next_world_id,
     }
     with _manager(path) as manager:
       step = (manager.latest_step() or 0) + 1
@@ -266,7 +366,7 @@ class Bank:
         restored = manager.restore(step, args=ocp.args.Composite(
             bank=ocp.args.StandardRestore(), meta=ocp.args.JsonRestore()))
       tree, meta = restored["bank"], restored["meta"]
-      if meta.get("format") != BANK_FORMAT:
+      if meta.get("format") not in (1, BANK_FORMAT):
         raise MwbxError(f"{path}: unsupported bank format {meta.get('format')!r}")
       store_meta = meta["qpos_store"]
       store_cls = _store_class(store_meta["kind"])
@@ -280,7 +380,9 @@ class Bank:
           metric_names=tuple(meta["metric_names"]), record_fps=meta["record_fps"],
           query_fps=meta["query_fps"], timestep=meta["timestep"], config=meta["config"],
           mjcf_text=meta["mjcf_text"], mjcf_includes=meta.get("mjcf_includes", {}), digest=meta["digest"], lineage=meta.get("lineage", {}),
-          run=meta.get("run", {}))
+          run=meta.get("run", {}), next_id=int(meta.get("next_id", 0)))
+      if meta.get("format") == 1:
+        bank = _from_rows_to_ids(bank)
     except MwbxError:
       raise
     except Exception as err:  # orbax/tensorstore/json errors: a corrupt or foreign directory.
@@ -298,6 +400,42 @@ class Bank:
       raise MwbxError(f"bank: qpos store has {self.qpos_store.n_worlds} worlds, expected {w}")
     if self.com.ndim != 4 or self.com.shape[2] != len(self.body_names):
       raise MwbxError(f"bank: com has shape {self.com.shape}, expected [W, P, {len(self.body_names)}, 3]")
+
+
+def rows_of(world_ids: np.ndarray, ids):
+  """Rows of ``ids`` in ``world_ids`` (i64[W], unique): an int for an int, i64[k]
+  for a sequence; MwbxError naming the first id not there (:meth:`Bank.row_of`)."""
+  world_ids = np.asarray(world_ids, np.int64)
+  scalar = np.ndim(ids) == 0
+  wanted = np.atleast_1d(np.asarray(ids)).reshape(-1)
+  if wanted.size and not np.issubdtype(wanted.dtype, np.integer):
+    if not np.all(np.mod(wanted.astype(np.float64), 1) == 0):
+      raise MwbxError(f"world ids must be integers, got {ids!r}")
+  wanted = wanted.astype(np.int64)
+  order = np.argsort(world_ids, kind="stable")
+  sorted_ids = world_ids[order]
+  pos = np.minimum(np.searchsorted(sorted_ids, wanted), max(len(sorted_ids) - 1, 0))
+  found = sorted_ids[pos] == wanted if len(sorted_ids) else np.zeros(wanted.shape, bool)
+  if not found.all():
+    missing = int(wanted[~found][0])
+    span = (f"ids {int(sorted_ids[0])}..{int(sorted_ids[-1])}, {len(sorted_ids)} worlds"
+            if len(sorted_ids) else "no worlds")
+    raise MwbxError(f"world {missing}: no world with this id in the bank ({span})")
+  rows = order[pos].astype(np.int64)
+  return int(rows[0]) if scalar else rows
+
+
+def _from_rows_to_ids(bank: Bank) -> Bank:
+  """A format-1 bank (lineage and parents named by bank row) with world ids."""
+  ids = bank.world_ids
+  parents = np.where(bank.parent_world >= 0, ids[np.clip(bank.parent_world, 0, None)], -1)
+  lineage = {}
+  for row, entry in bank.lineage.items():
+    entry = dict(entry)
+    if "parent" in entry:
+      entry["parent"] = int(ids[int(entry["parent"])])
+    lineage[str(int(ids[int(row)]))] = entry
+  return dataclasses.replace(bank, parent_world=parents.astype(np.int64), lineage=lineage)
 
 
 # The qpos stores a saved bank may name, by their ``kind``.

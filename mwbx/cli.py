@@ -2,9 +2,12 @@
 
   mwbx sample CONFIG [--worlds N] [--seed S] [--backend auto|mjx|native] [--out DIR]
   mwbx info DIR [--json]
-  mwbx query BANK QUERIES.yaml [--rank METRIC[:sum|max]] [--top K] [--json]
+  mwbx query BANK QUERIES.yaml [--rank METRIC[:sum|max]] [--top K] [--under ID] [--json]
   mwbx view BANK [--worlds 3,17 | --top K --rank METRIC] [--queries Q.yaml] [--html OUT.html] [--no-browser]
-  mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N [--out DIR]
+  mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N [--seed S] [--out DIR]
+  mwbx drop BANK IDS [--out DIR]
+
+Worlds are named by their ids everywhere (what `query` lists).
 
 Every error a user can cause ends in one line naming the file, field or value
 (exit status 2), never a traceback.
@@ -14,7 +17,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
+import secrets
+import signal
 import sys
 import time
 
@@ -61,7 +67,9 @@ def _cmd_sample(args) -> int:
       raise MwbxError(f"--seed: {out} was sampled with seed {existing.run.get('seed')}, not {seed}")
     first_world = existing.next_world_id
   seed = 0 if seed is None else seed
-  n_worlds = args.worlds or 256
+  n_worlds = 256 if args.worlds is None else args.worlds
+  if n_worlds < 1:
+    raise MwbxError(f"--worlds: must be at least 1, got {n_worlds}")
 
   with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
     print(f"mwbx: sampling {n_worlds} worlds of {args.config} on {sampler.backend_label}"
@@ -90,7 +98,10 @@ def _cmd_info(args) -> int:
   bank = mwbx.Bank.load(args.bank)
   s = bank.summary()
   if args.json:
-    print(json.dumps({**s, "config": bank.config, "digest": bank.digest, "run": bank.run}, indent=2))
+    print(json.dumps({**s, "world_ids": [int(bank.world_ids.min()), int(bank.world_ids.max())]
+                      if bank.n_worlds else None, "next_world_id": bank.next_world_id,
+                      "cameras": _cameras(bank), "objects": {k: list(v) for k, v in bank.objects.items()},
+                      "config": bank.config, "digest": bank.digest, "run": bank.run}, indent=2))
     return 0
   print(f"bank                {args.bank}")
   print(f"worlds              {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable)")
@@ -100,11 +111,35 @@ def _cmd_info(args) -> int:
   print(f"storage             {s['storage_bytes']:,} bytes")
   for key, value in s["qpos"].items():
     print(f"qpos {key:<22}{value:,.4g}" if isinstance(value, float) else f"qpos {key:<22}{value}")
+  print(f"world ids           {_id_span(bank)}")
+  print(f"refined worlds      {int((bank.parent_world >= 0).sum())}")
+  print(f"objects             {', '.join(bank.objects)}")
   print(f"bodies              {', '.join(bank.body_names)}")
   print(f"groups              {', '.join(f'{k}={list(v)}' for k, v in bank.groups.items()) or 'none'}")
-  print("config:")
-  print(json.dumps(bank.config, indent=2))
+  print(f"cameras             {', '.join(_cameras(bank)) or 'none (screen queries need a named MJCF camera)'}")
+  print(f"metrics             {', '.join(bank.metric_names)}")
+  print(f"rates               record {bank.record_fps:g} fps, query {bank.query_fps:g} fps,"
+        f" timestep {bank.timestep:.6g} s")
+  print(f"config              {bank.config.get('source') or '-'} (full: mwbx info --json)")
   return 0
+
+
+def _id_span(bank) -> str:
+  ids = bank.world_ids
+  return f"{int(ids.min())}..{int(ids.max())} (next {bank.next_world_id})" if bank.n_worlds else "none"
+
+
+def _cameras(bank) -> list[str]:
+  """'name (aspect a)' of each named MJCF camera."""
+  import mujoco
+  from mwbx.queries import Camera
+  model = bank.model()
+  out = []
+  for i in range(model.ncam):
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i)
+    if name:
+      out.append(f"{name} (aspect {Camera.from_model(model, name).aspect:.3g})")
+  return out
 
 
 def _cmd_view(args) -> int:
@@ -116,26 +151,24 @@ def _cmd_view(args) -> int:
     from mwbx.queries import load_queries
     queries = load_queries(args.queries, bank=bank)
   ids = mwbx.viewer.select.parse_world_ids(args.worlds) if args.worlds else None
-  rows, _ = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
+  ids, _ = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
   paths = None if args.paths == "none" else True if args.paths == "all" else args.paths.split(",")
-  kwargs = dict(worlds=rows, paths=paths, layout=args.layout, camera=args.camera,
+  kwargs = dict(worlds=ids, paths=paths, layout=args.layout, camera=args.camera,
                 queries=queries.queries if queries is not None else None)
-  shown = "default" if rows is None else ", ".join(str(int(bank.world_ids[r])) for r in rows)
+  shown = "default" if ids is None else ", ".join(str(int(i)) for i in ids)
   if args.html:
     out = mwbx.viewer.export_html(bank, args.html, **kwargs)
     print(f"wrote {out} (worlds {shown})")
     return 0
-  vis = mwbx.viewer.view(bank, open=not args.no_browser, zmq_url=args.zmq_url, **kwargs)
-  print(f"mwbx: showing worlds {shown} at {vis.url()}", file=sys.stderr)
-  if vis.window.server_proc is None:
-    return 0  # drawn into a server someone else runs
-  try:
+  with mwbx.viewer.view(bank, open=not args.no_browser, zmq_url=args.zmq_url, **kwargs) as vis:
+    print(f"mwbx: showing worlds {shown} at {vis.url()}", file=sys.stderr)
+    if vis.server_proc is None:
+      return 0  # drawn into a server someone else runs
     print("mwbx: meshcat server running; Ctrl-C stops it", file=sys.stderr)
-    vis.window.server_proc.wait()
-  except KeyboardInterrupt:
-    pass
-  finally:
-    vis.window.server_proc.kill()
+    try:
+      vis.wait()
+    except KeyboardInterrupt:
+      pass  # leaving the with block stops the server
   return 0
 
 
@@ -143,7 +176,7 @@ def _cmd_query(args) -> int:
   import mwbx
   from mwbx.queries.report import run_query_file
   bank = mwbx.Bank.load(args.bank)
-  report = run_query_file(bank, args.queries, rank=args.rank, top=args.top)
+  report = run_query_file(bank, args.queries, rank=args.rank, top=args.top, under=args.under)
   print(json.dumps(report.to_dict(), indent=2) if args.json else report.format())
   return 0
 
@@ -166,19 +199,21 @@ def _cmd_refine(args) -> int:
       raise MwbxError(f"--box: expected u0,v0,u1,v1 in normalised screen coordinates, got {args.box!r}") from None
     frustum = Camera.from_model(bank.model(), args.camera).frustum(ScreenBox(u0, v0, u1, v1))
   out = pathlib.Path(args.out or args.bank)
+  # Without --seed every run draws new worlds; the seed is printed to repeat one.
+  seed = secrets.randbits(31) if args.seed is None else args.seed
   update, bar = _progress_bar(args.samples, "refining")
   try:
     new, stats = refine_run(bank, args.world, args.objects, frustum=frustum, t_min=args.time,
-                            n_samples=args.samples, key=jax.random.key(args.seed), backend=args.backend,
+                            n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
                             progress=update)
   finally:
     bar.close()
   total = bank.append(new)
   total.save(out)
-  rows = f"{bank.n_worlds}..{total.n_worlds - 1}"
-  active = [len(new.lineage[str(bank.n_worlds + i)]["active"]) for i in range(new.n_worlds)]
+  ids = f"{int(new.world_ids[0])}..{int(new.world_ids[-1])}"
+  active = [len(new.lineage[str(int(i))]["active"]) for i in new.world_ids]
   print(f"refined worlds      {new.n_worlds} of world {args.world} from t_min = {new.refine_time[0]:.4f} s"
-        f" (rows {rows}; {int(new.valid.sum())} valid)")
+        f" (ids {ids}, seed {seed}; {int(new.valid.sum())} valid)")
   print(f"active objects      {min(active)}..{max(active)} per world (asked: {args.objects})")
   print(f"world-steps/s       {stats.world_steps_per_second:,.0f} ({stats.backend};"
         f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s,"
@@ -187,8 +222,23 @@ def _cmd_refine(args) -> int:
   return 0
 
 
+def _cmd_drop(args) -> int:
+  import mwbx
+  from mwbx.viewer.select import parse_world_ids
+  bank = mwbx.Bank.load(args.bank)
+  ids = parse_world_ids(args.ids, flag="IDS")
+  kept = bank.drop(ids)
+  out = pathlib.Path(args.out or args.bank)
+  kept.save(out)
+  print(f"dropped worlds      {', '.join(str(i) for i in ids)}")
+  print(f"bank                {out} ({kept.n_worlds} worlds, ids {_id_span(kept)})")
+  return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
+  from mwbx import __version__
   parser = argparse.ArgumentParser(prog="mwbx", description="Many-Worlds Browsing on JAX and MuJoCo.")
+  parser.add_argument("--version", action="version", version=f"mwbx {__version__}")
   sub = parser.add_subparsers(dest="command", required=True)
 
   p = sub.add_parser("sample", help="sample worlds of a config into a bank")
@@ -211,6 +261,8 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--rank", default=None, metavar="METRIC[:sum|max]",
                  help="rank matches by a metric summed or maxed over all tracked bodies")
   p.add_argument("--top", type=int, default=None, help="list at most K worlds")
+  p.add_argument("--under", type=int, default=None, metavar="ID",
+                 help="only world ID and the worlds refined from it (directly or not)")
   p.add_argument("--json", action="store_true")
   p.set_defaults(func=_cmd_query)
 
@@ -230,22 +282,27 @@ def build_parser() -> argparse.ArgumentParser:
 
   p = sub.add_parser("refine", help="resample chosen objects of one world from a time or a screen box on")
   p.add_argument("bank", help="bank directory")
-  p.add_argument("--world", type=int, required=True, help="row of the world to refine")
+  p.add_argument("--world", type=int, required=True, help="id of the world to refine")
   p.add_argument("--objects", required=True, help="objects or groups to refine, e.g. ball_0,cubes")
   p.add_argument("--box", default=None, help="screen box u0,v0,u1,v1 (normalised, origin top-left)")
   p.add_argument("--camera", default=None, help="MJCF camera the box is drawn in")
   p.add_argument("--time", type=float, default=None, help="t_min in seconds (instead of --box)")
   p.add_argument("--samples", type=int, required=True, help="refined worlds to make")
-  p.add_argument("--seed", type=int, default=0, help="refinement seed")
+  p.add_argument("--seed", type=int, default=None, help="refinement seed (default: a new one, printed)")
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
   p.set_defaults(func=_cmd_refine)
+
+  p = sub.add_parser("drop", help="remove worlds from a bank (their ids are never reused)")
+  p.add_argument("bank", help="bank directory")
+  p.add_argument("ids", help="world ids, e.g. 260,261")
+  p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
+  p.set_defaults(func=_cmd_drop)
   return parser
 
 
 def _enable_compilation_cache() -> None:
   """Keeps compiled kernels on disk, so a second ``mwbx`` run skips compiling."""
-  import os
   import jax
   cache = os.environ.get("MWBX_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "mwbx", "jax"))
   try:
@@ -255,9 +312,14 @@ def _enable_compilation_cache() -> None:
     pass  # a read-only home: compile every time
 
 
+def _terminate(signum, frame):
+  raise KeyboardInterrupt  # SIGTERM ends like Ctrl-C: servers stopped, nothing half-written
+
+
 def main(argv: list[str] | None = None) -> int:
   args = build_parser().parse_args(argv)
   _enable_compilation_cache()
+  previous = signal.signal(signal.SIGTERM, _terminate)
   try:
     return args.func(args)
   except MwbxError as err:
@@ -266,6 +328,12 @@ def main(argv: list[str] | None = None) -> int:
   except KeyboardInterrupt:
     print("mwbx: interrupted; nothing was written for the unfinished run", file=sys.stderr)
     return 130
+  except BrokenPipeError:  # e.g. `mwbx info --json | head`: the reader left
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())  # no second error when Python flushes stdout at exit
+    return 0
+  finally:
+    signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -41,6 +41,15 @@ SENSORS = (
     ("ang_acc", mujoco.mjtSensor.mjSENS_FRAMEANGACC, 3),
 )
 SENSOR_WIDTH = sum(width for _, _, width in SENSORS)  # floats per tracked body
+# Offset of each sensor in a tracked body's block, derived from SENSORS: the
+# numba twins index sensordata with these (plain ints, constants to numba).
+SENSOR_OFFSET = {name: sum(w for _, _, w in SENSORS[:i]) for i, (name, _, _) in enumerate(SENSORS)}
+COM_POS = SENSOR_OFFSET["com_pos"]
+QUAT = SENSOR_OFFSET["quat"]
+LIN_VEL = SENSOR_OFFSET["lin_vel"]
+ANG_VEL = SENSOR_OFFSET["ang_vel"]
+LIN_ACC = SENSOR_OFFSET["lin_acc"]
+ANG_ACC = SENSOR_OFFSET["ang_acc"]
 
 
 def find_includes(path: pathlib.Path) -> dict[str, str]:
@@ -169,6 +178,9 @@ class Scene:
     if unnamed:
       raise MwbxError(f"{source}: scene.mjcf: moving root bodies need names (body ids {unnamed})")
 
+    if not root_names:
+      raise MwbxError(f"{source}: scene.mjcf: no moving bodies (nothing hangs off the world body by a"
+                      f" joint), so there is nothing to sample")
     object_names = config.scene.objects or tuple(root_names)
     for name in object_names:
       if name not in root_names:
@@ -233,14 +245,8 @@ class Scene:
                          self.config.source or "<config>")
 
   def objects_of(self, name: str, field: str) -> tuple[str, ...]:
-    if name in self.object_names:
-      return (name,)
-    if name in self.groups:
-      return self.groups[name]
-    raise MwbxError(
-        f"{self.config.source or '<config>'}: {field}: unknown object or group {name!r}"
-        f" (objects: {', '.join(self.object_names)}; groups: {', '.join(self.groups) or 'none'})"
-    )
+    """Object names for an object or group name (``object:``/``group:`` allowed)."""
+    return objects_of(name, self.object_names, self.groups, field, self.config.source or "<config>")
 
   # -- randomization ------------------------------------------------------------
 
@@ -305,25 +311,59 @@ class Scene:
     return qpos, qvel
 
 
+# Prefixes that say what a name is where an object and its root body share it
+# (an articulated object named after its root body ``torso``).
+NAME_KINDS = ("body", "object", "group")
+
+
+def split_name(name: str) -> tuple[str | None, str]:
+  """``"body:torso"`` -> ("body", "torso"); a bare name -> (None, name)."""
+  kind, sep, rest = str(name).partition(":")
+  if sep and kind in NAME_KINDS:
+    return kind, rest
+  return None, str(name)
+
+
 def select_bodies(names, body_names, objects, groups, field="selection", source="<bank>") -> np.ndarray:
-  """Indices into ``body_names`` for any mix of body, object and group names."""
+  """Indices into ``body_names`` for any mix of body, object and group names.
+
+  A bare name is a group, else an object, else a tracked body; ``body:NAME``,
+  ``object:NAME`` and ``group:NAME`` say which (``body:torso`` is the root body
+  alone where ``torso`` also names the whole object).
+  """
   if isinstance(names, str):
     names = (names,)
   out: list[int] = []
-  for name in names:
-    if name in groups:
+  for spelled in names:
+    kind, name = split_name(spelled)
+    if kind in (None, "group") and name in groups:
       bodies = [b for obj in groups[name] for b in objects[obj]]
-    elif name in objects:
+    elif kind in (None, "object") and name in objects:
       bodies = list(objects[name])
-    elif name in body_names:
+    elif kind in (None, "body") and name in body_names:
       bodies = [name]
     else:
+      what = f"{kind}" if kind else "body, object or group"
       raise MwbxError(
-          f"{source}: {field}: unknown body, object or group {name!r}"
+          f"{source}: {field}: unknown {what} {spelled!r}"
           f" (objects: {', '.join(objects)}; groups: {', '.join(groups) or 'none'})"
       )
     out.extend(body_names.index(b) for b in bodies if body_names.index(b) not in out)
   return np.array(out, np.int32)
+
+
+def objects_of(spelled: str, object_names, groups, field: str, source: str) -> tuple[str, ...]:
+  """Object names for an object or group name; ``object:NAME`` / ``group:NAME``
+  say which (a bare name is a group first, as in :func:`select_bodies`)."""
+  kind, name = split_name(spelled)
+  if kind in (None, "group") and name in groups:
+    return tuple(groups[name])
+  if kind in (None, "object") and name in object_names:
+    return (name,)
+  hint = "; bodies are not objects: name the object" if kind == "body" else ""
+  raise MwbxError(
+      f"{source}: {field}: unknown object or group {spelled!r}"
+      f" (objects: {', '.join(object_names)}; groups: {', '.join(groups) or 'none'}){hint}")
 
 
 def _draw(key: jax.Array, dist: Distribution | None, width: int) -> jax.Array:

@@ -9,6 +9,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
+from mwbx.bank import rows_of
 from mwbx.errors import MwbxError
 
 FLAG_FINISHED = 1
@@ -73,6 +74,9 @@ class StandInBank:
   @property
   def n_worlds(self) -> int:
     return self.com.shape[0]
+
+  def row_of(self, ids):
+    return rows_of(self.world_ids, ids)
 
   @property
   def valid(self) -> np.ndarray:

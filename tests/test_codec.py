@@ -251,16 +251,18 @@ def test_compression_is_substantial_on_free_flight(boxes):
   assert 20 * len(enc.streams[0]) < qpos[0].nbytes
 
 
-def test_non_finite_channels_are_stored_raw():
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_input_is_one_clear_error(value):
   model = testing.boxes_model(2, seed=3)
   qpos = testing.record(model, 64, seed=4)
-  qpos[30:, 0] = np.nan
+  qpos[30:, 8] = value
   layout = ChannelLayout.from_joints(model.jnt_type, model.jnt_qposadr, model.nq)
-  enc = encode_batch_checked(qpos[None], np.array([64]), layout, BOUNDS)
-  assert enc.raw_channels[0] == 1
-  decoded = decode_world(enc.streams[0])
-  np.testing.assert_array_equal(np.isnan(decoded), np.isnan(qpos))
-  np.testing.assert_array_equal(decoded[:, :3], qpos[:, :3])
+  batch = np.stack([testing.record(model, 64, seed=5), qpos])
+  with pytest.raises(CodecError, match=rf"world 1 .* is {value} at frame 30, column 8"):
+    encode_batch_checked(batch, np.array([64, 64]), layout, BOUNDS)
+  # frames past a world's count are not part of it
+  enc = encode_batch_checked(batch, np.array([64, 30]), layout, BOUNDS)
+  np.testing.assert_array_equal(np.isfinite(decode_world(enc.streams[1])), True)
 
 
 def test_encode_world_matches_batch_and_rejects_bad_shapes(boxes):

@@ -100,6 +100,12 @@ def test_mjcf_that_fails_to_load(tmp_path):
   assert str(path) in text and "scene.mjcf" in text and "MJCF failed to load" in text
 
 
+def test_mjcf_without_moving_bodies(tmp_path):
+  text, path = scene_error(tmp_path, "scene: {mjcf: model.xml}\n",
+                           "<mujoco><worldbody><geom type='plane' size='1 1 1'/></worldbody></mujoco>")
+  assert str(path) in text and "scene.mjcf: no moving bodies" in text
+
+
 def test_missing_mjcf(tmp_path):
   path = write(tmp_path, "scene: {mjcf: nowhere.xml}\n")
   with pytest.raises(mwbx.MwbxError, match="scene.mjcf: no file"):
@@ -146,3 +152,20 @@ def test_joint_noise_varies_a_hinged_objects_angles():
   assert np.unique(angles).size == 8 and np.ptp(angles) > 0.1  # varies across worlds
   others = np.delete(qpos, hinge, axis=1)
   np.testing.assert_array_equal(others, np.broadcast_to(others[0], others.shape))  # nothing else moves
+
+
+def test_body_and_object_spellings_when_an_object_shares_its_root_bodys_name():
+  cfg = mwbx.config_from_dict({"scene": {"mjcf": str(SCENES / "chain.xml"), "groups": {"g": ["root"]}}},
+                              source=str(SCENES / "chain.yaml"))
+  scene = mwbx.Scene(cfg)
+  assert list(scene.select_bodies("root")) == [0, 1]  # bare: the object (today's meaning)
+  assert list(scene.select_bodies("object:root")) == [0, 1]
+  assert list(scene.select_bodies("body:root")) == [0]  # the root body alone
+  assert list(scene.select_bodies(["body:link1", "group:g"])) == [1, 0]
+  assert scene.objects_of("object:puck", "f") == ("puck",)
+  with pytest.raises(mwbx.MwbxError, match="unknown body 'body:ghost'"):
+    scene.select_bodies("body:ghost")
+  with pytest.raises(mwbx.MwbxError, match="unknown group 'group:root'"):
+    scene.select_bodies("group:root")
+  with pytest.raises(mwbx.MwbxError, match="bodies are not objects"):
+    scene.objects_of("body:link1", "randomize.body:link1")

@@ -22,7 +22,6 @@ _HORIZON_STEPS = 100
 def test_unperturbed_mjx_step_matches_mujoco_c(quickstart_config):
   scene = mwbx.Scene(quickstart_config)
   model = scene.model
-  model.opt.timestep = quickstart_config.sim.timestep
   data = mujoco.MjData(model)
   reference, sensors, contact_steps = [], [], 0
   for _ in range(_HORIZON_STEPS):

@@ -61,7 +61,7 @@ def case_b(bank, cols):
   hit = [w for w in range(bank.n_worlds) if _moved(bank.qpos_frames(w), cols["target"]) > 0.02]
   for parent in hit[:4]:
     new, stats = _refine(bank, parent)
-    if any(new.qpos_frames(w)[-1, 0] < -0.1 for w in range(new.n_worlds)):
+    if any(new.qpos_frames(new.world_ids[w])[-1, 0] < -0.1 for w in range(new.n_worlds)):
       return parent, new, stats
   pytest.fail("no hit parent produced a refined world going left")
 
@@ -73,7 +73,7 @@ def test_untouched_object_keeps_its_stored_path_exactly(bank, case_a, case_b, co
     for w in range(new.n_worlds):
       lineage = new.lineage[str(bank.n_worlds + w)]
       assert "far" not in lineage["active"]
-      q = new.qpos_frames(w)
+      q = new.qpos_frames(new.world_ids[w])
       assert len(q) == len(stored)
       model = bank.model()
       jnt = model.body("far").jntadr[0]
@@ -88,7 +88,7 @@ def test_fig6a_refined_object_hits_resting_object_which_becomes_active(bank, cas
   assert _moved(bank.qpos_frames(parent), cols["target"]) < 1e-3
   moved = []
   for w in range(new.n_worlds):
-    q = new.qpos_frames(w)
+    q = new.qpos_frames(new.world_ids[w])
     lineage = new.lineage[str(bank.n_worlds + w)]
     if _moved(q, cols["target"]) > 1e-3:
       # Anything that moved off its stored path was simulated.
@@ -107,14 +107,14 @@ def test_fig6b_object_no_longer_hit_is_activated_by_the_ghost_and_stays(bank, ca
   stored = bank.qpos_frames(parent)
   assert _moved(stored, cols["target"]) > 0.02
   hit_frame = int(np.argmax(np.linalg.norm(stored[:, cols["target"]] - stored[0, cols["target"]], axis=1) > 1e-4))
-  left = [w for w in range(new.n_worlds) if new.qpos_frames(w)[-1, 0] < -0.1]
+  left = [w for w in range(new.n_worlds) if new.qpos_frames(new.world_ids[w])[-1, 0] < -0.1]
   assert left
   for w in left:
     lineage = new.lineage[str(bank.n_worlds + w)]
     assert "target" in lineage["active"]
     # Activated by the striker's ghost, before the original hit.
     assert lineage["activated_at"]["target"] <= hit_frame / bank.record_fps
-    q = new.qpos_frames(w)
+    q = new.qpos_frames(new.world_ids[w])
     # It does not keep flying as if it had been hit: it stays where it rested.
     assert _moved(q, cols["target"]) < 2e-3
 
@@ -130,7 +130,7 @@ def test_continuity_at_t_min_and_plausibility_bound(bank, case_a, case_b):
     assert np.all(new.parent_world == parent)
     parent_step = max(np.abs(np.diff(stored[f0 - 2:f0 + 3, a:a + 3], axis=0)).max() for a in free)
     for w in range(new.n_worlds):
-      q = new.qpos_frames(w)
+      q = new.qpos_frames(new.world_ids[w])
       for a in free:
         # No jump at t_min: the refined world starts on the parent's stored state.
         np.testing.assert_allclose(q[:f0 + 1, a:a + 3], stored[:f0 + 1, a:a + 3], atol=2.5 * e_pos, rtol=0)
@@ -176,7 +176,7 @@ def test_frustum_picks_t_min_with_first_entry(bank, case_a):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(world=999, objects="striker", t_min=0.1), "out of range"),
+    (dict(world=999, objects="striker", t_min=0.1), "refine: world 999: no world with this id"),
     (dict(world=0, objects="nosuch", t_min=0.1), "nosuch"),
     (dict(world=0, objects="striker", t_min=99.0), "outside"),
     (dict(world=0, objects="striker"), "exactly one"),
@@ -202,7 +202,7 @@ def test_step_playback_on_native(bank, case_a, cols):
                           backend="native", playback="step")
   stored = bank.qpos_frames(parent)
   for w in range(new.n_worlds):
-    q = new.qpos_frames(w)
+    q = new.qpos_frames(new.world_ids[w])
     lineage = new.lineage[str(bank.n_worlds + w)]
     np.testing.assert_array_equal(q[:, 14:21], stored[:, 14:21])
     if _moved(q, cols["target"]) > 1e-3:
@@ -212,7 +212,7 @@ def test_step_playback_on_native(bank, case_a, cols):
   # Same perturbation keys: the worlds that went right with frame playback go right here too.
   frame_new = case_a[1]
   for w in range(4):
-    assert np.sign(new.qpos_frames(w)[-1, 0]) == np.sign(frame_new.qpos_frames(w)[-1, 0])
+    assert np.sign(new.qpos_frames(new.world_ids[w])[-1, 0]) == np.sign(frame_new.qpos_frames(frame_new.world_ids[w])[-1, 0])
 
 
 def test_cli_refine(bank, tmp_path, capsys):
@@ -234,5 +234,5 @@ def test_refined_worlds_do_not_depend_on_the_batching(bank, case_a):
   again, _ = refine_run(bank, parent, ["striker"], t_min=T_MIN, n_samples=N, key=jax.random.key(1),
                         backend="native", chunk_size=3)
   for w in range(N):
-    np.testing.assert_array_equal(again.qpos_frames(w), new.qpos_frames(w))
+    np.testing.assert_array_equal(again.qpos_frames(again.world_ids[w]), new.qpos_frames(new.world_ids[w]))
   assert again.lineage == new.lineage

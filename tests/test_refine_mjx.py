@@ -36,7 +36,7 @@ def test_mjx_refinement_runs_and_agrees_on_activation(bank):
       lineage = new.lineage[str(base + w)]
       # The striker lands on the target: activated; the far sphere never is.
       assert sorted(lineage["active"]) == ["striker", "target"], backend
-      q = new.qpos_frames(w)
+      q = new.qpos_frames(new.world_ids[w])
       np.testing.assert_array_equal(q[:, 14:21], bank.qpos_frames(0)[:, 14:21])
   times = [[runs[b][0].lineage[str(base + w)]["activated_at"]["target"] for w in range(2)] for b in runs]
   np.testing.assert_allclose(times[0], times[1], atol=3 / bank.record_fps)

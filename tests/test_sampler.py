@@ -19,7 +19,7 @@ def same_world(a, i, b, j):
   assert a.world_ids[i] == b.world_ids[j]
   np.testing.assert_array_equal(a.keys[i], b.keys[j])
   assert a.flags[i] == b.flags[j] and a.frame_count[i] == b.frame_count[j]
-  np.testing.assert_array_equal(a.qpos_frames(i), b.qpos_frames(j))
+  np.testing.assert_array_equal(a.qpos_frames(int(a.world_ids[i])), b.qpos_frames(int(b.world_ids[j])))
   np.testing.assert_array_equal(a.com[i], b.com[j])
   np.testing.assert_array_equal(a.metrics[i], b.metrics[j])
   assert a.perturbations[i] == b.perturbations[j]

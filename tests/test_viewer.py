@@ -413,7 +413,7 @@ def test_draw_errors_name_the_value(bank):
   vis = meshcat.Visualizer(window=mv.SceneRecorder())
   with pytest.raises(mv.ViewerError, match="layout must be one of .*'side'"):
     mv.draw(vis, bank, layout="side")
-  with pytest.raises(mv.ViewerError, match="index 99 is out of range"):
+  with pytest.raises(mv.ViewerError, match="worlds: world 99: no world with this id"):
     mv.draw(vis, bank, worlds=[99])
   with pytest.raises(mv.ViewerError, match="world 5 is flagged unstable"):
     mv.draw(vis, bank, worlds=[5])
@@ -527,7 +527,7 @@ def test_cli_view_writes_html_for_ranked_worlds(real_bank, bank_dir, tmp_path, c
 
 @pytest.mark.parametrize("argv, message", [
     (["--worlds", "0,x"], "--worlds: 'x' is not a world id"),
-    (["--worlds", "999"], "--worlds: no world with id 999"),
+    (["--worlds", "999"], "--worlds: world 999: no world with this id"),
     (["--top", "2"], "--top needs --rank"),
     (["--worlds", "0", "--top", "1", "--rank", "path_length"], "cannot be combined"),
     (["--paths", "nonexistent"], "nonexistent"),

@@ -13,6 +13,8 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
+from mwbx.bank import rows_of
+
 FLAG_FINISHED = 1
 FLAG_AT_REST = 2
 FLAG_UNSTABLE = 4
@@ -111,8 +113,12 @@ class StandinBank:
   def valid(self) -> np.ndarray:
     return (self.flags & FLAG_UNSTABLE) == 0
 
+  def row_of(self, ids):
+    return rows_of(self.world_ids, ids)
+
   def qpos_frames(self, world: int) -> np.ndarray:
-    return self.qpos[world, : self.frame_count[world]]
+    row = self.row_of(world)
+    return self.qpos[row, : self.frame_count[row]]
 
   def model(self) -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_string(self.xml)

@@ -24,7 +24,9 @@ import numba
 import numpy as np
 
 from mwbx.batch_sim import host_loops, world
-from mwbx.scene import SENSOR_WIDTH
+from mwbx.batch_sim.world import (ANGULAR_TRAVEL, COLLISIONS, MAX_HEIGHT, ORIENTATION_ERROR, PATH_LENGTH,
+                                   REST_TIME)
+from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR_WIDTH
 
 _jit = numba.njit(cache=True, nogil=True)
 _MASK32 = np.uint64(0xFFFFFFFF)
@@ -222,8 +224,8 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
         o = b * SENSOR_WIDTH
         for a in range(3):
           # The sensor reads a - gravity: the velocity change contacts made.
-          delta_v[j, b, a] = dt * obs[j, o + 13 + a]
-          delta_w[j, b, a] = dt * obs[j, o + 16 + a]
+          delta_v[j, b, a] = dt * obs[j, o + LIN_ACC + a]
+          delta_w[j, b, a] = dt * obs[j, o + ANG_ACC + a]
         impact_v[j, b] = (_norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2])
                           > p.perturb.linear_threshold * dt)
         impact_w[j, b] = (_norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2])
@@ -236,7 +238,7 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
       healthy = healthy and _finite_step(obs[j], n_bodies)
       for b in range(n_bodies):
         o = b * SENSOR_WIDTH
-        if _norm3(obs[j, o + 7], obs[j, o + 8], obs[j, o + 9]) > p.max_speed:
+        if _norm3(obs[j, o + LIN_VEL], obs[j, o + LIN_VEL + 1], obs[j, o + LIN_VEL + 2]) > p.max_speed:
           healthy = False
       # The last frame is recorded at its first step; later steps of it are
       # not part of the world (its simulation ends there).
@@ -244,36 +246,37 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
       any_moving = False
       for b in range(n_bodies):
         o = b * SENSOR_WIDTH
-        speed = _norm3(obs[j, o + 7], obs[j, o + 8], obs[j, o + 9])
-        spin = _norm3(obs[j, o + 10], obs[j, o + 11], obs[j, o + 12])
+        speed = _norm3(obs[j, o + LIN_VEL], obs[j, o + LIN_VEL + 1], obs[j, o + LIN_VEL + 2])
+        spin = _norm3(obs[j, o + ANG_VEL], obs[j, o + ANG_VEL + 1], obs[j, o + ANG_VEL + 2])
         moving = speed >= p.rest_linear_speed or spin >= p.rest_angular_speed
         any_moving = any_moving or moving
         if k == 0:
           for a in range(4):
-            carry.init_quat[r, b, a] = obs[j, o + 3 + a]
+            carry.init_quat[r, b, a] = obs[j, o + QUAT + a]
         if not keep:
           continue
         m = carry.metrics[r, b]
         impact = impact_v[j, b] or impact_w[j, b]
-        m[0] += spin * dt
+        m[ANGULAR_TRAVEL] += spin * dt
         if moving:
           # k·dt rounded as float32 arithmetic rounds it (the product of two
           # float32 values is exact in float64): rest times are the same
           # discrete values on every backend.
-          m[1] = np.float32(float(np.float32(k)) * float(np.float32(dt)))
+          m[REST_TIME] = np.float32(float(np.float32(k)) * float(np.float32(dt)))
         if impact and carry.since_impact[r, b] > p.collision_gap_steps:
-          m[2] += 1.0
+          m[COLLISIONS] += 1.0
         dot = 0.0
         for a in range(4):
-          dot += carry.init_quat[r, b, a] * obs[j, o + 3 + a]
-        m[3] = 2.0 * math.acos(min(abs(dot), 1.0))
+          dot += carry.init_quat[r, b, a] * obs[j, o + QUAT + a]
+        m[ORIENTATION_ERROR] = 2.0 * math.acos(min(abs(dot), 1.0))
         if k > 0:
-          m[4] += _norm3(obs[j, o] - carry.prev_com[r, b, 0], obs[j, o + 1] - carry.prev_com[r, b, 1],
-                         obs[j, o + 2] - carry.prev_com[r, b, 2])
-        m[5] = max(m[5], obs[j, o + 2])
+          m[PATH_LENGTH] += _norm3(obs[j, o + COM_POS] - carry.prev_com[r, b, 0],
+                                   obs[j, o + COM_POS + 1] - carry.prev_com[r, b, 1],
+                                   obs[j, o + COM_POS + 2] - carry.prev_com[r, b, 2])
+        m[MAX_HEIGHT] = max(m[MAX_HEIGHT], obs[j, o + COM_POS + 2])
         carry.since_impact[r, b] = 0 if impact else carry.since_impact[r, b] + 1
         for a in range(3):
-          carry.prev_com[r, b, a] = obs[j, o + a]
+          carry.prev_com[r, b, a] = obs[j, o + COM_POS + a]
       still = 0 if any_moving else still + 1
 
     status = carry.status[r]

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from mwbx.scene import SENSOR_WIDTH
+from mwbx.scene import COM_POS, LIN_ACC, LIN_VEL, SENSOR_WIDTH
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -124,9 +124,9 @@ def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel
     for s in range(n_steps):
       for b in range(n_bodies):
         o = b * SENSOR_WIDTH
-        for j in range(7):
-          sensordata[r, s, o + j] = np.float32(pose[s, b, j])
+        for j in range(7):  # com_pos then quat, adjacent in the block
+          sensordata[r, s, o + COM_POS + j] = np.float32(pose[s, b, j])
         for j in range(6):
-          sensordata[r, s, o + 7 + j] = np.float32(vel[s, b, j])
+          sensordata[r, s, o + LIN_VEL + j] = np.float32(vel[s, b, j])
           acc = (vel[s + 1, b, j] - vel[s, b, j]) / timestep
-          sensordata[r, s, o + 13 + j] = np.float32(acc - gravity[j] if j < 3 else acc)
+          sensordata[r, s, o + LIN_ACC + j] = np.float32(acc - gravity[j] if j < 3 else acc)

@@ -35,6 +35,12 @@ METRIC_NAMES = (
     "path_length",        # m: length travelled by the COM
     "max_height",         # m: highest COM z
 )
+# Column of each metric in the metric table (METRIC_NAMES order); the numba
+# twin and refinement's prefix metrics index with these.
+ANGULAR_TRAVEL, REST_TIME, COLLISIONS, ORIENTATION_ERROR, PATH_LENGTH, MAX_HEIGHT = (
+    METRIC_NAMES.index(name) for name in (
+        "angular_travel", "rest_time", "collisions", "orientation_error", "path_length",
+        "max_height"))
 
 # Status codes: errors as data, never exceptions inside the loop.
 RUNNING = 0
@@ -144,7 +150,7 @@ def init_carry(n_bodies: int, active: bool | jax.Array = True) -> WorldCarry:
       still_steps=jnp.int32(0),
       since_impact=jnp.full(b, 1 << 30, jnp.int32),
       perturbations=jnp.int32(0),
-      metrics=jnp.zeros((b, len(METRIC_NAMES)), jnp.float32).at[:, 5].set(-jnp.inf),
+      metrics=jnp.zeros((b, len(METRIC_NAMES)), jnp.float32).at[:, MAX_HEIGHT].set(-jnp.inf),
       prev_com=jnp.zeros((b, 3), jnp.float32),
       init_quat=jnp.tile(jnp.array([1.0, 0.0, 0.0, 0.0], jnp.float32), (b, 1)),
   )

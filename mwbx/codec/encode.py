@@ -163,6 +163,14 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     raise CodecError(f"frame_count entries must be in [0, {num_t}]")
   if not (np.isfinite(fps) and fps > 0):
     raise CodecError(f"fps must be a finite number > 0, got {fps!r}")
+  recorded = np.arange(num_t)[None, :] < frame_count[:, None]  # [W, T]
+  bad = recorded[:, :, None] & ~np.isfinite(qpos)
+  if bad.any():
+    w, f, c = (int(i[0]) for i in np.nonzero(bad))
+    raise CodecError(
+        f"qpos of world {w} (of this batch) is {qpos[w, f, c]} at frame {f}, column {c}: the codec"
+        f" stores finite values only (cut the recording before frame {f}, as the sampler does"
+        f" for a world that went unstable)")
   quanta = quanta or default_quanta(fps, gravity)
   steps = dict(zip(("pos", "rot", "scalar"), quanta.steps(bounds)))
   # The fits take the bounds themselves (the rotation fit its ball radius),

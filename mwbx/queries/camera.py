@@ -75,6 +75,11 @@ class Camera:
   orthographic: bool = False
   name: str = ""
 
+  def __repr__(self) -> str:
+    kind = ", orthographic" if self.orthographic else ""
+    return (f"Camera({self.name!r}, eye={np.round(self.eye, 3).tolist()}, fovy={self.fovy:g},"
+            f" aspect={self.aspect:.4g}{kind})")
+
   def __post_init__(self):
     if not (math.isfinite(self.aspect) and self.aspect > 0):
       raise MwbxError(f"camera: aspect must be a positive number, got {self.aspect}")

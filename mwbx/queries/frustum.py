@@ -48,6 +48,10 @@ class Frustum:
     object.__setattr__(self, "normals", normals)
     object.__setattr__(self, "offsets", offsets)
 
+  def __repr__(self) -> str:
+    eye = "" if self.eye is None else f", eye={np.round(np.asarray(self.eye, float), 3).tolist()}"
+    return f"Frustum({self.n_planes} planes{eye})"
+
   @property
   def n_planes(self) -> int:
     return len(self.normals)

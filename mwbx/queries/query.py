@@ -278,7 +278,7 @@ def first_entry(bank, world: int, bodies, frustum: Frustum, *,
   """Earliest time any of the bodies' COM (or swept sphere) is in the volume.
 
   Args:
-    bank: the bank. world: world index (0 <= world < W).
+    bank: the bank. world: world id.
     bodies: body/object/group names, or None for all tracked bodies.
     frustum: the volume (e.g. `camera.frustum(box)`).
     window: optional (t0, t1) seconds; entry is searched inside it.
@@ -287,15 +287,14 @@ def first_entry(bank, world: int, bodies, frustum: Frustum, *,
   Returns:
     seconds from the start of the world, or None if it never enters.
   """
-  if not 0 <= int(world) < bank.n_worlds:
-    raise MwbxError(f"world: index {world} out of range for a bank of {bank.n_worlds} worlds")
+  row = bank.row_of(int(world))
   query = Query(frustum, bodies=bodies, window=window, radius=radius)
   state = _state(bank)
   normals, offsets, mask, win = resolve(bank, query, state)
   chosen = np.flatnonzero(mask)
   if chosen.size == 0:
     return None
-  points = state.index.points[chosen, int(world)]  # [k, P', 3] padded paths
+  points = state.index.points[chosen, row]  # [k, P', 3] padded paths
   with jax.enable_x64(True):
     t = _first_entry(points, normals, offsets[chosen], win, state.index.n_segments)
   t = float(t)

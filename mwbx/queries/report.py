@@ -76,7 +76,8 @@ def _describe(terms) -> str:
 
 
 def run_query_file(bank, path: str | os.PathLike, rank: str | None = None,
-                   top: int | None = None, descending: bool | None = None) -> QueryReport:
+                   top: int | None = None, descending: bool | None = None,
+                   under: int | None = None) -> QueryReport:
   """Loads a query file, evaluates it on the bank and ranks the matches.
 
   Args:
@@ -87,12 +88,17 @@ def run_query_file(bank, path: str | os.PathLike, rank: str | None = None,
       (or unranked, in world order).
     top: worlds to list at most (None: the file's `top`, else all matches).
     descending: overrides the order.
+    under: a world id: only it and the worlds refined from it (directly or
+      not) are counted and listed.
   """
   if top is not None and top < 0:
     raise MwbxError(f"--top: must be >= 0, got {top}")
   qs = load_queries(path, bank)
   each = query_lib.evaluate_each(bank, qs.queries)
   valid = np.asarray(bank.valid, bool)
+  if under is not None:
+    valid = valid & bank.under(under)
+    each = each & valid[:, None]
   match = np.all(each, axis=1) & valid
   terms = metrics_lib.as_terms(rank) if rank else qs.rank
   top = qs.top if top is None else top
@@ -102,7 +108,7 @@ def run_query_file(bank, path: str | os.PathLike, rank: str | None = None,
   closest = bool(qs.queries) and not match.any() and valid.any()
   if closest:
     counts = np.sum(each, axis=1).astype(np.float64)
-    ids, values = metrics_lib.rank(bank, counts, top=10 if top is None else top)
+    ids, values = metrics_lib.rank(bank, counts, match=valid, top=10 if top is None else top)
     return QueryReport(summary, 0, int(valid.sum()), metrics_lib.CONSTRAINTS, ids, values, True)
   if terms:
     k = int(match.sum()) if top is None else top

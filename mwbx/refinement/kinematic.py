@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 
 from mwbx import rotations
+from mwbx.batch_sim import world
 
 
 class StoredPath(NamedTuple):
@@ -128,7 +129,7 @@ def step_targets(model: mujoco.MjModel, path: StoredPath, steps_per_frame: int, 
 def prefix_metrics(path: StoredPath, frame: int, frame_time: float, dt: float, gravity: np.ndarray,
                    rest_linear_speed: float, rest_angular_speed: float, linear_threshold: float,
                    gap_frames: int) -> np.ndarray:
-  """f32[B, 6] metric accumulators (world.METRIC_NAMES order) over frames 0…frame.
+  """f32[B, M] metric accumulators (world.METRIC_NAMES order) over frames 0…frame.
 
   Computed from the decoded path at the record rate: angular travel as the
   sum of frame-to-frame rotation angles, rest time as the last frame moving
@@ -140,18 +141,18 @@ def prefix_metrics(path: StoredPath, frame: int, frame_time: float, dt: float, g
   com = path.com[:frame + 1].astype(np.float64)
   quat = path.quat[:frame + 1].astype(np.float64)
   b = com.shape[1]
-  out = np.zeros((b, 6), np.float32)
-  out[:, 5] = com[:, :, 2].max(axis=0)
-  out[:, 1] = -np.inf
+  out = np.zeros((b, len(world.METRIC_NAMES)), np.float32)
+  out[:, world.MAX_HEIGHT] = com[:, :, 2].max(axis=0)
+  out[:, world.REST_TIME] = -np.inf
   if frame == 0:
     return out
   angles = rotations.rotation_angle_np(quat[:-1], quat[1:])  # [frame, B]
   steps = np.linalg.norm(np.diff(com, axis=0), axis=-1)
-  out[:, 0] = angles.sum(axis=0)
-  out[:, 4] = steps.sum(axis=0)
+  out[:, world.ANGULAR_TRAVEL] = angles.sum(axis=0)
+  out[:, world.PATH_LENGTH] = steps.sum(axis=0)
   moving = (steps / frame_time >= rest_linear_speed) | (angles / frame_time >= rest_angular_speed)
   last = np.where(moving.any(axis=0), frame - 1 - np.argmax(moving[::-1], axis=0), -1)
-  out[:, 1] = np.where(last >= 0, last * frame_time, -np.inf)
+  out[:, world.REST_TIME] = np.where(last >= 0, last * frame_time, -np.inf)
   if frame >= 2:
     vel = np.diff(com, axis=0) / frame_time  # [frame, B, 3]
     dv = np.diff(vel, axis=0) - gravity * frame_time
@@ -161,7 +162,7 @@ def prefix_metrics(path: StoredPath, frame: int, frame_time: float, dt: float, g
     for row in impact:
       count += row & (since > gap_frames)
       since = np.where(row, 0, since + 1)
-    out[:, 2] = count
+    out[:, world.COLLISIONS] = count
   return out
 
 

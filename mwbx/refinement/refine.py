@@ -9,9 +9,10 @@ object as soon as an active object or a ghost of one may touch it (see
 
 The new worlds are ordinary bank worlds: frames before t_min are the
 parent's, then the new motion; objects never activated keep the parent's
-decoded path, COM polylines and metrics exactly. Their lineage (parent row,
-t_min, objects asked for, final active set) is in ``bank.lineage`` under the
-new row's index, plus ``parent_world``/``refine_time`` columns.
+decoded path, COM polylines and metrics exactly. They get new world ids;
+their lineage (parent id, t_min, objects asked for, final active set) is in
+``bank.lineage`` under the new id, plus ``parent_world``/``refine_time``
+columns.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import secrets
 import time
 from typing import Sequence
 
@@ -34,6 +36,7 @@ from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
 from mwbx.errors import MwbxError
 from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
 from mwbx.refinement import interactions, kinematic
+from mwbx.scene import objects_of
 from mwbx.refinement import loop as refine_loop
 
 DEFAULT_MARGIN = 0.01  # m, contact margin of the interaction test
@@ -53,18 +56,13 @@ def _scene_of(bank):
 
 
 def resolve_objects(bank, objects: str | Sequence[str]) -> tuple[str, ...]:
-  """Object names for object or group names (MwbxError naming an unknown one)."""
+  """Object names for object or group names (``object:``/``group:`` prefixes
+  allowed; MwbxError naming an unknown one)."""
   if isinstance(objects, str):
     objects = [o for o in objects.split(",") if o]
   out: list[str] = []
   for name in objects:
-    if name in bank.objects:
-      members = (name,)
-    elif name in bank.groups:
-      members = bank.groups[name]
-    else:
-      raise MwbxError(f"refine: objects: unknown object or group {name!r}"
-                      f" (objects: {', '.join(bank.objects)}; groups: {', '.join(bank.groups) or 'none'})")
+    members = objects_of(name, tuple(bank.objects), bank.groups, "objects", "refine")
     out.extend(m for m in members if m not in out)
   if not out:
     raise MwbxError("refine: objects: name at least one object or group to refine")
@@ -75,7 +73,7 @@ def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_mi
   """t_min in seconds: given, or the first time an object's COM enters ``frustum``."""
   if (frustum is None) == (t_min is None):
     raise MwbxError("refine: give exactly one of frustum (a screen box through a camera) or t_min")
-  last = (int(bank.frame_count[world]) - 1) / bank.record_fps
+  last = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
   if frustum is not None:
     from mwbx.queries import first_entry
     t_min = first_entry(bank, world, list(objects), frustum)
@@ -113,14 +111,18 @@ class RefineStats(SampleStats):
 
 
 def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
-               key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
+               key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
                margin: float = DEFAULT_MARGIN, playback: str = "step", progress=None):
   """:func:`refine` that also returns :class:`RefineStats` and only the new worlds."""
   start_wall = time.perf_counter()
   world = int(world)
-  if not 0 <= world < bank.n_worlds:
-    raise MwbxError(f"refine: world {world} out of range (bank has {bank.n_worlds} worlds)")
-  if not bank.valid[world]:
+  try:
+    row = bank.row_of(world)
+  except MwbxError as err:
+    raise MwbxError(f"refine: {err}") from None
+  if key is None:  # fresh randomness: repeating a refinement gives new worlds
+    key = jax.random.key(secrets.randbits(63))
+  if not bank.valid[row]:
     raise MwbxError(f"refine: world {world} went unstable while sampling; refine a stable world")
   if n_samples < 1:
     raise MwbxError(f"refine: n_samples must be at least 1, got {n_samples}")
@@ -159,6 +161,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   n_frames = sampler.n_frames
   if f0 >= n_frames:
     raise MwbxError(f"refine: t_min {t_min:g} s is at or past the end time")
+  row = bank.row_of(world)
   parent = bank.qpos_frames(world)
   path = kinematic.stored_path(model, parent, scene.body_ids, n_frames + 2, frame_time)
   mjx = sampler.backend_name == "mjx"
@@ -223,13 +226,13 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   stats.max_perturbation_ratio = np.concatenate([o.max_perturbation_ratio for o in outputs])
   stats.inactive_perturbations = np.concatenate([o.inactive_perturbations for o in outputs])
   codec_start = time.perf_counter()
-  new = _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs, qm, sampler)
+  new = _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler)
   stats.codec_seconds = time.perf_counter() - codec_start
   stats.wall_seconds = time.perf_counter() - start_wall
   return new, stats
 
 
-def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs, qm, sampler):
+def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler):
   """The refined worlds as a bank (same scene, config and digest as ``bank``)."""
   cat = lambda name: np.concatenate([getattr(o, name) for o in outputs])
   count = f0 + cat("frame_count").astype(np.int32)
@@ -248,7 +251,7 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
 
   qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
   keep_qpos = (~active).astype(np.float32) @ qm.astype(np.float32) > 0.5
-  store = bank.qpos_store.refined(qpos, count, world, parent, keep_qpos)
+  store = bank.qpos_store.refined(qpos, count, row, parent, keep_qpos)
 
   stride = sampler.query_stride
   n_points = bank.com.shape[1]
@@ -256,22 +259,22 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
   com = com_rate[:, ::stride][:, :n_points]
   com = np.concatenate([com, np.repeat(com[:, -1:], n_points - com.shape[1], axis=1)], axis=1)
   before = (np.arange(n_points) * stride < f0)
-  com[:, before] = bank.com[world][before]
-  parent_com = bank.com[world]
+  com[:, before] = bank.com[row][before]
+  parent_com = bank.com[row]
   com = np.where(body_active[:, None, :, None], com, parent_com[None])
   com = np.nan_to_num(com)
   com_count = ((count - 1) // stride + 1).astype(np.int32)
 
   metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
-  metrics = np.where(body_active[:, :, None], metrics, bank.metrics[world][None])
+  metrics = np.where(body_active[:, :, None], metrics, bank.metrics[row][None])
   flags = np.full(w, bank_lib.FLAG_FINISHED, np.uint8)
   flags[status == world_lib.AT_REST] |= bank_lib.FLAG_AT_REST
   flags[status == world_lib.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
-  first_id = int(bank.world_ids.max()) + 1 if bank.n_worlds else 0
+  first_id = bank.next_world_id
   t0 = f0 / bank.record_fps
   lineage = {}
   for i in range(w):
-    lineage[str(bank.n_worlds + i)] = {
+    lineage[str(first_id + i)] = {
         "parent": int(world), "t_min": t0, "objects": list(names),
         "active": [o for o, a in zip(object_names, active[i]) if a],
         "activated_at": {o: int(f) / bank.record_fps for o, f in zip(object_names, activated[i]) if f >= 0},
@@ -282,24 +285,25 @@ def _assemble(bank, world, names, object_names, f0, path, parent, keys, outputs,
       com_count=com_count, metrics=metrics.astype(np.float32),
       perturbations=cat("perturbations").astype(np.int32), steps=cat("steps").astype(np.int32),
       parent_world=np.full(w, world, np.int64), refine_time=np.full(w, t0, np.float32),
-      qpos_store=store, lineage=lineage, _model=None)
+      qpos_store=store, lineage=lineage, next_id=first_id + w, _model=None)
 
 
 
 def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
-           key: jax.Array, backend: str | None = None, chunk_size: int | None = None,
+           key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
            margin: float = DEFAULT_MARGIN, playback: str = "step", progress=None):
   """Resamples the marked objects of one world from t_min on (paper §5).
 
   Args:
     bank: the bank holding the parent world.
-    world: the parent's row in ``bank``.
+    world: the parent's world id.
     objects: object or group names (a list, or one comma-separated string).
     frustum: a :class:`mwbx.queries.Frustum` (e.g. ``camera.frustum(box)``):
       t_min is the first time any of the objects' COM is inside it; or
     t_min: the restart time in seconds (rounded down to a recorded frame).
     n_samples: refined worlds to make.
-    key: run key; refined world i draws from ``fold_in(key, i)``.
+    key: run key; refined world i draws from ``fold_in(key, i)``. None: a fresh
+      random key, so repeating a refinement gives new worlds.
     backend: ``auto`` | ``native`` | ``mjx`` (default: the config's).
     chunk_size: worlds per lockstep batch.
     margin: contact margin of the interaction test, m (larger is safer).
@@ -312,11 +316,12 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
     progress: optional callback(world_steps, worlds_finished, n_samples).
 
   Returns:
-    ``bank`` with the refined worlds appended (rows ``bank.n_worlds`` on),
-    each with ``parent_world``, ``refine_time`` and ``lineage`` entries.
+    ``bank`` with the refined worlds appended, with new ids from
+    ``bank.next_world_id`` on, each with ``parent_world``, ``refine_time`` and
+    ``lineage`` entries (``bank.children(world)`` lists them).
 
   Raises:
-    MwbxError: unknown object, world out of range, unstable parent, t_min
+    MwbxError: unknown object, unknown world id, unstable parent, t_min
       outside the recording, or a box the objects never enter.
   """
   new, _ = refine_run(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,

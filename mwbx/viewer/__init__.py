@@ -16,3 +16,4 @@ from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.frustums import QueryVolume
 from mwbx.viewer.recorder import SceneRecorder
 from mwbx.viewer.select import choose_worlds
+from mwbx.viewer.server import LiveView

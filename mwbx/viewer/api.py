@@ -18,6 +18,7 @@ from typing import Any, NamedTuple, Sequence
 import meshcat
 import numpy as np
 
+from mwbx.errors import MwbxError
 from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.framing import place_camera, scene_bounds, view_spec
 from mwbx.viewer.frustums import QueryVolume, as_volume, draw_volume
@@ -25,6 +26,7 @@ from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS, pose_matrix, scene_visu
 from mwbx.viewer.paths import classify_worlds, draw_paths
 from mwbx.viewer.playback import LAYOUTS, draw_playback, grid_offsets, make_grid
 from mwbx.viewer.recorder import SceneRecorder
+from mwbx.viewer.server import LiveView
 
 ROOT = "mwbx"
 
@@ -33,7 +35,7 @@ class DrawInfo(NamedTuple):
   """What `draw` put in the scene.
 
   centre: f64[3] world point shown at the display origin (metres).
-  worlds: i64[n] bank indices of the played-back worlds.
+  worlds: i64[n] ids of the played-back worlds.
   offsets: f64[n, 3] grid translation of each played-back world.
   path_segments: {"faint" | "match" | "exclude": number of segments drawn}.
   n_queries: number of frustums drawn.
@@ -49,20 +51,22 @@ class DrawInfo(NamedTuple):
 
 
 def resolve_worlds(bank, worlds: Sequence[int] | None) -> np.ndarray:
-  """i64[n] validated world indices; None picks the first valid world."""
+  """i64[n] bank rows of world ids, validated; None picks the first valid world."""
   valid = np.asarray(bank.valid, bool)
   if worlds is None:
     first = np.flatnonzero(valid)[:1]
     return first.astype(np.int64)
-  out = np.asarray(list(worlds), np.int64).reshape(-1)
-  for w in out:
-    if not 0 <= w < bank.n_worlds:
-      raise ViewerError(f"worlds: index {int(w)} is out of range for a bank of {bank.n_worlds} worlds")
-    if not valid[w]:
-      raise ViewerError(f"worlds: world {int(w)} is flagged unstable and cannot be shown")
-  if len(set(out.tolist())) != out.size:
-    raise ViewerError(f"worlds: {out.tolist()} lists a world more than once")
-  return out
+  ids = np.asarray(list(worlds), np.int64).reshape(-1)
+  if len(set(ids.tolist())) != ids.size:
+    raise ViewerError(f"worlds: {ids.tolist()} lists a world more than once")
+  try:
+    rows = bank.row_of(ids)
+  except MwbxError as err:
+    raise ViewerError(f"worlds: {err}") from None
+  for wid, row in zip(ids, rows):
+    if not valid[row]:
+      raise ViewerError(f"worlds: world {int(wid)} is flagged unstable and cannot be shown")
+  return rows
 
 
 def resolve_bodies(bank, paths: Any) -> np.ndarray | None:
@@ -85,8 +89,8 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   """Draws a bank's worlds, paths and queries into a meshcat visualizer.
 
   bank: a sampled bank (mwbx.bank contract).
-  worlds: indices of worlds to play back; None = the first valid world, [] = none.
-  paths: COM paths to draw for every valid world (or `path_worlds`): True for
+  worlds: ids of worlds to play back; None = the first valid world, [] = none.
+  paths: COM paths to draw for every valid world (or the ids `path_worlds`): True for
     all tracked bodies, or body/object/group name(s); None = no paths.
   match, exclude: bool[W] worlds whose paths are green / red (others faint);
     when `queries` are mwbx.queries objects and both are None they come from
@@ -109,7 +113,8 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
     match, exclude = query_classes(bank, queries)
   classes = None
   if bodies is not None:
-    classes = classify_worlds(np.asarray(bank.valid), path_worlds, match, exclude)
+    path_rows = None if path_worlds is None else bank.row_of(np.asarray(list(path_worlds), np.int64))
+    classes = classify_worlds(np.asarray(bank.valid), path_rows, match, exclude)
   volumes = [as_volume(q, i) for i, q in enumerate(queries)]
   lo, hi = scene_bounds(bank, model, worlds, classes, bodies, visible_groups)
   radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
@@ -136,7 +141,7 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   depth = 3.0 * radius if frustum_depth is None else frustum_depth
   for i, volume in enumerate(volumes):
     draw_volume(root["queries"][f"q{i}"], volume, i, max_depth=depth, eye_radius=0.015 * radius)
-  return DrawInfo(centre, worlds, offsets, counts, len(volumes), eye)
+  return DrawInfo(centre, np.asarray(bank.world_ids)[worlds], offsets, counts, len(volumes), eye)
 
 
 def as_query_list(queries: Any) -> list:
@@ -171,12 +176,14 @@ def view(bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
 
   A new meshcat server is started unless `vis` or `zmq_url` (of a running
   server) is given; its page is `vis.url()`. open: also open a browser tab.
-  Stop a server this started with `vis.window.server_proc.kill()`.
+  The returned :class:`~mwbx.viewer.server.LiveView` stops a server it
+  started on `close()`, at the end of a `with` block, at exit, and when this
+  process dies. worlds: world ids.
   Other keyword arguments: see `draw` (path_worlds, match, exclude, camera,
   view_dir, play, frustum_depth, visible_groups).
   """
   if vis is None:
-    vis = meshcat.Visualizer(zmq_url=zmq_url)
+    vis = LiveView(zmq_url)
   draw(vis, bank, worlds, paths=paths, queries=queries, layout=layout, **draw_kwargs)
   if open:
     vis.open()

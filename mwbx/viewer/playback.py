@@ -138,12 +138,13 @@ def world_tracks(bank, model: mujoco.MjModel, worlds: Sequence[int],
   """Decodes each world's qpos and runs forward kinematics; all tracks are
   padded to the longest recording (shorter worlds hold their last pose)."""
   decoded = []
-  for w in worlds:
-    qpos = np.asarray(bank.qpos_frames(int(w)), np.float64)
+  for w in worlds:  # bank rows
+    wid = int(bank.world_ids[int(w)])
+    qpos = np.asarray(bank.qpos_frames(wid), np.float64)
     if qpos.shape[0] == 0:
-      raise ViewerError(f"world {int(w)} has no recorded frames (frame_count is 0)")
+      raise ViewerError(f"world {wid} has no recorded frames (frame_count is 0)")
     if not np.all(np.isfinite(qpos)):
-      raise ViewerError(f"world {int(w)} has non-finite recorded coordinates; it cannot be played back")
+      raise ViewerError(f"world {wid} has non-finite recorded coordinates; it cannot be played back")
     decoded.append((int(w), qpos))
   n_frames = max(q.shape[0] for _, q in decoded)
   tracks = []
@@ -224,12 +225,8 @@ def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual
   tracks = world_tracks(bank, model, worlds, body_ids)
   animation = manim.Animation(default_framerate=float(bank.record_fps))
   world_ids = np.asarray(bank.world_ids)
-  shown = world_ids[np.asarray(worlds, np.int64)]
-  unique_ids = len(set(shown.tolist())) == shown.size
   for k, (track, style) in enumerate(zip(tracks, styles)):
-    wid = int(world_ids[track.world])
-    # Node names carry the world id; rows disambiguate repeated ids.
-    node = vis[f"w{wid}" if unique_ids else f"w{wid}_row{track.world}"]
+    node = vis[f"w{int(world_ids[track.world])}"]  # node names carry the world id
     shift = np.eye(4)
     shift[:3, 3] = offsets[k]
     node.set_transform(shift)

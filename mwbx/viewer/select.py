@@ -1,7 +1,6 @@
 """Which worlds to show, from world ids or a ranking (used by `mwbx view`).
 
-World ids are `bank.world_ids` (what rankings print); the viewer itself
-takes bank rows, so ids are mapped to rows here.
+World ids are `bank.world_ids` (what rankings print), as everywhere.
 """
 
 from __future__ import annotations
@@ -10,14 +9,15 @@ from typing import Sequence
 
 import numpy as np
 
+from mwbx.errors import MwbxError
 from mwbx.viewer.errors import ViewerError
 
 # Worlds shown by `--rank METRIC` without `--top`.
 DEFAULT_TOP = 4
 
 
-def parse_world_ids(text: str) -> list[int]:
-  """'3,17, 20' -> [3, 17, 20]; the message names the bad item."""
+def parse_world_ids(text: str, flag: str = "--worlds") -> list[int]:
+  """'3,17, 20' -> [3, 17, 20]; the message names the flag and the bad item."""
   out = []
   for item in text.split(","):
     item = item.strip()
@@ -26,34 +26,21 @@ def parse_world_ids(text: str) -> list[int]:
     try:
       out.append(int(item))
     except ValueError:
-      raise ViewerError(f"--worlds: {item!r} is not a world id (expected e.g. 3,17)") from None
+      raise ViewerError(f"{flag}: {item!r} is not a world id (expected e.g. 3,17)") from None
   if not out:
-    raise ViewerError(f"--worlds: no world ids in {text!r}")
+    raise ViewerError(f"{flag}: no world ids in {text!r}")
   return out
-
-
-def rows_of_ids(bank, ids: Sequence[int]) -> np.ndarray:
-  """i64[n] bank rows of world ids (the first row where an id repeats)."""
-  world_ids = np.asarray(bank.world_ids)
-  rows = []
-  for wid in ids:
-    hit = np.flatnonzero(world_ids == int(wid))
-    if hit.size == 0:
-      raise ViewerError(f"--worlds: no world with id {int(wid)} in this bank "
-                        f"(ids {int(world_ids.min())}..{int(world_ids.max())})")
-    rows.append(int(hit[0]))
-  return np.asarray(rows, np.int64)
 
 
 def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = None,
                   rank: str | None = None, queries=None) -> tuple[np.ndarray | None, np.ndarray | None]:
-  """The rows to play back and the worlds matching the queries.
+  """The world ids to play back and the worlds matching the queries.
 
   ids: explicit world ids. top/rank: the best `top` worlds by a metric
   ("NAME[:sum|max]", mwbx.queries.rank), among those matching `queries` when
   given; rank None with top uses the query file's ranking. queries: a
   mwbx.queries.QuerySet or None.
-  Returns (rows i64[n] or None for the viewer's default, match bool[W] or None).
+  Returns (ids i64[n] or None for the viewer's default, match bool[W] or None).
   """
   if ids is not None and (top is not None or rank is not None):
     raise ViewerError("--worlds cannot be combined with --top/--rank")
@@ -63,10 +50,15 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
 
     match = np.asarray(mq.evaluate(bank, queries.queries), bool)
   if ids is not None:
-    return rows_of_ids(bank, ids), match
+    ids = np.asarray(list(ids), np.int64)
+    try:
+      bank.row_of(ids)
+    except MwbxError as err:
+      raise ViewerError(f"--worlds: {err}") from None
+    return ids, match
   if top is None and rank is None:
     if match is not None:
-      first = np.flatnonzero(match)[:1]
+      first = np.asarray(bank.world_ids)[np.flatnonzero(match)[:1]]
       return (first if first.size else None), match
     return None, match
   from mwbx import queries as mq
@@ -84,4 +76,4 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
   ids, _ = mq.rank(bank, by, queries=qs, match=match, top=k, descending=descending)
   if len(ids) == 0:
     raise ViewerError("--rank: no valid world matches the queries; nothing to show")
-  return rows_of_ids(bank, ids), match
+  return np.asarray(ids, np.int64), match
