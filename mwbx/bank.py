@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
+import zlib
 from typing import Sequence
 
 import numpy as np
@@ -333,6 +334,7 @@ class Bank:
     tree = {name: np.asarray(getattr(self, name)) for name in self._ARRAYS}
     tree["body_ids"] = np.asarray(self.body_ids)
     tree.update({f"qpos_{k}": np.asarray(v) for k, v in store_arrays.items()})
+    checksums = {name: _crc32(value) for name, value in tree.items()}
     meta = {
         "format": BANK_FORMAT, "qpos_store": store_meta, "body_names": list(self.body_names),
         "objects": {k: list(v) for k, v in self.objects.items()},
@@ -341,6 +343,7 @@ class Bank:
         "query_fps": self.query_fps, "timestep": self.timestep, "config": self.config,
         "mjcf_text": self.mjcf_text, "mjcf_includes": self.mjcf_includes, "digest": self.digest,
         "lineage": self.lineage, "run": self.run, "next_id": self.next_world_id,
+        "checksums": checksums,
     }
     with _manager(path) as manager:
       step = (manager.latest_step() or 0) + 1
@@ -366,6 +369,7 @@ class Bank:
         restored = manager.restore(step, args=ocp.args.Composite(
             bank=ocp.args.StandardRestore(), meta=ocp.args.JsonRestore()))
       tree, meta = restored["bank"], restored["meta"]
+      _verify(path, tree, meta.get("checksums"))
       if meta.get("format") not in (1, BANK_FORMAT):
         raise MwbxError(f"{path}: unsupported bank format {meta.get('format')!r}")
       store_meta = meta["qpos_store"]
@@ -386,7 +390,8 @@ class Bank:
     except MwbxError:
       raise
     except Exception as err:  # orbax/tensorstore/json errors: a corrupt or foreign directory.
-      raise MwbxError(f"{path}: corrupt or unreadable bank: {type(err).__name__}: {err}") from None
+      raise MwbxError(f"{path}: corrupt or unreadable bank ({type(err).__name__}: {_first_line(err)})"
+                      ) from None
     bank.check()
     return bank
 
@@ -400,6 +405,31 @@ class Bank:
       raise MwbxError(f"bank: qpos store has {self.qpos_store.n_worlds} worlds, expected {w}")
     if self.com.ndim != 4 or self.com.shape[2] != len(self.body_names):
       raise MwbxError(f"bank: com has shape {self.com.shape}, expected [W, P, {len(self.body_names)}, 3]")
+
+
+def _crc32(array) -> int:
+  return zlib.crc32(np.ascontiguousarray(array).view(np.uint8).reshape(-1))
+
+
+def _verify(path: pathlib.Path, tree: dict, checksums: dict | None) -> None:
+  """MwbxError naming every array whose bytes differ from the saved checksum
+  (banks saved before checksums existed are not checked)."""
+  if not checksums:
+    return
+  bad = [name for name, crc in checksums.items()
+         if name not in tree or _crc32(np.asarray(tree[name])) != int(crc)]
+  if bad:
+    raise MwbxError(f"{path}: corrupt bank: checksum mismatch in {', '.join(sorted(bad))}"
+                    f" (the saved data changed since it was written)")
+
+
+def _first_line(err: Exception, limit: int = 200) -> str:
+  """The gist of a library's error: its first line, without the spec dumps
+  tensorstore appends, cut to ``limit`` characters."""
+  text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+  for cut in (" [source locations", " {\"", " {'"):
+    text = text.split(cut)[0]
+  return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def rows_of(world_ids: np.ndarray, ids):

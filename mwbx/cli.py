@@ -22,29 +22,9 @@ import pathlib
 import secrets
 import signal
 import sys
-import time
 
 from mwbx.errors import MwbxError
-
-
-def _progress_bar(n_worlds: int, desc: str):
-  """A tqdm bar over worlds finished, with world-steps/s; returns (callback, bar)."""
-  from tqdm import tqdm
-  bar = tqdm(total=n_worlds, desc=desc, unit="world", dynamic_ncols=True, file=sys.stderr)
-  first: list = []  # (time, world_steps) of the first report: the rate leaves compilation out
-
-  def update(world_steps: int, finished: int, total: int) -> None:
-    now = time.perf_counter()
-    if not first:
-      first.append((now, world_steps))
-    bar.n = finished
-    start, steps0 = first[0]
-    elapsed = now - start
-    if elapsed > 0:
-      bar.set_postfix_str(f"{(world_steps - steps0) / elapsed / 1e3:,.0f}k world-steps/s", refresh=False)
-    bar.refresh()
-
-  return update, bar
+from mwbx.progress import reporter
 
 
 def _cmd_sample(args) -> int:
@@ -74,13 +54,11 @@ def _cmd_sample(args) -> int:
   with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
     print(f"mwbx: sampling {n_worlds} worlds of {args.config} on {sampler.backend_label}"
           f" (worlds {first_world}..{first_world + n_worlds - 1}, seed {seed})", file=sys.stderr)
-    update, bar = _progress_bar(n_worlds, "sampling")
-    try:
+    with reporter("sample") as update:
       bank, stats = sampler.run(n_worlds, jax.random.key(seed), first_world=first_world, progress=update)
-    finally:
-      bar.close()
   bank.run = {"seed": seed}
   total = existing.append(bank) if existing is not None else bank
+  print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
   total.save(out)
   s = bank.summary()
   print(f"worlds sampled      {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable)")
@@ -201,14 +179,12 @@ def _cmd_refine(args) -> int:
   out = pathlib.Path(args.out or args.bank)
   # Without --seed every run draws new worlds; the seed is printed to repeat one.
   seed = secrets.randbits(31) if args.seed is None else args.seed
-  update, bar = _progress_bar(args.samples, "refining")
-  try:
+  with reporter("refine") as update:
     new, stats = refine_run(bank, args.world, args.objects, frustum=frustum, t_min=args.time,
                             n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
                             progress=update)
-  finally:
-    bar.close()
   total = bank.append(new)
+  print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
   total.save(out)
   ids = f"{int(new.world_ids[0])}..{int(new.world_ids[-1])}"
   active = [len(new.lineage[str(int(i))]["active"]) for i in new.world_ids]
@@ -316,8 +292,18 @@ def _terminate(signum, frame):
   raise KeyboardInterrupt  # SIGTERM ends like Ctrl-C: servers stopped, nothing half-written
 
 
+def _quiet_unraisable(unraisable) -> None:
+  """Drops the 'Event loop is closed' that tensorstore's threads raise after a
+  failed bank restore (the one-line error already said what happened)."""
+  exc = unraisable.exc_value
+  if isinstance(exc, RuntimeError) and "Event loop is closed" in str(exc):
+    return
+  sys.__unraisablehook__(unraisable)
+
+
 def main(argv: list[str] | None = None) -> int:
   args = build_parser().parse_args(argv)
+  sys.unraisablehook = _quiet_unraisable
   _enable_compilation_cache()
   previous = signal.signal(signal.SIGTERM, _terminate)
   try:

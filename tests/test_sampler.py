@@ -299,3 +299,55 @@ def test_compiled_world_loop_samples_like_lockstep_rollout(tiny_config, monkeypa
   monkeypatch.setattr(mujoco_c, "available", lambda: False)
   lockstep = mwbx.sample(tiny_config, n_worlds=64, key=key, backend="native")
   _assert_same_sampler(compiled, lockstep)
+
+
+def test_flipped_bits_are_caught_or_harmless(tmp_path, tiny_native_bank):
+  """A flipped bit anywhere in a bank's data files either fails the load with
+  one line naming the bank (and, past the storage layer, the array) or leaves
+  every array as saved: never a silently changed answer."""
+  import shutil
+  bank = tiny_native_bank
+  clean = bank.save(tmp_path / "clean")
+  files = sorted(f for f in clean.rglob("*") if f.is_file() and "/bank/" in str(f)
+                 and f.name not in ("commit_success.txt",))
+  rng = np.random.default_rng(0)
+  caught = 0
+  for f in files:
+    for _ in range(3):
+      work = tmp_path / "work"
+      shutil.rmtree(work, ignore_errors=True)
+      shutil.copytree(clean, work)
+      target = work / f.relative_to(clean)
+      data = bytearray(target.read_bytes())
+      if not data:
+        continue
+      data[int(rng.integers(len(data)))] ^= 1 << int(rng.integers(8))
+      target.write_bytes(bytes(data))
+      try:
+        loaded = mwbx.Bank.load(work)
+      except mwbx.MwbxError as err:
+        text = str(err)
+        assert str(work) in text and "\n" not in text and len(text) < 400
+        caught += 1
+        continue
+      for name in mwbx.Bank._ARRAYS:
+        np.testing.assert_array_equal(getattr(loaded, name), getattr(bank, name))
+      np.testing.assert_array_equal(loaded.qpos_store.data, bank.qpos_store.data)
+  assert caught > 0
+
+
+def test_checksum_names_the_changed_array(tmp_path, tiny_native_bank):
+  from mwbx import bank as bank_lib
+  path = tiny_native_bank.save(tmp_path / "bank")
+  original = bank_lib._verify
+  try:  # change what the storage layer hands back, as a flipped bit past its own checks would
+    def tampered(where, tree, checksums):
+      tree = dict(tree)
+      tree["com"] = np.asarray(tree["com"]).copy()
+      tree["com"][0, 0, 0, 0] += 1.0
+      return original(where, tree, checksums)
+    bank_lib._verify = tampered
+    with pytest.raises(mwbx.MwbxError, match=r"checksum mismatch in com \("):
+      mwbx.Bank.load(path)
+  finally:
+    bank_lib._verify = original

@@ -540,10 +540,15 @@ def test_cli_view_errors_are_one_line(bank_dir, tmp_path, capsys, argv, message)
   assert rc == 2 and message in err and err.count("\n") == 1
 
 
-def test_cli_view_serves_until_interrupted(bank_dir):
-  """`mwbx view` keeps its meshcat server up, prints the URL, and stops the
-  server on Ctrl-C."""
+def _gone(pid: int) -> bool:
   import os
+  return not os.path.exists(f"/proc/{pid}") or open(f"/proc/{pid}/stat").read().split()[2] == "Z"
+
+
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "SIGKILL"])
+def test_cli_view_server_goes_with_its_parent(bank_dir, how):
+  """`mwbx view` keeps its meshcat server up and prints the URL; Ctrl-C or
+  SIGTERM stop it, and a parent killed outright takes the server with it."""
   import signal
   import subprocess
   import sys
@@ -551,9 +556,10 @@ def test_cli_view_serves_until_interrupted(bank_dir):
 
   proc = subprocess.Popen([sys.executable, "-m", "mwbx.cli", "view", str(bank_dir), "--worlds", "0",
                            "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+  children = []
   try:
     lines = []
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 300  # a loaded machine starts slowly
     while time.monotonic() < deadline:
       line = proc.stderr.readline()
       lines.append(line)
@@ -562,15 +568,30 @@ def test_cli_view_serves_until_interrupted(bank_dir):
     assert any("showing worlds 0 at http" in ln for ln in lines), lines
     children = [int(c) for c in open(f"/proc/{proc.pid}/task/{proc.pid}/children").read().split()]
     assert children, "no meshcat server subprocess"
-    proc.send_signal(signal.SIGINT)
-    assert proc.wait(timeout=30) == 0
-    time.sleep(0.5)
-    for child in children:  # the server is gone (or a zombie reaped with its parent)
-      assert not os.path.exists(f"/proc/{child}") or "Z" in open(f"/proc/{child}/stat").read().split()[2]
+    proc.send_signal(getattr(signal, how))
+    code = proc.wait(timeout=300)
+    assert code == (-9 if how == "SIGKILL" else 0)
+    deadline = time.monotonic() + 60
+    while not all(_gone(c) for c in children) and time.monotonic() < deadline:
+      time.sleep(0.1)
+    assert all(_gone(c) for c in children), f"server {children} outlived {how} of its parent"
   finally:
     if proc.poll() is None:
       proc.kill()
       proc.wait()
+    for child in children:
+      if not _gone(child):
+        import os
+        os.kill(child, signal.SIGKILL)
+
+
+def test_live_view_close_stops_its_server(real_bank):
+  import mwbx.viewer as mv
+  with mv.view(real_bank, worlds=[int(real_bank.world_ids[0])]) as vis:
+    proc = vis.server_proc
+    assert proc.poll() is None and vis.url().startswith("http")
+  assert proc.poll() is not None
+  vis.close()  # idempotent
 
 
 def test_queries_accepts_one_query_or_a_query_set(real_bank, tmp_path):

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +20,7 @@ from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
 from mwbx.config import Config
 from mwbx.errors import MwbxError
+from mwbx.progress import Progress, ProgressFn
 from mwbx.qpos_store import QposStore
 from mwbx.scene import Scene
 
@@ -126,7 +126,7 @@ class Sampler:
     self.close()
 
   def run(self, n_worlds: int, key: jax.Array, *, first_world: int = 0, store: QposStore | None = None,
-          progress: Callable[[int, int, int], None] | None = None) -> tuple[bank_lib.Bank, SampleStats]:
+          progress: ProgressFn | None = None) -> tuple[bank_lib.Bank, SampleStats]:
     """Samples worlds ``first_world … first_world + n_worlds - 1``.
 
     Args:
@@ -134,7 +134,8 @@ class Sampler:
       key: the run key (``jax.random.key(seed)``).
       first_world: id of the first world (to continue an existing bank).
       store: how this run keeps qpos (default: the sampler's ``store``).
-      progress: optional callback(world_steps, worlds_finished, n_worlds).
+      progress: optional callback taking a :class:`mwbx.progress.Progress`
+        (``simulating`` / ``compressing``; e.g. :class:`mwbx.progress.reporter`).
 
     Returns:
       (the bank of these worlds, timing stats).
@@ -158,15 +159,17 @@ class Sampler:
       qpos0, qvel0 = self._init(init_keys[pad])
       base_steps = stats.world_steps
 
-      def report(world_steps, finished, _base=base_steps, _done=done_worlds, _n=n):
+      def report(world_steps, finished, _base=base_steps, _done=done_worlds):
         if progress is not None:
-          progress(_base + world_steps, _done + finished, n_worlds)
+          progress(Progress("simulating", _done + finished, n_worlds, _base + world_steps))
 
       result = self.backend.run_chunk(
           self.scene, self.params, np.asarray(qpos0), np.asarray(qvel0), step_keys[pad],
           active, self.n_frames, progress=report)
       result = ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in result))
       # Compress as worlds are produced: raw qpos never outlives its chunk.
+      if progress is not None:
+        progress(Progress("compressing", done_worlds + n, n_worlds, base_steps + int(result.steps.sum())))
       codec_start = time.perf_counter()
       result = _store_chunk(store, result)
       stats.codec_seconds += time.perf_counter() - codec_start
@@ -247,7 +250,7 @@ def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str
     chunk_size: worlds per chunk (default: ``sim.chunk_size``).
     first_world: id of the first world, to continue a bank.
     store: how qpos is kept (see :class:`Sampler`); default compressed.
-    progress: optional callback(world_steps, worlds_finished, n_worlds).
+    progress: optional callback taking a :class:`mwbx.progress.Progress`.
 
   Returns:
     the bank. Unstable worlds are kept, flagged, and never contain NaN.

@@ -34,6 +34,7 @@ from mwbx.batch_sim import free_bodies
 from mwbx.batch_sim import world as world_lib
 from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
 from mwbx.errors import MwbxError
+from mwbx.progress import Progress
 from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
 from mwbx.refinement import interactions, kinematic
 from mwbx.scene import objects_of
@@ -212,10 +213,14 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
     else:
       run = functools.partial(refine_loop.run_native, every_step=playback == "step")
     base = stats.world_steps
+    most_steps = (n_frames - f0) * spf  # one world from t_min to the end time
 
-    def report(steps, finished, _base=base, _lo=lo):
+    def report(steps, finished, _base=base, _lo=lo, _n=n):
+      # Worlds step in lockstep and mostly finish together: report world-steps
+      # as world-equivalents so the bar moves while they run.
       if progress is not None:
-        progress(_base + steps, _lo + finished, n_samples)
+        done = _lo + min(_n, max(finished, steps / most_steps))
+        progress(Progress("refining", done, n_samples, _base + steps))
 
     out = run(sampler.backend, inp, progress=report)
     out = refine_loop.RefineOutput(*(x[:n] if isinstance(x, np.ndarray) else x for x in out))
@@ -225,6 +230,8 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
     stats.compile_seconds += out.compile_seconds
   stats.max_perturbation_ratio = np.concatenate([o.max_perturbation_ratio for o in outputs])
   stats.inactive_perturbations = np.concatenate([o.inactive_perturbations for o in outputs])
+  if progress is not None:
+    progress(Progress("compressing", n_samples, n_samples, stats.world_steps))
   codec_start = time.perf_counter()
   new = _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler)
   stats.codec_seconds = time.perf_counter() - codec_start
@@ -313,7 +320,7 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
       frame, a few per cent cheaper; inside a frame they move freely from the
       stored state, touching nothing, and report their stored motion). The
       MJX backend always does it every step.
-    progress: optional callback(world_steps, worlds_finished, n_samples).
+    progress: optional callback taking a :class:`mwbx.progress.Progress`.
 
   Returns:
     ``bank`` with the refined worlds appended, with new ids from

@@ -1,0 +1,112 @@
+"""Progress of long work, as data: what the sampler and refinement report.
+
+Every long phase reports :class:`Progress` to an optional callback; the CLI
+draws it as a tqdm bar on a terminal and as a few plain lines otherwise
+(:func:`reporter`). Research code can pass any callable.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Callable, NamedTuple, TextIO
+
+
+class Progress(NamedTuple):
+  """One progress report.
+
+  Attributes:
+    phase: ``simulating``, ``compressing`` (sampling) or ``refining``,
+      ``compressing`` (refinement).
+    done: worlds done in this run so far (refining: world-equivalents, the
+      world-steps run over the most one world can take, so it moves while
+      worlds step in lockstep).
+    total: worlds in this run.
+    world_steps: physics steps run so far, summed over worlds.
+  """
+
+  phase: str
+  done: float
+  total: int
+  world_steps: int
+
+
+ProgressFn = Callable[[Progress], None]
+
+# Plain (non-terminal) output: a line per phase change and per this fraction.
+PLAIN_STEP = 0.1
+
+
+class reporter:
+  """A progress callback drawing tqdm bars on a terminal, plain lines elsewhere.
+
+  Use as a context manager; ``close()`` completes the bar of a finished run.
+
+  Example::
+
+    with reporter("sampling") as report:
+      bank = mwbx.sample(config, 256, key, progress=report)
+  """
+
+  def __init__(self, label: str, stream: TextIO | None = None, interactive: bool | None = None):
+    self.label = label
+    self.stream = stream or sys.stderr
+    self.interactive = self.stream.isatty() if interactive is None else interactive
+    self.bar = None
+    self.phase = None
+    self.last: Progress | None = None
+    self.start = None  # (time, world_steps) at the first report: rates leave compilation out
+    self.phase_start = 0.0
+    self.next_line = 0.0
+
+  def __enter__(self) -> "reporter":
+    return self
+
+  def __exit__(self, kind, *exc) -> None:
+    self.close(finished=kind is None)
+
+  def _rate(self, p: Progress, now: float) -> str:
+    t0, steps0 = self.start
+    if now <= t0:
+      return ""
+    return f"{(p.world_steps - steps0) / (now - t0) / 1e3:,.0f}k world-steps/s"
+
+  def __call__(self, p: Progress) -> None:
+    now = time.perf_counter()
+    if self.start is None:
+      self.start = (now, p.world_steps)
+      self.phase_start = now
+    changed = p.phase != self.phase
+    self.phase, self.last = p.phase, p
+    if self.interactive:
+      if self.bar is None:
+        from tqdm import tqdm
+        self.bar = tqdm(total=p.total, unit="world", dynamic_ncols=True, file=self.stream)
+      if changed:
+        self.bar.set_description_str(f"{self.label}: {p.phase}", refresh=False)
+      self.bar.n = round(p.done, 1) if p.done % 1 else int(p.done)
+      self.bar.set_postfix_str(self._rate(p, now), refresh=False)
+      self.bar.refresh()
+      return
+    frac = p.done / max(p.total, 1)
+    if changed or frac >= self.next_line:
+      self._line(p, now)
+      # The next line at the next multiple of PLAIN_STEP; none after 100 %.
+      self.next_line = 2.0 if frac >= 1 else min(1.0, (frac // PLAIN_STEP + 1) * PLAIN_STEP)
+
+  def _line(self, p: Progress, now: float) -> None:
+    elapsed = now - self.start[0]
+    frac = p.done / max(p.total, 1)
+    eta = f", ETA {elapsed * (1 - frac) / frac:.0f} s" if 0 < frac < 1 else ""
+    rate = self._rate(p, now)
+    print(f"{self.label}: {p.phase} {p.done:.0f}/{p.total} worlds ({frac:.0%}), {elapsed:.1f} s"
+          f"{', ' + rate if rate else ''}{eta}", file=self.stream, flush=True)
+
+  def close(self, finished: bool = True) -> None:
+    """Ends the bar; a finished run shows complete."""
+    p = self.last
+    if finished and p is not None and p.done < p.total:
+      self(p._replace(done=p.total))
+    if self.bar is not None:
+      self.bar.close()
+      self.bar = None

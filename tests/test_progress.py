@@ -1,0 +1,42 @@
+"""Progress reports: a bar on a terminal, a few plain lines in a log, complete at the end."""
+
+import io
+
+import jax
+
+import mwbx
+from mwbx.progress import Progress, reporter
+
+
+def test_plain_lines_are_few_and_end_at_100_percent():
+  out = io.StringIO()
+  with reporter("sample", stream=out, interactive=False) as report:
+    for done in range(257):
+      report(Progress("simulating", done, 256, done * 1000))
+    report(Progress("compressing", 256, 256, 256000))
+  lines = out.getvalue().splitlines()
+  assert 10 <= len(lines) <= 13, lines  # every 10 % and each phase change, not every update
+  assert lines[0].startswith("sample: simulating 0/256 worlds (0%)")
+  assert "simulating 256/256 worlds (100%)" in lines[-2] and "compressing 256/256" in lines[-1]
+  assert "ETA" in lines[3] and "world-steps/s" in lines[3]
+
+
+def test_bar_completes_when_the_last_report_fell_short():
+  out = io.StringIO()
+  with reporter("refine", stream=out, interactive=True) as report:
+    report(Progress("refining", 2.5, 64, 100))
+  assert "64/64" in out.getvalue().split("\r")[-1]
+
+
+def test_sampler_and_refinement_report_every_phase(tiny_native):
+  seen = []
+  bank, _ = tiny_native.run(6, jax.random.key(0), progress=seen.append)
+  phases = [p.phase for p in seen]
+  assert "simulating" in phases and phases[-1] == "compressing" and seen[-1].done == 6
+  assert all(b.done >= a.done for a, b in zip(seen, seen[1:]))
+  refined = []
+  mwbx.refine(bank, 2, bank.objects and next(iter(bank.objects)), t_min=0.05, n_samples=3,
+              key=jax.random.key(1), backend="native", progress=refined.append)
+  assert [p.phase for p in refined][-1] == "compressing"
+  moving = [p.done for p in refined if p.phase == "refining"]
+  assert moving and 0 < max(moving) <= 3 and all(b >= a for a, b in zip(moving, moving[1:]))
