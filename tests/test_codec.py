@@ -10,7 +10,7 @@ from mwbx.codec import (ChannelLayout, CodecBounds, CodecError, CompressedQposSt
                         testing)
 from mwbx.codec import fit as fit_lib
 from mwbx.codec.decode import decode_code
-from mwbx.codec.stream import parse
+from mwbx.codec.stream import MODE_RAW, parse
 import codec_reference as ref
 
 BOUNDS = CodecBounds()
@@ -350,10 +350,17 @@ def test_batch_reader_matches_per_world_decoder(boxes, chain, start, stop):
 
 def test_batch_reader_falls_back_and_names_corrupt_world(boxes):
   from mwbx.codec.batch import decode_batch
+  from mwbx.codec.splice import splice_stream
   model, qpos, frame_count, layout, enc = boxes
-  nan_world = qpos[:1].copy()
-  nan_world[0, 5:, 2] = np.nan  # a raw channel: the per-world path decodes it
-  streams = enc.streams + encode_batch(nan_world, np.array([300]), layout, BOUNDS, FPS, -9.81)
+  # A child cut short keeps the parent's channels as raw columns: the batch
+  # reader leaves that world to the per-world path.
+  child = encode_batch(qpos[3:4], np.array([100]), layout, BOUNDS, FPS, -9.81)[0]
+  keep = np.zeros(model.nq, bool)
+  keep[:7] = True
+  raw_world = splice_stream(np.frombuffer(child, np.uint8), np.frombuffer(enc.streams[0], np.uint8),
+                            decode_world(enc.streams[0]), keep)
+  assert parse(raw_world).modes[0] == MODE_RAW
+  streams = enc.streams + [raw_world]
   data = np.frombuffer(b"".join(streams), np.uint8).copy()
   offsets = np.concatenate([[0], np.cumsum([len(s) for s in streams])])
   out = decode_batch(data, offsets)
@@ -418,8 +425,8 @@ def test_channel_subset_decodes_exactly_those_columns(boxes, chain):
 
 
 def test_error_kernel_matches_numpy_errors():
-  """kernels.max_errors against the numpy reference, NaNs included."""
-  from mwbx.codec import kernels
+  """eval_kernels.max_errors against the numpy reference, NaNs included."""
+  from mwbx.codec import eval_kernels
   rng = np.random.default_rng(4)
   qpos = rng.normal(size=(3, 20, 8)).astype(np.float32)
   decoded = (qpos + rng.normal(scale=1e-3, size=qpos.shape)).astype(np.float32)
@@ -428,7 +435,7 @@ def test_error_kernel_matches_numpy_errors():
   frame_count = np.array([20, 11, 20])
   row_off = np.concatenate([[0], np.cumsum(frame_count)])
   rows = np.concatenate([decoded[w, :n] for w, n in enumerate(frame_count)])
-  got = kernels.max_errors(rows, row_off, qpos, frame_count, np.array([0, 1, 2]),
+  got = eval_kernels.max_errors(rows, row_off, qpos, frame_count, np.array([0, 1, 2]),
                            np.array([0, 3, 7]))
   for w, n in enumerate(frame_count):
     for c, (kind, a, width) in enumerate((("pos", 0, 3), ("rot", 3, 4), ("scalar", 7, 1))):

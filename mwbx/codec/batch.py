@@ -16,10 +16,11 @@ import zlib
 
 import numpy as np
 
-from mwbx.codec import kernels, rice
+from mwbx.codec import rice, rice_kernels, stream_kernels
 from mwbx.codec.decode import KIND_ID, decode_world, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
-from mwbx.codec.stream import (_FLOATS, _HEAD, DIM, KINDS, MAGIC, VERSION, WIDTH, Quanta,
+from mwbx.codec.status import STATUS_OK, STATUS_TEXT
+from mwbx.codec.stream import (DIM, FLOAT_FIELDS, HEADER, KINDS, MAGIC, VERSION, WIDTH, Quanta,
                                Segments, initial_codes, initial_steps,
                                mode_bytes, parse, segment_codes)
 
@@ -56,7 +57,7 @@ def _signature(layout, bounds, fps, quanta) -> bytes:
   out = bytearray()
   for v in (layout.nq, len(layout.pos_adr), len(layout.rot_adr), len(layout.scalar_adr)):
     out += rice.write_varint(int(v))
-  out += _FLOATS.pack(fps, bounds.e_pos, bounds.e_rot, bounds.e_scalar, quanta.quad)
+  out += FLOAT_FIELDS.pack(fps, bounds.e_pos, bounds.e_rot, bounds.e_scalar, quanta.quad)
   out += bytes([quanta.vel_shift, quanta.rot_shift, quanta.scalar_shift, quanta.lattice_shift])
   for adr in list(layout.pos_adr) + list(layout.rot_adr) + list(layout.scalar_adr):
     out += rice.write_varint(int(adr))
@@ -100,10 +101,10 @@ def serialize_batch(bc: BatchCode) -> list[bytes]:
   modes = mode_bytes(np.zeros(n_ch, np.uint8))
   kinds = [k for k in KINDS for _ in cols[k]]
   # Zigzag codes are < 2**53, so they fit int64 for the compiled varint writer.
-  init_data, init_off = kernels.varint_rows(
+  init_data, init_off = rice_kernels.varint_rows(
       initial_codes(bc.initial, kinds, bc.bounds).astype(np.int64).reshape(n_w, -1))
   init_data = init_data.tobytes()
-  head = _HEAD.pack(MAGIC, VERSION)
+  head = HEADER.pack(MAGIC, VERSION)
   out = []
   for w in range(n_w):
     body = b"".join((head, rice.write_varint(int(bc.n_frames[w])), sig, modes,
@@ -145,13 +146,13 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> tuple[BatchCode, np.nd
   lay = ref.layout
   n_ch = lay.n_channels
   kinds = ref.kinds()
-  head = np.frombuffer(_HEAD.pack(MAGIC, ref.version), np.uint8)
+  head = np.frombuffer(HEADER.pack(MAGIC, ref.version), np.uint8)
   sig = np.frombuffer(_signature(lay, ref.bounds, ref.fps, ref.quanta)
                       + mode_bytes(np.zeros(n_ch, np.uint8), ref.version), np.uint8)
   widths = np.array([WIDTH[k] for k in kinds], np.int64)
   init_steps = initial_steps(ref.bounds)
   steps = np.array([init_steps[k] for k in kinds], np.float64)
-  ok, n_frames, initial, blob_start = kernels.scan_headers(data, offsets, head, sig, widths, steps)
+  ok, n_frames, initial, blob_start = stream_kernels.scan_headers(data, offsets, head, sig, widths, steps)
   for w in np.flatnonzero(ok).tolist():
     lo, hi = int(offsets[w]), int(offsets[w + 1])
     ok[w] = zlib.crc32(view[lo:hi - 4]) == struct.unpack_from("<I", view, hi - 4)[0]
@@ -168,11 +169,11 @@ def parse_batch(data: np.ndarray, offsets: np.ndarray) -> tuple[BatchCode, np.nd
   q = ref.quanta
   g_fp, coarse = q.g_fp(ref.bounds), q.coarse()
   n_kind = np.array([len(lay.pos_adr), len(lay.rot_adr), len(lay.scalar_adr)], np.int64)
-  status, world, seg_counts, lengths, vels, flags = kernels.segments_from_values(
+  status, world, seg_counts, lengths, vels, flags = stream_kernels.segments_from_values(
       values, np.cumsum(counts) - counts, counts, n_kind, expect, int(g_fp),
       np.array([coarse[k] for k in KINDS], np.int64))
-  if status != kernels.STATUS_OK:
-    raise CodecError(f"corrupt stream: {kernels.STATUS_TEXT[status]} (world {fast[world]})")
+  if status != STATUS_OK:
+    raise CodecError(f"corrupt stream: {STATUS_TEXT[status]} (world {fast[world]})")
   segs = {kind: Segments(seg_counts[i], lengths[i], vels[i], flags[i])
           for i, kind in enumerate(KINDS)}
   code = BatchCode(n_frames=n_frames, layout=lay, bounds=ref.bounds, fps=ref.fps, quanta=q,

@@ -1,7 +1,7 @@
 """Bit-exact decoder: stream -> ``qpos`` frames.
 
-Evaluation is a compiled loop per channel (``kernels.eval_linear`` /
-``kernels.eval_rotation``): segment starts accumulate in float64, every frame is
+Evaluation is a compiled loop per channel (``eval_kernels.eval_linear`` /
+``eval_kernels.eval_rotation``): segment starts accumulate in float64, every frame is
 evaluated in float32 from its segment's start, so decoding a time range touches
 only those frames, and decoding a subset of channels skips the others.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mwbx.codec import kernels
+from mwbx.codec import eval_kernels
 from mwbx.codec.layout import CodecError
 from mwbx.codec.stream import KINDS, MODE_FIT, WorldCode, parse
 
@@ -72,11 +72,11 @@ def evaluate(n_frames, initial, segs, channel_kind, addresses, nq, quanta, bound
     args = (np.ascontiguousarray(seg.seg_count, np.int64), np.ascontiguousarray(seg.lengths, np.int64),
             np.ascontiguousarray(seg.vel, np.int64))
     if kind == "rot":
-      kernels.eval_rotation(out, init, *args, float(steps[kind]), sel.size, columns, wanted, lo, hi,
+      eval_kernels.eval_rotation(out, init, *args, float(steps[kind]), sel.size, columns, wanted, lo, hi,
                             row_off)
     else:
       quad = float(quanta.quad) if kind == "pos" else 0.0
-      kernels.eval_linear(out, init, *args, np.ascontiguousarray(seg.flags, np.bool_),
+      eval_kernels.eval_linear(out, init, *args, np.ascontiguousarray(seg.flags, np.bool_),
                           float(steps[kind]), quad, sel.size, columns, wanted, lo, hi, row_off)
   return out, row_off
 

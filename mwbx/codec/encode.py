@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mwbx.codec import fit as fit_lib
-from mwbx.codec import kernels
+from mwbx.codec import eval_kernels
 from mwbx.codec.batch import BatchCode, parse_batch, serialize_batch
 from mwbx.codec.decode import KIND_ID, decode_code, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
@@ -101,7 +101,7 @@ def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
     if kind == "rot":
       buf[:, :, 0] = 1.0
       buf[:m, :t_fit] = 0.0
-    kernels.gather_paths(qpos, rows, columns.size, columns, initial, kind != "rot", finite,
+    eval_kernels.gather_paths(qpos, rows, columns.size, columns, initial, kind != "rot", finite,
                          buf[:m, :t_fit])
     n_buf = np.zeros(n_pad, np.int32)
     n_buf[:m] = n[rows]
@@ -133,7 +133,7 @@ def _measure(code: WorldCode, stream: bytes, qpos_w: np.ndarray):
   """Decode ``stream`` and return per-channel errors (f64[C]) in channel order."""
   decoded = decode_code(parse(stream))
   kinds = np.array([KIND_ID[k] for k in code.kinds()], np.int64)
-  return kernels.max_errors(decoded, np.zeros(1, np.int64), np.ascontiguousarray(qpos_w[None]),
+  return eval_kernels.max_errors(decoded, np.zeros(1, np.int64), np.ascontiguousarray(qpos_w[None]),
                             np.array([len(qpos_w)], np.int64), kinds,
                             np.asarray(code.addresses(), np.int64))[0]
 
@@ -182,7 +182,7 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     width = WIDTH[kind]
     columns = _columns(adrs)
     n = np.repeat(frame_count, len(adrs))
-    finite = kernels.finite_paths(qpos, frame_count, columns, width).reshape(-1)
+    finite = eval_kernels.finite_paths(qpos, frame_count, columns, width).reshape(-1)
     # Frame 0 is stored on a grid; the fit starts from that stored value.
     frame0 = qpos[:, 0][:, columns[:, None] + np.arange(width)] if num_t else np.zeros(
         (num_w, len(adrs), width), np.float32)
@@ -269,7 +269,7 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
   out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, parsed.channel_kinds(),
                           parsed.addresses(), layout.nq, parsed.quanta, parsed.bounds)
   world_err = np.full((num_w, n_ch), np.inf)
-  world_err[parsed_worlds] = kernels.max_errors(
+  world_err[parsed_worlds] = eval_kernels.max_errors(
       out, row_off, qpos if parsed_worlds.size == num_w else qpos[parsed_worlds],
       frame_count[parsed_worlds], parsed.channel_kinds(),
       np.asarray(parsed.addresses(), np.int64))

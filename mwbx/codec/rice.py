@@ -16,7 +16,7 @@ unary bytes | remainder bytes. Version 1 streams (still read) ended escapes'
 unary parts with a zero after ``QMAX_V1`` ones and kept their ``u`` as u64
 little-endian after the remainder bytes.
 
-The bit loops are compiled (``kernels.py``); this module is their checked,
+The bit loops are compiled (``rice_kernels.py``); this module is their checked,
 numpy-facing front.
 """
 
@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mwbx.codec import kernels
-from mwbx.codec.kernels import BLOCK, KMAX, QMAX, QMAX_V1, VALUE_CAP  # noqa: F401  (part of this API)
+from mwbx.codec import rice_kernels
+from mwbx.codec.rice_kernels import BLOCK, KMAX, QMAX, QMAX_V1, VALUE_CAP  # noqa: F401  (part of this API)
+from mwbx.codec.status import STATUS_COUNT, STATUS_OK, STATUS_TEXT
 
 # Blob format of current streams (see the module docstring for version 1).
 VERSION = 2
@@ -86,13 +87,13 @@ def decode_ints(buf: bytes | memoryview, pos: int, what: str, max_count: int,
   ``max_count`` bounds n so corrupt input cannot ask for huge allocations.
   """
   data = np.frombuffer(buf, np.uint8)
-  values, end, status = kernels.rice_decode_one(data, int(pos), data.size, int(max_count),
+  values, end, status = rice_kernels.rice_decode_one(data, int(pos), data.size, int(max_count),
                                                 version == 1)
-  if status == kernels.STATUS_COUNT:
+  if status == STATUS_COUNT:
     n, _ = read_varint(buf, pos, what)
     raise CodecError(f"corrupt stream: {what} claims {n} values (at most {max_count})")
-  if status != kernels.STATUS_OK:
-    raise CodecError(f"corrupt stream: {what}: {kernels.STATUS_TEXT[status]}")
+  if status != STATUS_OK:
+    raise CodecError(f"corrupt stream: {what}: {STATUS_TEXT[status]}")
   return values, int(end)
 
 
@@ -117,8 +118,8 @@ def encode_ints_joined(values: np.ndarray, counts: np.ndarray,
   counts = np.ascontiguousarray(counts, np.int64).reshape(-1)
   if counts.sum() != values.size or np.any(counts < 0):
     raise ValueError("counts must be >= 0 and add up to the number of values")
-  data, offsets, status = kernels.rice_encode_blobs(values, counts, version == 1)
-  if status != kernels.STATUS_OK:
+  data, offsets, status = rice_kernels.rice_encode_blobs(values, counts, version == 1)
+  if status != STATUS_OK:
     raise CodecError("integer residual too large to code (|v| >= 2**52)")
   return data, offsets
 
@@ -131,10 +132,10 @@ def decode_ints_batch(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray,
   i64[W]). Raises CodecError on anything inconsistent (callers then decode
   world by world to name the culprit).
   """
-  values, counts, status, world = kernels.rice_decode_blobs(
+  values, counts, status, world = rice_kernels.rice_decode_blobs(
       np.ascontiguousarray(buf, np.uint8), np.ascontiguousarray(starts, np.int64),
       np.ascontiguousarray(ends, np.int64), np.ascontiguousarray(max_counts, np.int64),
       version == 1)
-  if status != kernels.STATUS_OK:
-    raise CodecError(f"corrupt stream: {kernels.STATUS_TEXT[status]} (world {world})")
+  if status != STATUS_OK:
+    raise CodecError(f"corrupt stream: {STATUS_TEXT[status]} (world {world})")
   return values, counts

@@ -33,8 +33,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mwbx.codec import kernels, rice
+from mwbx.codec import rice, stream_kernels
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
+from mwbx.codec.status import STATUS_OK, STATUS_TEXT
 
 MAGIC = b"MWQC"
 VERSION = rice.VERSION
@@ -44,7 +45,7 @@ MODE_RAW = 1
 WIDTH = {"pos": 3, "rot": 4, "scalar": 1}
 # Sanity caps: corrupt headers must not make the decoder allocate without limit.
 MAX_FRAMES = 1 << 24
-_FLOATS = struct.Struct("<5f")
+FLOAT_FIELDS = struct.Struct("<5f")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,17 +215,17 @@ def _residuals(vel, first, increment, m) -> np.ndarray:
   return r
 
 
-_HEAD = struct.Struct("<4sB")
+HEADER = struct.Struct("<4sB")
 
 
 def serialize(code: WorldCode, version: int = VERSION) -> bytes:
   """The stream of ``code``; ``version`` 1 writes the old escape format."""
   lay = code.layout
   q = code.quanta
-  out = bytearray(_HEAD.pack(MAGIC, version))
+  out = bytearray(HEADER.pack(MAGIC, version))
   for v in (code.n_frames, lay.nq, len(lay.pos_adr), len(lay.rot_adr), len(lay.scalar_adr)):
     out += rice.write_varint(int(v))
-  out += _FLOATS.pack(code.fps, code.bounds.e_pos, code.bounds.e_rot, code.bounds.e_scalar,
+  out += FLOAT_FIELDS.pack(code.fps, code.bounds.e_pos, code.bounds.e_rot, code.bounds.e_scalar,
                       q.quad)
   out += bytes([q.vel_shift, q.rot_shift, q.scalar_shift, q.lattice_shift])
   for adr in code.addresses():
@@ -309,9 +310,9 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
   if isinstance(stream, np.ndarray):
     stream = stream.tobytes()
   buf = bytes(stream)
-  if len(buf) < _HEAD.size + 4:
+  if len(buf) < HEADER.size + 4:
     raise CodecError(f"stream too short ({len(buf)} bytes) to be a codec stream")
-  magic, version = _HEAD.unpack_from(buf, 0)
+  magic, version = HEADER.unpack_from(buf, 0)
   if magic != MAGIC:
     raise CodecError(f"not a codec stream (magic {magic!r}, expected {MAGIC!r})")
   (crc,) = struct.unpack_from("<I", buf, len(buf) - 4)
@@ -321,7 +322,7 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
   if version not in VERSIONS:
     raise CodecError(f"unsupported codec stream version {version} (this build reads "
                      f"{', '.join(map(str, VERSIONS))})")
-  pos = _HEAD.size
+  pos = HEADER.size
   header = []
   for what in ("n_frames", "nq", "n_pos", "n_rot", "n_scalar"):
     v, pos = rice.read_varint(buf, pos, what)
@@ -329,9 +330,9 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
   n_frames, nq, n_pos, n_rot, n_scalar = header
   if n_frames > MAX_FRAMES or nq > 65535 or n_pos + n_rot + n_scalar > nq:
     raise CodecError(f"corrupt stream header (n_frames={n_frames}, nq={nq})")
-  end = _take(buf, pos, _FLOATS.size + 4, "header")
-  fps, e_pos, e_rot, e_scalar, quad = _FLOATS.unpack_from(buf, pos)
-  shifts = buf[pos + _FLOATS.size:end]
+  end = _take(buf, pos, FLOAT_FIELDS.size + 4, "header")
+  fps, e_pos, e_rot, e_scalar, quad = FLOAT_FIELDS.unpack_from(buf, pos)
+  shifts = buf[pos + FLOAT_FIELDS.size:end]
   pos = end
   if not all(map(np.isfinite, (fps, e_pos, e_rot, e_scalar, quad))) or fps <= 0 or max(
       shifts) > 40:
@@ -385,12 +386,12 @@ def parse(stream: bytes | bytearray | memoryview | np.ndarray) -> WorldCode:
     raise CodecError("corrupt stream header: gravity term out of range")
   coarse = quanta.coarse()
   # The same segment assembly as a batch of streams (batch.parse_batch), for one.
-  status, _, seg_counts, lengths, vels, flags = kernels.segments_from_values(
+  status, _, seg_counts, lengths, vels, flags = stream_kernels.segments_from_values(
       values, np.zeros(1, np.int64), np.array([values.size], np.int64),
       np.array([n_fit[k] for k in KINDS], np.int64), np.array([expect], np.int64),
       int(quanta.g_fp(bounds)), np.array([coarse[k] for k in KINDS], np.int64))
-  if status != kernels.STATUS_OK:
-    raise CodecError(f"corrupt stream: {kernels.STATUS_TEXT[status]}")
+  if status != STATUS_OK:
+    raise CodecError(f"corrupt stream: {STATUS_TEXT[status]}")
   segs = {kind: Segments(seg_counts[i], lengths[i], vels[i], flags[i])
           for i, kind in enumerate(KINDS)}
   return WorldCode(n_frames=n_frames, layout=layout, bounds=bounds, fps=fps, quanta=quanta,
