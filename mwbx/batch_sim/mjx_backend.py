@@ -27,6 +27,47 @@ from mwbx.batch_sim.backend import ChunkResult, fill_tail
 FRAMES_PER_BLOCK = 30
 
 
+def frame_block(frame_fn, n_frames: int):
+  """The one jitted block builder of the MJX paths (sampling and refinement).
+
+  Args:
+    frame_fn: ``frame_fn(consts, state) -> (state, outputs)``, one frame of a
+      batch (outputs: a pytree of per-frame arrays).
+    n_frames: frames per block at most.
+
+  Returns:
+    ``run(state, consts, count) -> (state, outputs)`` jitted: ``count`` frames
+    (a traced bound, so one compile serves a shorter last block and no frame
+    runs past the end), outputs stacked ``[n_frames, ...]``, rows past
+    ``count`` zero.
+  """
+
+  def run(state, consts, count):
+    shapes = jax.eval_shape(lambda c, s: frame_fn(c, s)[1], consts, state)
+    outputs = jax.tree.map(lambda s: jnp.zeros((n_frames,) + s.shape, s.dtype), shapes)
+
+    def body(i, loop):
+      state, outputs = loop
+      state, new = frame_fn(consts, state)
+      return state, jax.tree.map(lambda buf, x: buf.at[i].set(x), outputs, new)
+
+    return jax.lax.fori_loop(0, count, body, (state, outputs))
+
+  return jax.jit(run)
+
+
+def scatter_wrench(xfrc_tracked: jax.Array, nbody: int, body_ids: jax.Array) -> jax.Array:
+  """f32[W, nbody, 6] ``xfrc_applied`` from the tracked bodies' wrenches f32[W, B, 6]."""
+  return jnp.zeros((xfrc_tracked.shape[0], nbody, 6), jnp.float32).at[:, body_ids].set(xfrc_tracked)
+
+
+def hold_finished(running: jax.Array, new, old):
+  """``new`` where a world is still running (bool[W]), else ``old``: finished
+  worlds keep their last state."""
+  return jax.tree.map(
+      lambda n, o: jnp.where(running.reshape((-1,) + (1,) * (n.ndim - 1)), n, o), new, old)
+
+
 class MjxBackend:
   """MJX model on the default device plus the compiled block function.
 
@@ -62,7 +103,8 @@ class MjxBackend:
     return jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d.replace(xfrc_applied=xfrc))
 
   def block(self, params: world.WorldParams, body_ids: np.ndarray, n_frames: int):
-    """The jitted function running ``n_frames`` frames of a batch (cached)."""
+    """``run(state, None, count)`` for up to ``n_frames`` sampled frames (cached;
+    see :func:`frame_block`)."""
     cache_key = (id(params), n_frames)
     if cache_key in self._blocks:
       return self._blocks[cache_key][1]
@@ -73,7 +115,7 @@ class MjxBackend:
     mx = self.mx if bodies is None else self.quiet_mx
 
     def physics_step(d, xfrc_tracked):
-      xfrc = jnp.zeros((xfrc_tracked.shape[0], nbody, 6), jnp.float32).at[:, ids].set(xfrc_tracked)
+      xfrc = scatter_wrench(xfrc_tracked, nbody, ids)
       d_next = jax.vmap(mjx.step, in_axes=(None, 0))(mx, d.replace(xfrc_applied=xfrc))
       return d_next, (d_next.sensordata if bodies is None else (d.qpos, d.qvel))
 
@@ -86,33 +128,17 @@ class MjxBackend:
       return jax.vmap(free_bodies_lib.observe, in_axes=(1, 1, None, None, None))(
           qpos, qvel, bodies, params.dt, params.gravity)
 
-    def frame(state, _):
+    def frame(_, state):
       d, carry, wrench, keys = state  # wrench: f32[W, S, B, 6]
       qpos = d.qpos  # s_k at the frame boundary, recorded if `record`.
       d_next, out = jax.lax.scan(physics_step, d, jnp.swapaxes(wrench, 0, 1))
       obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(
           observe(d_next, out))
       carry, out = world.frame_update(carry, obs, keys, params)
-      keep = out.running
-      d = jax.tree.map(
-          lambda new, old: jnp.where(keep.reshape((-1,) + (1,) * (new.ndim - 1)), new, old), d_next, d)
+      d = hold_finished(out.running, d_next, d)
       return (d, carry, out.wrench, keys), (out.record, qpos, obs.com_pos[:, 0])
 
-    def run(d, carry, wrench, keys, count):
-      # ``count`` (<= n_frames) frames, a traced bound: one compiled block
-      # serves the last, shorter one too (no frames stepped past the end time).
-      c = d.qpos.shape[0]
-      outputs = (jnp.zeros((n_frames, c), bool), jnp.zeros((n_frames, c, self.model.nq), d.qpos.dtype),
-                 jnp.zeros((n_frames, c, len(body_ids), 3), jnp.float32))
-
-      def body(i, loop):
-        state, outputs = loop
-        state, new = frame(state, None)
-        return state, tuple(buf.at[i].set(x) for buf, x in zip(outputs, new))
-
-      return jax.lax.fori_loop(0, count, body, ((d, carry, wrench, keys), outputs))
-
-    fn = jax.jit(run)
+    fn = frame_block(frame, n_frames)
     self._blocks[cache_key] = (params, fn)
     return fn
 
@@ -132,7 +158,7 @@ class MjxBackend:
     state = (d, carry, wrench, step_keys)
 
     t0 = time.perf_counter()
-    compiled = fn.lower(*state, jnp.int32(block_frames)).compile()
+    compiled = fn.lower(state, None, jnp.int32(block_frames)).compile()
     compile_seconds = time.perf_counter() - t0
 
     qpos_buf = np.zeros((c, n_frames, m.nq), np.float32)
@@ -141,7 +167,7 @@ class MjxBackend:
     start = 0
     while start < n_frames:
       stop = min(start + block_frames, n_frames)
-      state, (record, qpos, com) = compiled(*state, jnp.int32(stop - start))
+      state, (record, qpos, com) = compiled(state, None, jnp.int32(stop - start))
       record, qpos, com = (np.asarray(x) for x in (record, qpos, com))  # [F, C, ...]
       f, w = np.nonzero(record[: stop - start])
       qpos_buf[w, start + f] = qpos[f, w]

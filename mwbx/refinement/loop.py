@@ -35,8 +35,8 @@ import numpy as np
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
-from mwbx.refinement import interactions, kinematic
 from mwbx.batch_sim.backend import fill_tail
+from mwbx.refinement import interactions, kinematic
 
 
 class RefineInputs(NamedTuple):
@@ -344,8 +344,9 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
 
 
 def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 30) -> RefineOutput:
-  """Refined worlds on the MJX backend: blocks of frames as one jitted scan,
-  inactive objects put on the stored path before every physics step."""
+  """Refined worlds on the MJX backend: blocks of frames as one jitted loop
+  (:func:`mwbx.batch_sim.mjx_backend.frame_block`), inactive objects put on
+  the stored path before every physics step."""
   from mwbx.batch_sim.mjx_backend import FRAMES_PER_BLOCK
   m = backend.model
   params, inter, path = inp.params, inp.inter, inp.path
@@ -365,7 +366,7 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
            jnp.int32(f0))
   # Committed like the block's outputs, so later blocks reuse the first compile.
   state, consts = jax.device_put((state, consts), jax.devices()[0])
-  state, first = run(state, consts)  # the first block, compiled on first use
+  state, first = run(state, consts, jnp.int32(min(block, n_out)))  # compiled on first use
   jax.block_until_ready(state)
   compile_seconds = time.perf_counter() - t0
 
@@ -377,7 +378,7 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
   start, pending = 0, first
   while start < n_out:
     if pending is None:
-      state, pending = run(state, consts)
+      state, pending = run(state, consts, jnp.int32(min(block, n_out - start)))
     (record, qpos, com, nxt, (worst, stray)), pending = pending, None
     record, qpos, com, nxt = (np.asarray(x) for x in (record, qpos, com, nxt))
     audit_ratio = np.maximum(audit_ratio, np.asarray(worst).max(axis=0))
@@ -404,7 +405,8 @@ _BLOCKS: dict = {}
 
 
 def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: int, n_sensor: int):
-  """The jitted function running ``block`` refined frames on MJX (cached)."""
+  """``run(state, consts, count)`` for up to ``block`` refined frames on MJX (cached)."""
+  from mwbx.batch_sim.mjx_backend import frame_block, hold_finished, scatter_wrench
   cache_key = (id(backend), id(params), block, n_sensor)
   if cache_key in _BLOCKS:
     return _BLOCKS[cache_key][2]
@@ -419,7 +421,7 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
     return d.replace(qpos=jnp.where(qm, targets[frame * spf + j], d.qpos),
                      qvel=jnp.where(vm, qvel_path[frame], d.qvel))
 
-  def frame_fn(consts, state):
+  def frame_fn(consts, state):  # one refined frame: see mjx_backend.frame_block
     com_path, inter = consts[2], consts[5]
     d, carry, wrench, keys, active, prev_inactive, frame = state
     d = put_on_path(d, prev_inactive, frame, 0, consts)
@@ -428,8 +430,7 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
     def physics_step(d, inputs):
       j, xfrc_tracked = inputs
       d = jax.lax.cond(j > 0, lambda x: put_on_path(x, ~active, frame, j, consts), lambda x: x, d)
-      xfrc = jnp.zeros((xfrc_tracked.shape[0], nbody, 6), jnp.float32).at[:, ids].set(xfrc_tracked)
-      d = backend.step(d, xfrc)
+      d = backend.step(d, scatter_wrench(xfrc_tracked, nbody, ids))
       return d, d.sensordata
 
     d_next, sensordata = jax.lax.scan(physics_step, d, (jnp.arange(spf), jnp.swapaxes(wrench, 0, 1)))
@@ -440,15 +441,10 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
     speed = jnp.linalg.norm(obs.lin_vel[:, -1], axis=-1)
     nxt = _activate_batch(active, obs.com_pos[:, -1], speed, com_path[frame + 1], com_path[frame + 2], inter)
     nxt = jnp.where(out.running[:, None], nxt, active)
-    keep = out.running
-    d = jax.tree.map(lambda new, old: jnp.where(keep.reshape((-1,) + (1,) * (new.ndim - 1)), new, old),
-                     d_next, d)
+    d = hold_finished(out.running, d_next, d)
     audit = _audit(obs, out, active, params, inter)
     return (d, carry, out.wrench, keys, nxt, ~active, frame + 1), (out.record, qpos, obs.com_pos[:, 0], nxt, audit)
 
-  def run(state, consts):
-    return jax.lax.scan(lambda st, _: frame_fn(consts, st), state, None, length=block)
-
-  fn = jax.jit(run)
+  fn = frame_block(frame_fn, block)
   _BLOCKS[cache_key] = (backend, params, fn)
   return fn
