@@ -46,7 +46,7 @@ def main() -> None:
   parser.add_argument("--object", default=None,
                       help="object to refine (default: the one that moves most after t_min)")
   parser.add_argument("--backend", default="native", choices=("native", "mjx"))
-  parser.add_argument("--parent", type=int, default=0, help="row of the world to refine")
+  parser.add_argument("--parent", type=int, default=0, help="id of the world to refine")
   parser.add_argument("--repeats", type=int, default=3, help="interleaved timed runs (fastest kept)")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "refine.json"))
   args = parser.parse_args()
@@ -62,13 +62,14 @@ def main() -> None:
     return bank, stats, time.perf_counter() - start - stats.compile_seconds
 
   bank, s, sample_wall = sample_once()
-  parent = args.parent
-  if not bank.valid[parent]:
-    parent = int(np.flatnonzero(bank.valid)[0])
-  t_min = 0.5 * (int(bank.frame_count[parent]) - 1) / bank.record_fps
+  row = bank.row_of(args.parent)
+  if not bank.valid[row]:
+    row = int(np.flatnonzero(bank.valid)[0])
+  parent = int(bank.world_ids[row])
+  t_min = 0.5 * (int(bank.frame_count[row]) - 1) / bank.record_fps
   if args.object is None:  # the object still moving most after t_min
     p0 = int(t_min * bank.query_fps)
-    path = bank.com[parent, p0:int(bank.com_count[parent])]
+    path = bank.com[row, p0:int(bank.com_count[row])]
     travel = {name: float(np.linalg.norm(np.diff(path[:, bank.select_bodies(name)], axis=0), axis=-1).sum())
               for name in bank.objects}
     args.object = max(travel, key=travel.get)
@@ -130,13 +131,13 @@ def main() -> None:
   span_step = best["span"][0] / best["span"][1]
   if frame_playback is not None:
     frame_playback["step_cost_ratio_same_span"] = frame_playback["us_per_world_step"] * 1e-6 / span_step
-  active = np.array([len(new.lineage[str(bank.n_worlds + i)]["active"]) for i in range(new.n_worlds)])
+  active = np.array([len(new.lineage[str(int(i))]["active"]) for i in new.world_ids])
   result = {
       "machine": f"{os.cpu_count()}-core {platform.machine()} CPU, no GPU" if jax.default_backend() == "cpu"
                  else jax.devices()[0].device_kind,
       "config": pathlib.Path(args.config).name, "backend": s.backend, "worlds": n, "repeats": args.repeats,
       "object": args.object, "parent": parent, "t_min_s": float(new.refine_time[0]),
-      "parent_frames": int(bank.frame_count[parent]),
+      "parent_frames": int(bank.frame_count[row]),
       "sample": {"world_steps": s.world_steps, "run_s": s.run_seconds, "wall_s": sample_wall,
                  "worlds_per_s_run": n / s.run_seconds, "worlds_per_s_wall": n / sample_wall,
                  "us_per_world_step": 1e6 * sample_step, "compile_s": s.compile_seconds},

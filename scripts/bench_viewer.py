@@ -192,7 +192,7 @@ def main() -> None:
   valid = np.asarray(bank.valid)
   match = valid & (np.arange(bank.n_worlds) % 4 == 0)
   exclude = valid & (np.arange(bank.n_worlds) % 4 == 1)
-  worlds = np.flatnonzero(valid)[:4].tolist()
+  worlds = np.asarray(bank.world_ids)[np.flatnonzero(valid)[:4]].tolist()
   queries, view_dir, path_bodies = None, None, True
   if bank_name == "quickstart":
     # Fig. 5 of the paper: an include box where paths land, an exclude box.
@@ -204,7 +204,8 @@ def main() -> None:
                                sign="exclude")]
     path_bodies = "ball"
     match = exclude = None
-    worlds = np.flatnonzero(np.asarray(mq.evaluate(bank, queries)))[:3].tolist() or worlds
+    matching = np.flatnonzero(np.asarray(mq.evaluate(bank, queries)))[:3]
+    worlds = np.asarray(bank.world_ids)[matching].tolist() or worlds
     view_dir = (1.0, -1.6, 1.1)
   with tempfile.TemporaryDirectory() as tmp:
     tmp = pathlib.Path(tmp)
