@@ -26,14 +26,15 @@ test: $(STAMP)
 	-@bash scripts/ensure_chromium.sh
 	$(PY) -m pytest -q tests
 
-# Every benchmark: tables on stdout, JSON (and plots) in out/bench/.
+# Every benchmark: tables on stdout, JSON (and plots) in out/bench/, then docs/benchmarks.md from them.
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[dev,bench]"
 	$(PY) scripts/bench_sampler.py
 	$(PY) scripts/bench_codec.py
-	$(PY) scripts/bench_queries.py
-	$(PY) scripts/bench_viewer.py
+	$(PY) scripts/bench_queries.py --real 1024
+	$(PY) scripts/bench_viewer.py --browser --screenshot docs/viewer_screenshot.png
 	$(PY) scripts/bench_refine.py
+	$(PY) scripts/make_benchmarks_doc.py
 
 clean:
 	rm -rf out .pytest_cache .hypothesis

@@ -153,7 +153,7 @@ class Bank:
     parent = int(self.parent_world[self.row_of(int(world_id))])
     while parent >= 0:
       out.append(parent)
-      hit = np.flatnonzero(self.world_ids == parent)
+      hit = np.flatnonzero(self.world_ids == parent)  # absent: dropped from the bank
       parent = int(self.parent_world[hit[0]]) if hit.size else -1
     return np.asarray(out, np.int64)
 
@@ -165,8 +165,8 @@ class Bank:
     """A bank without the worlds ``ids`` (their ids are never given again).
 
     Their lineage entries go; worlds refined from them keep their parent id.
-    Save the result to write it as a new checkpoint (earlier ones stay on disk
-    until the manager rotates them).
+    Saving the result writes a new checkpoint step (the previous step is
+    removed only once the new one is complete).
     """
     rows = self.row_of(np.atleast_1d(np.asarray(ids, np.int64)))
     keep = np.setdiff1d(np.arange(self.n_worlds), rows)
@@ -383,8 +383,9 @@ class Bank:
           groups={k: tuple(v) for k, v in meta["groups"].items()},
           metric_names=tuple(meta["metric_names"]), record_fps=meta["record_fps"],
           query_fps=meta["query_fps"], timestep=meta["timestep"], config=meta["config"],
-          mjcf_text=meta["mjcf_text"], mjcf_includes=meta.get("mjcf_includes", {}), digest=meta["digest"], lineage=meta.get("lineage", {}),
-          run=meta.get("run", {}), next_id=int(meta.get("next_id", 0)))
+          mjcf_text=meta["mjcf_text"], mjcf_includes=meta.get("mjcf_includes", {}),
+          digest=meta["digest"], lineage=meta.get("lineage", {}), run=meta.get("run", {}),
+          next_id=int(meta.get("next_id", 0)))
       if meta.get("format") == 1:
         bank = _from_rows_to_ids(bank)
     except MwbxError:

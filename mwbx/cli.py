@@ -142,8 +142,8 @@ def _cmd_view(args) -> int:
     print(f"mwbx: showing worlds {shown} at {vis.url()}", file=sys.stderr)
     if vis.server_proc is None:
       return 0  # drawn into a server someone else runs
-    print("mwbx: meshcat server running; Ctrl-C stops it", file=sys.stderr)
-    try:
+    try:  # from the announcement on, Ctrl-C (or SIGTERM) is the way out, not an error
+      print("mwbx: meshcat server running; Ctrl-C stops it", file=sys.stderr)
       vis.wait()
     except KeyboardInterrupt:
       pass  # leaving the with block stops the server

@@ -18,9 +18,9 @@ class Progress(NamedTuple):
   Attributes:
     phase: ``simulating``, ``compressing`` (sampling) or ``refining``,
       ``compressing`` (refinement).
-    done: worlds done in this run so far (refining: world-equivalents, the
-      world-steps run over the most one world can take, so it moves while
-      worlds step in lockstep).
+    done: worlds done in this phase so far (simulated, compressed; refining:
+      world-equivalents, the world-steps run over the most one world can take,
+      so it moves while worlds step in lockstep).
     total: worlds in this run.
     world_steps: physics steps run so far, summed over worlds.
   """
@@ -38,13 +38,13 @@ PLAIN_STEP = 0.1
 
 
 class reporter:
-  """A progress callback drawing tqdm bars on a terminal, plain lines elsewhere.
+  """A progress callback: one tqdm bar per phase on a terminal, plain lines elsewhere.
 
-  Use as a context manager; ``close()`` completes the bar of a finished run.
+  Use as a context manager; leaving it completes the bars of a finished run.
 
   Example::
 
-    with reporter("sampling") as report:
+    with reporter("sample") as report:
       bank = mwbx.sample(config, 256, key, progress=report)
   """
 
@@ -52,12 +52,11 @@ class reporter:
     self.label = label
     self.stream = stream or sys.stderr
     self.interactive = self.stream.isatty() if interactive is None else interactive
-    self.bar = None
+    self.bars: dict = {}        # phase -> tqdm bar (terminal)
+    self.next_line: dict = {}   # phase -> fraction at which the next plain line is due
+    self.last: dict[str, Progress] = {}
     self.phase = None
-    self.last: Progress | None = None
     self.start = None  # (time, world_steps) at the first report: rates leave compilation out
-    self.phase_start = 0.0
-    self.next_line = 0.0
 
   def __enter__(self) -> "reporter":
     return self
@@ -67,7 +66,7 @@ class reporter:
 
   def _rate(self, p: Progress, now: float) -> str:
     t0, steps0 = self.start
-    if now <= t0:
+    if now <= t0 or p.world_steps <= steps0:
       return ""
     return f"{(p.world_steps - steps0) / (now - t0) / 1e3:,.0f}k world-steps/s"
 
@@ -75,24 +74,24 @@ class reporter:
     now = time.perf_counter()
     if self.start is None:
       self.start = (now, p.world_steps)
-      self.phase_start = now
     changed = p.phase != self.phase
-    self.phase, self.last = p.phase, p
-    if self.interactive:
-      if self.bar is None:
-        from tqdm import tqdm
-        self.bar = tqdm(total=p.total, unit="world", dynamic_ncols=True, file=self.stream)
-      if changed:
-        self.bar.set_description_str(f"{self.label}: {p.phase}", refresh=False)
-      self.bar.n = round(p.done, 1) if p.done % 1 else int(p.done)
-      self.bar.set_postfix_str(self._rate(p, now), refresh=False)
-      self.bar.refresh()
-      return
+    self.phase = p.phase
+    self.last[p.phase] = p
     frac = p.done / max(p.total, 1)
-    if changed or frac >= self.next_line:
+    if self.interactive:
+      bar = self.bars.get(p.phase)
+      if bar is None:
+        from tqdm import tqdm
+        bar = self.bars[p.phase] = tqdm(total=p.total, desc=f"{self.label}: {p.phase}", unit="world",
+                                        dynamic_ncols=True, file=self.stream, position=len(self.bars))
+      bar.n = round(p.done, 1) if p.done % 1 else int(p.done)
+      bar.set_postfix_str(self._rate(p, now), refresh=False)
+      bar.refresh()
+      return
+    if changed or frac >= self.next_line.get(p.phase, 0.0):
       self._line(p, now)
       # The next line at the next multiple of PLAIN_STEP; none after 100 %.
-      self.next_line = 2.0 if frac >= 1 else min(1.0, (frac // PLAIN_STEP + 1) * PLAIN_STEP)
+      self.next_line[p.phase] = 2.0 if frac >= 1 else min(1.0, (frac // PLAIN_STEP + 1) * PLAIN_STEP)
 
   def _line(self, p: Progress, now: float) -> None:
     elapsed = now - self.start[0]
@@ -103,10 +102,11 @@ class reporter:
           f"{', ' + rate if rate else ''}{eta}", file=self.stream, flush=True)
 
   def close(self, finished: bool = True) -> None:
-    """Ends the bar; a finished run shows complete."""
-    p = self.last
-    if finished and p is not None and p.done < p.total:
-      self(p._replace(done=p.total))
-    if self.bar is not None:
-      self.bar.close()
-      self.bar = None
+    """Ends the bars; a finished run shows every phase complete."""
+    if finished:
+      for p in list(self.last.values()):
+        if p.done < p.total:
+          self(p._replace(done=p.total))
+    for bar in self.bars.values():
+      bar.close()
+    self.bars = {}

@@ -8,11 +8,12 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 
+@runtime_checkable
 class QposStore(Protocol):
   """The recorded ``qpos`` frames of every world of a bank, in bank row order.
 

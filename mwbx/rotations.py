@@ -2,8 +2,8 @@
 
 JAX forms and their numpy twins side by side (as brax's ``math.py`` does);
 the numba twin of :func:`quat_to_matrix` used inside the compiled per-world
-loop is ``mwbx.batch_sim.host_loops.rotation_matrix`` (compared in
-``tests/test_host_loops.py``).
+loop is ``mwbx.batch_sim.host_loops.rotation_matrix``. ``tests/test_rotations.py``
+compares each form with its twin and with MuJoCo's ``mju_*`` functions.
 """
 
 from __future__ import annotations
@@ -33,17 +33,6 @@ def quat_to_matrix(q: jax.Array) -> jax.Array:
       jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
       jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
       jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-  ], -2)
-
-
-def quat_to_matrix_np(q: np.ndarray) -> np.ndarray:
-  """numpy twin of :func:`quat_to_matrix`."""
-  q = np.asarray(q)
-  w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-  return np.stack([
-      np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-      np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-      np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
   ], -2)
 
 

@@ -29,7 +29,8 @@ def quickstart():
 @pytest.mark.parametrize("config", ["quickstart", "pachinko"])
 def test_sampled_banks_meet_the_bounds(config, quickstart):
   cfg, bank, raw = quickstart if config == "quickstart" else _sample_both(config, 4)
-  assert isinstance(bank.qpos_store, CompressedQposStore)
+  assert isinstance(bank.qpos_store, CompressedQposStore) and isinstance(raw.qpos_store, RawQposStore)
+  assert isinstance(bank.qpos_store, mwbx.QposStore) and isinstance(raw.qpos_store, mwbx.QposStore)
   np.testing.assert_array_equal(bank.frame_count, raw.frame_count)
   layout = bank.qpos_store.layout
   e_rot = np.deg2rad(cfg.codec.e_rot_deg)
@@ -89,3 +90,14 @@ def test_qpos_frames_of_some_bodies_decodes_only_their_joints(quickstart):
     np.testing.assert_array_equal(part[:, others], 0.0)
   with pytest.raises(mwbx.MwbxError, match="no_such_body"):
     bank.qpos_frames(0, bodies="no_such_body")
+
+
+def test_stores_take_and_empty_keep_settings_and_worlds(quickstart):
+  _, bank, raw = quickstart
+  for store in (bank.qpos_store, raw.qpos_store):
+    picked = store.take(np.array([3, 0]))
+    assert type(picked) is type(store) and picked.n_worlds == 2
+    np.testing.assert_array_equal(picked.frames(0), store.frames(3))
+    np.testing.assert_array_equal(picked.frames(1), store.frames(0))
+    empty = store.empty()
+    assert empty.n_worlds == 0 and type(empty) is type(store)

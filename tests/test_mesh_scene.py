@@ -38,12 +38,16 @@ randomize:
 """
 
 
+def write_scene(scene_dir, files: dict) -> None:
+  """Writes {relative path: text} under scene_dir, folders included."""
+  for name, text in files.items():
+    (scene_dir / name).parent.mkdir(parents=True, exist_ok=True)
+    (scene_dir / name).write_text(text)
+
+
 def test_relative_mesh_paths_survive_save_load_and_refine(tmp_path, monkeypatch):
   scene_dir = tmp_path / "scene"
-  (scene_dir / "meshes").mkdir(parents=True)
-  (scene_dir / "meshes" / "tet.obj").write_text(MESH)
-  (scene_dir / "scene.xml").write_text(MJCF)
-  (scene_dir / "config.yaml").write_text(CONFIG)
+  write_scene(scene_dir, {"meshes/tet.obj": MESH, "scene.xml": MJCF, "config.yaml": CONFIG})
   bank = mwbx.sample(mwbx.load_config(scene_dir / "config.yaml"), n_worlds=4,
                      key=jax.random.key(0), backend="native")
   bank.save(tmp_path / "bank")
@@ -83,11 +87,8 @@ ROBOT = """<mujoco model="robot">
 
 def test_scene_that_includes_its_robot_file(tmp_path, monkeypatch):
   scene_dir = tmp_path / "menagerie_style"
-  (scene_dir / "assets").mkdir(parents=True)
-  (scene_dir / "assets" / "tet.obj").write_text(MESH)
-  (scene_dir / "scene.xml").write_text(SCENE_WITH_INCLUDE)
-  (scene_dir / "robot.xml").write_text(ROBOT)
-  (scene_dir / "config.yaml").write_text(CONFIG)
+  write_scene(scene_dir, {"assets/tet.obj": MESH, "scene.xml": SCENE_WITH_INCLUDE, "robot.xml": ROBOT,
+                          "config.yaml": CONFIG})
   monkeypatch.chdir(tmp_path)  # not the scene's folder: includes resolve against the MJCF
   cfg = mwbx.load_config(scene_dir / "config.yaml")
   scene = mwbx.Scene(cfg)

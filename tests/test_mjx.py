@@ -61,6 +61,8 @@ def paired_banks(tiny_config):
   key = jax.random.key(11)
   native = mwbx.sample(tiny_config, n_worlds=64, key=key, backend="native")
   with mwbx.Sampler(tiny_config, backend="mjx", chunk_size=8) as sampler:
+    from mwbx.batch_sim.backend import Backend
+    assert isinstance(sampler.backend, Backend)
     mjx_bank, _ = sampler.run(64, key)
     one, _ = sampler.run(1, key)
     seven, _ = sampler.run(7, key)

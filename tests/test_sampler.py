@@ -54,6 +54,11 @@ def test_world_depends_only_on_config_key_and_id(tiny_config):
   assert banks[64].perturbations.sum() > 0
 
 
+def test_backends_implement_the_protocol(tiny_native):
+  from mwbx.batch_sim.backend import Backend
+  assert isinstance(tiny_native.backend, Backend)
+
+
 def test_bank_contents(tiny_native_bank):
   bank = tiny_native_bank
   cfg = bank.config

@@ -162,7 +162,7 @@ def test_cli_refine_twice_without_seed_then_query_under_and_drop(bank_dir, tmp_p
   assert cli.main(["query", str(work), str(queries), "--under", "2", "--json"]) == 0
   report = json.loads(capsys.readouterr().out)
   assert sorted(w["world"] for w in report["worlds"]) == [2, 4, 5, 6, 7]
-  assert cli.main(["drop", str(work), "6,7"]) == 0
+  assert cli.main(["drop", str(work), "6..7"]) == 0
   capsys.readouterr()
   assert mwbx.Bank.load(work).world_ids.tolist() == [0, 1, 2, 3, 4, 5]
   assert cli.main(["query", str(work), str(queries), "--under", "6"]) == 2

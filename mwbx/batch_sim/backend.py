@@ -10,7 +10,7 @@ core, :mod:`world_loop`); both return a :class:`ChunkResult`.
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Protocol
+from typing import Callable, NamedTuple, Protocol, runtime_checkable
 
 import jax
 import numpy as np
@@ -48,6 +48,7 @@ class ChunkResult(NamedTuple):
   physics_seconds: float = float("nan")
 
 
+@runtime_checkable
 class Backend(Protocol):
   """What the sampler needs of a backend (``NativeBackend``, ``MjxBackend``).
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from mwbx import rotations
 from mwbx.joints import JNT_FREE
+from mwbx.scene import SENSORS
 
 
 class FreeBodies(NamedTuple):
@@ -93,5 +94,7 @@ def observe(qpos: jax.Array, qvel: jax.Array, bodies: FreeBodies, dt: float, gra
   inertial_quat = rotations.quat_multiply(quat, jnp.asarray(bodies.iquat, qpos.dtype))
   lin_acc = (lin_vel[1:] - lin_vel[:-1]) / dt - gravity
   ang_acc = (ang_vel[1:] - ang_vel[:-1]) / dt
-  block = jnp.concatenate([com[:-1], inertial_quat[:-1], lin_vel[:-1], ang_vel[:-1], lin_acc, ang_acc], -1)
+  part = {"com_pos": com[:-1], "quat": inertial_quat[:-1], "lin_vel": lin_vel[:-1], "ang_vel": ang_vel[:-1],
+          "lin_acc": lin_acc, "ang_acc": ang_acc}
+  block = jnp.concatenate([part[name] for name, _, _ in SENSORS], -1)  # the sensor block's order
   return block.reshape(block.shape[0], -1)

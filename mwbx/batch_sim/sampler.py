@@ -168,11 +168,14 @@ class Sampler:
           active, self.n_frames, progress=report)
       result = ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in result))
       # Compress as worlds are produced: raw qpos never outlives its chunk.
+      chunk_steps = base_steps + int(result.steps.sum())
       if progress is not None:
-        progress(Progress("compressing", done_worlds + n, n_worlds, base_steps + int(result.steps.sum())))
+        progress(Progress("compressing", done_worlds, n_worlds, chunk_steps))
       codec_start = time.perf_counter()
       result = _store_chunk(store, result)
       stats.codec_seconds += time.perf_counter() - codec_start
+      if progress is not None:
+        progress(Progress("compressing", done_worlds + n, n_worlds, chunk_steps))
       results.append(result)
       stats.world_steps += int(result.steps.sum())
       stats.run_seconds += result.run_seconds

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mwbx import perturb, rotations
-from mwbx.scene import SENSOR_WIDTH
+from mwbx.scene import SENSOR_OFFSET, SENSOR_WIDTH, SENSORS
 
 METRIC_NAMES = (
     "angular_travel",     # rad: integral of angular speed
@@ -77,7 +77,9 @@ class Observation(NamedTuple):
     is ``a``.
     """
     s = sensordata.reshape(-1, SENSOR_WIDTH).astype(jnp.float32)
-    return cls(s[:, 0:3], s[:, 3:7], s[:, 7:10], s[:, 10:13], s[:, 13:16] + gravity, s[:, 16:19])
+    part = {name: s[:, SENSOR_OFFSET[name]:SENSOR_OFFSET[name] + width] for name, _, width in SENSORS}
+    return cls(part["com_pos"], part["quat"], part["lin_vel"], part["ang_vel"],
+               part["lin_acc"] + gravity, part["ang_acc"])
 
 
 class WorldParams(NamedTuple):

@@ -17,16 +17,18 @@ DEFAULT_TOP = 4
 
 
 def parse_world_ids(text: str, flag: str = "--worlds") -> list[int]:
-  """'3,17, 20' -> [3, 17, 20]; the message names the flag and the bad item."""
+  """'3,17, 20..22' -> [3, 17, 20, 21, 22] (``a..b`` includes both ends); the
+  message names the flag and the bad item."""
   out = []
   for item in text.split(","):
     item = item.strip()
     if not item:
       continue
+    lo, dots, hi = item.partition("..")
     try:
-      out.append(int(item))
+      out.extend(range(int(lo), int(hi) + 1) if dots else [int(item)])
     except ValueError:
-      raise ViewerError(f"{flag}: {item!r} is not a world id (expected e.g. 3,17)") from None
+      raise ViewerError(f"{flag}: {item!r} is not a world id or range (expected e.g. 3,17,20..29)") from None
   if not out:
     raise ViewerError(f"{flag}: no world ids in {text!r}")
   return out

@@ -1,0 +1,214 @@
+"""docs/benchmarks.md and the README's headline figures, from out/bench/*.json.
+
+Figures are never typed by hand: each `scripts/bench_*.py` writes JSON with the
+machine it ran on, and this script turns whatever JSON is there into tables.
+It also copies the JSON to docs/bench/ so the committed figures keep their
+source. Usage:
+
+  .venv/bin/python scripts/make_benchmarks_doc.py [--bench out/bench]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import re
+import shutil
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+HEADLINE = re.compile(r"(<!-- headline figures: generated -->\n).*?(<!-- end of generated figures -->)", re.S)
+
+
+def _load(bench: pathlib.Path, name: str) -> dict | None:
+  path = bench / f"{name}.json"
+  return json.loads(path.read_text()) if path.exists() else None
+
+
+def _n(x: float, digits: int = 3) -> str:
+  return f"{x:,.0f}" if abs(x) >= 1000 else f"{x:.{digits}g}"
+
+
+def sampler(d: dict) -> tuple[list[str], list[str]]:
+  lines = ["## Sampler", "",
+           "`scripts/bench_sampler.py`: in one run and from the same randomized initial states, "
+           "(a) a Python loop of `mujoco.mj_step`, (b) bare `mujoco.rollout` without perturbations "
+           "(one call, all steps, a thread per core), (c) bare MJX stepping, (d) the mwbx sampler "
+           "on the native backend, (e) the mwbx sampler on MJX. The baselines step the MJCF as "
+           "written, without the sensors mwbx adds. Repeats alternate; each keeps its best.", "",
+           f"Machine: {d['machine']}, MuJoCo {d['mujoco']}.", "",
+           "| scene | what | batch | world-steps/s |", "|---|---|---:|---:|"]
+  head = []
+  for scene, s in d["scenes"].items():
+    for r in s["rows"]:
+      lines.append(f"| {scene} | ({r['key']}) {r['what']} | {r['batch']} | {r['world_steps_per_s']:,.0f} |")
+  lines += ["", "| scene | (d)/(b) | (d)/(a) | (e)/(c) | native own cost (thread time outside `mj_step`) |",
+            "|---|---:|---:|---:|---:|"]
+  for scene, s in d["scenes"].items():
+    ratios = s["ratios"]
+    d_row = next(r for r in s["rows"] if r["key"] == "d")
+    own = d_row.get("overhead_over_physics")
+    lines.append(f"| {scene} | {ratios['d_over_b']:.2f} | {ratios['d_over_a']:.2f} | "
+                 f"{ratios['e_over_c']:.2f} |" if "e_over_c" in ratios else
+                 f"| {scene} | {ratios['d_over_b']:.2f} | {ratios['d_over_a']:.2f} | – |")
+    lines[-1] += f" {own:.1%} |" if own is not None else " – |"
+    head.append(f"{scene} {ratios['d_over_b']:.2f}× bare `mujoco.rollout` and "
+                f"{ratios['d_over_a']:.2f}× a Python `mj_step` loop")
+  lines += ["", "MJX on CPU is for checking, not speed: its figures come from short runs of small "
+            "batches. Compile time is kept apart from every rate."]
+  return lines, [f"**sampling** (native): {'; '.join(head)}"]
+
+
+def codec(d: dict) -> tuple[list[str], list[str]]:
+  b = d["bounds"]
+  lines = ["## Codec", "",
+           "`scripts/bench_codec.py`: sampled quickstart and pachinko banks (raw `qpos` kept for "
+           "the comparison), simulated free boxes and an articulated chain; every world compressed "
+           "on its own at the same ℓ∞ bound by each method. A body-frame is one tracked body for "
+           f"one frame. Bounds: {b['e_pos'] * 1e3:g} mm, {b['e_rot'] * 57.29577951308232:.3g}°. "
+           "Decoding is timed as the best of several tries, baseline included.", "",
+           f"Machine: {d['machine']} ({d['cpu_count']} cores).", ""]
+  head = []
+  for name, r in d["data"].items():
+    lines += [f"**{name}** ({r['worlds']} worlds, {r['body_frames']:,} body-frames)", "",
+              "| method | bytes | × smaller than float32 | bits / body-frame | max error (mm) | max error (°) |",
+              "|---|---:|---:|---:|---:|---:|"]
+    for method, m in r["rows"].items():
+      label = f"**{method}**" if method == "mwbx codec" else method
+      lines.append(f"| {label} | {m['bytes']:,} | {m['ratio_vs_float32']:.1f} | "
+                   f"{m['bits_per_body_frame']:.2f} | {1e3 * m['max_error_pos_m']:.3f} | "
+                   f"{m['max_error_rot_deg']:.3f} |")
+    c, base = r["codec"], r["quant+delta2+zstd speed"]
+    lines += ["", f"Codec vs the best baseline ({r['best_baseline']}): **{r['gain_vs_best_baseline']:.2f}× "
+              f"smaller**. Encode {c['encode_body_frames_per_s'] / 1e6:.2f} M body-frames/s (baseline "
+              f"{base['encode_body_frames_per_s'] / 1e6:.2f}); decode of all worlds "
+              f"{c['decode_body_frames_per_s'] / 1e6:.2f} M body-frames/s (baseline "
+              f"{base['decode_body_frames_per_s'] / 1e6:.2f}); one world {c['decode_one_world_ms']:.2f} ms.", ""]
+    if name in ("quickstart", "pachinko"):
+      codec_row = r["rows"]["mwbx codec"]
+      head.append(f"{name} {codec_row['ratio_vs_float32']:.1f}× smaller than float32 and "
+                  f"{r['gain_vs_best_baseline']:.2f}× smaller than {r['best_baseline']}, max error "
+                  f"{1e3 * codec_row['max_error_pos_m']:.3f} mm / {codec_row['max_error_rot_deg']:.3f}°")
+  for config, t in d["sampling"].items():
+    lines.append(f"`mwbx sample` {config}, compiled: raw store {t['sample_raw_s']:.2f} s, compressed "
+                 f"{t['sample_codec_s']:.2f} s; codec {t['codec_s']:.2f} s = "
+                 f"{100 * t['codec_share_of_wall']:.1f} % of the wall time.")
+  lines += ["", "![rate-distortion](bench/codec_rd.png)", "",
+            "*Bits per channel-frame against the bound, as in the paper's Fig. 3.*"]
+  return lines, [f"**codec**: {'; '.join(head)}"]
+
+
+def queries(d: dict) -> tuple[list[str], list[str]]:
+  lines = ["## Queries", "",
+           "`scripts/bench_queries.py`: include, exclude and include-any-of-16-bodies boxes on "
+           "synthetic ballistic paths, plus a real quickstart bank with the example queries. "
+           "Baselines in the same run: brute force over every segment in numpy and in one jitted "
+           "JAX kernel. \"same\": mwbx's answers equal both brute-force ones.", "",
+           f"Machine: {d['machine']}, jax {d['jax']}, load average {d['load_average'][0]:.1f}.", "",
+           "| bank | W | B | P | segments | query | matches | mwbx ms | numpy ms | jax brute ms | vs numpy | same | rank ms |",
+           "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---:|"]
+  for r in d["rows"]:
+    lines.append(f"| {r['bank']} | {r['worlds']} | {r['bodies']} | {r['points']} | {r['segments']:,} | "
+                 f"{r['query']} | {r['matches']} | {r['mwbx_ms']:.1f} | {r['numpy_ms']:.0f} | "
+                 f"{r['jax_brute_ms']:.0f} | {r['speedup_vs_numpy']:.0f}× | "
+                 f"{'yes' if r['identical'] else 'NO'} | {r['rank_ms']:.2f} |")
+  largest = max(r["segments"] for r in d["rows"])
+  big = [r for r in d["rows"] if r["segments"] == largest]
+  same = all(r["identical"] for r in d["rows"])
+  head = (f"**queries**: {largest / 1e6:.1f} M segments in {min(r['mwbx_ms'] for r in big):.1f}–"
+          f"{max(r['mwbx_ms'] for r in big):.1f} ms per query, {min(r['speedup_vs_numpy'] for r in big):.0f}×+ "
+          f"brute-force numpy, answers {'identical' if same else 'NOT identical'}")
+  return lines, [head]
+
+
+def viewer(d: dict) -> tuple[list[str], list[str]]:
+  lines = ["## Viewer", "", "`scripts/bench_viewer.py`: building animations and path scenes against "
+           "meshcat's own API, and rendering them in headless Chromium (software WebGL).", "",
+           f"Machine: {d['machine']}.", "",
+           "| measurement | case | mwbx | baseline | ratio |", "|---|---|---:|---:|---:|"]
+  for key in ("animation", "paths"):
+    r = d[key]
+    lines.append(f"| {key} build | {r['case']} | {r['mwbx_s']:.3f} s | {r['baseline_s']:.3f} s "
+                 f"({r['baseline']}) | {r['speedup']:.1f}× |")
+  head = [f"**viewer**: paths built {d['paths']['speedup']:.0f}× faster than one meshcat `Line` per polyline"]
+  if "browser" in d:
+    b = d["browser"]
+    lines.append(f"| browser frame | {b['case']} | {b['mwbx']['ms_per_frame']:.1f} ms, "
+                 f"{b['mwbx']['draw_calls']} draw calls | {b['baseline']['ms_per_frame']:.1f} ms, "
+                 f"{b['baseline']['draw_calls']} draw calls | {b['speedup']:.0f}× |")
+    head[0] += f", drawn {b['speedup']:.0f}× faster per browser frame"
+  e = d["export"]
+  lines.append(f"| export_html | {e['case']} | {e['export_html_s']:.2f} s, {e['html_mb']:.1f} MB | | |")
+  return lines, head
+
+
+def refinement(d: dict) -> tuple[list[str], list[str]]:
+  s, r, span = d["sample"], d["refine"], d["span_sampling"]
+  lines = ["## Refinement", "",
+           "`scripts/bench_refine.py`: sample N worlds, then refine the object of one world that "
+           "still moves most after mid-way into N new worlds (same backend and batch). Second "
+           "baseline: plain sampling of the same time span from the parent's state at t_min. "
+           "Warmed up; compile time never counted; runs interleaved, fastest kept.", "",
+           f"Machine: {d['machine']}; {d['config']}, {d['worlds']} worlds, {d['backend']}; refining "
+           f"`{d['object']}` of world {d['parent']} ({d['parent_frames']} frames) from t_min = "
+           f"{d['t_min_s']:.3f} s; {r['mean_active_objects']:.1f} objects active per refined world on "
+           f"average (at most {r['max_active_objects']}).", "",
+           "| | whole worlds from scratch | plain sampling from t_min | refinement from t_min |",
+           "|---|---:|---:|---:|",
+           f"| world-steps | {s['world_steps']:,} | {span['world_steps']:,} | {r['world_steps']:,} |",
+           f"| stepping time, s | {s['run_s']:.2f} | {span['run_s']:.2f} | {r['run_s']:.2f} |",
+           f"| µs per world-step | {s['us_per_world_step']:.1f} | {span['us_per_world_step']:.1f} | "
+           f"{r['us_per_world_step']:.1f} |",
+           f"| refinement's cost per step relative to it | {d['step_cost_ratio']:.2f} | "
+           f"{d['step_cost_ratio_same_span']:.2f} | 1 |", "",
+           f"Largest applied perturbation: {r['max_perturbation_ratio']:.3f} α‖Δv‖."]
+  fp = d.get("refine_frame_playback")
+  if fp:
+    lines.append(f"Frame-boundary playback: {fp['us_per_world_step']:.1f} µs per world-step "
+                 f"({fp['step_cost_ratio']:.2f}× whole worlds, {fp['step_cost_ratio_same_span']:.2f}× "
+                 "the same span).")
+  head = [f"**refinement**: {d['step_cost_ratio_same_span']:.2f}× the cost per step of plain sampling "
+          f"over the same span, {d['speedup_wall']:.2f}× faster than sampling whole worlds (wall)"]
+  return lines, head
+
+
+SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
+            ("refine", refinement))
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--bench", type=pathlib.Path, default=ROOT / "out" / "bench")
+  args = parser.parse_args()
+  keep = ROOT / "docs" / "bench"
+  keep.mkdir(parents=True, exist_ok=True)
+  doc = ["# Benchmarks", "",
+         "Generated by `scripts/make_benchmarks_doc.py` from the JSON the benchmarks write "
+         "(copied to `docs/bench/`); do not edit by hand. Each benchmark measures its baseline in "
+         "the same run on the machine named: the machines are shared, so ratios hold where absolute "
+         "times drift. Run them all with `make bench`.", ""]
+  headline = []
+  for name, section in SECTIONS:
+    data = _load(args.bench, name)
+    if data is None:
+      doc += [f"## {name.capitalize()}", "", f"No `{name}.json` in {args.bench} yet.", ""]
+      continue
+    if args.bench.resolve() != keep.resolve():
+      shutil.copy(args.bench / f"{name}.json", keep / f"{name}.json")
+    lines, head = section(data)
+    doc += lines + [""]
+    headline += head
+  for extra in ("codec_rd.png",):
+    if (args.bench / extra).exists() and args.bench.resolve() != keep.resolve():
+      shutil.copy(args.bench / extra, keep / extra)
+  (ROOT / "docs" / "benchmarks.md").write_text("\n".join(doc).rstrip() + "\n")
+  readme = ROOT / "README.md"
+  text = readme.read_text()
+  block = "".join(f"* {h}\n" for h in headline)
+  if HEADLINE.search(text):
+    readme.write_text(HEADLINE.sub(lambda m: m.group(1) + block + m.group(2), text))
+  print(f"wrote {ROOT / 'docs' / 'benchmarks.md'} ({len(headline)} headline figures)")
+
+
+if __name__ == "__main__":
+  main()
