@@ -35,6 +35,8 @@ ProgressFn = Callable[[Progress], None]
 
 # Plain (non-terminal) output: a line per phase change and per this fraction.
 PLAIN_STEP = 0.1
+# Phases that step worlds: the only ones a world-steps/s rate describes.
+STEPPING_PHASES = ("simulating", "refining")
 
 
 class reporter:
@@ -66,7 +68,7 @@ class reporter:
 
   def _rate(self, p: Progress, now: float) -> str:
     t0, steps0 = self.start
-    if now <= t0 or p.world_steps <= steps0:
+    if p.phase not in STEPPING_PHASES or now <= t0 or p.world_steps <= steps0:
       return ""
     return f"{(p.world_steps - steps0) / (now - t0) / 1e3:,.0f}k world-steps/s"
 

@@ -231,6 +231,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   stats.max_perturbation_ratio = np.concatenate([o.max_perturbation_ratio for o in outputs])
   stats.inactive_perturbations = np.concatenate([o.inactive_perturbations for o in outputs])
   if progress is not None:
+    progress(Progress("refining", n_samples, n_samples, stats.world_steps))
     progress(Progress("compressing", 0, n_samples, stats.world_steps))
   codec_start = time.perf_counter()
   new = _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler)
