@@ -29,46 +29,90 @@ from mwbx.progress import reporter
 
 def _cmd_sample(args) -> int:
   import jax
+  import numpy as np
   import mwbx
+  from mwbx.bank import BankDirectory
+  from mwbx.bank.shards import id_ranges
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
-  existing = None
-  if (out / "checkpoints").exists():
-    existing = mwbx.Bank.load(out)
   scene = mwbx.Scene(config)
-  seed = args.seed
-  first_world = 0
-  if existing is not None:
-    if existing.digest != scene.digest:
-      raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
-    if seed is None:
-      seed = existing.run.get("seed", 0)
-    elif seed != existing.run.get("seed"):
-      raise MwbxError(f"--seed: {out} was sampled with seed {existing.run.get('seed')}, not {seed}")
-    first_world = existing.next_world_id
-  seed = 0 if seed is None else seed
-  n_worlds = 256 if args.worlds is None else args.worlds
-  if n_worlds < 1:
-    raise MwbxError(f"--worlds: must be at least 1, got {n_worlds}")
-
-  with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
-    print(f"mwbx: sampling {n_worlds} worlds of {args.config} on {sampler.backend_label}"
-          f" (worlds {first_world}..{first_world + n_worlds - 1}, seed {seed})", file=sys.stderr)
-    with reporter("sample") as update:
-      bank, stats = sampler.run(n_worlds, jax.random.key(seed), first_world=first_world, progress=update)
-  bank.run = {"seed": seed}
-  total = existing.append(bank) if existing is not None else bank
-  print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
-  total.save(out)
-  s = bank.summary()
-  print(f"worlds sampled      {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable)")
-  print(f"worlds at rest      {int(round(s['at_rest_fraction'] * s['worlds']))} ({s['at_rest_fraction']:.0%})")
-  print(f"perturbations       {s['perturbations']} ({s['perturbations'] / max(1, s['worlds']):.1f} per world)")
-  print(f"world-steps/s       {stats.world_steps_per_second:,.0f} ({stats.backend};"
-        f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s,"
-        f" compression {stats.codec_seconds:.1f} s)")
-  print(f"bank                {out} ({total.n_worlds} worlds, {total.nbytes / 1e6:.1f} MB)")
+  directory = BankDirectory(out)
+  if directory.manifest is None and (out / "checkpoints").is_dir():
+    mwbx.Bank.load(out).save(out)  # a bank of the orbax format: its worlds become the first shard
+    directory = BankDirectory(out)
+  manifest = directory.manifest
+  if manifest is not None and manifest["scene"]["digest"] != scene.digest:
+    raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
+  bank_seed = None if manifest is None else manifest.get("run", {}).get("seed")
+  if args.seed is not None and bank_seed is not None and args.seed != bank_seed:
+    raise MwbxError(f"--seed: {out} was sampled with seed {bank_seed}, not {args.seed}")
+  seed = args.seed if args.seed is not None else (0 if bank_seed is None else bank_seed)
+  unfinished = directory.unfinished_run()
+  if unfinished is not None:
+    run_index, record = unfinished
+    target = [i for lo, hi in record["id_ranges"] for i in range(lo, hi + 1)]
+    done = directory.stored_ids() & set(target)
+    todo = np.array(sorted(set(target) - done), np.int64)
+    print(f"mwbx: resuming: {len(done)} of {len(target)} worlds done (seed {seed})", file=sys.stderr)
+  else:
+    n_worlds = 256 if args.worlds is None else args.worlds
+    if n_worlds < 1:
+      raise MwbxError(f"--worlds: must be at least 1, got {n_worlds}")
+    first = 0 if manifest is None else int(manifest["next_id"])
+    todo = np.arange(first, first + n_worlds, dtype=np.int64)
+    run_index, record = None, {"seed": seed, "id_ranges": id_ranges(todo), "finished": False}
+  summary = _RunSummary()
+  if todo.size:
+    with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
+      print(f"mwbx: sampling {todo.size} worlds of {args.config} on {sampler.backend_label}"
+            f" (worlds {todo[0]}..{todo[-1]}, seed {seed}) into {out}", file=sys.stderr)
+      record["chunk_size"], record["backend"] = sampler.chunk_size, sampler.backend_label
+      try:
+        with reporter("sample") as update:
+          for part, stats in sampler.run_chunks(todo.size, jax.random.key(seed), ids=todo, progress=update):
+            part.run = {"seed": seed}
+            # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the
+            # chunk in flight, and the same command resumes it.
+            run_index = directory.append(part, run=record if run_index is None else None,
+                                         run_index=run_index)
+            summary.add(part)
+      except KeyboardInterrupt:
+        print(f"mwbx: interrupted; {summary.worlds} worlds of this run are saved in {out};"
+              f" run the same command again to resume", file=sys.stderr)
+        return 130
+    summary.stats = stats
+  directory.finish_run(run_index)
+  (out / "config.resolved.json").write_text(json.dumps(config.resolved(), indent=2))
+  (out / "scene.xml").write_text(scene.mjcf_text)
+  summary.print(out, len(directory.stored_ids()))
   return 0
+
+
+class _RunSummary:
+  """Counts over the chunks of one sampling run (the chunks are not kept)."""
+
+  def __init__(self):
+    self.worlds = self.valid = self.at_rest = self.perturbations = 0
+    self.stats = None
+
+  def add(self, part) -> None:
+    self.worlds += part.n_worlds
+    self.valid += int(part.valid.sum())
+    self.at_rest += int(part.at_rest.sum())
+    self.perturbations += int(part.perturbations.sum())
+
+  def print(self, out: pathlib.Path, total: int) -> None:
+    n = max(1, self.worlds)
+    print(f"worlds sampled      {self.worlds} ({self.valid} valid, {self.worlds - self.valid} unstable)")
+    print(f"worlds at rest      {self.at_rest} ({self.at_rest / n:.0%})")
+    print(f"perturbations       {self.perturbations} ({self.perturbations / n:.1f} per world)")
+    if self.stats is not None:
+      st = self.stats
+      print(f"world-steps/s       {st.world_steps_per_second:,.0f} ({st.backend};"
+            f" {st.world_steps:,} steps in {st.run_seconds:.2f} s, compile {st.compile_seconds:.1f} s,"
+            f" compression {st.codec_seconds:.1f} s)")
+    size = sum(f.stat().st_size for f in (out / "shards").rglob("*") if f.is_file())
+    print(f"bank                {out} ({total} worlds, {size / 1e6:.1f} MB on disk)")
 
 
 def _cmd_info(args) -> int:

@@ -125,14 +125,18 @@ class Sampler:
   def __exit__(self, *exc):
     self.close()
 
-  def run(self, n_worlds: int, key: jax.Array, *, first_world: int = 0, store: QposStore | None = None,
+  def run(self, n_worlds: int, key: jax.Array, *, first_world: int = 0, ids=None,
+          store: QposStore | None = None,
           progress: ProgressFn | None = None) -> tuple[bank_lib.Bank, SampleStats]:
-    """Samples worlds ``first_world … first_world + n_worlds - 1``.
+    """Samples worlds ``first_world … first_world + n_worlds - 1`` (or ``ids``).
 
     Args:
       n_worlds: how many worlds.
       key: the run key (``jax.random.key(seed)``).
       first_world: id of the first world (to continue an existing bank).
+      ids: i64[n_worlds] world ids to sample instead (any order is kept; a
+        world depends only on ``key`` and its id), e.g. the ones a killed run
+        did not finish.
       store: how this run keeps qpos (default: the sampler's ``store``).
       progress: optional callback taking a :class:`mwbx.progress.Progress`
         (``simulating`` / ``compressing``; e.g. :class:`mwbx.progress.reporter`).
@@ -140,19 +144,36 @@ class Sampler:
     Returns:
       (the bank of these worlds, timing stats).
     """
-    if n_worlds < 1:
-      raise MwbxError(f"n_worlds: must be at least 1, got {n_worlds}")
+    parts = []
+    for part, stats in self.run_chunks(n_worlds, key, first_world=first_world, ids=ids, store=store,
+                                       progress=progress):
+      parts.append(part)
+    return bank_lib.Bank.concatenate(parts), stats
+
+  def run_chunks(self, n_worlds: int, key: jax.Array, *, first_world: int = 0, ids=None,
+                 store: QposStore | None = None, progress: ProgressFn | None = None):
+    """:meth:`run` one chunk at a time, for writing each as it finishes.
+
+    Yields:
+      (the bank of one chunk of worlds, the run's stats so far).
+    """
+    ids = (np.arange(first_world, first_world + n_worlds, dtype=np.int64) if ids is None
+           else np.asarray(ids, np.int64).reshape(-1))
+    if ids.size < 1 or (ids.size != n_worlds):
+      raise MwbxError(f"n_worlds: must be at least 1 and match the ids given, got {n_worlds}"
+                      f" ({ids.size} ids)")
     start_wall = time.perf_counter()
     stats = SampleStats(backend=self.backend_label)
-    ids = np.arange(first_world, first_world + n_worlds, dtype=np.int64)
     keys, init_keys, step_keys = world_keys(key, ids)
-    results: list[ChunkResult] = []
-    store = (self.store if store is None else store).empty()
-    c = self.chunk_size
+    template = self.store if store is None else store
+    # Native: batches sized to the work (a run of 8 worlds simulates 8). MJX
+    # results depend on the batch shape at the last bit, so there every batch
+    # keeps the chunk shape and a world is the same whatever the run's size.
+    c = self.chunk_size if self.backend_name == "mjx" else min(self.chunk_size, n_worlds)
     done_worlds = 0
     for lo in range(0, n_worlds, c):
       n = min(c, n_worlds - lo)
-      # Pad to the fixed chunk shape: one compiled program for any n_worlds,
+      # Pad the last chunk to the batch shape: one compiled program per run,
       # and the same per-world arithmetic whatever the batch holds.
       pad = np.concatenate([np.arange(lo, lo + n), np.full(c - n, lo)])
       active = np.arange(c) < n
@@ -172,19 +193,19 @@ class Sampler:
       if progress is not None:
         progress(Progress("compressing", done_worlds, n_worlds, chunk_steps))
       codec_start = time.perf_counter()
+      store = template.empty()
       result = _store_chunk(store, result)
       stats.codec_seconds += time.perf_counter() - codec_start
       if progress is not None:
         progress(Progress("compressing", done_worlds + n, n_worlds, chunk_steps))
-      results.append(result)
       stats.world_steps += int(result.steps.sum())
       stats.run_seconds += result.run_seconds
       stats.compile_seconds += result.compile_seconds
       stats.physics_seconds += result.physics_seconds
       done_worlds += n
-    bank = self._assemble(ids, keys, results, store)
-    stats.wall_seconds = time.perf_counter() - start_wall
-    return bank, stats
+      part = self._assemble(ids[lo:lo + n], keys[lo:lo + n], [result], store)
+      stats.wall_seconds = time.perf_counter() - start_wall
+      yield part, stats
 
   def _assemble(self, ids, keys, results: list[ChunkResult], store) -> bank_lib.Bank:
     scene = self.scene

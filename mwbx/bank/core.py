@@ -4,8 +4,8 @@ Per world it stores the id and key, status flags, the recorded ``qpos`` frames
 (through a pluggable store: raw float32 here, compressed by ``mwbx.codec``),
 the tracked bodies' COM polylines at the query rate, the metric table and the
 perturbation count; per bank the config, the MJCF text and a hash of both.
-Banks are saved with orbax-checkpoint; appending worlds writes a new
-checkpoint step, so an interrupted save never loses the previous one.
+A bank directory is a manifest plus append-only shards (:mod:`mwbx.bank.shards`);
+saving writes only worlds not stored yet, so an append costs its new shard.
 
 Worlds are named by **world ids**, unique within a bank forever (sampled,
 appended and refined worlds alike; a dropped world's id is never reused).
@@ -15,9 +15,7 @@ Every public function takes ids; a bank row is internal (:meth:`Bank.row_of`).
 from __future__ import annotations
 
 import dataclasses
-import json
 import pathlib
-import zlib
 from typing import Sequence
 
 import numpy as np
@@ -31,8 +29,6 @@ FLAG_FINISHED = 1
 FLAG_AT_REST = 2
 FLAG_UNSTABLE = 4
 
-# 2: lineage keyed by world id (1: by bank row), parent_world holds ids, next_id.
-BANK_FORMAT = 2
 
 
 @dataclasses.dataclass
@@ -299,6 +295,30 @@ class Bank:
         refine_time=cat(self.refine_time, other.refine_time), qpos_store=store, lineage=lineage,
         next_id=max(self.next_world_id, other.next_world_id))
 
+  @classmethod
+  def concatenate(cls, banks: Sequence["Bank"]) -> "Bank":
+    """One bank of the worlds of ``banks`` (same scene, distinct ids), in order.
+
+    Unlike chained :meth:`append` calls, each array is concatenated once.
+    """
+    banks = list(banks)
+    if not banks:
+      raise MwbxError("concatenate: no banks")
+    first = banks[0]
+    ids = np.concatenate([b.world_ids for b in banks])
+    if len(np.unique(ids)) != ids.size:
+      raise MwbxError("concatenate: the banks share world ids (use append, which renumbers)")
+    for b in banks[1:]:
+      if b.digest != first.digest or type(b.qpos_store) is not type(first.qpos_store):
+        raise MwbxError("concatenate: the banks come from different scenes or qpos stores")
+    store = first.qpos_store.copy()
+    for b in banks[1:]:
+      store.extend(b.qpos_store)
+    arrays = {name: np.concatenate([getattr(b, name) for b in banks]) for name in cls._ARRAYS}
+    lineage = {k: v for b in banks for k, v in b.lineage.items()}
+    return dataclasses.replace(first, **arrays, qpos_store=store, lineage=lineage,
+                               next_id=max(b.next_world_id for b in banks), _model=None)
+
   def _renumbered_after(self, first: "Bank") -> "Bank":
     """This bank with new ids from ``first.next_world_id`` on if any of its ids is
     below that (ids ``first`` may have given); parent ids and lineage follow."""
@@ -323,76 +343,38 @@ class Bank:
              "perturbations", "steps", "parent_world", "refine_time")
 
   def save(self, path: str | pathlib.Path) -> pathlib.Path:
-    """Writes the bank to directory ``path`` (a new orbax checkpoint step).
+    """Writes the bank to directory ``path`` as append-only shards.
 
-    Also writes ``path/config.resolved.json`` and ``path/scene.xml`` for people.
+    Worlds already stored there (same scene) are not written again: a save
+    after an append or a refinement writes one new shard with the new worlds,
+    and dropped worlds are recorded as such. Also writes
+    ``path/config.resolved.json`` and ``path/scene.xml`` for people. See
+    :mod:`mwbx.bank.shards`.
     """
-    import orbax.checkpoint as ocp
-    path = pathlib.Path(path).absolute()
-    path.mkdir(parents=True, exist_ok=True)
-    store_arrays, store_meta = self.qpos_store.state()
-    tree = {name: np.asarray(getattr(self, name)) for name in self._ARRAYS}
-    tree["body_ids"] = np.asarray(self.body_ids)
-    tree.update({f"qpos_{k}": np.asarray(v) for k, v in store_arrays.items()})
-    checksums = {name: _crc32(value) for name, value in tree.items()}
-    meta = {
-        "format": BANK_FORMAT, "qpos_store": store_meta, "body_names": list(self.body_names),
-        "objects": {k: list(v) for k, v in self.objects.items()},
-        "groups": {k: list(v) for k, v in self.groups.items()},
-        "metric_names": list(self.metric_names), "record_fps": self.record_fps,
-        "query_fps": self.query_fps, "timestep": self.timestep, "config": self.config,
-        "mjcf_text": self.mjcf_text, "mjcf_includes": self.mjcf_includes, "digest": self.digest,
-        "lineage": self.lineage, "run": self.run, "next_id": self.next_world_id,
-        "checksums": checksums,
-    }
-    with _manager(path) as manager:
-      step = (manager.latest_step() or 0) + 1
-      manager.save(step, args=ocp.args.Composite(bank=ocp.args.StandardSave(tree),
-                                                 meta=ocp.args.JsonSave(meta)))
-      manager.wait_until_finished()
-    (path / "config.resolved.json").write_text(json.dumps(self.config, indent=2))
-    (path / "scene.xml").write_text(self.mjcf_text)
-    return path
+    from mwbx.bank import shards
+    return shards.save(self, path)
 
   @classmethod
-  def load(cls, path: str | pathlib.Path) -> "Bank":
-    """Reads a bank written by :meth:`save`; MwbxError if missing or corrupt."""
-    import orbax.checkpoint as ocp
+  def load(cls, path: str | pathlib.Path, *, skip_corrupt: bool = False) -> "Bank":
+    """Reads a bank directory; MwbxError if missing or corrupt.
+
+    Args:
+      path: the directory (shards written by :meth:`save`, or an older orbax
+        checkpoint).
+      skip_corrupt: load the worlds of every intact shard and leave out those
+        whose checksums fail (listed in ``bank.run["corrupt_shards"]``); by
+        default a corrupt shard is an error naming it and its arrays.
+    """
+    from mwbx.bank import legacy, shards
     path = pathlib.Path(path).absolute()
     if not path.is_dir():
       raise MwbxError(f"{path}: no bank here (not a directory)")
-    try:
-      with _manager(path) as manager:
-        step = manager.latest_step()
-        if step is None:
-          raise MwbxError(f"{path}: no bank here (no checkpoint)")
-        restored = manager.restore(step, args=ocp.args.Composite(
-            bank=ocp.args.StandardRestore(), meta=ocp.args.JsonRestore()))
-      tree, meta = restored["bank"], restored["meta"]
-      _verify(path, tree, meta.get("checksums"))
-      if meta.get("format") not in (1, BANK_FORMAT):
-        raise MwbxError(f"{path}: unsupported bank format {meta.get('format')!r}")
-      store_meta = meta["qpos_store"]
-      store_cls = _store_class(store_meta["kind"])
-      store = store_cls.restore(
-          {k[len("qpos_"):]: np.asarray(v) for k, v in tree.items() if k.startswith("qpos_")}, store_meta)
-      bank = cls(
-          **{name: np.asarray(tree[name]) for name in cls._ARRAYS},
-          qpos_store=store, body_names=tuple(meta["body_names"]), body_ids=np.asarray(tree["body_ids"]),
-          objects={k: tuple(v) for k, v in meta["objects"].items()},
-          groups={k: tuple(v) for k, v in meta["groups"].items()},
-          metric_names=tuple(meta["metric_names"]), record_fps=meta["record_fps"],
-          query_fps=meta["query_fps"], timestep=meta["timestep"], config=meta["config"],
-          mjcf_text=meta["mjcf_text"], mjcf_includes=meta.get("mjcf_includes", {}),
-          digest=meta["digest"], lineage=meta.get("lineage", {}), run=meta.get("run", {}),
-          next_id=int(meta.get("next_id", 0)))
-      if meta.get("format") == 1:
-        bank = _from_rows_to_ids(bank)
-    except MwbxError:
-      raise
-    except Exception as err:  # orbax/tensorstore/json errors: a corrupt or foreign directory.
-      raise MwbxError(f"{path}: corrupt or unreadable bank ({type(err).__name__}: {_first_line(err)})"
-                      ) from None
+    if shards.has_manifest(path):
+      bank = shards.load(cls, path, skip_corrupt=skip_corrupt)
+    elif (path / "checkpoints").is_dir():
+      bank = legacy.load(cls, path)
+    else:
+      raise MwbxError(f"{path}: no bank here (no manifest.json)")
     bank.check()
     return bank
 
@@ -406,31 +388,6 @@ class Bank:
       raise MwbxError(f"bank: qpos store has {self.qpos_store.n_worlds} worlds, expected {w}")
     if self.com.ndim != 4 or self.com.shape[2] != len(self.body_names):
       raise MwbxError(f"bank: com has shape {self.com.shape}, expected [W, P, {len(self.body_names)}, 3]")
-
-
-def _crc32(array) -> int:
-  return zlib.crc32(np.ascontiguousarray(array).view(np.uint8).reshape(-1))
-
-
-def _verify(path: pathlib.Path, tree: dict, checksums: dict | None) -> None:
-  """MwbxError naming every array whose bytes differ from the saved checksum
-  (banks saved before checksums existed are not checked)."""
-  if not checksums:
-    return
-  bad = [name for name, crc in checksums.items()
-         if name not in tree or _crc32(np.asarray(tree[name])) != int(crc)]
-  if bad:
-    raise MwbxError(f"{path}: corrupt bank: checksum mismatch in {', '.join(sorted(bad))}"
-                    f" (the saved data changed since it was written)")
-
-
-def _first_line(err: Exception, limit: int = 200) -> str:
-  """The gist of a library's error: its first line, without the spec dumps
-  tensorstore appends, cut to ``limit`` characters."""
-  text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-  for cut in (" [source locations", " {\"", " {'"):
-    text = text.split(cut)[0]
-  return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def rows_of(world_ids: np.ndarray, ids):
@@ -456,43 +413,12 @@ def rows_of(world_ids: np.ndarray, ids):
   return int(rows[0]) if scalar else rows
 
 
-def _from_rows_to_ids(bank: Bank) -> Bank:
-  """A format-1 bank (lineage and parents named by bank row) with world ids."""
-  ids = bank.world_ids
-  parents = np.where(bank.parent_world >= 0, ids[np.clip(bank.parent_world, 0, None)], -1)
-  lineage = {}
-  for row, entry in bank.lineage.items():
-    entry = dict(entry)
-    if "parent" in entry:
-      entry["parent"] = int(ids[int(entry["parent"])])
-    lineage[str(int(ids[int(row)]))] = entry
-  return dataclasses.replace(bank, parent_world=parents.astype(np.int64), lineage=lineage)
-
-
 # The qpos stores a saved bank may name, by their ``kind``.
 QPOS_STORES: dict[str, type] = {RawQposStore.kind: RawQposStore,
                                 CompressedQposStore.kind: CompressedQposStore}
 
 
-def _store_class(kind: str):
+def store_class(kind: str):
   if kind not in QPOS_STORES:
     raise MwbxError(f"bank: unknown qpos store {kind!r} (have: {', '.join(QPOS_STORES)})")
   return QPOS_STORES[kind]
-
-
-class _manager:
-  """An orbax CheckpointManager over a bank directory, closed on exit."""
-
-  def __init__(self, path: pathlib.Path):
-    import orbax.checkpoint as ocp
-    self.manager = ocp.CheckpointManager(
-        path / "checkpoints",
-        options=ocp.CheckpointManagerOptions(max_to_keep=1, enable_async_checkpointing=False),
-        item_handlers={"bank": ocp.StandardCheckpointHandler(), "meta": ocp.JsonCheckpointHandler()},
-    )
-
-  def __enter__(self):
-    return self.manager
-
-  def __exit__(self, *exc):
-    self.manager.close()

@@ -1,0 +1,9 @@
+"""The bank: every world of one scene, its ids and lineage, on disk as shards."""
+
+from mwbx.bank.core import FLAG_AT_REST
+from mwbx.bank.core import FLAG_FINISHED
+from mwbx.bank.core import FLAG_UNSTABLE
+from mwbx.bank.core import QPOS_STORES
+from mwbx.bank.core import Bank
+from mwbx.bank.core import rows_of
+from mwbx.bank.shards import BankDirectory

@@ -1,0 +1,295 @@
+"""A bank directory: a small manifest plus append-only shards.
+
+::
+
+  BANK/manifest.json          format, scene (config, MJCF, layout), runs, shards, dropped ids
+  BANK/shards/00000/          one shard per chunk of worlds: <array>.npy per array, lineage.json
+  BANK/config.resolved.json   for people (every default filled in)
+  BANK/scene.xml              for people
+
+A shard is written into a temporary folder and renamed into place (atomic on
+POSIX), then the manifest is replaced atomically (write, fsync, rename): a
+process killed at any moment leaves the last complete manifest and every
+shard it names. Shards are never rewritten: appending worlds writes one new
+shard, dropping worlds records their ids in the manifest. Every array of a
+shard has a CRC32 in the manifest, checked on load; a corrupt shard is named
+and the others stay readable (``Bank.load(path, skip_corrupt=True)``).
+
+Runs of ``mwbx sample`` are recorded in the manifest (seed, the ids they are
+to produce, finished or not), so a killed run can be resumed: its missing ids
+are sampled again, and a world depends only on the seed and its id.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import uuid
+
+import numpy as np
+
+from mwbx.bank import checks
+from mwbx.errors import MwbxError
+
+FORMAT = 3
+MANIFEST = "manifest.json"
+SHARDS = "shards"
+
+
+def has_manifest(path: pathlib.Path) -> bool:
+  return (pathlib.Path(path) / MANIFEST).is_file()
+
+
+def _fsync_write(path: pathlib.Path, data: bytes) -> None:
+  with open(path, "wb") as f:
+    f.write(data)
+    f.flush()
+    os.fsync(f.fileno())
+
+
+def _fsync_dir(path: pathlib.Path) -> None:
+  fd = os.open(path, os.O_RDONLY)
+  try:
+    os.fsync(fd)
+  finally:
+    os.close(fd)
+
+
+def scene_meta(bank) -> dict:
+  """What every world of a bank shares (JSON)."""
+  _, store_meta = bank.qpos_store.empty().state()
+  return {
+      "digest": bank.digest, "config": bank.config, "mjcf_text": bank.mjcf_text,
+      "mjcf_includes": bank.mjcf_includes, "body_names": list(bank.body_names),
+      "body_ids": [int(b) for b in bank.body_ids],
+      "objects": {k: list(v) for k, v in bank.objects.items()},
+      "groups": {k: list(v) for k, v in bank.groups.items()},
+      "metric_names": list(bank.metric_names), "record_fps": bank.record_fps,
+      "query_fps": bank.query_fps, "timestep": bank.timestep, "qpos_store": store_meta,
+  }
+
+
+class BankDirectory:
+  """The manifest of one bank directory, and writes to it (shards, runs).
+
+  Args:
+    path: the directory (created on the first write).
+  """
+
+  def __init__(self, path: str | pathlib.Path):
+    self.path = pathlib.Path(path).absolute()
+    self.manifest = read_manifest(self.path) if has_manifest(self.path) else None
+
+  # -- reading the manifest ---------------------------------------------------------
+
+  def stored_ids(self, skip: tuple[str, ...] = ()) -> set[int]:
+    """Ids of the worlds in the shards (but those named in ``skip``), less the dropped ones."""
+    if self.manifest is None:
+      return set()
+    ids = set()
+    for entry in self.manifest["shards"]:
+      if entry["name"] not in skip:
+        ids.update(i for lo, hi in entry["id_ranges"] for i in range(lo, hi + 1))
+    return ids - set(int(i) for i in self.manifest["dropped"])
+
+  def unfinished_run(self) -> tuple[int, dict] | None:
+    """(index, record) of the last run not finished, if any."""
+    if self.manifest is None:
+      return None
+    for index in range(len(self.manifest["runs"]) - 1, -1, -1):
+      if not self.manifest["runs"][index]["finished"]:
+        return index, self.manifest["runs"][index]
+    return None
+
+  # -- writing ----------------------------------------------------------------------
+
+  def _check_scene(self, bank) -> None:
+    if self.manifest is None:
+      self.manifest = {"format": FORMAT, "scene": scene_meta(bank), "next_id": 0, "dropped": [],
+                       "runs": [], "shards": [], "run": {}}
+    elif self.manifest["scene"]["digest"] != bank.digest:
+      raise MwbxError(f"{self.path}: holds a bank of a different config or MJCF; choose another directory")
+
+  def append(self, bank, rows=None, run: dict | None = None, run_index: int | None = None) -> int | None:
+    """Writes the worlds ``rows`` of ``bank`` (default all) as one new shard.
+
+    Args:
+      bank: worlds of this directory's scene.
+      rows: i64[k] bank rows to write (default: every row).
+      run: a run record to add (the same manifest write makes it known).
+      run_index: a run record already there to keep (with ``run``: replaced).
+
+    Returns:
+      the index of the run record, if one was given.
+    """
+    self._check_scene(bank)
+    rows = np.arange(bank.n_worlds) if rows is None else np.asarray(rows, np.int64)
+    entries = list(self.manifest["shards"])
+    if rows.size:
+      entries.append(_write_shard(self.path, bank, rows, self._next_shard_name()))
+    if run is not None:
+      if run_index is None:
+        self.manifest["runs"].append(dict(run))
+        run_index = len(self.manifest["runs"]) - 1
+      else:
+        self.manifest["runs"][run_index] = dict(run)
+    self.manifest["shards"] = entries
+    self.manifest["next_id"] = max(int(self.manifest["next_id"]), bank.next_world_id)
+    if bank.run:  # how the bank's worlds are drawn (the seed later runs continue with)
+      self.manifest["run"] = {k: v for k, v in bank.run.items() if k != "corrupt_shards"}
+    self.commit()
+    return run_index
+
+  def finish_run(self, index: int) -> None:
+    self.manifest["runs"][index]["finished"] = True
+    self.commit()
+
+  def commit(self) -> None:
+    """Replaces the manifest atomically."""
+    self.path.mkdir(parents=True, exist_ok=True)
+    tmp = self.path / f".{MANIFEST}.{uuid.uuid4().hex}"
+    _fsync_write(tmp, json.dumps(self.manifest, indent=1).encode())
+    os.replace(tmp, self.path / MANIFEST)
+    _fsync_dir(self.path)
+
+  def _next_shard_name(self) -> str:
+    taken = {e["name"] for e in self.manifest["shards"]}
+    shards = self.path / SHARDS
+    if shards.is_dir():  # shards renamed into place by a process killed before its manifest write
+      taken |= {p.name for p in shards.iterdir()}
+    n = len(self.manifest["shards"])
+    while f"{n:05d}" in taken:
+      n += 1
+    return f"{n:05d}"
+
+
+def id_ranges(ids: np.ndarray) -> list[list[int]]:
+  """Sorted ids as [first, last] runs of consecutive ids (the manifest's form)."""
+  ids = np.unique(np.asarray(ids, np.int64))
+  if not ids.size:
+    return []
+  breaks = np.flatnonzero(np.diff(ids) != 1)
+  starts = np.concatenate([[0], breaks + 1])
+  ends = np.concatenate([breaks, [ids.size - 1]])
+  return [[int(ids[a]), int(ids[b])] for a, b in zip(starts, ends)]
+
+
+def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
+  """Writes the worlds ``rows`` of ``bank`` as shard ``name``; returns its manifest entry."""
+  part = bank._take(rows)
+  store_arrays, _ = part.qpos_store.state()
+  arrays = {n: np.ascontiguousarray(getattr(part, n)) for n in bank._ARRAYS}
+  arrays.update({f"qpos_{k}": np.ascontiguousarray(v) for k, v in store_arrays.items()})
+  lineage = {str(int(i)): bank.lineage[str(int(i))] for i in part.world_ids if str(int(i)) in bank.lineage}
+  lineage_bytes = json.dumps(lineage).encode()
+  shards = path / SHARDS
+  shards.mkdir(parents=True, exist_ok=True)
+  tmp = shards / f".tmp-{uuid.uuid4().hex}"
+  tmp.mkdir()
+  for key, value in arrays.items():
+    with open(tmp / f"{key}.npy", "wb") as f:
+      np.save(f, value, allow_pickle=False)
+      f.flush()
+      os.fsync(f.fileno())
+  _fsync_write(tmp / "lineage.json", lineage_bytes)
+  _fsync_dir(tmp)
+  os.rename(tmp, shards / name)
+  _fsync_dir(shards)
+  return {"name": name, "worlds": int(part.n_worlds), "id_ranges": id_ranges(part.world_ids),
+          "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
+          "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8))}
+
+
+def read_manifest(path: pathlib.Path) -> dict:
+  file = pathlib.Path(path) / MANIFEST
+  try:
+    manifest = json.loads(file.read_text())
+  except (OSError, ValueError) as err:
+    raise MwbxError(f"{file}: unreadable bank manifest ({checks.first_line(err)})") from None
+  if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+    raise MwbxError(f"{file}: unsupported bank manifest (format {manifest.get('format')!r}, "
+                    f"expected {FORMAT})" if isinstance(manifest, dict) else f"{file}: not a bank manifest")
+  return manifest
+
+
+def _read_shard(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
+  """(arrays, lineage) of one shard, checked against its manifest entry."""
+  where = path / SHARDS / entry["name"]
+  arrays = {}
+  try:
+    for key in entry["checksums"]:
+      arrays[key] = np.load(where / f"{key}.npy", allow_pickle=False)
+    lineage_bytes = (where / "lineage.json").read_bytes()
+  except Exception as err:  # noqa: BLE001 - np.load of a damaged header raises many kinds
+    raise MwbxError(f"{where}: corrupt or missing shard ({type(err).__name__}: "
+                    f"{checks.first_line(err)})") from None
+  checks.verify(f"{where}", arrays, entry["checksums"])
+  if checks.crc32(np.frombuffer(lineage_bytes, np.uint8)) != int(entry["lineage_crc"]):
+    raise MwbxError(f"{where}: corrupt bank: checksum mismatch in lineage.json")
+  try:
+    return arrays, json.loads(lineage_bytes)
+  except ValueError as err:
+    raise MwbxError(f"{where}: corrupt lineage.json ({checks.first_line(err)})") from None
+
+
+def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False):
+  """The bank of a shard directory (see :meth:`mwbx.bank.Bank.load`)."""
+  from mwbx.bank.core import store_class
+  manifest = read_manifest(path)
+  scene = manifest["scene"]
+  store_meta = scene["qpos_store"]
+  kind = store_class(store_meta["kind"])
+  parts, corrupt = [], []
+  for entry in manifest["shards"]:
+    try:
+      parts.append(_read_shard(path, entry))
+    except MwbxError:
+      if not skip_corrupt:
+        raise
+      corrupt.append(entry["name"])
+  if not parts:
+    raise MwbxError(f"{path}: no readable shard" + (f" (corrupt: {', '.join(corrupt)})" if corrupt else ""))
+  store = kind.restore({k[5:]: v for k, v in parts[0][0].items() if k.startswith("qpos_")}, store_meta)
+  for arrays, _ in parts[1:]:
+    store.extend(kind.restore({k[5:]: v for k, v in arrays.items() if k.startswith("qpos_")}, store_meta))
+  lineage = {}
+  for _, shard_lineage in parts:
+    lineage.update(shard_lineage)
+  run = dict(manifest.get("run", {}))
+  if corrupt:
+    run["corrupt_shards"] = corrupt
+  bank = cls(
+      **{name: np.concatenate([arrays[name] for arrays, _ in parts]) for name in cls._ARRAYS},
+      qpos_store=store, body_names=tuple(scene["body_names"]),
+      body_ids=np.asarray(scene["body_ids"], np.int32),
+      objects={k: tuple(v) for k, v in scene["objects"].items()},
+      groups={k: tuple(v) for k, v in scene["groups"].items()},
+      metric_names=tuple(scene["metric_names"]), record_fps=scene["record_fps"],
+      query_fps=scene["query_fps"], timestep=scene["timestep"], config=scene["config"],
+      mjcf_text=scene["mjcf_text"], mjcf_includes=scene.get("mjcf_includes", {}),
+      digest=scene["digest"], lineage=lineage, run=run, next_id=int(manifest["next_id"]))
+  dropped = np.asarray(manifest["dropped"], np.int64)
+  if dropped.size:
+    keep = np.flatnonzero(~np.isin(bank.world_ids, dropped))
+    bank = bank._take(keep, lineage={k: v for k, v in lineage.items() if int(k) not in set(dropped.tolist())})
+  return bank
+
+
+def save(bank, path: str | pathlib.Path) -> pathlib.Path:
+  """Writes the worlds of ``bank`` not yet in ``path`` as one new shard, and
+  records worlds stored there but no longer in ``bank`` as dropped."""
+  directory = BankDirectory(path)
+  directory._check_scene(bank)
+  stored = directory.stored_ids()
+  present = set(int(i) for i in bank.world_ids)
+  # Worlds of shards this bank was loaded without (corrupt) are not dropped.
+  unread = stored - directory.stored_ids(skip=tuple(bank.run.get("corrupt_shards", ())))
+  gone = sorted(stored - present - unread)
+  if gone:
+    directory.manifest["dropped"] = sorted(set(directory.manifest["dropped"]) | set(gone))
+  rows = np.flatnonzero([int(i) not in stored for i in bank.world_ids])
+  directory.append(bank, rows)
+  (directory.path / "config.resolved.json").write_text(json.dumps(bank.config, indent=2))
+  (directory.path / "scene.xml").write_text(bank.mjcf_text)
+  return directory.path
