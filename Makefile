@@ -34,6 +34,7 @@ bench: $(STAMP)
 	$(PY) scripts/bench_queries.py --real 1024
 	$(PY) scripts/bench_viewer.py --browser --screenshot docs/viewer_screenshot.png
 	$(PY) scripts/bench_refine.py
+	$(PY) scripts/bench_bank.py
 	$(PY) scripts/make_benchmarks_doc.py
 
 clean:

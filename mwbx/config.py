@@ -161,11 +161,15 @@ class CodecSection(_Strict):
     e_pos: free-joint translations, metres.
     e_rot_deg: rotation angle, degrees (below 0.5 rad = 28.6 degrees).
     e_scalar: hinge (radians) and slide (metres) joints.
+    e_com: the COM polylines queries test, metres: stored on a grid of step
+      2·e_com (every point within e_com of the simulation; queries are exact
+      on the stored points); null keeps them as float32.
   """
 
   e_pos: float = pydantic.Field(1e-3, gt=0)
   e_rot_deg: float = pydantic.Field(0.5, gt=0, lt=MAX_ROTATION_BOUND_DEG)
   e_scalar: float = pydantic.Field(1e-3, gt=0)
+  e_com: float | None = pydantic.Field(5e-4, gt=0)
 
 
 class Config(_Strict):

@@ -172,8 +172,32 @@ def refinement(d: dict) -> tuple[list[str], list[str]]:
   return lines, head
 
 
+def bank(d: dict) -> tuple[list[str], list[str]]:
+  lines = ["## Bank", "",
+           "`scripts/bench_bank.py`: each scene sampled twice with the same seed and saved as shards: "
+           "COM polylines as float32 (`codec.e_com: null`, the baseline; deflated like every shard "
+           "block of polylines) and on the grid (default `e_com`). Bytes on disk per body-second (one tracked body for one simulated second); "
+           "loading timed as the best of 3.", "",
+           f"Machine: {d['machine']}; {d['worlds']} worlds per bank.", "",
+           "| scene | COM polylines | e_com | bytes / body-second | COM bytes | qpos bytes | other | "
+           "whole bank / qpos stream | load ms |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+  head = []
+  for scene, r in d["scenes"].items():
+    for label in ("float32", "grid"):
+      x = r[label]
+      e = "–" if x["e_com_m"] is None else f"{x['e_com_m'] * 1e3:g} mm"
+      disk = x["disk_bytes"]
+      lines.append(f"| {scene} | {label} | {e} | {x['bytes_per_body_second']:,.0f} | {disk['com']:,} | "
+                   f"{disk['qpos']:,} | {disk['other'] + disk['manifest']:,} | "
+                   f"{x['bank_over_qpos_stream']:.2f} | {x['load_s'] * 1e3:.0f} |")
+    head.append(f"{scene} {r['float32']['bytes_per_body_second']:,.0f} → {r['grid']['bytes_per_body_second']:,.0f} "
+                f"bytes per body-second ({r['grid']['bank_over_qpos_stream']:.2f}× its qpos stream)")
+  return lines, [f"**bank on disk**: {'; '.join(head)}"]
+
+
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
-            ("refine", refinement))
+            ("refine", refinement), ("bank", bank))
 
 
 def main() -> None:

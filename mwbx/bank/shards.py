@@ -30,11 +30,18 @@ import uuid
 import numpy as np
 
 from mwbx.bank import checks
+from mwbx.codec import polyline
 from mwbx.errors import MwbxError
 
 FORMAT = 3
 MANIFEST = "manifest.json"
 SHARDS = "shards"
+
+
+def com_step(config: dict) -> float | None:
+  """The COM grid step of a bank's config (None: float32 polylines)."""
+  e_com = (config.get("codec") or {}).get("e_com")
+  return None if e_com is None else polyline.grid_step(e_com)
 
 
 def has_manifest(path: pathlib.Path) -> bool:
@@ -179,7 +186,8 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   """Writes the worlds ``rows`` of ``bank`` as shard ``name``; returns its manifest entry."""
   part = bank._take(rows)
   store_arrays, _ = part.qpos_store.state()
-  arrays = {n: np.ascontiguousarray(getattr(part, n)) for n in bank._ARRAYS}
+  arrays = {n: np.ascontiguousarray(getattr(part, n)) for n in bank._ARRAYS if n != "com"}
+  arrays["com_grid"] = polyline.encode(part.com, com_step(bank.config))
   arrays.update({f"qpos_{k}": np.ascontiguousarray(v) for k, v in store_arrays.items()})
   lineage = {str(int(i)): bank.lineage[str(int(i))] for i in part.world_ids if str(int(i)) in bank.lineage}
   lineage_bytes = json.dumps(lineage).encode()
@@ -225,6 +233,10 @@ def _read_shard(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
     raise MwbxError(f"{where}: corrupt or missing shard ({type(err).__name__}: "
                     f"{checks.first_line(err)})") from None
   checks.verify(f"{where}", arrays, entry["checksums"])
+  try:
+    arrays["com"] = polyline.decode(arrays.pop("com_grid"))
+  except MwbxError as err:
+    raise MwbxError(f"{where}: {err}") from None
   if checks.crc32(np.frombuffer(lineage_bytes, np.uint8)) != int(entry["lineage_crc"]):
     raise MwbxError(f"{where}: corrupt bank: checksum mismatch in lineage.json")
   try:

@@ -1,0 +1,101 @@
+"""COM polylines on a grid, stored as deflated integer deltas.
+
+The query paths (``f32[W, P, B, 3]``, metres) are rounded to a grid of step
+``2·e`` once, when sampled, so every stored point is within ``e`` of the
+simulated one (plus float32 rounding) and queries are exact on what is
+stored. On disk a grid path is its integer grid coordinates, differenced
+twice along the path (ballistic and resting stretches give near-zero
+values), narrowed to the smallest integer type that holds them, and
+deflated (zlib). Decoding is exact: :func:`decode` returns the same float32
+array that :func:`round_to_grid` made. Paths not on the grid (banks sampled
+before it) are stored as raw float32, bit for bit.
+"""
+
+from __future__ import annotations
+
+import io
+import zlib
+
+import numpy as np
+
+from mwbx.codec.layout import CodecError
+
+# Grid coordinates beyond this are not encoded (float64 holds them exactly, and
+# float32 products of them with the step stay on the grid).
+MAX_GRID = 1 << 23
+
+
+def grid_step(e_com: float) -> float:
+  """The grid step for a bound ``e_com`` (metres): every point moves at most half a step."""
+  return 2.0 * float(e_com)
+
+
+def round_to_grid(points: np.ndarray, step: float) -> np.ndarray:
+  """f32[...] points (metres) rounded to the nearest grid point, non-finite ones as given."""
+  points = np.asarray(points, np.float32)
+  q = np.round(points.astype(np.float64) / step)
+  out = (q * step).astype(np.float32)
+  return np.where(np.isfinite(points), out, points)
+
+
+def _grid(points: np.ndarray, step: float) -> np.ndarray | None:
+  """i64 grid coordinates of ``points`` if they are exactly grid points, else None."""
+  if not np.all(np.isfinite(points)):
+    return None
+  q = np.round(points.astype(np.float64) / step)
+  if q.size and np.abs(q).max() >= MAX_GRID:
+    return None
+  if not np.array_equal((q * step).astype(np.float32), points):
+    return None
+  return q.astype(np.int64)
+
+
+def _narrow(values: np.ndarray) -> np.ndarray:
+  for dtype in (np.int8, np.int16, np.int32):
+    if values.size == 0 or (values.min() >= np.iinfo(dtype).min and values.max() <= np.iinfo(dtype).max):
+      return values.astype(dtype)
+  return values
+
+
+def encode(points: np.ndarray, step: float | None) -> np.ndarray:
+  """u8[n]: ``points`` (f32[W, P, ...]) as deflated grid coordinates: per path
+  its first point, first step and then second differences along P; deflated
+  raw float32 when they are not on the grid (or ``step`` is None)."""
+  points = np.ascontiguousarray(points, np.float32)
+  q = _grid(points, step) if points.ndim >= 2 and step is not None else None
+  step = 0.0 if step is None else step
+  buf = io.BytesIO()
+  if q is None:
+    kind = b"R"
+    np.savez(buf, raw=points)
+  else:
+    kind = b"G"
+    first = q[:, :1]
+    steps = np.diff(q, axis=1)
+    rest = np.concatenate([steps[:, :1], np.diff(steps, axis=1)], axis=1)  # P - 1 values per path
+    np.savez(buf, first=_narrow(first), rest=_narrow(rest))
+  head = kind + np.float64(step).tobytes()
+  return np.frombuffer(head + zlib.compress(buf.getvalue(), 6), np.uint8)
+
+
+def decode(data: np.ndarray) -> np.ndarray:
+  """The f32 array :func:`encode` was given, bit for bit; CodecError if damaged."""
+  raw = np.asarray(data, np.uint8).tobytes()
+  if len(raw) < 9 or raw[:1] not in (b"G", b"R"):
+    raise CodecError("COM polylines: not an encoded polyline block")
+  step = float(np.frombuffer(raw[1:9], np.float64)[0])
+  try:
+    arrays = np.load(io.BytesIO(zlib.decompress(raw[9:])), allow_pickle=False)
+    if raw[:1] == b"R":
+      out = np.asarray(arrays["raw"], np.float32)
+    else:
+      first = arrays["first"].astype(np.int64)
+      rest = arrays["rest"].astype(np.int64)
+      steps = np.cumsum(rest, axis=1)  # first step, then the second differences summed
+      q = np.concatenate([first, first + np.cumsum(steps, axis=1)], axis=1)
+      out = (q.astype(np.float64) * step).astype(np.float32)
+  except CodecError:
+    raise
+  except Exception as err:  # noqa: BLE001 - zlib and np.load raise many kinds on damage
+    raise CodecError(f"COM polylines: corrupt block ({type(err).__name__})") from None
+  return out
