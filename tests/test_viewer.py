@@ -375,6 +375,8 @@ def test_animation_tracks_replay_forward_kinematics(bank, model):
   assert ("set_object", "/meshcat/mwbx/worlds/static/g0_floor") in cmds
   ghost = cmds[("set_object", "/meshcat/mwbx/worlds/w1/box/g3")]["object"]["materials"][0]
   assert ghost["transparent"] and ghost["opacity"] < 1
+  first = cmds[("set_object", "/meshcat/mwbx/worlds/w0/box/g3")]["object"]["materials"][0]
+  assert ghost["color"] == first["color"]  # a ghost keeps its body's colour
   np.testing.assert_array_equal(info.offsets, 0)
 
 
@@ -388,6 +390,27 @@ def test_grid_layout_separates_worlds(bank):
   for w in (0, 2, 3, 4):
     assert ("set_object", f"/meshcat/mwbx/worlds/w{w}/static/g0_floor") in cmds
     assert ("set_transform", f"/meshcat/mwbx/worlds/w{w}") in cmds
+
+
+def test_grid_layout_draws_queries_and_a_label_on_every_tile(bank):
+  corners = _frustum(np.array([0, -2.0, 0.5]), (np.pi / 2, 0.0), 0.5, 3.0, 0.2, 0.2)
+  vis, info = _draw_offline(bank, worlds=[0, 2, 3], layout="grid", queries=[(corners, True)])
+  cmds = _recorded(vis)
+  for k, w in enumerate((0, 2, 3)):
+    assert ("set_object", f"/meshcat/mwbx/queries/q0/w{w}/volume") in cmds
+    shift = np.asarray(cmds[("set_transform", f"/meshcat/mwbx/queries/q0/w{w}")]["matrix"]).reshape(4, 4).T
+    np.testing.assert_allclose(shift[:3, 3], info.offsets[k])  # the frustum moves with its tile
+    label = cmds[("set_object", f"/meshcat/mwbx/worlds/w{w}/label")]["object"]
+    assert label["textures"] and label["images"][0]["url"].startswith("data:image/png;base64,")
+  assert ("set_object", "/meshcat/mwbx/queries/q0/volume") not in cmds
+
+
+def test_label_png_shows_the_text():
+  import io
+  from PIL import Image
+  a = np.asarray(Image.open(io.BytesIO(playback.label_png("world 7"))).convert("L"))
+  b = np.asarray(Image.open(io.BytesIO(playback.label_png("world 8"))).convert("L"))
+  assert a.shape == playback.LABEL_PIXELS[::-1] and (a < 128).mean() > 0.02 and not np.array_equal(a, b)
 
 
 def test_paths_queries_and_shift(bank):

@@ -117,3 +117,20 @@ def test_grid_page_shows_query_frustum(bank, browser, tmp_path):
   frustum = hue_fraction(image, mv.frustums.INCLUDE[:3], min_chroma=40, hue_tol_deg=25)
   objects = max(hue_fraction(image, c) for c in object_colours(bank))
   assert frustum >= MIN_FRUSTUM_FRACTION and objects >= MIN_OBJECT_FRACTION / 4, (frustum, objects)
+
+
+@pytest.mark.parametrize("camera", [None, "front"])
+def test_query_camera_marker_never_covers_the_view(bank, browser, tmp_path, camera):
+  """Screen queries drawn with their camera: seen from that same camera
+  (``--camera front``) or from the fitted default view, the camera's eye
+  marker stays a dot and the scene is visible (it used to fill the screen)."""
+  from mwbx import queries as mq
+  cam = mq.Camera.from_model(bank.model(), "front")
+  qs = [mq.Query.screen(cam, [0.3, 0.5, 0.42, 0.6], near=2, far=5, bodies="ball"),
+        mq.Query.screen(cam, [0.1, 0.45, 0.2, 0.55], near=2, far=5, bodies="ball", sign="exclude")]
+  world = int(bank.world_ids[np.flatnonzero(np.asarray(bank.valid))[0]])
+  out = mv.export_html(bank, tmp_path / "q.html", worlds=[world], paths=True, queries=qs, camera=camera)
+  image = screenshot(out.as_uri(), seek_s=0.5)
+  marker = colour_fraction(image, mv.frustums.CAMERA_RGBA[:3], 12)
+  objects = max(hue_fraction(image, c) for c in object_colours(bank))
+  assert marker < 0.01 and objects >= MIN_OBJECT_FRACTION, (marker, objects)

@@ -21,7 +21,7 @@ import numpy as np
 from mwbx.errors import MwbxError
 from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.framing import place_camera, scene_bounds, view_spec
-from mwbx.viewer.frustums import QueryVolume, as_volume, draw_volume
+from mwbx.viewer.frustums import QueryVolume, as_volume, draw_volume, frustum_eye
 from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS, pose_matrix, scene_visuals
 from mwbx.viewer.paths import classify_worlds, draw_paths
 from mwbx.viewer.playback import LAYOUTS, draw_playback, grid_offsets, make_grid
@@ -67,6 +67,22 @@ def resolve_worlds(bank, worlds: Sequence[int] | None) -> np.ndarray:
     if not valid[row]:
       raise ViewerError(f"worlds: world {int(wid)} is flagged unstable and cannot be shown")
   return rows
+
+
+# A query camera's eye marker: this fraction of the scene radius, and never
+# wider than this fraction of its distance from the viewing camera (about half
+# a degree), so it never fills the view; none when the view is from that eye.
+EYE_MARKER_SCENE = 0.015
+EYE_MARKER_ANGLE = 0.01
+
+
+def eye_marker_radius(volume, view_eye: np.ndarray, scene_radius: float) -> float:
+  """Radius (m) of a query camera's eye marker seen from ``view_eye``; 0: none."""
+  eye = volume.eye if volume.eye is not None else frustum_eye(volume.corners)
+  if eye is None:
+    return 0.0
+  distance = float(np.linalg.norm(np.asarray(eye, np.float64) - np.asarray(view_eye, np.float64)))
+  return min(EYE_MARKER_SCENE * scene_radius, EYE_MARKER_ANGLE * distance)
 
 
 def resolve_bodies(bank, paths: Any) -> np.ndarray | None:
@@ -140,7 +156,14 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
     counts = draw_paths(root["paths"], np.asarray(bank.com), np.asarray(bank.com_count), bodies, classes)
   depth = 3.0 * radius if frustum_depth is None else frustum_depth
   for i, volume in enumerate(volumes):
-    draw_volume(root["queries"][f"q{i}"], volume, i, max_depth=depth, eye_radius=0.015 * radius)
+    marker = eye_marker_radius(volume, eye, radius)
+    if layout == "grid" and worlds.size:  # every tile shows its world with the queries
+      for k, wid in enumerate(np.asarray(bank.world_ids)[worlds]):
+        tile = root["queries"][f"q{i}"][f"w{int(wid)}"]
+        draw_volume(tile, volume, i, max_depth=depth, eye_radius=marker)
+        tile.set_transform(pose_matrix(offsets[k], np.array([1.0, 0.0, 0.0, 0.0])))
+    else:
+      draw_volume(root["queries"][f"q{i}"], volume, i, max_depth=depth, eye_radius=marker)
   return DrawInfo(centre, np.asarray(bank.world_ids)[worlds], offsets, counts, len(volumes), eye)
 
 

@@ -232,8 +232,8 @@ def truncate(corners: np.ndarray, max_depth: float | None) -> np.ndarray:
 def draw_volume(vis, volume: QueryVolume, index: int = 0,
                 max_depth: float | None = None, eye_radius: float = 0.02) -> None:
   """Draws one frustum under `vis`: "volume" (translucent), "outline", and,
-  where a camera position is known, "camera" (eye sphere + rays to the near
-  corners)."""
+  where a camera position is known, "camera" (eye sphere of `eye_radius`
+  metres, none when 0, + rays to the near corners)."""
   rgba = INCLUDE if volume.include else EXCLUDE
   corners = truncate(volume.corners, max_depth)
   verts, faces, edges = hull_mesh(corners, index)
@@ -253,6 +253,9 @@ def draw_volume(vis, volume: QueryVolume, index: int = 0,
     vis["camera/rays"].set_object(mg.LineSegments(
         mg.PointsGeometry(np.ascontiguousarray(rays.T, dtype=np.float32)),
         mg.LineBasicMaterial(color=CAMERA_RGBA.hex())))
+  if eye_radius <= 0:
+    vis["camera/eye"].delete()
+    return
   vis["camera/eye"].set_object(mg.Sphere(float(eye_radius)),
                                mg.MeshBasicMaterial(color=CAMERA_RGBA.hex()))
   vis["camera/eye"].set_transform(_translation(eye))

@@ -2,7 +2,7 @@
 pose per recorded frame as an animation track at the recording rate.
 
 Layouts: "overlay" puts every world in the same place, the first opaque in its
-MJCF colours and the others as tinted, translucent ghosts; "grid" lays worlds
+MJCF colours and the others as translucent ghosts in the same colours; "grid" lays worlds
 out side by side, each with its own copy of the static scene.
 """
 
@@ -16,24 +16,19 @@ import mujoco
 import numpy as np
 
 from mwbx.viewer.errors import ViewerError
-from mwbx.viewer.geometry import (PLANE_THICKNESS, GeomVisual, Rgba, body_node_name, material,
-                                  moving_body_ids, pose_matrix)
+from mwbx.viewer.geometry import (PLANE_THICKNESS, GeomVisual, body_node_name, material, moving_body_ids,
+                                  pose_matrix)
 from mwbx.viewer.kinematics import body_trajectories, pad_frames
 
 LAYOUTS = ("overlay", "grid")
-# Tints for ghost worlds in overlay layout, cycled.
-GHOST_TINTS = (
-    Rgba(0.1, 0.45, 1.0, 1.0), Rgba(1.0, 0.55, 0.0, 1.0), Rgba(0.6, 0.2, 0.9, 1.0),
-    Rgba(0.0, 0.75, 0.75, 1.0), Rgba(0.9, 0.2, 0.55, 1.0), Rgba(0.45, 0.3, 0.15, 1.0),
-)
-GHOST_TINT_WEIGHT = 0.55
+# Ghost worlds in overlay layout keep their MJCF colours (a red crate stays
+# red: colour means body, not world) and are told apart by translucency.
 GHOST_OPACITY = 0.45
 
 
 class WorldStyle(NamedTuple):
-  """How one world is drawn: tint colour (None = MJCF colours) and opacity."""
+  """How one world is drawn: opacity (1: opaque, MJCF colours either way)."""
 
-  tint: Rgba | None
   opacity: float
 
 
@@ -56,9 +51,8 @@ def world_styles(n_worlds: int, layout: str) -> list[WorldStyle]:
   if layout not in LAYOUTS:
     raise ViewerError(f"layout must be one of {LAYOUTS}, got {layout!r}")
   if layout == "grid" or n_worlds == 1:
-    return [WorldStyle(None, 1.0)] * n_worlds
-  return [WorldStyle(None, 1.0)] + [
-      WorldStyle(GHOST_TINTS[(k - 1) % len(GHOST_TINTS)], GHOST_OPACITY) for k in range(1, n_worlds)]
+    return [WorldStyle(1.0)] * n_worlds
+  return [WorldStyle(1.0)] + [WorldStyle(GHOST_OPACITY)] * (n_worlds - 1)
 
 
 class Grid(NamedTuple):
@@ -115,6 +109,40 @@ def grid_offsets(n_worlds: int, grid: Grid) -> np.ndarray:
           + (k // grid.n_cols)[:, None] * grid.row_step * grid.row_axis[None])
 
 
+# Grid labels: height of the text as a fraction of a cell's width, and the
+# image it is drawn into (pixels).
+LABEL_HEIGHT = 0.08
+LABEL_PIXELS = (256, 48)
+
+
+def label_png(text: str) -> bytes:
+  """PNG bytes of ``text`` in dark grey on white (Pillow's default font)."""
+  import io
+  from PIL import Image, ImageDraw, ImageFont
+  width, height = LABEL_PIXELS
+  image = Image.new("RGB", (width, height), (255, 255, 255))
+  font = ImageFont.load_default(size=int(height * 0.7))
+  ImageDraw.Draw(image).text((width / 2, height / 2), text, fill=(40, 40, 40), font=font, anchor="mm")
+  out = io.BytesIO()
+  image.save(out, format="PNG")
+  return out.getvalue()
+
+
+def draw_label(vis, text: str, grid: Grid) -> None:
+  """A world's label in grid layout: a flat card at the far edge of its floor
+  tile, facing the viewer, moving with the cell."""
+  right, away, up = grid.tile_axes.T
+  height = LABEL_HEIGHT * grid.col_step
+  width = height * LABEL_PIXELS[0] / LABEL_PIXELS[1]
+  card = mg.Box([width, height, 1e-3 * width])
+  texture = mg.ImageTexture(image=mg.PngImage(label_png(text)))
+  vis.set_object(card, mg.MeshBasicMaterial(map=texture))
+  pose = np.eye(4)
+  pose[:3, :3] = np.stack([right, up, -away], axis=1)  # card x right, y up, facing the viewer
+  pose[:3, 3] = grid.centre + 0.5 * grid.tile[1] * away + (0.5 * height) * up
+  vis.set_transform(pose)
+
+
 def tile_planes(visuals: Sequence[GeomVisual], grid: Grid) -> list[GeomVisual]:
   """Grid layout: horizontal static planes become one floor tile per cell,
   a bit smaller than the cell so neighbouring worlds are visibly apart and
@@ -154,14 +182,14 @@ def world_tracks(bank, model: mujoco.MjModel, worlds: Sequence[int],
   return tracks
 
 
-def draw_static(vis, visuals: Sequence[GeomVisual], style: WorldStyle = WorldStyle(None, 1.0)) -> None:
+def draw_static(vis, visuals: Sequence[GeomVisual], style: WorldStyle = WorldStyle(1.0)) -> None:
   """Static geoms at their world poses under `vis`, once."""
   for v in visuals:
     if not v.static:
       continue
     node = vis[v.name]
-    node.set_object(v.geometry, material(v.rgba, v.shininess, style.tint, GHOST_TINT_WEIGHT,
-                                         None if style.opacity >= 1.0 else style.opacity))
+    node.set_object(v.geometry, material(v.rgba, v.shininess,
+                                         opacity=None if style.opacity >= 1.0 else style.opacity))
     node.set_transform(v.local)
 
 
@@ -176,8 +204,8 @@ def draw_bodies(vis, model: mujoco.MjModel, visuals: Sequence[GeomVisual],
     if v.body_id not in nodes:
       nodes[v.body_id] = vis[body_node_name(model, v.body_id)]
     geom = nodes[v.body_id][v.name]
-    geom.set_object(v.geometry, material(v.rgba, v.shininess, style.tint, GHOST_TINT_WEIGHT,
-                                         None if style.opacity >= 1.0 else style.opacity))
+    geom.set_object(v.geometry, material(v.rgba, v.shininess,
+                                         opacity=None if style.opacity >= 1.0 else style.opacity))
     geom.set_transform(v.local)
   return nodes
 
@@ -232,6 +260,7 @@ def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual
     node.set_transform(shift)
     if layout == "grid":
       draw_static(node["static"], visuals)
+      draw_label(node["label"], f"world {int(world_ids[track.world])}", grid)
     nodes = draw_bodies(node, model, visuals, style)
     for j, body in enumerate(track.body_ids):
       body_node = nodes[int(body)]
