@@ -6,6 +6,7 @@
   mwbx view BANK [--worlds 3,17 | --top K --rank METRIC] [--queries Q.yaml] [--html OUT.html] [--no-browser]
   mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N [--seed S] [--out DIR]
   mwbx drop BANK IDS [--out DIR]
+  mwbx browse BANK [--port P] [--host 127.0.0.1] [--no-browser]
 
 Worlds are named by their ids everywhere (what `query` lists).
 
@@ -255,6 +256,14 @@ def _cmd_drop(args) -> int:
   return 0
 
 
+def _cmd_browse(args) -> int:
+  import mwbx
+  from mwbx.browser import browse
+  bank = mwbx.Bank.load(args.bank)
+  browse(bank, path=args.bank, host=args.host, port=args.port, open_browser=not args.no_browser)
+  return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
   from mwbx import __version__
   parser = argparse.ArgumentParser(prog="mwbx", description="Many-Worlds Browsing on JAX and MuJoCo.")
@@ -318,6 +327,13 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("ids", help="world ids, e.g. 260,261")
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
   p.set_defaults(func=_cmd_drop)
+
+  p = sub.add_parser("browse", help="browse a bank in the browser: draw boxes, sort, play, refine")
+  p.add_argument("bank", help="bank directory")
+  p.add_argument("--port", type=int, default=None, help="port to serve on (default: a free one)")
+  p.add_argument("--host", default="127.0.0.1", help="address to serve on")
+  p.add_argument("--no-browser", action="store_true", help="only print the URL")
+  p.set_defaults(func=_cmd_browse)
   return parser
 
 

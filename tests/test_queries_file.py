@@ -91,3 +91,22 @@ def test_mjcf_camera_needs_the_scene(tmp_path):
 def test_missing_file(tmp_path):
   with pytest.raises(MwbxError, match="cannot read query file"):
     load_queries(tmp_path / "absent.yaml")
+
+
+def test_query_set_saves_a_file_that_loads_to_the_same_queries(tmp_path, bank):
+  from mwbx.queries import Camera, Frustum, QuerySet, evaluate_each
+  qs = load_queries(write(tmp_path, GOOD), bank)
+  free = Camera.look_at([0.3, -3.5, 1.4], [0.1, 0.2, 0.7], fovy=52, aspect=1.6)
+  extra = (Query.screen(free, [0.2, 0.1, 0.7, 0.9], far=6.0, bodies="b1", sign="exclude", name="drawn"),
+           Query.region([-0.5, -0.5, 0.0], [0.5, 0.5, 1.0], window=(None, 0.4)))
+  everything = qs._replace(queries=qs.queries + extra)
+  path = everything.save(tmp_path / "saved.yaml")
+  again = load_queries(path, bank)
+  assert [q.name for q in again.queries] == [q.name or f"q{i}" for i, q in enumerate(everything.queries)]
+  assert again.rank == everything.rank and again.top == 5 and not again.descending
+  np.testing.assert_array_equal(evaluate_each(bank, again.queries), evaluate_each(bank, everything.queries))
+  for a, b in zip(again.queries, everything.queries):
+    np.testing.assert_allclose(a.frustum.normals, b.frustum.normals, atol=1e-6)
+    np.testing.assert_allclose(a.frustum.offsets, b.frustum.offsets, atol=1e-6)
+  with pytest.raises(MwbxError, match=r"queries\[0\]: a query built from raw planes cannot be saved"):
+    QuerySet((Query(Frustum.box([0, 0, 0], [1, 1, 1])),)).save(tmp_path / "raw.yaml")

@@ -50,7 +50,9 @@ class Query:
     Times past the end of a path see its last point (the world is at rest).
   radius: swept-sphere radius in metres, or "auto" for each body's bounding
     radius (from its own geoms, about its centre of mass).
-  name: label for output. camera, box: where the frustum came from.
+  name: label for output. camera, box, near, far (screen queries) or
+    world_box ((lo, hi), region queries): where the frustum came from, so it
+    can be saved.
   """
 
   frustum: Frustum
@@ -62,6 +64,9 @@ class Query:
   name: str = ""
   camera: Camera | None = None
   box: ScreenBox | None = None
+  near: float | None = None
+  far: float | None = None
+  world_box: tuple | None = None
 
   def __post_init__(self):
     label = f"query {self.name!r}" if self.name else "query"
@@ -107,12 +112,13 @@ class Query:
     """A query from a screen box [u0, v0, u1, v1] seen through a camera."""
     if not isinstance(box, ScreenBox):
       box = ScreenBox(*box)
-    return cls(camera.frustum(box, near, far), camera=camera, box=box, **fields)
+    return cls(camera.frustum(box, near, far), camera=camera, box=box, near=near, far=far, **fields)
 
   @classmethod
   def region(cls, lo, hi, **fields) -> Query:
     """A query on an axis-aligned world box [lo, hi], metres."""
-    return cls(Frustum.box(lo, hi), **fields)
+    return cls(Frustum.box(lo, hi), world_box=(tuple(float(x) for x in lo), tuple(float(x) for x in hi)),
+               **fields)
 
 
 def as_queries(queries) -> tuple[Query, ...]:

@@ -106,6 +106,11 @@ class QuerySet(NamedTuple):
   queries: the constraints (their conjunction). rank: the default ranking
   terms, () if none. descending: order of the ranking. top: default number
   of worlds to list, or None. path: the file.
+
+  Example::
+
+    qs = QuerySet((Query.screen(camera, [0.1, 0.2, 0.3, 0.4], bodies="ball"),))
+    qs.save("out/my_queries.yaml")        # mwbx query BANK out/my_queries.yaml
   """
 
   queries: tuple[Query, ...]
@@ -113,6 +118,62 @@ class QuerySet(NamedTuple):
   descending: bool = True
   top: int | None = None
   path: str = ""
+
+  def to_dict(self) -> dict:
+    """The query file's contents (see this module's docstring)."""
+    out: dict = {"queries": [_query_dict(q, i) for i, q in enumerate(self.queries)]}
+    if self.rank:
+      out["rank"] = [{"metric": t.metric, "bodies": None if t.bodies is None else list(t.bodies),
+                      "reduce": t.reduce, "weight": float(t.weight)} for t in self.rank]
+    out["order"] = "desc" if self.descending else "asc"
+    if self.top is not None:
+      out["top"] = int(self.top)
+    return out
+
+  def save(self, path: str | os.PathLike) -> str:
+    """Writes the set as a query file that :func:`load_queries` (and ``mwbx
+    query``) read back to the same queries; returns the path."""
+    path = os.fspath(path)
+    try:
+      with open(path, "w") as f:
+        f.write("# mwbx query file (QuerySet.save)\n")
+        yaml.safe_dump(self.to_dict(), f, sort_keys=False, default_flow_style=None)
+    except OSError as err:
+      raise MwbxError(f"{path}: cannot write query file: {err.strerror}") from None
+    return path
+
+
+def _camera_dict(camera: Camera) -> dict:
+  """An MJCF camera by name; any other as look-at (its own axes, exactly)."""
+  if camera.name:
+    return {"mjcf": camera.name, "aspect": float(camera.aspect)}
+  return {"eye": [float(x) for x in camera.eye], "target": [float(x) for x in camera.eye + camera.forward],
+          "up": [float(x) for x in camera.up], "fovy": float(camera.fovy), "aspect": float(camera.aspect),
+          "orthographic": bool(camera.orthographic)}
+
+
+def _query_dict(q: Query, index: int) -> dict:
+  out: dict = {"name": q.name or f"q{index}"}  # the name load_queries gives an unnamed one
+  if q.box is not None and q.camera is not None:
+    out["box"] = [float(q.box.u0), float(q.box.v0), float(q.box.u1), float(q.box.v1)]
+    out["camera"] = _camera_dict(q.camera)
+    if q.near is not None:
+      out["near"] = float(q.near)
+    if q.far is not None:
+      out["far"] = float(q.far)
+  elif q.world_box is not None:
+    out["region"] = {"min": list(q.world_box[0]), "max": list(q.world_box[1])}
+  else:
+    raise MwbxError(f"queries[{index}]: a query built from raw planes cannot be saved "
+                    f"(build it with Query.screen or Query.region)")
+  out["sign"] = q.sign
+  if q.bodies is not None:
+    out["bodies"] = list(q.bodies)
+  out["mode"] = q.mode
+  if q.window is not None:
+    out["window"] = list(q.window)
+  out["radius"] = q.radius
+  return out
 
 
 def _location(loc) -> str:

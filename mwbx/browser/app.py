@@ -1,0 +1,475 @@
+"""The browsing page: a viser server showing a bank, its paths and queries.
+
+Draw a box in the 3-D view (``Draw include box`` / ``Draw exclude box``, then
+drag): it becomes a frustum query through the camera you are looking
+through, and the counts, the path colours and the sorter update at once.
+Click a sorter row to play that world back; refine it from the current time
+or from the first entry of the last box; step back to its parent; save the
+queries as a query file and the bank as a new shard.
+
+Every query the page adds is also printed on stdout with its screen box and
+camera, so what the page computed can be checked from outside.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import socket
+import sys
+import threading
+import time
+
+import mujoco
+import numpy as np
+
+from mwbx import queries as mq
+from mwbx.browser.session import REDUCTIONS, Session
+from mwbx.errors import MwbxError
+from mwbx.viewer import geometry as vgeom
+from mwbx.viewer.kinematics import body_trajectories
+
+# At most this many faint path segments are drawn (an evenly spaced subset of
+# the worlds beyond it); matching and excluded paths are always drawn.
+MAX_FAINT_SEGMENTS = 60_000
+FAINT_RGB = (185, 185, 185)
+EXCLUDE_RGB = (220, 40, 40)
+QUERY_RGB = {"include": (40, 200, 60), "exclude": (220, 40, 40)}
+ALL_BODIES = "(every tracked body)"
+FIRST_ENTRY = "first entry of the last box"
+CURRENT_TIME = "current time"
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+  """A TCP port nothing listens on now (the OS picks it)."""
+  with socket.socket() as s:
+    s.bind((host, 0))
+    return int(s.getsockname()[1])
+
+
+def _mesh(geometry) -> tuple[np.ndarray, np.ndarray]:
+  """(f32[V, 3], i32[F, 3]) triangles of a meshcat geometry, in its own frame."""
+  import trimesh
+  import meshcat.geometry as mg
+  if isinstance(geometry, mg.Box):
+    m = trimesh.creation.box(extents=geometry.lengths)
+  elif isinstance(geometry, mg.Sphere):
+    m = trimesh.creation.icosphere(2, geometry.radius)
+  elif isinstance(geometry, mg.Ellipsoid):
+    m = trimesh.creation.icosphere(2, 1.0)
+    m.apply_scale(np.asarray(geometry.radii, np.float64))
+  elif isinstance(geometry, mg.Cylinder):  # meshcat cylinders run along y
+    m = trimesh.creation.cylinder(radius=geometry.radius, height=geometry.height, sections=24)
+    m.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
+  elif isinstance(geometry, mg.TriangularMeshGeometry):
+    return np.asarray(geometry.vertices, np.float32), np.asarray(geometry.faces, np.int32)
+  else:
+    raise MwbxError(f"browse: cannot draw geometry {type(geometry).__name__}")
+  return np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32)
+
+
+def _pose(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+  """(wxyz, position) of a 4x4 transform."""
+  quat = np.zeros(4)
+  mujoco.mju_mat2Quat(quat, np.ascontiguousarray(matrix[:3, :3]).reshape(-1))
+  return quat, np.asarray(matrix[:3, 3], np.float64)
+
+
+def _rgb(rgba) -> tuple[int, int, int]:
+  return tuple(int(round(255 * float(c))) for c in rgba[:3])
+
+
+def camera_from_client(camera) -> mq.Camera:
+  """The mwbx camera of a viser client camera (OpenCV axes: x right, y down, z forward)."""
+  rot = np.zeros(9)
+  mujoco.mju_quat2Mat(rot, np.asarray(camera.wxyz, np.float64))
+  rot = rot.reshape(3, 3)
+  return mq.Camera(eye=np.asarray(camera.position, np.float64), right=rot[:, 0], up=-rot[:, 1],
+                   forward=rot[:, 2], fovy=float(np.degrees(camera.fov)), aspect=float(camera.aspect))
+
+
+class Browser:
+  """A viser page over a :class:`~mwbx.browser.session.Session`.
+
+  Args:
+    session: what is browsed.
+    host, port: where the page is served (port None: a free one).
+  """
+
+  def __init__(self, session: Session, host: str = "127.0.0.1", port: int | None = None):
+    import viser
+    self.session = session
+    self.port = free_port(host) if port is None else int(port)
+    self.server = viser.ViserServer(host=host, port=self.port, label="mwbx", verbose=False)
+    self.host = host
+    self.model = session.bank.model()
+    self.visuals = vgeom.scene_visuals(self.model)
+    self.playing_world: int | None = None
+    self.frame = 0
+    self._stop = threading.Event()
+    self._tracks = None
+    self._handles: dict = {}
+    self._build_scene()
+    self._build_gui()
+    self.refresh()
+    self._player = threading.Thread(target=self._play_loop, daemon=True, name="mwbx-playback")
+    self._player.start()
+
+  @property
+  def url(self) -> str:
+    return f"http://{self.host}:{self.port}"
+
+  # -- scene ------------------------------------------------------------------------------
+
+  def _build_scene(self) -> None:
+    scene = self.server.scene
+    scene.set_up_direction("+z")
+    self._frame_view()
+    self.body_nodes = {}
+    for v in self.visuals:
+      verts, faces = _mesh(v.geometry)
+      wxyz, pos = _pose(v.local)
+      if v.static:
+        scene.add_mesh_simple(f"/scene/{v.name}", verts, faces, color=_rgb(v.rgba), wxyz=wxyz, position=pos,
+                              opacity=None if v.rgba.a >= 1 else float(v.rgba.a))
+      else:
+        body = int(v.body_id)
+        if body not in self.body_nodes:
+          self.body_nodes[body] = scene.add_frame(f"/play/b{body}", show_axes=False, visible=False)
+        scene.add_mesh_simple(f"/play/b{body}/{v.name}", verts, faces, color=_rgb(v.rgba), wxyz=wxyz,
+                              position=pos)
+    # Colour per body: the colour of its first geom (a path of the ball is the ball's colour).
+    bank = self.session.bank
+    colour = {}
+    for v in self.visuals:
+      colour.setdefault(int(v.body_id), _rgb(v.rgba))
+    self.body_rgb = np.array([colour.get(int(b), (60, 160, 60)) for b in bank.body_ids], np.uint8)
+
+  def _frame_view(self) -> None:
+    """Initial camera: along the model's first camera (else from the front,
+    above), far enough back to see where the bodies go."""
+    from mwbx.viewer.framing import view_spec
+    bank = self.session.bank
+    com = np.asarray(bank.com)[np.asarray(bank.valid, bool)].reshape(-1, 3)
+    if not com.size:
+      return
+    lo, hi = np.percentile(com, 1, axis=0), np.percentile(com, 99, axis=0)
+    centre = (lo + hi) / 2
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
+    direction = np.asarray(view_spec(self.model, None, None).direction, np.float64)
+    fov = self.server.initial_camera.fov
+    self.server.initial_camera.look_at = centre
+    self.server.initial_camera.position = centre + direction * 1.3 * radius / np.tan(fov / 2)
+
+  def _paths(self, bodies: np.ndarray, match: np.ndarray, exclude: np.ndarray) -> int:
+    """Draws the selected bodies' paths: faint, per-body colour where all queries
+    hold, red where an exclude box rejects; returns the faint worlds left out."""
+    bank = self.session.bank
+    com, count = np.asarray(bank.com), np.asarray(bank.com_count)
+    valid = np.asarray(bank.valid, bool)
+    groups = {"faint": valid & ~match & ~exclude, "match": valid & match, "exclude": valid & exclude}
+    per_world = max(1, int(np.maximum(count - 1, 0).mean()) * bodies.size)
+    cap = max(1, MAX_FAINT_SEGMENTS // per_world)
+    faint = np.flatnonzero(groups["faint"])
+    left_out = max(0, faint.size - cap)
+    if left_out:
+      faint = faint[np.linspace(0, faint.size - 1, cap).astype(np.int64)]
+    for name, rows in (("faint", faint), ("match", np.flatnonzero(groups["match"])),
+                       ("exclude", np.flatnonzero(groups["exclude"]))):
+      segments, colours = [], []
+      for w in rows:
+        n = int(count[w])
+        if n < 2:
+          continue
+        for k, b in enumerate(bodies):
+          p = com[w, :n, b]
+          segments.append(np.stack([p[:-1], p[1:]], axis=1))
+          rgb = {"faint": FAINT_RGB, "exclude": EXCLUDE_RGB}.get(name, tuple(self.body_rgb[b]))
+          colours.append(np.broadcast_to(np.asarray(rgb, np.uint8), (n - 1, 2, 3)))
+      old = self._handles.pop(f"paths/{name}", None)
+      if old is not None:
+        old.remove()
+      if segments:
+        self._handles[f"paths/{name}"] = self.server.scene.add_line_segments(
+            f"/paths/{name}", np.concatenate(segments).astype(np.float32), np.concatenate(colours),
+            thickness=2.0 if name != "faint" else 1.0, thickness_units="screen")
+    return left_out
+
+  def _frustums(self) -> None:
+    scene = self.server.scene
+    for key in [k for k in self._handles if k.startswith("queries/")]:
+      self._handles.pop(key).remove()
+    edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+    for i, entry in enumerate(self.session.entries):
+      q = entry.query
+      corners = q.frustum.corners
+      if corners is None or not entry.enabled:
+        continue
+      seg = np.array([[corners[a], corners[b]] for a, b in edges], np.float32)
+      colours = np.broadcast_to(np.asarray(QUERY_RGB[q.sign], np.uint8), seg.shape).copy()
+      self._handles[f"queries/q{i}"] = scene.add_line_segments(f"/queries/q{i}", seg, colours, thickness=2.0,
+                                                               thickness_units="screen")
+
+  # -- GUI --------------------------------------------------------------------------------
+
+  def _build_gui(self) -> None:
+    gui = self.server.gui
+    bank = self.session.bank
+    names = [ALL_BODIES] + list(bank.groups) + list(bank.objects) + [
+        f"body:{b}" for b in bank.body_names if b not in bank.objects]
+    end = float((int(bank.frame_count.max()) - 1) / bank.record_fps) if bank.n_worlds else 1.0
+    self.end_time = end
+    with gui.add_folder("Queries"):
+      self.counts_md = gui.add_markdown("")
+      self.bodies = gui.add_dropdown("Bodies", names, initial_value=ALL_BODIES)
+      self.mode = gui.add_dropdown("Mode", ("any", "all"), initial_value="any")
+      self.window = gui.add_multi_slider("Time window (s)", 0.0, max(end, 1e-3), max(end, 1e-3) / 100,
+                                         (0.0, max(end, 1e-3)))
+      include = gui.add_button("Draw include box")
+      exclude = gui.add_button("Draw exclude box")
+      include.on_click(lambda event: self._arm_box("include", event.client))
+      exclude.on_click(lambda event: self._arm_box("exclude", event.client))
+      self.query_pick = gui.add_dropdown("Query", ("(none)",), initial_value="(none)")
+      toggle = gui.add_button("Toggle query")
+      remove = gui.add_button("Remove query")
+      toggle.on_click(lambda _: self._with_pick(self.session.toggle))
+      remove.on_click(lambda _: self._with_pick(self.session.remove))
+      undo = gui.add_button("Undo")
+      redo = gui.add_button("Redo")
+      undo.on_click(lambda _: self.session.undo() and self.refresh())
+      redo.on_click(lambda _: self.session.redo() and self.refresh())
+      self.query_file = gui.add_text("Query file", "out/queries.yaml")
+      save_q = gui.add_button("Save queries")
+      open_q = gui.add_button("Open queries")
+      save_q.on_click(lambda _: self._report(lambda: f"saved {self.session.save_queries(self.query_file.value)}"))
+      open_q.on_click(lambda _: self._report(lambda: self.session.open_queries(self.query_file.value)
+                                             or f"opened {self.query_file.value}"))
+    with gui.add_folder("Sorter"):
+      self.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS,),
+                                     initial_value=bank.metric_names[0])
+      self.reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
+      self.metric.on_update(lambda _: self.refresh())
+      self.reduce.on_update(lambda _: self.refresh())
+      self.sorter_md = gui.add_markdown("")
+      self.sorter = gui.add_folder("Worlds (click to play)")
+      self.row_buttons: list = []
+    with gui.add_folder("Playback"):
+      self.playing_md = gui.add_markdown("no world playing")
+      self.paused = gui.add_checkbox("Pause", False)
+      self.time_slider = gui.add_slider("Time (s)", 0.0, max(end, 1e-3), 1.0 / bank.record_fps, 0.0)
+      self.time_slider.on_update(lambda _: self._seek())
+    with gui.add_folder("Refine"):
+      self.objects = gui.add_dropdown("Objects", tuple(bank.objects) + tuple(bank.groups),
+                                      initial_value=next(iter(bank.objects)))
+      self.start = gui.add_dropdown("From", (CURRENT_TIME, FIRST_ENTRY), initial_value=CURRENT_TIME)
+      self.samples = gui.add_number("Samples", 16, min=1, max=4096, step=1)
+      refine = gui.add_button("Refine playing world")
+      refine.on_click(lambda _: self._refine())
+      self.progress = gui.add_progress_bar(0.0, visible=False)
+      parent = gui.add_button("Go to parent")
+      parent.on_click(lambda _: self._parent())
+      save = gui.add_button("Save bank")
+      save.on_click(lambda _: self._report(lambda: f"saved {self.session.save()}"))
+      self.status_md = gui.add_markdown("")
+
+  def _report(self, action) -> None:
+    try:
+      message = action()
+      self.refresh()
+    except MwbxError as err:
+      message = f"error: {err}"
+    self.status_md.content = f"{message}"
+    print(f"mwbx browse: {message}", flush=True)
+
+  def _with_pick(self, action) -> None:
+    label = self.query_pick.value
+    if label.startswith("q"):
+      self._report(lambda: action(int(label[1:].split(" ")[0])) or f"{label}: done")
+
+  def _arm_box(self, sign: str, client) -> None:
+    scene = self.server.scene
+
+    @scene.on_rect_select()
+    def _(event):
+      scene.remove_rect_select_callback(_)
+      self._add_box(sign, event)
+
+    self.status_md.content = f"drag a box in the view for an {sign} query"
+
+  def _add_box(self, sign: str, event) -> None:
+    camera = camera_from_client(event.client.camera)
+    box = mq.ScreenBox.from_corners(event.screen_min, event.screen_max)
+    bodies = None if self.bodies.value == ALL_BODIES else (self.bodies.value,)
+    lo, hi = self.window.value
+    window = None if (lo <= 0.0 and hi >= self.end_time) else (float(lo), float(hi))
+    try:
+      query = mq.Query.screen(camera, box, sign=sign, bodies=bodies, mode=self.mode.value, window=window,
+                              name=f"q{len(self.session.entries)}")
+      index = self.session.add(query)
+    except MwbxError as err:
+      self.status_md.content = f"error: {err}"
+      return
+    self.refresh()
+    count = self.session.counts()
+    self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
+    print(f"mwbx browse: query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
+          f" bodies={list(bodies) if bodies else None} mode={self.mode.value} window={window}"
+          f" camera eye={camera.eye.tolist()} right={camera.right.tolist()} up={camera.up.tolist()}"
+          f" forward={camera.forward.tolist()} fovy={camera.fovy} aspect={camera.aspect}"
+          f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}", flush=True)
+
+  # -- refresh ----------------------------------------------------------------------------
+
+  def refresh(self) -> None:
+    session = self.session
+    bank = session.bank
+    counts = session.counts()
+    each = session._each()
+    exclude = np.zeros(bank.n_worlds, bool)
+    for i, e in enumerate(session.entries):
+      if e.enabled and not e.query.include:
+        exclude |= ~each[:, i]
+    match = session.match() if session.entries else np.zeros(bank.n_worlds, bool)
+    bodies = (np.arange(len(bank.body_names)) if self.bodies.value == ALL_BODIES
+              else np.asarray(bank.select_bodies(self.bodies.value)))
+    left_out = self._paths(bodies, match & ~exclude, exclude & np.asarray(bank.valid))
+    self._frustums()
+    lines = [f"**{counts.all} of {counts.valid} worlds** satisfy all queries"]
+    for i, (e, n) in enumerate(zip(session.entries, counts.per_query)):
+      q = e.query
+      state = "" if e.enabled else " (off)"
+      lines.append(f"- q{i} {q.sign} {','.join(q.bodies) if q.bodies else 'any body'}: {n}{state}")
+    if left_out:
+      lines.append(f"({left_out} faint worlds not drawn)")
+    self.counts_md.content = "\n".join(lines)
+    labels = tuple(f"q{i} {e.query.sign}{'' if e.enabled else ' (off)'}" for i, e in enumerate(session.entries))
+    self.query_pick.options = labels or ("(none)",)
+    rows = session.sorted_rows(self.metric.value, self.reduce.value)
+    closest = not counts.all and session.entries
+    self.sorter_md.content = (f"{'closest worlds: ' if closest else ''}world · queries satisfied · "
+                              f"{self.metric.value}:{self.reduce.value} · parent")
+    for button in self.row_buttons:
+      button.remove()
+    self.row_buttons = []
+    with self.sorter:
+      for r in rows:
+        label = (f"world {r.world} · {r.satisfied} · {r.value:.4g}"
+                 + ("" if r.parent < 0 else f" · from {r.parent}"))
+        button = self.server.gui.add_button(label)
+        button.on_click(lambda _, world=r.world: self.play(world))
+        self.row_buttons.append(button)
+
+  # -- playback ---------------------------------------------------------------------------
+
+  def play(self, world: int) -> None:
+    """Plays world ``world`` back in the scene (decoded from the codec)."""
+    bank = self.session.bank
+    qpos = bank.qpos_frames(int(world)).astype(np.float64)
+    body_ids = np.array(sorted(self.body_nodes), np.int64)
+    pos, quat = body_trajectories(self.model, qpos, body_ids)
+    self._tracks = (body_ids, pos, quat)
+    self.playing_world = int(world)
+    self.frame = 0
+    for node in self.body_nodes.values():
+      node.visible = True
+    parent = self.session.parent(world)
+    self.playing_md.content = (f"playing **world {world}**" + (f" (refined from {parent})" if parent is not None
+                                                                else ""))
+    print(f"mwbx browse: playing world {world}", flush=True)
+
+  def _show_frame(self) -> None:
+    body_ids, pos, quat = self._tracks
+    f = min(self.frame, pos.shape[0] - 1)
+    with self.server.atomic():
+      for k, b in enumerate(body_ids):
+        node = self.body_nodes[int(b)]
+        node.position = pos[f, k]
+        node.wxyz = quat[f, k]
+
+  def _seek(self) -> None:
+    if self._tracks is not None:
+      self.frame = int(round(self.time_slider.value * self.session.bank.record_fps))
+      self._show_frame()
+
+  def _play_loop(self) -> None:
+    while not self._stop.is_set():
+      if self._tracks is not None and not self.paused.value:
+        self._show_frame()
+        self.frame = (self.frame + 1) % self._tracks[1].shape[0]
+      time.sleep(1.0 / self.session.bank.record_fps)
+
+  # -- refinement ---------------------------------------------------------------------------
+
+  def _refine(self) -> None:
+    world = self.playing_world
+    if world is None:
+      self.status_md.content = "play a world first (the one to refine)"
+      return
+    objects = self.objects.value
+    try:
+      t_min = (self.session.first_entry_of_last_box(world, self.session.bank.objects.get(objects, [objects])
+                                                    if objects in self.session.bank.objects else
+                                                    self.session.bank.groups[objects])
+               if self.start.value == FIRST_ENTRY else self.frame / self.session.bank.record_fps)
+    except MwbxError as err:
+      self.status_md.content = f"error: {err}"
+      return
+    n = int(self.samples.value)
+    job = self.session.refine(world, objects, t_min=t_min, n_samples=n)
+    self.progress.visible = True
+    print(f"mwbx browse: refining {objects} of world {world} from {t_min:.4f} s, {n} samples", flush=True)
+
+    def watch():
+      while not job.done.wait(0.1):
+        if job.progress is not None:
+          self.progress.value = 100.0 * job.progress.done / max(1, job.progress.total)
+      self.progress.visible = False
+      if job.error:
+        message = f"error: {job.error}"
+      else:
+        ids = job.new_ids
+        message = f"refined world {world}: new worlds {int(ids[0])}..{int(ids[-1])} (parent {world})"
+        self.refresh()
+      self.status_md.content = message
+      print(f"mwbx browse: {message}", flush=True)
+
+    threading.Thread(target=watch, daemon=True, name="mwbx-refine-watch").start()
+
+  def _parent(self) -> None:
+    if self.playing_world is None:
+      return
+    parent = self.session.parent(self.playing_world)
+    if parent is None:
+      self.status_md.content = f"world {self.playing_world} was sampled: it has no parent"
+    else:
+      self.play(parent)
+
+  def close(self) -> None:
+    """Stops playback and the server."""
+    self._stop.set()
+    self.server.stop()
+
+
+def browse(bank, *, path=None, host: str = "127.0.0.1", port: int | None = None,
+           open_browser: bool = False, block: bool = True) -> Browser:
+  """Serves the browsing page for ``bank`` (``path``: its directory, for saving).
+
+  Returns the :class:`Browser`; with ``block`` it serves until Ctrl-C and stops.
+
+  Example::
+
+    mwbx.browse(mwbx.Bank.load("out/quickstart"), path="out/quickstart")
+  """
+  page = Browser(Session(bank, None if path is None else pathlib.Path(path)), host=host, port=port)
+  print(f"mwbx: browsing {bank.n_worlds} worlds at {page.url}", file=sys.stderr, flush=True)
+  if open_browser:
+    import webbrowser
+    webbrowser.open(page.url)
+  if block:
+    try:
+      while True:
+        time.sleep(0.2)
+    except KeyboardInterrupt:
+      pass
+    finally:
+      page.close()
+  return page

@@ -1,0 +1,245 @@
+"""The state of one browsing session, without any UI: the query stack with
+undo/redo, the counts, the metric sorter and refinement jobs.
+
+The page (:mod:`mwbx.browser.app`) only turns gestures into calls here; every
+answer comes from :mod:`mwbx.queries` and :mod:`mwbx.refinement`, so research
+code and tests can drive a session the way the page does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import threading
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from mwbx import queries as mq
+from mwbx.errors import MwbxError
+from mwbx.progress import Progress
+
+REDUCTIONS = ("sum", "max")
+# The sorter lists at most this many worlds.
+SORTER_ROWS = 20
+
+
+class Entry(NamedTuple):
+  """One query on the stack and whether it counts (toggled off: kept, not applied)."""
+
+  query: mq.Query
+  enabled: bool = True
+
+
+class Counts(NamedTuple):
+  """Worlds satisfying each query (i32 per entry, disabled ones included) and
+  all enabled ones, out of ``valid`` worlds."""
+
+  per_query: tuple[int, ...]
+  all: int
+  valid: int
+
+
+class SorterRow(NamedTuple):
+  """A world in the sorter: its id, how many enabled queries it satisfies, the
+  metric value it is sorted by, and its parent (-1: sampled)."""
+
+  world: int
+  satisfied: int
+  value: float
+  parent: int
+
+
+class RefineJob:
+  """A refinement running in a background thread (see :meth:`Session.refine`).
+
+  Attributes:
+    progress: the last :class:`mwbx.progress.Progress` it reported (or None).
+    new_ids: the ids it added, once done. error: its MwbxError message, if any.
+  """
+
+  def __init__(self):
+    self.progress: Progress | None = None
+    self.new_ids: np.ndarray | None = None
+    self.error: str | None = None
+    self.done = threading.Event()
+
+
+@dataclasses.dataclass
+class Session:
+  """A bank being browsed.
+
+  Args:
+    bank: the bank (refinements append to it).
+    path: where it is saved (``save()``), or None.
+
+  Example::
+
+    session = Session(mwbx.Bank.load("out/quickstart"))
+    session.add(mwbx.Query.screen(camera, [0.1, 0.3, 0.3, 0.6], bodies=["ball"]))
+    session.counts()            # Counts(per_query=(193,), all=193, valid=256)
+    session.sorted_rows("angular_travel")
+  """
+
+  bank: object
+  path: pathlib.Path | None = None
+  entries: list = dataclasses.field(default_factory=list)
+  _undo: list = dataclasses.field(default_factory=list)
+  _redo: list = dataclasses.field(default_factory=list)
+  _lock: threading.Lock = dataclasses.field(default_factory=threading.Lock)
+
+  # -- the query stack -----------------------------------------------------------------
+
+  def _push(self) -> None:
+    self._undo.append(list(self.entries))
+    self._redo.clear()
+
+  def add(self, query: mq.Query) -> int:
+    """Puts a query on the stack; returns its index."""
+    if query.bodies:
+      self.bank.select_bodies(list(query.bodies))  # an unknown name fails now, naming it
+    self._push()
+    self.entries.append(Entry(query))
+    return len(self.entries) - 1
+
+  def toggle(self, index: int) -> None:
+    self._check(index)
+    self._push()
+    entry = self.entries[index]
+    self.entries[index] = entry._replace(enabled=not entry.enabled)
+
+  def remove(self, index: int) -> None:
+    self._check(index)
+    self._push()
+    del self.entries[index]
+
+  def undo(self) -> bool:
+    """Back to the stack before the last change; False when there is none."""
+    if not self._undo:
+      return False
+    self._redo.append(list(self.entries))
+    self.entries = self._undo.pop()
+    return True
+
+  def redo(self) -> bool:
+    if not self._redo:
+      return False
+    self._undo.append(list(self.entries))
+    self.entries = self._redo.pop()
+    return True
+
+  def _check(self, index: int) -> None:
+    if not 0 <= index < len(self.entries):
+      raise MwbxError(f"query {index}: no such query (the stack holds {len(self.entries)})")
+
+  @property
+  def enabled(self) -> tuple[mq.Query, ...]:
+    return tuple(e.query for e in self.entries if e.enabled)
+
+  # -- answers ---------------------------------------------------------------------------
+
+  def _each(self) -> np.ndarray:
+    """bool[W, Q] every entry (enabled or not) on the current bank."""
+    if not self.entries:
+      return np.zeros((self.bank.n_worlds, 0), bool)
+    return np.asarray(mq.evaluate_each(self.bank, [e.query for e in self.entries]), bool)
+
+  def match(self) -> np.ndarray:
+    """bool[W] valid worlds satisfying every enabled query (all valid ones when none)."""
+    each = self._each()
+    on = np.array([e.enabled for e in self.entries], bool)
+    return np.asarray(self.bank.valid, bool) & np.all(each[:, on], axis=1)
+
+  def counts(self) -> Counts:
+    each = self._each()
+    valid = np.asarray(self.bank.valid, bool)
+    on = np.array([e.enabled for e in self.entries], bool)
+    return Counts(tuple(int((each[:, i] & valid).sum()) for i in range(each.shape[1])),
+                  int((np.all(each[:, on], axis=1) & valid).sum()), int(valid.sum()))
+
+  def sorted_rows(self, metric: str, reduce: str = "sum", bodies: Sequence[str] | None = None,
+                  descending: bool = True, top: int = SORTER_ROWS) -> list[SorterRow]:
+    """The sorter (paper §4.3): matching worlds by ``metric`` over ``bodies``
+    (sum or max; ``constraints_satisfied`` counts enabled queries); when no
+    world satisfies every enabled query, the worlds that satisfy the most."""
+    if reduce not in REDUCTIONS:
+      raise MwbxError(f"sorter: reduce must be one of {REDUCTIONS}, got {reduce!r}")
+    enabled = self.enabled
+    match = self.match()
+    satisfied = (np.asarray(mq.constraints_satisfied(self.bank, enabled)) if enabled
+                 else np.zeros(self.bank.n_worlds, np.int64))
+    term = mq.Term(metric, None if not bodies else tuple(bodies), reduce, 1.0)
+    if match.any():
+      ids, values = mq.rank(self.bank, [term], queries=enabled, match=match, top=top,
+                            descending=descending)
+    else:
+      ids, values = mq.rank(self.bank, satisfied.astype(np.float64), top=top)
+    rows = self.bank.row_of(np.asarray(ids, np.int64))
+    return [SorterRow(int(i), int(satisfied[r]), float(v), int(self.bank.parent_world[r]))
+            for i, r, v in zip(ids, rows, values)]
+
+  # -- files -------------------------------------------------------------------------------
+
+  def query_set(self) -> mq.QuerySet:
+    """The enabled queries as a QuerySet (``.save(path)`` writes a query file)."""
+    return mq.QuerySet(self.enabled)
+
+  def save_queries(self, path) -> str:
+    return self.query_set().save(path)
+
+  def open_queries(self, path) -> None:
+    """Replaces the stack with a query file's queries (undo brings the old one back)."""
+    loaded = mq.load_queries(path, self.bank)
+    self._push()
+    self.entries = [Entry(q) for q in loaded.queries]
+
+  def save(self) -> pathlib.Path:
+    """Writes the bank's new worlds as a new shard (nothing saved before changes)."""
+    if self.path is None:
+      raise MwbxError("save: this session has no bank directory (pass path=)")
+    with self._lock:
+      return self.bank.save(self.path)
+
+  # -- refinement --------------------------------------------------------------------------
+
+  def first_entry_of_last_box(self, world: int, objects) -> float:
+    """t_min for "first entry of the last box": when the objects first enter the
+    frustum of the last enabled include query (paper §5)."""
+    boxes = [q for q in self.enabled if q.include]
+    if not boxes:
+      raise MwbxError("refine: draw an include box first (its first entry is the start time)")
+    names = list(objects) if not isinstance(objects, str) else [objects]
+    t = mq.first_entry(self.bank, world, names, boxes[-1].frustum)
+    if t is None:
+      raise MwbxError(f"refine: no object of {', '.join(names)} enters the last box in world {world}")
+    return float(t)
+
+  def refine(self, world: int, objects, *, t_min: float, n_samples: int, key=None,
+             backend: str | None = None, wait: bool = False) -> RefineJob:
+    """Refines ``objects`` of world ``world`` from ``t_min`` in a background
+    thread; the new worlds join the bank when it is done (``job.done``)."""
+    from mwbx.refinement import refine_run
+    job = RefineJob()
+
+    def work():
+      try:
+        new, _ = refine_run(self.bank, world, objects, t_min=t_min, n_samples=n_samples, key=key,
+                            backend=backend, progress=lambda p: setattr(job, "progress", p))
+        with self._lock:
+          self.bank = self.bank.append(new)
+        job.new_ids = np.asarray(new.world_ids)
+      except MwbxError as err:
+        job.error = str(err)
+      finally:
+        job.done.set()
+
+    thread = threading.Thread(target=work, daemon=True, name="mwbx-refine")
+    thread.start()
+    if wait:
+      job.done.wait()
+    return job
+
+  def parent(self, world: int) -> int | None:
+    """The world ``world`` was refined from (None: a sampled world)."""
+    p = int(self.bank.parent_world[self.bank.row_of(int(world))])
+    return None if p < 0 else p
