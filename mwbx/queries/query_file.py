@@ -135,6 +135,7 @@ class QuerySet(NamedTuple):
     query``) read back to the same queries; returns the path."""
     path = os.fspath(path)
     try:
+      os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
       with open(path, "w") as f:
         f.write("# mwbx query file (QuerySet.save)\n")
         yaml.safe_dump(self.to_dict(), f, sort_keys=False, default_flow_style=None)

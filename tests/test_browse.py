@@ -1,0 +1,194 @@
+"""`mwbx browse` in a real browser (Playwright driving Debian's chromium):
+drawn boxes give the counts mwbx.queries gives for the same frustum, undo,
+saved query files, the sorter plays worlds, refinement from the page, and the
+server stops on SIGINT and SIGTERM."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import mwbx
+from mwbx import queries as mq
+from mwbx.browser.app import free_port
+
+from viewer_banks import quickstart_bank
+from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS, chromium_unavailable_reason
+
+QUERY_LINE = re.compile(r"mwbx browse: query (\d+) (\w+) box=(\[[^\]]*\]) bodies=(\S+) mode=(\w+) "
+                        r"window=(\S+) camera eye=(\[[^\]]*\]) right=(\[[^\]]*\]) up=(\[[^\]]*\]) "
+                        r"forward=(\[[^\]]*\]) fovy=(\S+) aspect=(\S+) -> (\d+) worlds, all queries (\d+) of (\d+)")
+WAIT = 300  # seconds: a loaded machine is slow, never wrong
+
+
+@pytest.fixture(scope="module")
+def browser():
+  reason = chromium_unavailable_reason()
+  if reason is not None:
+    print(f"skipping the real-browser browse test: {reason}", file=sys.stderr)
+    pytest.skip(reason)
+
+
+class Server:
+  """`mwbx browse BANK` in a subprocess, its stdout lines in a queue."""
+
+  def __init__(self, bank_dir, cwd):
+    self.port = free_port()
+    self.proc = subprocess.Popen([sys.executable, "-m", "mwbx.cli", "browse", str(bank_dir), "--no-browser",
+                                  "--port", str(self.port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                 text=True, cwd=cwd)
+    self.lines: queue.Queue = queue.Queue()
+    self.stderr: list = []
+    threading.Thread(target=self._read, args=(self.proc.stdout, self.lines.put), daemon=True).start()
+    threading.Thread(target=self._read, args=(self.proc.stderr, self.stderr.append), daemon=True).start()
+    deadline = time.monotonic() + WAIT
+    while not any("browsing" in line for line in self.stderr):
+      assert self.proc.poll() is None and time.monotonic() < deadline, self.stderr
+      time.sleep(0.1)
+
+  @staticmethod
+  def _read(stream, put):
+    for line in stream:
+      put(line.rstrip("\n"))
+
+  def expect(self, pattern: str) -> re.Match:
+    """The next stdout line matching ``pattern`` (other lines are skipped)."""
+    deadline = time.monotonic() + WAIT
+    while time.monotonic() < deadline:
+      try:
+        line = self.lines.get(timeout=1)
+      except queue.Empty:
+        assert self.proc.poll() is None, self.stderr
+        continue
+      match = re.search(pattern, line)
+      if match:
+        return match
+    raise AssertionError(f"no line matching {pattern!r}; stderr: {self.stderr}")
+
+  def stop(self, sig=signal.SIGINT) -> float:
+    start = time.monotonic()
+    self.proc.send_signal(sig)
+    code = self.proc.wait(timeout=WAIT)
+    assert code == 0, self.stderr
+    return time.monotonic() - start
+
+
+def _camera(m: re.Match) -> mq.Camera:
+  eye, right, up, forward = (np.array(json.loads(m.group(i))) for i in (7, 8, 9, 10))
+  return mq.Camera(eye=eye, right=right, up=up, forward=forward, fovy=float(m.group(11)),
+                   aspect=float(m.group(12)))
+
+
+def _drag(page, x0, y0, x1, y1):
+  page.mouse.move(x0, y0)
+  page.mouse.down()
+  page.mouse.move(x1, y1, steps=8)
+  page.mouse.up()
+
+
+def test_browse_page_draw_undo_save_sort_refine(browser, tmp_path):
+  from playwright.sync_api import sync_playwright
+  bank_dir = tmp_path / "bank"
+  quickstart_bank(16).save(bank_dir)
+  bank = mwbx.Bank.load(bank_dir)
+  server = Server(bank_dir, tmp_path)
+  try:
+    with sync_playwright() as pw:
+      chromium = pw.chromium.launch(executable_path=CHROMIUM_BINARY, args=list(WEBGL_ARGS))
+      page = chromium.new_page(viewport={"width": 1200, "height": 800})
+      page.goto(f"http://127.0.0.1:{server.port}", timeout=WAIT * 1000)
+      page.get_by_text("Draw include box").wait_for(timeout=WAIT * 1000)
+      # A first box tells the camera the page looks through; undone.
+      page.get_by_text("Draw include box").click()
+      time.sleep(1)
+      _drag(page, 330, 280, 560, 520)
+      camera = _camera(server.expect(QUERY_LINE.pattern))
+      page.get_by_text("Undo", exact=True).click()
+      page.get_by_text(re.compile(r"^16 of 16 worlds")).wait_for(timeout=WAIT * 1000)
+      # Boxes around where the ball ends in the left and in the right half of the worlds.
+      ball = bank.select_bodies("ball")[0]
+      ends = bank.com[np.arange(bank.n_worlds), bank.com_count - 1, ball]
+      uv, _ = camera.project(ends)
+      order = np.argsort(uv[:, 0])
+      left, right = uv[order[:6]], uv[order[-6:]]
+      pixels = lambda pts: (*(pts.min(0) * [1200, 800] - 6), *(pts.max(0) * [1200, 800] + 6))  # noqa: E731
+      # An include box: the page's count is what mwbx.queries gives for the
+      # frustum of the same box and camera.
+      page.get_by_text("Draw include box").click()
+      time.sleep(1)
+      _drag(page, *pixels(left))
+      first = server.expect(QUERY_LINE.pattern)
+      assert first.group(2) == "include"
+      box = json.loads(first.group(3))
+      query = mq.Query.screen(_camera(first), box)
+      want = int(np.asarray(mq.evaluate(bank, [query])).sum())
+      assert int(first.group(13)) == want and 0 < want < bank.n_worlds
+      page.get_by_text(re.compile(rf"^{want} of 16 worlds")).wait_for(timeout=WAIT * 1000)
+      # An exclude box: the conjunction.
+      page.get_by_text("Draw exclude box").click()
+      time.sleep(1)
+      _drag(page, *pixels(right))
+      second = server.expect(QUERY_LINE.pattern)
+      both = [query, mq.Query.screen(_camera(second), json.loads(second.group(3)), sign="exclude")]
+      want_both = int(np.asarray(mq.evaluate(bank, both)).sum())
+      assert int(second.group(14)) == want_both
+      page.get_by_text(re.compile(rf"^{want_both} of 16 worlds")).wait_for(timeout=WAIT * 1000)
+      # Undo takes the exclude box back.
+      page.get_by_text("Undo", exact=True).click()
+      page.get_by_text(re.compile(rf"^{want} of 16 worlds")).wait_for(timeout=WAIT * 1000)
+      page.get_by_text("Redo", exact=True).click()
+      page.get_by_text(re.compile(rf"^{want_both} of 16 worlds")).wait_for(timeout=WAIT * 1000)
+      # Saved as a query file, `mwbx query` gives the same counts.
+      page.get_by_text("Save queries").click()
+      server.expect(r"saved .*queries\.yaml")
+      report = subprocess.run([sys.executable, "-m", "mwbx.cli", "query", str(bank_dir),
+                               str(tmp_path / "out" / "queries.yaml"), "--json"],
+                              capture_output=True, text=True, timeout=WAIT)
+      assert report.returncode == 0, report.stderr
+      counts = json.loads(report.stdout)
+      assert counts["count"] == want_both
+      assert [q["matches"] for q in counts["queries"]] == [int(first.group(13)), int(second.group(13))]
+      # A sorter row plays its world.
+      row = page.get_by_text(re.compile(r"^world \d+ · ")).first
+      world = int(re.match(r"world (\d+)", row.inner_text()).group(1))
+      row.click()
+      server.expect(rf"playing world {world}$")
+      page.get_by_text(f"playing world {world}").wait_for(timeout=WAIT * 1000)
+      # Refine it: 4 samples from the page, then save the bank.
+      page.get_by_label("Samples").fill("4")
+      time.sleep(0.5)
+      page.get_by_text("Refine playing world").click()
+      done = server.expect(r"refined world (\d+): new worlds (\d+)\.\.(\d+) \(parent (\d+)\)")
+      assert int(done.group(1)) == world and int(done.group(4)) == world
+      assert int(done.group(3)) - int(done.group(2)) == 3
+      page.get_by_text("Save bank").click()
+      server.expect(r"saved ")
+      chromium.close()
+  finally:
+    if server.proc.poll() is None:
+      server.stop()
+  grown = mwbx.Bank.load(bank_dir)
+  assert grown.n_worlds == bank.n_worlds + 4
+  assert grown.children(world).tolist() == list(range(int(done.group(2)), int(done.group(3)) + 1))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_browse_stops_on_signals_and_leaves_no_child(tmp_path, sig):
+  bank_dir = tmp_path / "bank"
+  quickstart_bank(4).save(bank_dir)
+  server = Server(bank_dir, tmp_path)
+  children = [int(c) for c in open(f"/proc/{server.proc.pid}/task/{server.proc.pid}/children").read().split()]
+  seconds = server.stop(sig)
+  print(f"mwbx browse stopped {seconds:.2f} s after {sig.name}")
+  for child in children:
+    assert not os.path.exists(f"/proc/{child}") or "Z" in open(f"/proc/{child}/stat").read().split()[2]
