@@ -28,9 +28,9 @@ from mwbx.errors import MwbxError
 from mwbx.viewer import geometry as vgeom
 from mwbx.viewer.kinematics import body_trajectories
 
-# At most this many faint path segments are drawn (an evenly spaced subset of
-# the worlds beyond it); matching and excluded paths are always drawn.
-MAX_FAINT_SEGMENTS = 60_000
+# Each group of paths (faint, matching, excluded) draws at most this many
+# segments: an evenly spaced subset of its worlds beyond it, with a count shown.
+MAX_PATH_SEGMENTS = 60_000
 FAINT_RGB = (185, 185, 185)
 EXCLUDE_RGB = (220, 40, 40)
 QUERY_RGB = {"include": (40, 200, 60), "exclude": (220, 40, 40)}
@@ -160,37 +160,40 @@ class Browser:
     self.server.initial_camera.look_at = centre
     self.server.initial_camera.position = centre + direction * 1.3 * radius / np.tan(fov / 2)
 
-  def _paths(self, bodies: np.ndarray, match: np.ndarray, exclude: np.ndarray) -> int:
+  def _paths(self, bodies: np.ndarray, match: np.ndarray, exclude: np.ndarray) -> dict:
     """Draws the selected bodies' paths: faint, per-body colour where all queries
-    hold, red where an exclude box rejects; returns the faint worlds left out."""
+    hold, red where an exclude box rejects. Each group draws at most
+    MAX_PATH_SEGMENTS segments (an evenly spaced subset of its worlds);
+    returns {group: worlds left out}."""
     bank = self.session.bank
     com, count = np.asarray(bank.com), np.asarray(bank.com_count)
     valid = np.asarray(bank.valid, bool)
     groups = {"faint": valid & ~match & ~exclude, "match": valid & match, "exclude": valid & exclude}
-    per_world = max(1, int(np.maximum(count - 1, 0).mean()) * bodies.size)
-    cap = max(1, MAX_FAINT_SEGMENTS // per_world)
-    faint = np.flatnonzero(groups["faint"])
-    left_out = max(0, faint.size - cap)
-    if left_out:
-      faint = faint[np.linspace(0, faint.size - 1, cap).astype(np.int64)]
-    for name, rows in (("faint", faint), ("match", np.flatnonzero(groups["match"])),
-                       ("exclude", np.flatnonzero(groups["exclude"]))):
-      segments, colours = [], []
-      for w in rows:
-        n = int(count[w])
-        if n < 2:
-          continue
-        for k, b in enumerate(bodies):
-          p = com[w, :n, b]
-          segments.append(np.stack([p[:-1], p[1:]], axis=1))
-          rgb = {"faint": FAINT_RGB, "exclude": EXCLUDE_RGB}.get(name, tuple(self.body_rgb[b]))
-          colours.append(np.broadcast_to(np.asarray(rgb, np.uint8), (n - 1, 2, 3)))
+    per_world = max(1, (com.shape[1] - 1) * bodies.size)
+    cap = max(1, MAX_PATH_SEGMENTS // per_world)
+    left_out = {}
+    for name, mask in groups.items():
+      rows = np.flatnonzero(mask)
+      left_out[name] = max(0, rows.size - cap)
+      if left_out[name]:
+        rows = rows[np.linspace(0, rows.size - 1, cap).astype(np.int64)]
       old = self._handles.pop(f"paths/{name}", None)
       if old is not None:
         old.remove()
-      if segments:
+      if not rows.size or com.shape[1] < 2:
+        continue
+      pts = com[rows][:, :, bodies]  # [n, P, k, 3]
+      seg = np.stack([pts[:, :-1], pts[:, 1:]], axis=-2)  # [n, P-1, k, 2, 3]
+      keep = np.arange(com.shape[1] - 1)[None, :] < (count[rows] - 1)[:, None]  # recorded segments only
+      seg = seg[keep]  # [m, k, 2, 3]
+      if name == "match":
+        rgb = np.broadcast_to(self.body_rgb[bodies][None, :, None, :], seg.shape)
+      else:
+        rgb = np.broadcast_to(np.asarray(FAINT_RGB if name == "faint" else EXCLUDE_RGB, np.uint8), seg.shape)
+      if seg.size:
         self._handles[f"paths/{name}"] = self.server.scene.add_line_segments(
-            f"/paths/{name}", np.concatenate(segments).astype(np.float32), np.concatenate(colours),
+            f"/paths/{name}", seg.reshape(-1, 2, 3).astype(np.float32),
+            np.ascontiguousarray(rgb, np.uint8).reshape(-1, 2, 3),
             thickness=2.0 if name != "faint" else 1.0, thickness_units="screen")
     return left_out
 
@@ -247,8 +250,8 @@ class Browser:
       self.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS,),
                                      initial_value=bank.metric_names[0])
       self.reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
-      self.metric.on_update(lambda _: self.refresh())
-      self.reduce.on_update(lambda _: self.refresh())
+      self.metric.on_update(lambda _: self._sorter())
+      self.reduce.on_update(lambda _: self._sorter())
       self.sorter_md = gui.add_markdown("")
       self.sorter = gui.add_folder("Worlds (click to play)")
       self.row_buttons: list = []
@@ -333,16 +336,26 @@ class Browser:
               else np.asarray(bank.select_bodies(self.bodies.value)))
     left_out = self._paths(bodies, match & ~exclude, exclude & np.asarray(bank.valid))
     self._frustums()
+    self._counts_text(counts, left_out)
+    self._sorter(counts)
+
+  def _counts_text(self, counts, left_out: dict) -> None:
+    session = self.session
     lines = [f"**{counts.all} of {counts.valid} worlds** satisfy all queries"]
     for i, (e, n) in enumerate(zip(session.entries, counts.per_query)):
       q = e.query
       state = "" if e.enabled else " (off)"
       lines.append(f"- q{i} {q.sign} {','.join(q.bodies) if q.bodies else 'any body'}: {n}{state}")
-    if left_out:
-      lines.append(f"({left_out} faint worlds not drawn)")
+    hidden = [f"{n} {name}" for name, n in left_out.items() if n]
+    if hidden:
+      lines.append(f"(paths not drawn: {', '.join(hidden)} worlds)")
     self.counts_md.content = "\n".join(lines)
     labels = tuple(f"q{i} {e.query.sign}{'' if e.enabled else ' (off)'}" for i, e in enumerate(session.entries))
     self.query_pick.options = labels or ("(none)",)
+
+  def _sorter(self, counts=None) -> None:
+    session = self.session
+    counts = session.counts() if counts is None else counts
     rows = session.sorted_rows(self.metric.value, self.reduce.value)
     closest = not counts.all and session.entries
     self.sorter_md.content = (f"{'closest worlds: ' if closest else ''}world · queries satisfied · "

@@ -87,6 +87,7 @@ class Session:
   _undo: list = dataclasses.field(default_factory=list)
   _redo: list = dataclasses.field(default_factory=list)
   _lock: threading.Lock = dataclasses.field(default_factory=threading.Lock)
+  _cache: tuple | None = None
 
   # -- the query stack -----------------------------------------------------------------
 
@@ -139,10 +140,15 @@ class Session:
   # -- answers ---------------------------------------------------------------------------
 
   def _each(self) -> np.ndarray:
-    """bool[W, Q] every entry (enabled or not) on the current bank."""
-    if not self.entries:
-      return np.zeros((self.bank.n_worlds, 0), bool)
-    return np.asarray(mq.evaluate_each(self.bank, [e.query for e in self.entries]), bool)
+    """bool[W, Q] every entry (enabled or not) on the current bank, evaluated
+    once per bank and stack (a redraw asks several times)."""
+    queries = tuple(e.query for e in self.entries)
+    key = (id(self.bank), self.bank.n_worlds, queries)
+    if self._cache is None or self._cache[0] != key:
+      each = (np.asarray(mq.evaluate_each(self.bank, list(queries)), bool) if queries
+              else np.zeros((self.bank.n_worlds, 0), bool))
+      self._cache = (key, each)
+    return self._cache[1]
 
   def match(self) -> np.ndarray:
     """bool[W] valid worlds satisfying every enabled query (all valid ones when none)."""
@@ -164,14 +170,15 @@ class Session:
     world satisfies every enabled query, the worlds that satisfy the most."""
     if reduce not in REDUCTIONS:
       raise MwbxError(f"sorter: reduce must be one of {REDUCTIONS}, got {reduce!r}")
-    enabled = self.enabled
     match = self.match()
-    satisfied = (np.asarray(mq.constraints_satisfied(self.bank, enabled)) if enabled
-                 else np.zeros(self.bank.n_worlds, np.int64))
-    term = mq.Term(metric, None if not bodies else tuple(bodies), reduce, 1.0)
+    on = np.array([e.enabled for e in self.entries], bool)
+    satisfied = self._each()[:, on].sum(axis=1).astype(np.int64)
+    if metric == mq.metrics.CONSTRAINTS:
+      values = satisfied.astype(np.float64)
+    else:
+      values = mq.metrics.score(self.bank, [mq.Term(metric, None if not bodies else tuple(bodies), reduce, 1.0)])
     if match.any():
-      ids, values = mq.rank(self.bank, [term], queries=enabled, match=match, top=top,
-                            descending=descending)
+      ids, values = mq.rank(self.bank, values, match=match, top=top, descending=descending)
     else:
       ids, values = mq.rank(self.bank, satisfied.astype(np.float64), top=top)
     rows = self.bank.row_of(np.asarray(ids, np.int64))
