@@ -196,8 +196,26 @@ def bank(d: dict) -> tuple[list[str], list[str]]:
   return lines, [f"**bank on disk**: {'; '.join(head)}"]
 
 
+def browse(d: dict) -> tuple[list[str], list[str]]:
+  a, r = d["box_to_update_ms"], d["resort_ms"]
+  lines = ["## Browse", "",
+           "`scripts/bench_browse.py`: a real pachinko bank repeated to the size below; per drawn screen "
+           "box, the time from the rect-select event to the updated counts, path colours, frustums and "
+           "sorter sent to the page, and the same for a metric re-sort. Baseline in the same run: the "
+           "`mwbx query` round trip (a new process) for the same queries.", "",
+           f"Machine: {d['machine']}.", "",
+           "| worlds | bodies | boxes | box → update median / p95 (ms) | re-sort median / p95 (ms) | "
+           "`mwbx query` round trip (s) | round trip / page update |",
+           "|---:|---:|---:|---:|---:|---:|---:|",
+           f"| {d['worlds']} | {d['bodies']} | {d['boxes']} | {a['median']:.0f} / {a['p95']:.0f} | "
+           f"{r['median']:.0f} / {r['p95']:.0f} | {d['cli_query_round_trip_s']:.2f} | {d['cli_over_page']:.0f}× |"]
+  head = [f"**browse**: a drawn box updates {d['worlds']} worlds in {a['median']:.0f} ms (median; p95 "
+          f"{a['p95']:.0f} ms), {d['cli_over_page']:.0f}× faster than the `mwbx query` round trip"]
+  return lines, head
+
+
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
-            ("refine", refinement), ("bank", bank))
+            ("refine", refinement), ("bank", bank), ("browse", browse))
 
 
 def main() -> None:
