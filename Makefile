@@ -35,7 +35,7 @@ bench: $(STAMP)
 	$(PY) scripts/bench_viewer.py --browser --screenshot docs/viewer_screenshot.png
 	$(PY) scripts/bench_refine.py
 	$(PY) scripts/bench_bank.py
-	$(PY) scripts/bench_browse.py
+	$(PY) scripts/bench_browse.py --browser
 	$(PY) scripts/make_benchmarks_doc.py
 
 clean:

@@ -38,6 +38,7 @@ from mwbx.queries import first_entry
 from mwbx.queries import load_queries
 from mwbx.queries import rank
 from mwbx.scene import Scene
+from mwbx.browser import browse
 from mwbx.viewer import export_html
 from mwbx.viewer import view
 from mwbx.qpos_store import QposStore
@@ -67,6 +68,7 @@ __all__ = [
     "Sampler",
     "Scene",
     "ScreenBox",
+    "browse",
     "config_from_dict",
     "constraints_satisfied",
     "evaluate",

@@ -21,6 +21,7 @@ import json
 import os
 import pathlib
 import platform
+import re
 import subprocess
 import sys
 import tempfile
@@ -36,11 +37,40 @@ from mwbx.browser import Browser, Session
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
+def _in_browser(page, camera) -> dict:
+  """Page load time (to the GUI shown, scene and paths sent) and websocket bytes
+  the page receives for one box update, in headless Chromium."""
+  sys.path.insert(0, str(ROOT / "tests"))
+  from playwright.sync_api import sync_playwright
+  from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS
+  received = []
+  with sync_playwright() as pw:
+    chromium = pw.chromium.launch(executable_path=CHROMIUM_BINARY, args=list(WEBGL_ARGS))
+    tab = chromium.new_page(viewport={"width": 1200, "height": 800})
+    tab.on("websocket", lambda ws: ws.on("framereceived", lambda payload: received.append(len(payload))))
+    start = time.perf_counter()
+    tab.goto(page.url)
+    tab.get_by_text("Draw include box").wait_for(timeout=600_000)
+    tab.get_by_text(re.compile(r"^world \d+ · ")).first.wait_for(timeout=600_000)
+    load_s = time.perf_counter() - start
+    time.sleep(2.0)
+    before = sum(received)
+    page.session.add(mq.Query.screen(camera, mq.ScreenBox(0.3, 0.4, 0.5, 0.6)))
+    page.refresh()
+    page.server.flush()
+    time.sleep(2.0)
+    update_bytes = sum(received) - before
+    chromium.close()
+  return {"page_load_s": load_s, "initial_bytes": before, "bytes_per_box_update": update_bytes}
+
+
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--worlds", type=int, default=4096)
   parser.add_argument("--sample", type=int, default=256)
   parser.add_argument("--boxes", type=int, default=20)
+  parser.add_argument("--browser", action="store_true",
+                      help="also page load time and bytes sent per update, in headless Chromium")
   parser.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "bench" / "browse.json")
   args = parser.parse_args()
   base = mwbx.sample(mwbx.load_config(ROOT / "configs" / "pachinko.yaml"), args.sample, jax.random.key(0))
@@ -50,6 +80,7 @@ def main() -> None:
     bank = bank.append(part)
   page = Browser(Session(bank))
   camera = mq.Camera.from_model(bank.model(), "front")
+  in_browser = _in_browser(page, camera) if args.browser else None
   rng = np.random.default_rng(0)
   add_s, sort_s = [], []
   try:
@@ -89,7 +120,11 @@ def main() -> None:
       "resort_ms": {"median": float(np.median(sort_ms)), "p95": float(np.percentile(sort_ms, 95))},
       "cli_query_round_trip_s": float(min(cli_s)),
       "cli_over_page": float(min(cli_s) / (np.median(add_ms) / 1e3)),
+      "browser": in_browser,
   }
+  if in_browser:
+    print(f"page load {in_browser['page_load_s']:.1f} s ({in_browser['initial_bytes'] / 1e6:.1f} MB);"
+          f" one box update sends {in_browser['bytes_per_box_update'] / 1e6:.2f} MB")
   print(f"{bank.n_worlds} worlds x {len(bank.body_names)} bodies: box -> update median "
         f"{result['box_to_update_ms']['median']:.0f} ms, p95 {result['box_to_update_ms']['p95']:.0f} ms;"
         f" re-sort median {result['resort_ms']['median']:.0f} ms, p95 {result['resort_ms']['p95']:.0f} ms;"

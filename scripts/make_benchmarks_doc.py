@@ -209,6 +209,11 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
            "|---:|---:|---:|---:|---:|---:|---:|",
            f"| {d['worlds']} | {d['bodies']} | {d['boxes']} | {a['median']:.0f} / {a['p95']:.0f} | "
            f"{r['median']:.0f} / {r['p95']:.0f} | {d['cli_query_round_trip_s']:.2f} | {d['cli_over_page']:.0f}× |"]
+  if d.get("browser"):
+    b = d["browser"]
+    lines += ["", f"In headless Chromium (software WebGL): the page loads in {b['page_load_s']:.1f} s "
+              f"({b['initial_bytes'] / 1e6:.1f} MB over the websocket); one box update sends "
+              f"{b['bytes_per_box_update'] / 1e6:.2f} MB (paths recoloured, counts, frustum, sorter)."]
   head = [f"**browse**: a drawn box updates {d['worlds']} worlds in {a['median']:.0f} ms (median; p95 "
           f"{a['p95']:.0f} ms), {d['cli_over_page']:.0f}× faster than the `mwbx query` round trip"]
   return lines, head

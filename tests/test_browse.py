@@ -164,7 +164,16 @@ def test_browse_page_draw_undo_save_sort_refine(browser, tmp_path):
       row.click()
       server.expect(rf"playing world {world}$")
       page.get_by_text(f"playing world {world}").wait_for(timeout=WAIT * 1000)
-      # Refine it: 4 samples from the page, then save the bank.
+      # A second world overlaid on the first, both named on the page.
+      page.get_by_text("Add to the playing worlds").click()
+      other = page.get_by_text(re.compile(r"^world \d+ · ")).nth(1)
+      second_world = int(re.match(r"world (\d+)", other.inner_text()).group(1))
+      other.click()
+      server.expect(rf"playing world {second_world} \(added\)")
+      page.get_by_text(f"playing world {world}, world {second_world}").wait_for(timeout=WAIT * 1000)
+      page.get_by_text("Add to the playing worlds").click()
+      # Refine the last one played: 4 samples from the page, then save the bank.
+      world = second_world
       page.get_by_label("Samples").fill("4")
       time.sleep(0.5)
       page.get_by_text("Refine playing world").click()

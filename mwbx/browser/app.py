@@ -35,6 +35,9 @@ FAINT_RGB = (185, 185, 185)
 EXCLUDE_RGB = (220, 40, 40)
 QUERY_RGB = {"include": (40, 200, 60), "exclude": (220, 40, 40)}
 ALL_BODIES = "(every tracked body)"
+# Worlds played at once (overlaid), and the opacity of all but the first.
+MAX_PLAYED = 4
+GHOST_OPACITY = 0.45
 FIRST_ENTRY = "first entry of the last box"
 CURRENT_TIME = "current time"
 
@@ -106,7 +109,7 @@ class Browser:
     self.playing_world: int | None = None
     self.frame = 0
     self._stop = threading.Event()
-    self._tracks = None
+    self.played: dict = {}  # world id -> (body ids, pos, quat, nodes, label), in play order
     self._handles: dict = {}
     self._build_scene()
     self._build_gui()
@@ -124,7 +127,7 @@ class Browser:
     scene = self.server.scene
     scene.set_up_direction("+z")
     self._frame_view()
-    self.body_nodes = {}
+    self.moving = {}  # body id -> [(name, vertices, faces, rgb, wxyz, position)] of its geoms
     for v in self.visuals:
       verts, faces = _mesh(v.geometry)
       wxyz, pos = _pose(v.local)
@@ -132,11 +135,7 @@ class Browser:
         scene.add_mesh_simple(f"/scene/{v.name}", verts, faces, color=_rgb(v.rgba), wxyz=wxyz, position=pos,
                               opacity=None if v.rgba.a >= 1 else float(v.rgba.a))
       else:
-        body = int(v.body_id)
-        if body not in self.body_nodes:
-          self.body_nodes[body] = scene.add_frame(f"/play/b{body}", show_axes=False, visible=False)
-        scene.add_mesh_simple(f"/play/b{body}/{v.name}", verts, faces, color=_rgb(v.rgba), wxyz=wxyz,
-                              position=pos)
+        self.moving.setdefault(int(v.body_id), []).append((v.name, verts, faces, _rgb(v.rgba), wxyz, pos))
     # Colour per body: the colour of its first geom (a path of the ball is the ball's colour).
     bank = self.session.bank
     colour = {}
@@ -169,6 +168,8 @@ class Browser:
     com, count = np.asarray(bank.com), np.asarray(bank.com_count)
     valid = np.asarray(bank.valid, bool)
     groups = {"faint": valid & ~match & ~exclude, "match": valid & match, "exclude": valid & exclude}
+    if self.only_matches.value:
+      groups["faint"] = groups["exclude"] = np.zeros_like(valid)
     per_world = max(1, (com.shape[1] - 1) * bodies.size)
     cap = max(1, MAX_PATH_SEGMENTS // per_world)
     left_out = {}
@@ -225,6 +226,9 @@ class Browser:
       self.counts_md = gui.add_markdown("")
       self.bodies = gui.add_dropdown("Bodies", names, initial_value=ALL_BODIES)
       self.mode = gui.add_dropdown("Mode", ("any", "all"), initial_value="any")
+      self.only_matches = gui.add_checkbox("Only matching paths", False)
+      self.only_matches.on_update(lambda _: self.refresh())
+      self.bodies.on_update(lambda _: self.refresh())
       self.window = gui.add_multi_slider("Time window (s)", 0.0, max(end, 1e-3), max(end, 1e-3) / 100,
                                          (0.0, max(end, 1e-3)))
       include = gui.add_button("Draw include box")
@@ -253,6 +257,8 @@ class Browser:
       self.metric.on_update(lambda _: self._sorter())
       self.reduce.on_update(lambda _: self._sorter())
       self.sorter_md = gui.add_markdown("")
+      self.compare = gui.add_checkbox("Add to the playing worlds", False,
+                                      hint=f"overlay up to {MAX_PLAYED} worlds, each labelled with its id")
       self.sorter = gui.add_folder("Worlds (click to play)")
       self.row_buttons: list = []
     with gui.add_folder("Playback"):
@@ -368,46 +374,70 @@ class Browser:
         label = (f"world {r.world} · {r.satisfied} · {r.value:.4g}"
                  + ("" if r.parent < 0 else f" · from {r.parent}"))
         button = self.server.gui.add_button(label)
-        button.on_click(lambda _, world=r.world: self.play(world))
+        button.on_click(lambda _, world=r.world: self.play(world, add=self.compare.value))
         self.row_buttons.append(button)
 
   # -- playback ---------------------------------------------------------------------------
 
-  def play(self, world: int) -> None:
-    """Plays world ``world`` back in the scene (decoded from the codec)."""
+  def play(self, world: int, add: bool = False) -> None:
+    """Plays world ``world`` back in the scene (decoded from the codec); with
+    ``add`` next to the ones playing (overlaid, translucent, each labelled),
+    at most MAX_PLAYED worlds."""
     bank = self.session.bank
-    qpos = bank.qpos_frames(int(world)).astype(np.float64)
-    body_ids = np.array(sorted(self.body_nodes), np.int64)
+    world = int(world)
+    if not add:
+      for w in list(self.played):
+        self._unplay(w)
+    elif world in self.played:
+      return
+    elif len(self.played) >= MAX_PLAYED:
+      self._unplay(next(iter(self.played)))
+    qpos = bank.qpos_frames(world).astype(np.float64)
+    body_ids = np.array(sorted(self.moving), np.int64)
     pos, quat = body_trajectories(self.model, qpos, body_ids)
-    self._tracks = (body_ids, pos, quat)
-    self.playing_world = int(world)
-    self.frame = 0
-    for node in self.body_nodes.values():
-      node.visible = True
+    ghost = bool(self.played)
+    scene = self.server.scene
+    nodes = {}
+    for body in body_ids:
+      node = scene.add_frame(f"/play/w{world}/b{body}", show_axes=False)
+      for name, verts, faces, rgb, wxyz, position in self.moving[int(body)]:
+        scene.add_mesh_simple(f"/play/w{world}/b{body}/{name}", verts, faces, color=rgb, wxyz=wxyz,
+                              position=position, opacity=GHOST_OPACITY if ghost else None)
+      nodes[int(body)] = node
+    label = scene.add_label(f"/play/w{world}/b{body_ids[0]}/label", f"world {world}") if body_ids.size else None
+    self.played[world] = (body_ids, pos, quat, nodes, label)
+    self.playing_world = world
+    if not add:
+      self.frame = 0
     parent = self.session.parent(world)
-    self.playing_md.content = (f"playing **world {world}**" + (f" (refined from {parent})" if parent is not None
-                                                                else ""))
-    print(f"mwbx browse: playing world {world}", flush=True)
+    shown = ", ".join(f"world {w}" for w in self.played)
+    self.playing_md.content = (f"playing **{shown}**" + (f" (world {world} refined from {parent})"
+                                                         if parent is not None else ""))
+    print(f"mwbx browse: playing world {world}" + (" (added)" if add else ""), flush=True)
+
+  def _unplay(self, world: int) -> None:
+    self.server.scene.remove_by_name(f"/play/w{world}")
+    del self.played[world]
 
   def _show_frame(self) -> None:
-    body_ids, pos, quat = self._tracks
-    f = min(self.frame, pos.shape[0] - 1)
     with self.server.atomic():
-      for k, b in enumerate(body_ids):
-        node = self.body_nodes[int(b)]
-        node.position = pos[f, k]
-        node.wxyz = quat[f, k]
+      for body_ids, pos, quat, nodes, _ in list(self.played.values()):
+        f = min(self.frame, pos.shape[0] - 1)
+        for k, b in enumerate(body_ids):
+          nodes[int(b)].position = pos[f, k]
+          nodes[int(b)].wxyz = quat[f, k]
 
   def _seek(self) -> None:
-    if self._tracks is not None:
+    if self.played:
       self.frame = int(round(self.time_slider.value * self.session.bank.record_fps))
       self._show_frame()
 
   def _play_loop(self) -> None:
     while not self._stop.is_set():
-      if self._tracks is not None and not self.paused.value:
+      if self.played and not self.paused.value:
         self._show_frame()
-        self.frame = (self.frame + 1) % self._tracks[1].shape[0]
+        longest = max(p[1].shape[0] for p in list(self.played.values()))
+        self.frame = (self.frame + 1) % longest
       time.sleep(1.0 / self.session.bank.record_fps)
 
   # -- refinement ---------------------------------------------------------------------------
