@@ -89,6 +89,13 @@ def _camera(m: re.Match) -> mq.Camera:
                    aspect=float(m.group(12)))
 
 
+def _arm(page, sign: str) -> None:
+  """Presses the draw button and waits until the server has armed the box
+  (its answer comes after the rect-select registration on the same socket)."""
+  page.get_by_text(f"Draw {sign} box").click()
+  page.get_by_text(f"drag a box in the view for an {sign} query").wait_for(timeout=WAIT * 1000)
+
+
 def _drag(page, x0, y0, x1, y1):
   page.mouse.move(x0, y0)
   page.mouse.down()
@@ -109,8 +116,7 @@ def test_browse_page_draw_undo_save_sort_refine(browser, tmp_path):
       page.goto(f"http://127.0.0.1:{server.port}", timeout=WAIT * 1000)
       page.get_by_text("Draw include box").wait_for(timeout=WAIT * 1000)
       # A first box tells the camera the page looks through; undone.
-      page.get_by_text("Draw include box").click()
-      time.sleep(1)
+      _arm(page, "include")
       _drag(page, 330, 280, 560, 520)
       camera = _camera(server.expect(QUERY_LINE.pattern))
       page.get_by_text("Undo", exact=True).click()
@@ -124,8 +130,7 @@ def test_browse_page_draw_undo_save_sort_refine(browser, tmp_path):
       pixels = lambda pts: (*(pts.min(0) * [1200, 800] - 6), *(pts.max(0) * [1200, 800] + 6))  # noqa: E731
       # An include box: the page's count is what mwbx.queries gives for the
       # frustum of the same box and camera.
-      page.get_by_text("Draw include box").click()
-      time.sleep(1)
+      _arm(page, "include")
       _drag(page, *pixels(left))
       first = server.expect(QUERY_LINE.pattern)
       assert first.group(2) == "include"
@@ -135,8 +140,7 @@ def test_browse_page_draw_undo_save_sort_refine(browser, tmp_path):
       assert int(first.group(13)) == want and 0 < want < bank.n_worlds
       page.get_by_text(re.compile(rf"^{want} of 16 worlds")).wait_for(timeout=WAIT * 1000)
       # An exclude box: the conjunction.
-      page.get_by_text("Draw exclude box").click()
-      time.sleep(1)
+      _arm(page, "exclude")
       _drag(page, *pixels(right))
       second = server.expect(QUERY_LINE.pattern)
       both = [query, mq.Query.screen(_camera(second), json.loads(second.group(3)), sign="exclude")]
