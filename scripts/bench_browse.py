@@ -53,12 +53,12 @@ def _in_browser(page, camera) -> dict:
     tab.get_by_text("Draw include box").wait_for(timeout=600_000)
     tab.get_by_text(re.compile(r"^world \d+ · ")).first.wait_for(timeout=600_000)
     load_s = time.perf_counter() - start
-    time.sleep(2.0)
+    tab.wait_for_timeout(2000)  # (the sync API delivers websocket events only while it waits)
     before = sum(received)
     page.session.add(mq.Query.screen(camera, mq.ScreenBox(0.3, 0.4, 0.5, 0.6)))
     page.refresh()
     page.server.flush()
-    time.sleep(2.0)
+    tab.wait_for_timeout(2000)
     update_bytes = sum(received) - before
     chromium.close()
   return {"page_load_s": load_s, "initial_bytes": before, "bytes_per_box_update": update_bytes}
