@@ -362,10 +362,12 @@ class Browser:
   def _sorter(self, counts=None) -> None:
     session = self.session
     counts = session.counts() if counts is None else counts
-    rows = session.sorted_rows(self.metric.value, self.reduce.value)
+    bodies = None if self.bodies.value == ALL_BODIES else [self.bodies.value]
+    rows = session.sorted_rows(self.metric.value, self.reduce.value, bodies=bodies)
     closest = not counts.all and session.entries
+    over = "every tracked body" if bodies is None else bodies[0]
     self.sorter_md.content = (f"{'closest worlds: ' if closest else ''}world · queries satisfied · "
-                              f"{self.metric.value}:{self.reduce.value} · parent")
+                              f"{self.metric.value}:{self.reduce.value} over {over} · parent")
     for button in self.row_buttons:
       button.remove()
     self.row_buttons = []
