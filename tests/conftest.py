@@ -39,3 +39,14 @@ def tiny_native(tiny_config):
 def tiny_native_bank(tiny_native):
   bank, _ = tiny_native.run(32, jax.random.key(0))
   return bank
+
+
+@pytest.fixture(scope="session")
+def browser():
+  """Skips a real-browser test, saying why, where Chromium or Playwright is missing."""
+  import sys
+  from viewer_render import chromium_unavailable_reason
+  reason = chromium_unavailable_reason()
+  if reason is not None:
+    print(f"skipping a real-browser test: {reason}", file=sys.stderr)
+    pytest.skip(reason)

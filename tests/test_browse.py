@@ -23,20 +23,12 @@ from mwbx import queries as mq
 from mwbx.browser.app import free_port
 
 from viewer_banks import quickstart_bank
-from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS, chromium_unavailable_reason
+from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS
 
 QUERY_LINE = re.compile(r"mwbx browse: query (\d+) (\w+) box=(\[[^\]]*\]) bodies=(\S+) mode=(\w+) "
                         r"window=(\S+) camera eye=(\[[^\]]*\]) right=(\[[^\]]*\]) up=(\[[^\]]*\]) "
                         r"forward=(\[[^\]]*\]) fovy=(\S+) aspect=(\S+) -> (\d+) worlds, all queries (\d+) of (\d+)")
 WAIT = 300  # seconds: a loaded machine is slow, never wrong
-
-
-@pytest.fixture(scope="module")
-def browser():
-  reason = chromium_unavailable_reason()
-  if reason is not None:
-    print(f"skipping the real-browser browse test: {reason}", file=sys.stderr)
-    pytest.skip(reason)
 
 
 class Server:

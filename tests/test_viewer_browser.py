@@ -8,28 +8,19 @@ with WebGL disabled, and an empty meshcat page.
 from __future__ import annotations
 
 import pathlib
-import sys
 
 import numpy as np
 import pytest
 
 import mwbx.viewer as mv
 from viewer_banks import quickstart_bank
-from viewer_render import chromium_unavailable_reason, colour_fraction, hue_fraction, hue_of, screenshot, screenshots
+from viewer_render import colour_fraction, hue_fraction, hue_of, screenshot, screenshots
 
 # Thresholds as fractions of an 800 x 600 screenshot.
 MIN_OBJECT_FRACTION = 0.0008  # ~380 px of one object colour
 MIN_PATH_FRACTION = 0.0004  # ~190 px of exact (unlit) path colour
 MIN_FRUSTUM_FRACTION = 0.02  # translucent green volume covers a large area
 PATH_TOLERANCE = 40  # 0-255 scale; antialiased line pixels blend with the floor
-
-
-@pytest.fixture(scope="module")
-def browser():
-  reason = chromium_unavailable_reason()
-  if reason is not None:
-    print(f"skipping the real-browser viewer test: {reason}", file=sys.stderr)
-    pytest.skip(reason)
 
 
 @pytest.fixture(scope="module")
