@@ -451,10 +451,8 @@ class Browser:
       return
     objects = self.objects.value
     try:
-      t_min = (self.session.first_entry_of_last_box(world, self.session.bank.objects.get(objects, [objects])
-                                                    if objects in self.session.bank.objects else
-                                                    self.session.bank.groups[objects])
-               if self.start.value == FIRST_ENTRY else self.frame / self.session.bank.record_fps)
+      t_min = (self.session.first_entry_of_last_box(world, [objects]) if self.start.value == FIRST_ENTRY
+               else self.frame / self.session.bank.record_fps)
     except MwbxError as err:
       self.status_md.content = f"error: {err}"
       return
