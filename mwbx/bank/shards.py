@@ -40,8 +40,7 @@ SHARDS = "shards"
 
 def com_step(config: dict) -> float | None:
   """The COM grid step of a bank's config (None: float32 polylines)."""
-  e_com = (config.get("codec") or {}).get("e_com")
-  return None if e_com is None else polyline.grid_step(e_com)
+  return polyline.grid_step((config.get("codec") or {}).get("e_com"))
 
 
 def has_manifest(path: pathlib.Path) -> bool:

@@ -18,7 +18,7 @@ import numpy as np
 from mwbx import bank as bank_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
-from mwbx.codec import polyline
+from mwbx.codec import CodecBounds, CompressedQposStore, polyline
 from mwbx.config import Config
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress, ProgressFn
@@ -217,8 +217,8 @@ class Sampler:
     com_count = np.where(frame_count > 0, (frame_count - 1) // self.query_stride + 1, 0).astype(np.int32)
     com = fill_tail(np.ascontiguousarray(com), com_count)  # the tail repeats the last polyline point
     com = np.nan_to_num(com)
-    if scene.config.codec.e_com is not None:  # stored on the COM grid: queries see what is stored
-      com = polyline.round_to_grid(com, polyline.grid_step(scene.config.codec.e_com))
+    # On the COM grid as stored: queries see exactly what is stored.
+    com = polyline.round_to_grid(com, polyline.grid_step(scene.config.codec.e_com))
     flags = np.full(len(ids), bank_lib.FLAG_FINISHED, np.uint8)
     flags[status == world.AT_REST] |= bank_lib.FLAG_AT_REST
     flags[status == world.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
@@ -239,7 +239,6 @@ class Sampler:
 
 def compressed_store(scene: Scene):
   """An empty compressed qpos store, bounds from the config's ``codec`` section."""
-  from mwbx.codec import CodecBounds, CompressedQposStore
   cfg = scene.config
   bounds = CodecBounds(e_pos=cfg.codec.e_pos, e_rot=float(np.deg2rad(cfg.codec.e_rot_deg)),
                        e_scalar=cfg.codec.e_scalar)

@@ -109,7 +109,7 @@ class Browser:
     self.playing_world: int | None = None
     self.frame = 0
     self._stop = threading.Event()
-    self.played: dict = {}  # world id -> (body ids, pos, quat, nodes, label), in play order
+    self.played: dict = {}  # world id -> (body ids, pos, quat, body nodes), in play order
     self._handles: dict = {}
     self._build_scene()
     self._build_gui()
@@ -406,8 +406,9 @@ class Browser:
         scene.add_mesh_simple(f"/play/w{world}/b{body}/{name}", verts, faces, color=rgb, wxyz=wxyz,
                               position=position, opacity=GHOST_OPACITY if ghost else None)
       nodes[int(body)] = node
-    label = scene.add_label(f"/play/w{world}/b{body_ids[0]}/label", f"world {world}") if body_ids.size else None
-    self.played[world] = (body_ids, pos, quat, nodes, label)
+    if body_ids.size:  # the label rides on the world's first body
+      scene.add_label(f"/play/w{world}/b{body_ids[0]}/label", f"world {world}")
+    self.played[world] = (body_ids, pos, quat, nodes)
     self.playing_world = world
     if not add:
       self.frame = 0
@@ -423,7 +424,7 @@ class Browser:
 
   def _show_frame(self) -> None:
     with self.server.atomic():
-      for body_ids, pos, quat, nodes, _ in list(self.played.values()):
+      for body_ids, pos, quat, nodes in list(self.played.values()):
         f = min(self.frame, pos.shape[0] - 1)
         for k, b in enumerate(body_ids):
           nodes[int(b)].position = pos[f, k]

@@ -25,14 +25,18 @@ from mwbx.codec.layout import CodecError
 MAX_GRID = 1 << 23
 
 
-def grid_step(e_com: float) -> float:
-  """The grid step for a bound ``e_com`` (metres): every point moves at most half a step."""
-  return 2.0 * float(e_com)
+def grid_step(e_com: float | None) -> float | None:
+  """The grid step for a bound ``e_com`` (metres): every point moves at most
+  half a step. None (no bound): no grid, float32 paths."""
+  return None if e_com is None else 2.0 * float(e_com)
 
 
-def round_to_grid(points: np.ndarray, step: float) -> np.ndarray:
-  """f32[...] points (metres) rounded to the nearest grid point, non-finite ones as given."""
+def round_to_grid(points: np.ndarray, step: float | None) -> np.ndarray:
+  """f32[...] points (metres) rounded to the nearest grid point, non-finite ones
+  as given; ``step`` None leaves them as they are."""
   points = np.asarray(points, np.float32)
+  if step is None:
+    return points
   q = np.round(points.astype(np.float64) / step)
   out = (q * step).astype(np.float32)
   return np.where(np.isfinite(points), out, points)

@@ -266,9 +266,8 @@ def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, out
 
   stride = sampler.query_stride
   n_points = bank.com.shape[1]
-  e_com = sampler.scene.config.codec.e_com
-  if e_com is not None:  # on the bank's COM grid, like the parent's stored points
-    new_com = polyline.round_to_grid(new_com, polyline.grid_step(e_com))
+  # On the bank's COM grid, like the parent's stored points.
+  new_com = polyline.round_to_grid(new_com, polyline.grid_step(sampler.scene.config.codec.e_com))
   com_rate = np.concatenate([np.zeros((w, f0) + new_com.shape[2:], np.float32), new_com], axis=1)
   com = com_rate[:, ::stride][:, :n_points]
   com = np.concatenate([com, np.repeat(com[:, -1:], n_points - com.shape[1], axis=1)], axis=1)
