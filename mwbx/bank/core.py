@@ -281,19 +281,7 @@ class Bank:
       raise MwbxError("append: polyline shapes differ")
     if type(other.qpos_store) is not type(self.qpos_store):
       raise MwbxError("append: the banks store qpos differently (raw vs compressed)")
-    other = other._renumbered_after(self)
-    store = self.qpos_store.copy()
-    store.extend(other.qpos_store)
-    cat = lambda a, b: np.concatenate([a, b])
-    lineage = {**self.lineage, **other.lineage}
-    return dataclasses.replace(
-        self, world_ids=cat(self.world_ids, other.world_ids), keys=cat(self.keys, other.keys),
-        flags=cat(self.flags, other.flags), frame_count=cat(self.frame_count, other.frame_count),
-        com=cat(self.com, other.com), com_count=cat(self.com_count, other.com_count),
-        metrics=cat(self.metrics, other.metrics), perturbations=cat(self.perturbations, other.perturbations),
-        steps=cat(self.steps, other.steps), parent_world=cat(self.parent_world, other.parent_world),
-        refine_time=cat(self.refine_time, other.refine_time), qpos_store=store, lineage=lineage,
-        next_id=max(self.next_world_id, other.next_world_id))
+    return Bank.concatenate([self, other._renumbered_after(self)])
 
   @classmethod
   def concatenate(cls, banks: Sequence["Bank"]) -> "Bank":
@@ -317,7 +305,7 @@ class Bank:
     arrays = {name: np.concatenate([getattr(b, name) for b in banks]) for name in cls._ARRAYS}
     lineage = {k: v for b in banks for k, v in b.lineage.items()}
     return dataclasses.replace(first, **arrays, qpos_store=store, lineage=lineage,
-                               next_id=max(b.next_world_id for b in banks), _model=None)
+                               next_id=max(b.next_world_id for b in banks))
 
   def _renumbered_after(self, first: "Bank") -> "Bank":
     """This bank with new ids from ``first.next_world_id`` on if any of its ids is
