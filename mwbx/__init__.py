@@ -14,6 +14,7 @@ Example::
 from mwbx.bank import Bank
 from mwbx.bank import FLAG_AT_REST
 from mwbx.bank import FLAG_FINISHED
+from mwbx.bank import FLAG_SIM_ERROR
 from mwbx.bank import FLAG_UNSTABLE
 from mwbx.batch_sim import METRIC_NAMES
 from mwbx.batch_sim import SampleStats
@@ -55,6 +56,7 @@ __all__ = [
     "Config",
     "FLAG_AT_REST",
     "FLAG_FINISHED",
+    "FLAG_SIM_ERROR",
     "FLAG_UNSTABLE",
     "Frustum",
     "METRIC_NAMES",

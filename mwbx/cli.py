@@ -77,6 +77,10 @@ def _cmd_sample(args) -> int:
             run_index = directory.append(part, run=record if run_index is None else None,
                                          run_index=run_index)
             summary.add(part)
+            for world_id, message in stats.sim_errors[summary.errors_shown:]:
+              print(f"mwbx: world {world_id}: MuJoCo error, world flagged and the run goes on: "
+                    f"{' '.join(message.split())}", file=sys.stderr)
+            summary.errors_shown = len(stats.sim_errors)
       except KeyboardInterrupt:
         print(f"mwbx: interrupted; {summary.worlds} worlds of this run are saved in {out};"
               f" run the same command again to resume", file=sys.stderr)
@@ -93,18 +97,23 @@ class _RunSummary:
   """Counts over the chunks of one sampling run (the chunks are not kept)."""
 
   def __init__(self):
-    self.worlds = self.valid = self.at_rest = self.perturbations = 0
+    self.worlds = self.valid = self.at_rest = self.perturbations = self.sim_errors = 0
+    self.errors_shown = 0
     self.stats = None
 
   def add(self, part) -> None:
+    from mwbx.bank import FLAG_SIM_ERROR
     self.worlds += part.n_worlds
     self.valid += int(part.valid.sum())
     self.at_rest += int(part.at_rest.sum())
     self.perturbations += int(part.perturbations.sum())
+    self.sim_errors += int(((part.flags & FLAG_SIM_ERROR) != 0).sum())
 
   def print(self, out: pathlib.Path, total: int) -> None:
     n = max(1, self.worlds)
-    print(f"worlds sampled      {self.worlds} ({self.valid} valid, {self.worlds - self.valid} unstable)")
+    errors = f", {self.sim_errors} of them stopped by MuJoCo errors" if self.sim_errors else ""
+    print(f"worlds sampled      {self.worlds} ({self.valid} valid, {self.worlds - self.valid} unstable"
+          f"{errors})")
     print(f"worlds at rest      {self.at_rest} ({self.at_rest / n:.0%})")
     print(f"perturbations       {self.perturbations} ({self.perturbations / n:.1f} per world)")
     if self.stats is not None:
@@ -127,7 +136,8 @@ def _cmd_info(args) -> int:
                       "config": bank.config, "digest": bank.digest, "run": bank.run}, indent=2))
     return 0
   print(f"bank                {args.bank}")
-  print(f"worlds              {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable)")
+  errors = f", {s['sim_errors']} of them stopped by MuJoCo errors" if s["sim_errors"] else ""
+  print(f"worlds              {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable{errors})")
   print(f"at rest             {s['at_rest_fraction']:.1%}")
   print(f"mean collisions     {s['mean_collisions']:.2f} per world")
   print(f"perturbations       {s['perturbations']}")

@@ -2,6 +2,7 @@
 
 from mwbx.bank.core import FLAG_AT_REST
 from mwbx.bank.core import FLAG_FINISHED
+from mwbx.bank.core import FLAG_SIM_ERROR
 from mwbx.bank.core import FLAG_UNSTABLE
 from mwbx.bank.core import QPOS_STORES
 from mwbx.bank.core import Bank

@@ -28,6 +28,7 @@ from mwbx.qpos_store import QposStore, RawQposStore
 FLAG_FINISHED = 1
 FLAG_AT_REST = 2
 FLAG_UNSTABLE = 4
+FLAG_SIM_ERROR = 8  # MuJoCo raised an error while stepping it (stopped there)
 
 
 
@@ -39,7 +40,7 @@ class Bank:
     world_ids: i64[W] world ids, unique within the bank (a sampled world's id is
       also its index in its run, which determines its randomness).
     keys: u32[W, 2] raw key data of each world.
-    flags: u8[W] FLAG_FINISHED | FLAG_AT_REST | FLAG_UNSTABLE.
+    flags: u8[W] FLAG_FINISHED | FLAG_AT_REST | FLAG_UNSTABLE | FLAG_SIM_ERROR.
     frame_count: i32[W] recorded qpos frames per world (at ``record_fps``).
     com: f32[W, P, B, 3] tracked COM polylines at ``query_fps``, m; points
       past ``com_count`` repeat the last one.
@@ -97,8 +98,9 @@ class Bank:
 
   @property
   def valid(self) -> np.ndarray:
-    """bool[W]: worlds that did not go unstable (the only ones queries see)."""
-    return (self.flags & FLAG_UNSTABLE) == 0
+    """bool[W]: worlds that did not go unstable or stop on a MuJoCo error (the
+    only ones queries see)."""
+    return (self.flags & (FLAG_UNSTABLE | FLAG_SIM_ERROR)) == 0
 
   @property
   def at_rest(self) -> np.ndarray:
@@ -253,6 +255,7 @@ class Bank:
         "worlds": self.n_worlds,
         "valid": int(valid.sum()),
         "unstable": int((~valid).sum()),
+        "sim_errors": int(((self.flags & FLAG_SIM_ERROR) != 0).sum()),
         "at_rest_fraction": float(self.at_rest.mean()) if self.n_worlds else 0.0,
         "mean_collisions": float(self.metric("collisions").sum(-1)[valid].mean()) if valid.any() else 0.0,
         "perturbations": int(self.perturbations.sum()),

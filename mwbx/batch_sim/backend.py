@@ -26,7 +26,7 @@ class ChunkResult(NamedTuple):
       repeat the last recorded frame.
     com: f32[C, F, B, 3] tracked COM positions at the record rate, m.
     frame_count: i32[C] frames recorded.
-    status: i32[C] world.RUNNING / AT_REST / END_TIME / UNSTABLE.
+    status: i32[C] world.RUNNING / AT_REST / END_TIME / UNSTABLE / SIM_ERROR.
     metrics: f32[C, B, M] per-body metric table.
     perturbations: i32[C] perturbations applied.
     steps: i32[C] physics steps taken.
@@ -34,6 +34,8 @@ class ChunkResult(NamedTuple):
     run_seconds: time spent stepping (excluding compilation), s.
     physics_seconds: of which inside the physics engine (native backend; NaN
       where physics and bookkeeping run fused, as on mjx), s.
+    errors: (chunk row, MuJoCo's message) of each world stopped by a MuJoCo
+      error (status ``world.SIM_ERROR``).
   """
 
   qpos: np.ndarray
@@ -46,6 +48,7 @@ class ChunkResult(NamedTuple):
   compile_seconds: float
   run_seconds: float
   physics_seconds: float = float("nan")
+  errors: tuple = ()
 
 
 @runtime_checkable

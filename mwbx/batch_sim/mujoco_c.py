@@ -16,8 +16,12 @@ native backend then steps through ``mujoco.rollout`` instead.
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import pathlib
+import threading
 import time
+from typing import Callable
 
 import llvmlite.binding as llvm
 import mujoco
@@ -62,3 +66,60 @@ CLOCK_MONOTONIC = int(getattr(time, "CLOCK_MONOTONIC", 1))
 def available() -> bool:
   """Whether the compiled per-world loop can call MuJoCo's C library here."""
   return mj_step is not None
+
+
+# -- MuJoCo errors inside compiled loops ---------------------------------------------
+
+_ERROR_FN = ctypes.CFUNCTYPE(None, ctypes.c_char_p)
+_trap_lock = threading.Lock()
+_callbacks: list = []  # a parked thread is still inside its callback: never freed
+
+
+def _user_error_slot():
+  """``mju_user_error``, MuJoCo's global error callback, as a ctypes pointer slot."""
+  path = _library()
+  if path is None:
+    return None
+  try:
+    return ctypes.c_void_p.in_dll(ctypes.CDLL(path), "mju_user_error")
+  except (OSError, ValueError):
+    return None
+
+
+@contextlib.contextmanager
+def trap_errors(on_error: Callable[[str], None]):
+  """While inside: an ``mju_error`` on a thread without a handler of its own
+  calls ``on_error(message)`` on that thread, which then never returns.
+
+  MuJoCo's bindings give every Python-level call a thread-local handler that
+  raises ``mujoco.FatalError``; a compiled loop calling ``mj_step`` directly has
+  none, and MuJoCo's fallback prints and exits the process. MuJoCo cannot go on
+  after an error, and numba frames cannot be unwound, so the erring thread is
+  parked for good instead (a daemon thread blocked on an event, holding only
+  its own ``MjData``): the caller flags that world and carries on with fresh
+  threads. Restores the previous handler on exit.
+
+  Yields:
+    True if the handler is installed (False where the library's global cannot
+    be reached: an error then ends the process as before).
+  """
+  slot = _user_error_slot()
+  if slot is None:
+    yield False
+    return
+
+  def handler(message):
+    try:
+      on_error((message or b"").decode(errors="replace").strip())
+    finally:
+      threading.Event().wait()  # never return into MuJoCo
+
+  callback = _ERROR_FN(handler)
+  _callbacks.append(callback)
+  with _trap_lock:
+    previous = slot.value
+    slot.value = ctypes.cast(callback, ctypes.c_void_p).value
+    try:
+      yield True
+    finally:
+      slot.value = previous

@@ -28,8 +28,12 @@ from mujoco import rollout as mj_rollout
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, world_loop
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
+from mwbx.errors import MwbxError
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+# Worlds of one chunk MuJoCo may raise errors in before the run stops: each
+# parks a thread for good (see ``mujoco_c.trap_errors``).
+MAX_SIM_ERRORS = 32
 _CONTROL = mujoco.mjtState.mjSTATE_XFRC_APPLIED
 
 
@@ -216,8 +220,6 @@ class NativeBackend:
       ipos, iquat = np.zeros((0, 3)), np.zeros((0, 4))
     model = self.quiet_model if free else m
     gravity = np.asarray(m.opt.gravity, np.float64)
-    datas = [mujoco.MjData(model) for _ in range(self.threads)]
-
     def run(row, data, running_flags):
       return world_loop.run_world(
           row, model._address, data._address, data.xfrc_applied, data.sensordata, initial, n_frames,
@@ -233,46 +235,79 @@ class NativeBackend:
 
     rows = iter(np.flatnonzero(active).tolist())
     lock = threading.Lock()
-    physics = np.zeros(self.threads)
-    busy = np.zeros(self.threads)
-    errors: list = []
+    physics, busy = [], []
+    errors: list = []  # Python exceptions, re-raised here
+    sim_errors: list = []  # (row, message) of worlds MuJoCo raised an error in
     stop = threading.Event()
+    current: dict[int, int] = {}  # thread ident -> chunk row it is stepping
+    parked: set[int] = set()  # idents of threads parked inside MuJoCo's error call
+    threads: list = []
 
     def worker(t):
       start = time.perf_counter()
+      data = mujoco.MjData(model)
       try:
         while not stop.is_set():
           with lock:
             row = next(rows, None)
           if row is None:
             break
-          physics[t] += run(row, datas[t], running)
+          current[threading.get_ident()] = row
+          physics[t] += run(row, data, running)
       except BaseException as exc:  # noqa: BLE001 - re-raised on the calling thread
         errors.append(exc)
         stop.set()
       busy[t] = time.perf_counter() - start
 
-    t0 = time.perf_counter()
-    threads = [threading.Thread(target=worker, args=(t,), daemon=True) for t in range(self.threads)]
-    for thread in threads:
+    def start_worker():
+      physics.append(0.0)
+      busy.append(0.0)
+      thread = threading.Thread(target=worker, args=(len(threads),), daemon=True)
+      threads.append(thread)
       thread.start()
-    try:
-      while any(thread.is_alive() for thread in threads):
-        threads[0].join(0.25)
-        if progress is not None:
-          progress(int(carry.step.sum()), int((~running & active).sum()))
-    finally:
-      stop.set()  # e.g. on Ctrl-C: the threads stop after the world they are on
-      for thread in threads:
-        thread.join()
+
+    def on_error(message):
+      """On the erring thread: flag its world; a fresh thread takes its place."""
+      row = current[threading.get_ident()]
+      running[row] = False
+      carry.status[row] = world.SIM_ERROR
+      with lock:
+        parked.add(threading.get_ident())
+        sim_errors.append((row, message))
+        if len(sim_errors) > MAX_SIM_ERRORS:
+          errors.append(MwbxError(f"MuJoCo raised errors in more than {MAX_SIM_ERRORS} worlds of one"
+                                  f" chunk; stopped (the first: {sim_errors[0][1].splitlines()[0]})"))
+          stop.set()
+        else:
+          start_worker()
+
+    def working():
+      with lock:
+        return [th for th in threads if th.is_alive() and th.ident not in parked]
+
+    t0 = time.perf_counter()
+    with mujoco_c.trap_errors(on_error):
+      with lock:
+        for _ in range(self.threads):
+          start_worker()
+      try:
+        while live := working():
+          live[0].join(0.25)
+          if progress is not None:
+            progress(int(carry.step.sum()), int((~running & active).sum()))
+      finally:
+        stop.set()  # e.g. on Ctrl-C: the threads stop after the world they are on
+        for thread in working():
+          thread.join()
     run_seconds = time.perf_counter() - t0
     if errors:
       raise errors[0]
     if progress is not None:
       progress(int(carry.step.sum()), int(active.sum()))
     # The share of the threads' time spent inside mj_step, applied to the wall time.
-    physics_seconds = run_seconds * float(physics.sum() / max(busy.sum(), 1e-12))
-    return self._result(ch, compile_seconds, run_seconds, physics_seconds)
+    physics_seconds = run_seconds * float(sum(physics) / max(sum(busy), 1e-12))
+    return self._result(ch, compile_seconds, run_seconds, physics_seconds)._replace(
+        errors=tuple(sim_errors))
 
   def run_chunk_lockstep(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                          n_frames: int, progress=None) -> ChunkResult:

@@ -38,6 +38,8 @@ class SampleStats:
     codec_seconds: compressing recorded qpos, s.
     physics_seconds: inside the physics engine (native backend; NaN on mjx), s.
     wall_seconds: everything, s.
+    sim_errors: (world id, MuJoCo's message) of each world a MuJoCo error
+      stopped (flagged ``FLAG_SIM_ERROR``; the run went on).
   """
 
   backend: str = ""
@@ -47,6 +49,7 @@ class SampleStats:
   codec_seconds: float = 0.0
   physics_seconds: float = 0.0
   wall_seconds: float = 0.0
+  sim_errors: list = dataclasses.field(default_factory=list)
 
   @property
   def world_steps_per_second(self) -> float:
@@ -189,6 +192,7 @@ class Sampler:
           self.scene, self.params, np.asarray(qpos0), np.asarray(qvel0), step_keys[pad],
           active, self.n_frames, progress=report)
       result = ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in result))
+      stats.sim_errors.extend((int(ids[lo + row]), message) for row, message in result.errors)
       # Compress as worlds are produced: raw qpos never outlives its chunk.
       chunk_steps = base_steps + int(result.steps.sum())
       if progress is not None:
@@ -222,6 +226,7 @@ class Sampler:
     flags = np.full(len(ids), bank_lib.FLAG_FINISHED, np.uint8)
     flags[status == world.AT_REST] |= bank_lib.FLAG_AT_REST
     flags[status == world.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
+    flags[status == world.SIM_ERROR] |= bank_lib.FLAG_SIM_ERROR
     metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
     cfg = scene.config
     return bank_lib.Bank(

@@ -47,6 +47,9 @@ RUNNING = 0
 AT_REST = 1
 END_TIME = 2
 UNSTABLE = 3
+# MuJoCo raised mju_error (e.g. its stack overflowed) while stepping the world:
+# set by the native backend, which stops that world and goes on with the others.
+SIM_ERROR = 4
 
 
 class Observation(NamedTuple):
