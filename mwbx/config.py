@@ -79,7 +79,8 @@ class SceneSection(_Strict):
       default every non-static tree.
     track: bodies tracked for queries and metrics; default every body of
       every object.
-    groups: named sets of objects (or other groups).
+    groups: named sets of objects (or other groups); a member with ``*``, ``?``
+      or ``[`` is a shell-style pattern over object names (``block_*``).
   """
 
   mjcf: str

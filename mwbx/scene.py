@@ -11,6 +11,7 @@ config file and field.
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
 import pathlib
 import xml.etree.ElementTree
 from typing import Sequence
@@ -228,6 +229,11 @@ class Scene:
     def expand(name, stack):
       if name in self.object_names:
         return (name,)
+      if name not in raw and any(c in name for c in "*?["):  # a pattern over object names
+        matched = tuple(o for o in self.object_names if fnmatch.fnmatchcase(o, name))
+        if not matched:
+          raise MwbxError(f"{source}: scene.groups.{stack[0]}: pattern {name!r} matches no object")
+        return matched
       if name not in raw:
         raise MwbxError(f"{source}: scene.groups.{stack[0]}: unknown object or group {name!r}")
       out = []

@@ -1,0 +1,217 @@
+"""The scale benchmark: the paper's trebuchet and tower at its dataset size,
+and a synthetic 100 k-world bank.
+
+Phases (``--phases``, default all; results merge into out/bench/scale.json,
+so phases can run at different times):
+
+- ``sample``: ``mwbx sample configs/trebuchet_tower.yaml --worlds 1549`` (the
+  paper's dataset size) as a child process on the native backend: wall time,
+  world-steps/s, peak memory (the child's max RSS), bank bytes per world.
+  Baseline measured in the same run: plain ``mj_step`` of the same MJCF on
+  one thread for 2 s of the scene (no mwbx), times the sampler's threads --
+  the physics floor; the ratio says what the sampler's own work costs.
+- ``tower``: opening that bank and answering its query file
+  (configs/queries/trebuchet_tower.yaml), each in a fresh child process: wall
+  time and peak memory. Baseline: the same query answered on the bank opened
+  eagerly (``Bank.load(path, lazy=False)``), whose answers must be equal.
+- ``synthetic``: a pachinko-size bank of 100 k worlds (sampled worlds of
+  configs/pachinko.yaml written again under new ids, shard after shard), then
+  opened and queried as above, lazily only (eagerly it is the whole bank in
+  memory).
+
+Usage:
+
+  .venv/bin/python scripts/bench_scale.py [--phases sample,tower,synthetic]
+      [--worlds 1549] [--synthetic-worlds 100000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import resource
+import subprocess
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+OUT = ROOT / "out" / "bench"
+BANKS = OUT / "scale"
+TOWER = ROOT / "configs" / "trebuchet_tower.yaml"
+TOWER_QUERIES = ROOT / "configs" / "queries" / "trebuchet_tower.yaml"
+PACHINKO = ROOT / "configs" / "pachinko.yaml"
+PACHINKO_QUERIES = ROOT / "configs" / "queries" / "pachinko.yaml"
+
+
+def _machine() -> dict:
+  return {"machine": platform.machine(), "processor": platform.processor() or platform.machine(),
+          "cpus": os.cpu_count(), "python": platform.python_version(),
+          "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                   cwd=ROOT).stdout.strip()}
+
+
+def _child(code: str) -> dict:
+  """Runs python ``code`` in a fresh process; it prints one JSON line. Adds the
+  child's peak RSS (MB)."""
+  wrapper = (code + "\nimport resource, json as _j\n"
+             "print(_j.dumps(dict(RESULT, peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)))")
+  out = subprocess.run([sys.executable, "-c", wrapper], capture_output=True, text=True, cwd=ROOT)
+  if out.returncode:
+    raise SystemExit(f"child failed:\n{out.stderr[-3000:]}")
+  return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _disk_bytes(path: pathlib.Path) -> int:
+  return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+
+
+def plain_physics_rate(config_path: pathlib.Path, seconds: float = 2.0) -> float:
+  """Steps/s of plain mj_step on the scene's MJCF, one thread (the floor)."""
+  return _child(f"""
+import time, mujoco, mwbx
+scene = mwbx.Scene(mwbx.load_config({str(config_path)!r}))
+m = mujoco.MjModel.from_xml_string(scene.mjcf_text)  # the MJCF as written: no mwbx sensors
+m.opt.timestep = scene.model.opt.timestep
+d = mujoco.MjData(m)
+n = int({seconds} / m.opt.timestep)
+t0 = time.perf_counter()
+for _ in range(n):
+  mujoco.mj_step(m, d)
+RESULT = dict(steps_per_second=n / (time.perf_counter() - t0), steps=n)
+""")["steps_per_second"]
+
+
+def phase_sample(n_worlds: int) -> dict:
+  bank = BANKS / "trebuchet_tower"
+  if bank.exists():
+    import shutil
+    shutil.rmtree(bank)
+  floor = plain_physics_rate(TOWER)
+  load_before = os.getloadavg()[0]
+  t0 = time.perf_counter()
+  proc = subprocess.run([sys.executable, "-m", "mwbx.cli", "sample", str(TOWER), "--worlds", str(n_worlds),
+                         "--backend", "native", "--out", str(bank)], capture_output=True, text=True, cwd=ROOT)
+  wall = time.perf_counter() - t0
+  if proc.returncode:
+    raise SystemExit(proc.stderr[-3000:])
+  peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+  summary = {line.split("  ")[0]: line for line in proc.stdout.splitlines()}
+  rate = float(summary["world-steps/s"].split()[1].replace(",", ""))
+  threads = os.cpu_count()
+  return {
+      "worlds": n_worlds, "wall_seconds": wall, "wall_minutes": wall / 60, "world_steps_per_second": rate,
+      "plain_mj_step_per_second_one_thread": floor, "threads": threads,
+      "ratio_to_physics_floor": rate / (floor * threads), "peak_rss_mb": peak,
+      "bank_bytes": _disk_bytes(bank), "bank_bytes_per_world": _disk_bytes(bank) / n_worlds,
+      "load_average_before": load_before, "load_average_after": os.getloadavg()[0],
+      "summary": proc.stdout.strip().splitlines()}
+
+
+_OPEN = """
+import time, mwbx
+t0 = time.perf_counter(); bank = mwbx.Bank.load({path!r}{lazy}); t_open = time.perf_counter() - t0
+RESULT = dict(open_seconds=t_open, worlds=bank.n_worlds)
+"""
+
+_QUERY = """
+import time, hashlib, mwbx
+t0 = time.perf_counter(); bank = mwbx.Bank.load({path!r}{lazy}); t_open = time.perf_counter() - t0
+qs = mwbx.load_queries({queries!r}, bank)
+t0 = time.perf_counter(); each = mwbx.evaluate_each(bank, qs); t_first = time.perf_counter() - t0
+t0 = time.perf_counter(); each = mwbx.evaluate_each(bank, qs); t_second = time.perf_counter() - t0
+RESULT = dict(open_seconds=t_open, query_seconds=t_first, query_again_seconds=t_second,
+              matches=[int(x) for x in each.sum(0)], all_match=int(each.all(1).sum()),
+              answers_sha=hashlib.sha256(each.tobytes()).hexdigest()[:16], worlds=bank.n_worlds)
+"""
+
+
+def open_and_query(path: pathlib.Path, queries: pathlib.Path, eager_baseline: bool) -> dict:
+  out = {}
+  modes = (("lazy", ""), ("eager", ", lazy=False")) if eager_baseline else (("lazy", ""),)
+  for label, lazy in modes:
+    out[label] = {"open": _child(_OPEN.format(path=str(path), lazy=lazy)),
+                  "query": _child(_QUERY.format(path=str(path), lazy=lazy, queries=str(queries)))}
+  if eager_baseline:
+    out["same_answers"] = out["lazy"]["query"]["answers_sha"] == out["eager"]["query"]["answers_sha"]
+    out["query_time_ratio_lazy_to_eager"] = (out["lazy"]["query"]["query_seconds"]
+                                             / out["eager"]["query"]["query_seconds"])
+    out["peak_memory_ratio_lazy_to_eager"] = (out["lazy"]["query"]["peak_rss_mb"]
+                                              / out["eager"]["query"]["peak_rss_mb"])
+  out["bank_bytes"] = _disk_bytes(path)
+  return out
+
+
+def phase_tower() -> dict:
+  bank = BANKS / "trebuchet_tower"
+  if not bank.exists():
+    raise SystemExit(f"{bank}: run the sample phase first")
+  result = open_and_query(bank, TOWER_QUERIES, eager_baseline=True)
+  result["bank_bytes_per_world"] = result["bank_bytes"] / result["lazy"]["open"]["worlds"]
+  return result
+
+
+def phase_synthetic(n_worlds: int, seed_worlds: int = 1024) -> dict:
+  """A pachinko-size bank of ``n_worlds``: ``seed_worlds`` sampled ones, their
+  shard written again under new ids until the bank holds ``n_worlds``."""
+  import shutil
+
+  import jax
+  import numpy as np
+
+  import mwbx
+  from mwbx.bank import BankDirectory
+
+  path = BANKS / "pachinko_100k"
+  if path.exists():
+    shutil.rmtree(path)
+  t0 = time.perf_counter()
+  part = mwbx.sample(mwbx.load_config(PACHINKO), seed_worlds, jax.random.key(0), backend="native")
+  sample_seconds = time.perf_counter() - t0
+  directory = BankDirectory(path)
+  t0 = time.perf_counter()
+  for start in range(0, n_worlds, seed_worlds):
+    n = min(seed_worlds, n_worlds - start)
+    chunk = part._take(np.arange(n))
+    chunk.world_ids = np.arange(start, start + n, dtype=np.int64)
+    directory.append(chunk)
+  write_seconds = time.perf_counter() - t0
+  result = open_and_query(path, PACHINKO_QUERIES, eager_baseline=False)
+  result.update(worlds=n_worlds, seed_worlds=seed_worlds, sample_seconds=sample_seconds,
+                write_seconds=write_seconds, bank_bytes_per_world=result["bank_bytes"] / n_worlds,
+                com_float32_bytes=int(n_worlds * part.com[0].nbytes))
+  return result
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--phases", default="sample,tower,synthetic")
+  parser.add_argument("--worlds", type=int, default=1549)
+  parser.add_argument("--synthetic-worlds", type=int, default=100_000)
+  args = parser.parse_args()
+  OUT.mkdir(parents=True, exist_ok=True)
+  BANKS.mkdir(parents=True, exist_ok=True)
+  file = OUT / "scale.json"
+  results = json.loads(file.read_text()) if file.exists() else {}
+  for phase in args.phases.split(","):
+    print(f"bench_scale: {phase} ...", flush=True)
+    start = time.perf_counter()
+    if phase == "sample":
+      results["sample"] = phase_sample(args.worlds)
+    elif phase == "tower":
+      results["tower"] = phase_tower()
+    elif phase == "synthetic":
+      results["synthetic"] = phase_synthetic(args.synthetic_worlds)
+    else:
+      raise SystemExit(f"--phases: unknown phase {phase!r}")
+    results[phase]["machine"] = _machine()
+    results[phase]["phase_seconds"] = time.perf_counter() - start
+    file.write_text(json.dumps(results, indent=1))
+    print(json.dumps(results[phase], indent=1)[:4000], flush=True)
+  print(f"wrote {file}")
+
+
+if __name__ == "__main__":
+  main()
