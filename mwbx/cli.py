@@ -127,6 +127,11 @@ class _RunSummary:
 
 def _cmd_info(args) -> int:
   import mwbx
+  if args.verify:  # read every array of every shard, not only what the summary needs
+    from mwbx.bank import shards
+    problems = shards.verify(args.bank) if shards.has_manifest(pathlib.Path(args.bank)) else []
+    if problems:
+      raise MwbxError("; ".join(problems))
   bank = mwbx.Bank.load(args.bank)
   s = bank.summary()
   if args.json:
@@ -292,6 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
   p = sub.add_parser("info", help="summarize a bank")
   p.add_argument("bank")
   p.add_argument("--json", action="store_true")
+  p.add_argument("--verify", action="store_true",
+                 help="check every shard's checksums (opening reads only the small arrays)")
   p.set_defaults(func=_cmd_info)
 
   p = sub.add_parser("query", help="find worlds of a bank with screen-box queries and rank them")

@@ -51,7 +51,7 @@ def test_sampled_banks_meet_the_bounds(config, quickstart):
 def test_bank_save_load_keeps_streams_and_reports_corruption(quickstart, tmp_path):
   _, bank, _ = quickstart
   bank.save(tmp_path / "bank")
-  loaded = mwbx.Bank.load(tmp_path / "bank")
+  loaded = mwbx.Bank.load(tmp_path / "bank", lazy=False)  # the streams in memory, to flip a bit in
   assert isinstance(loaded.qpos_store, CompressedQposStore)
   np.testing.assert_array_equal(loaded.qpos_store.data, bank.qpos_store.data)
   np.testing.assert_array_equal(loaded.qpos_frames(5, 10, 20), bank.qpos_frames(5, 10, 20))

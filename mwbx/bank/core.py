@@ -20,6 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
+from mwbx.bank import lazy
 from mwbx.codec import CompressedQposStore
 from mwbx.errors import MwbxError
 from mwbx.joints import QPOS_WIDTH
@@ -173,7 +174,7 @@ class Bank:
 
   def _take(self, rows: np.ndarray, **changes) -> "Bank":
     """The bank of ``rows`` (i64[k], in that order); the store is copied."""
-    arrays = {name: getattr(self, name)[rows] for name in self._ARRAYS}
+    arrays = {name: lazy.take_rows(getattr(self, name), rows) for name in self._ARRAYS}
     return dataclasses.replace(self, **arrays, qpos_store=self.qpos_store.take(rows),
                                next_id=self.next_world_id, **changes)
 
@@ -282,7 +283,7 @@ class Bank:
       raise MwbxError("append: the banks come from different configs or MJCF (digest mismatch)")
     if other.com.shape[1:] != self.com.shape[1:]:
       raise MwbxError("append: polyline shapes differ")
-    if type(other.qpos_store) is not type(self.qpos_store):
+    if other.qpos_store.kind != self.qpos_store.kind:
       raise MwbxError("append: the banks store qpos differently (raw vs compressed)")
     return Bank.concatenate([self, other._renumbered_after(self)])
 
@@ -300,12 +301,10 @@ class Bank:
     if len(np.unique(ids)) != ids.size:
       raise MwbxError("concatenate: the banks share world ids (use append, which renumbers)")
     for b in banks[1:]:
-      if b.digest != first.digest or type(b.qpos_store) is not type(first.qpos_store):
+      if b.digest != first.digest or b.qpos_store.kind != first.qpos_store.kind:
         raise MwbxError("concatenate: the banks come from different scenes or qpos stores")
-    store = first.qpos_store.copy()
-    for b in banks[1:]:
-      store.extend(b.qpos_store)
-    arrays = {name: np.concatenate([getattr(b, name) for b in banks]) for name in cls._ARRAYS}
+    store = lazy.concat_stores([b.qpos_store for b in banks])
+    arrays = {name: lazy.concat_rows([getattr(b, name) for b in banks]) for name in cls._ARRAYS}
     lineage = {k: v for b in banks for k, v in b.lineage.items()}
     return dataclasses.replace(first, **arrays, qpos_store=store, lineage=lineage,
                                next_id=max(b.next_world_id for b in banks))
@@ -346,7 +345,7 @@ class Bank:
     return shards.save(self, path)
 
   @classmethod
-  def load(cls, path: str | pathlib.Path, *, skip_corrupt: bool = False) -> "Bank":
+  def load(cls, path: str | pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = True) -> "Bank":
     """Reads a bank directory; MwbxError if missing or corrupt.
 
     Args:
@@ -354,14 +353,26 @@ class Bank:
         checkpoint).
       skip_corrupt: load the worlds of every intact shard and leave out those
         whose checksums fail (listed in ``bank.run["corrupt_shards"]``); by
-        default a corrupt shard is an error naming it and its arrays.
+        default a corrupt shard is an error naming it and its arrays. Reads
+        every shard now (one at a time).
+      lazy: read only the manifest and each shard's small arrays (ids, flags,
+        metrics, ...) now; ``com`` is then a :class:`~mwbx.bank.lazy.LazyRows`
+        and ``qpos_store`` a :class:`~mwbx.bank.lazy.LazyQposStore`, each
+        reading a shard when first used (its checksums are checked then), so
+        banks larger than memory open at once and queries stream over their
+        shards. ``lazy=False`` reads and checks everything now.
+
+    Example:
+      >>> bank = mwbx.Bank.load("out/pachinko")           # manifest + metrics only
+      >>> hits = mwbx.evaluate(bank, queries)               # a shard at a time
+      >>> q = bank.qpos_frames(int(bank.world_ids[hits][0]))  # reads one shard
     """
     from mwbx.bank import legacy, shards
     path = pathlib.Path(path).absolute()
     if not path.is_dir():
       raise MwbxError(f"{path}: no bank here (not a directory)")
     if shards.has_manifest(path):
-      bank = shards.load(cls, path, skip_corrupt=skip_corrupt)
+      bank = shards.load(cls, path, skip_corrupt=skip_corrupt, lazy=lazy)
     elif (path / "checkpoints").is_dir():
       bank = legacy.load(cls, path)
     else:

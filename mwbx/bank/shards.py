@@ -204,6 +204,7 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   os.rename(tmp, shards / name)
   _fsync_dir(shards)
   return {"name": name, "worlds": int(part.n_worlds), "id_ranges": id_ranges(part.world_ids),
+          "com_row_shape": [int(x) for x in part.com.shape[1:]],
           "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
           "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8))}
 
@@ -220,22 +221,33 @@ def read_manifest(path: pathlib.Path) -> dict:
   return manifest
 
 
-def _read_shard(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
-  """(arrays, lineage) of one shard, checked against its manifest entry."""
+# Arrays of a shard read only when used (lazy banks): the COM polylines and the qpos streams.
+def _is_big(name: str) -> bool:
+  return name == "com_grid" or name.startswith("qpos_")
+
+
+def _load_arrays(path: pathlib.Path, entry: dict, names) -> dict:
+  """The named arrays of one shard, checked against its manifest entry."""
   where = path / SHARDS / entry["name"]
   arrays = {}
   try:
-    for key in entry["checksums"]:
+    for key in names:
       arrays[key] = np.load(where / f"{key}.npy", allow_pickle=False)
-    lineage_bytes = (where / "lineage.json").read_bytes()
   except Exception as err:  # noqa: BLE001 - np.load of a damaged header raises many kinds
     raise MwbxError(f"{where}: corrupt or missing shard ({type(err).__name__}: "
                     f"{checks.first_line(err)})") from None
-  checks.verify(f"{where}", arrays, entry["checksums"])
+  checks.verify(f"{where}", arrays, {k: entry["checksums"][k] for k in names})
+  return arrays
+
+
+def _read_small(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
+  """(arrays but the big ones, lineage) of one shard, checked."""
+  where = path / SHARDS / entry["name"]
+  arrays = _load_arrays(path, entry, [k for k in entry["checksums"] if not _is_big(k)])
   try:
-    arrays["com"] = polyline.decode(arrays.pop("com_grid"))
-  except MwbxError as err:
-    raise MwbxError(f"{where}: {err}") from None
+    lineage_bytes = (where / "lineage.json").read_bytes()
+  except OSError as err:
+    raise MwbxError(f"{where}: corrupt or missing shard ({checks.first_line(err)})") from None
   if checks.crc32(np.frombuffer(lineage_bytes, np.uint8)) != int(entry["lineage_crc"]):
     raise MwbxError(f"{where}: corrupt bank: checksum mismatch in lineage.json")
   try:
@@ -244,35 +256,85 @@ def _read_shard(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
     raise MwbxError(f"{where}: corrupt lineage.json ({checks.first_line(err)})") from None
 
 
-def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False):
+def _read_com(path: pathlib.Path, entry: dict) -> np.ndarray:
+  """f32[w, P, B, 3] COM polylines of one shard, checked and decoded."""
+  data = _load_arrays(path, entry, ["com_grid"])["com_grid"]
+  try:
+    return polyline.decode(data)
+  except MwbxError as err:
+    raise MwbxError(f"{path / SHARDS / entry['name']}: {err}") from None
+
+
+def _read_qpos(path: pathlib.Path, entry: dict, kind, meta: dict):
+  """The qpos store of one shard, checked."""
+  arrays = _load_arrays(path, entry, [k for k in entry["checksums"] if k.startswith("qpos_")])
+  return kind.restore({k[5:]: v for k, v in arrays.items()}, meta)
+
+
+def verify(path: str | pathlib.Path) -> list[str]:
+  """Reads every array of every shard of a bank directory (one shard at a
+  time) and returns one line per corrupt shard, naming its arrays."""
+  path = pathlib.Path(path).absolute()
+  problems = []
+  for entry in read_manifest(path)["shards"]:
+    try:
+      _read_small(path, entry)
+      _read_com(path, entry)
+      _load_arrays(path, entry, [k for k in entry["checksums"] if k.startswith("qpos_")])
+    except MwbxError as err:
+      problems.append(str(err))
+  return problems
+
+
+def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = True):
   """The bank of a shard directory (see :meth:`mwbx.bank.Bank.load`)."""
+  from mwbx.bank import lazy as lazy_lib
   from mwbx.bank.core import store_class
   manifest = read_manifest(path)
   scene = manifest["scene"]
   store_meta = scene["qpos_store"]
   kind = store_class(store_meta["kind"])
-  parts, corrupt = [], []
+  entries, smalls, corrupt = [], [], []
   for entry in manifest["shards"]:
     try:
-      parts.append(_read_shard(path, entry))
+      small = _read_small(path, entry)
+      if skip_corrupt or not lazy:  # read everything now: a corrupt shard is found here
+        small[0]["com"] = _read_com(path, entry)
+        small[0]["qpos"] = _read_qpos(path, entry, kind, store_meta)
     except MwbxError:
       if not skip_corrupt:
         raise
       corrupt.append(entry["name"])
-  if not parts:
+      continue
+    entries.append(entry)
+    smalls.append(small)
+  if not entries:
     raise MwbxError(f"{path}: no readable shard" + (f" (corrupt: {', '.join(corrupt)})" if corrupt else ""))
-  store = kind.restore({k[5:]: v for k, v in parts[0][0].items() if k.startswith("qpos_")}, store_meta)
-  for arrays, _ in parts[1:]:
-    store.extend(kind.restore({k[5:]: v for k, v in arrays.items() if k.startswith("qpos_")}, store_meta))
+  counts = [int(e["worlds"]) for e in entries]
+  eager = "com" in smalls[0][0]
+  if eager:
+    com = np.concatenate([arrays["com"] for arrays, _ in smalls])
+    store = smalls[0][0]["qpos"]
+    for arrays, _ in smalls[1:]:
+      store.extend(arrays["qpos"])
+  else:
+    row_shape = entries[0].get("com_row_shape") or list(_read_com(path, entries[0]).shape[1:])
+    com = lazy_lib.LazyRows([lambda e=e: _read_com(path, e) for e in entries], counts, tuple(row_shape),
+                            np.float32)
+    disk = sum((path / SHARDS / e["name"] / f"{k}.npy").stat().st_size
+               for e in entries for k in e["checksums"] if k.startswith("qpos_"))
+    store = lazy_lib.LazyQposStore(kind.kind, [lambda e=e: _read_qpos(path, e, kind, store_meta)
+                                               for e in entries], counts, disk)
   lineage = {}
-  for _, shard_lineage in parts:
+  for _, shard_lineage in smalls:
     lineage.update(shard_lineage)
   run = dict(manifest.get("run", {}))
   if corrupt:
     run["corrupt_shards"] = corrupt
+  small_names = [n for n in cls._ARRAYS if n != "com"]
   bank = cls(
-      **{name: np.concatenate([arrays[name] for arrays, _ in parts]) for name in cls._ARRAYS},
-      qpos_store=store, body_names=tuple(scene["body_names"]),
+      **{name: np.concatenate([arrays[name] for arrays, _ in smalls]) for name in small_names},
+      com=com, qpos_store=store, body_names=tuple(scene["body_names"]),
       body_ids=np.asarray(scene["body_ids"], np.int32),
       objects={k: tuple(v) for k, v in scene["objects"].items()},
       groups={k: tuple(v) for k, v in scene["groups"].items()},

@@ -146,9 +146,36 @@ class _BankState:
 
 _CACHE: dict[int, tuple[object, _BankState]] = {}
 
+# COM polylines up to this size (decoded) are indexed whole and the index is
+# cached: browsing asks again and again. A lazily opened bank beyond it is
+# indexed a shard at a time in each evaluation, in the memory of one shard.
+IN_MEMORY_COM_BYTES = 2 << 30
+
+
+def streams(bank) -> bool:
+  """Whether queries on this bank go a shard at a time (see ``IN_MEMORY_COM_BYTES``)."""
+  com = bank.com
+  return _lazy(com) and com.nbytes > IN_MEMORY_COM_BYTES
+
+
+def _lazy(com) -> bool:
+  """A bank's ``com`` read from shards on demand (``mwbx.bank.lazy.LazyRows``)."""
+  return hasattr(com, "blocks") and hasattr(com, "materialized")
+
+
+def _blocks(bank, valid: np.ndarray):
+  """(i64[k] rows, _BankState of those rows) a shard at a time: the whole bank."""
+  radii = None
+  for rows, com in bank.com.blocks():
+    state = _BankState(None, index_lib.build_index(com, valid[rows]), radii)
+    yield rows, state
+    radii = state.radii  # body radii are the bank's: computed once
+
 
 def _state(bank) -> _BankState:
   com = bank.com
+  if _lazy(com):  # small enough to index whole: read every shard once
+    com = com.materialized()
   valid = np.asarray(bank.valid, bool)
   key = (id(com), com.shape, valid.tobytes())
   entry = _CACHE.get(id(bank))
@@ -258,12 +285,13 @@ def evaluate_each(bank, queries) -> np.ndarray:
   out = np.zeros((bank.n_worlds, len(queries)), bool)
   if bank.n_worlds == 0 or not queries:
     return out
-  state = _state(bank)
   valid = np.asarray(bank.valid, bool)
-  for i, query in enumerate(queries):
-    normals, offsets, mask, window = resolve(bank, query, state)
-    hits = np.asarray(index_lib.path_hits(state.index, normals, offsets, mask, window))
-    out[:, i] = combine(hits, mask, query) & valid
+  blocks = _blocks(bank, valid) if streams(bank) else [(slice(None), _state(bank))]
+  for rows, state in blocks:
+    for i, query in enumerate(queries):
+      normals, offsets, mask, window = resolve(bank, query, state)
+      hits = np.asarray(index_lib.path_hits(state.index, normals, offsets, mask, window))
+      out[rows, i] = combine(hits, mask, query) & valid[rows]
   return out
 
 
@@ -295,7 +323,11 @@ def first_entry(bank, world: int, bodies, frustum: Frustum, *,
   """
   row = bank.row_of(int(world))
   query = Query(frustum, bodies=bodies, window=window, radius=radius)
-  state = _state(bank)
+  if streams(bank):  # index this one world
+    state = _BankState(None, index_lib.build_index(bank.com[row:row + 1], np.ones(1, bool)))
+    row = 0
+  else:
+    state = _state(bank)
   normals, offsets, mask, win = resolve(bank, query, state)
   chosen = np.flatnonzero(mask)
   if chosen.size == 0:

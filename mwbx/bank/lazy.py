@@ -1,0 +1,313 @@
+"""Bank arrays read from their shards on demand.
+
+A bank opened lazily (the default of :meth:`mwbx.Bank.load`) reads the
+manifest and each shard's small arrays (ids, flags, metrics, ...) at once;
+the two big ones stay on disk until used:
+
+- :class:`LazyRows` stands in for ``bank.com`` (f32[W, P, B, 3]): indexing
+  reads and decodes only the shards holding the rows asked for, and
+  :meth:`LazyRows.blocks` walks the bank a shard at a time, so queries run in
+  the memory of one shard (:func:`mwbx.queries.evaluate_each`).
+- :class:`LazyQposStore` stands in for ``bank.qpos_store``: ``frames(row)``
+  reads the one shard holding that world.
+
+Each piece is read by a loader that checks the shard's checksums, so a
+corrupt shard is named when it is first read. A few decoded pieces are kept
+(``CACHED_PIECES``, least recently used). Both classes keep a row map
+(piece, row within the piece), so taking, dropping and concatenating rows,
+as :class:`mwbx.Bank` does, stays lazy; in-memory arrays and stores (new
+worlds) are pieces too.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from typing import Iterator
+
+import numpy as np
+
+# Decoded pieces each lazy array keeps (least recently used first out).
+CACHED_PIECES = 2
+
+
+class _Pieces:
+  """Pieces (an object, or a loader called once per use) with a small LRU cache."""
+
+  def __init__(self, sources: list):
+    self.sources = list(sources)
+    self._cache: collections.OrderedDict = collections.OrderedDict()
+    self._lock = threading.Lock()
+
+  def get(self, p: int):
+    source = self.sources[p]
+    if not callable(source):
+      return source
+    with self._lock:
+      if p in self._cache:
+        self._cache.move_to_end(p)
+        return self._cache[p]
+    value = source()
+    with self._lock:
+      self._cache[p] = value
+      while len(self._cache) > CACHED_PIECES:
+        self._cache.popitem(last=False)
+    return value
+
+
+class _RowMap:
+  """Which piece and which row of it each bank row is."""
+
+  def __init__(self, pieces: _Pieces, piece: np.ndarray, local: np.ndarray):
+    self.pieces = pieces
+    self.piece = np.asarray(piece, np.int32)
+    self.local = np.asarray(local, np.int64)
+
+  @classmethod
+  def of(cls, sources: list, counts: list[int]) -> "_RowMap":
+    counts = np.asarray(counts, np.int64)
+    piece = np.repeat(np.arange(len(counts), dtype=np.int32), counts)
+    local = np.concatenate([np.arange(n) for n in counts]) if len(counts) else np.zeros(0, np.int64)
+    return cls(_Pieces(sources), piece, local)
+
+  def take(self, rows) -> "_RowMap":
+    rows = np.asarray(rows, np.int64).reshape(-1)
+    return _RowMap(self.pieces, self.piece[rows], self.local[rows])
+
+  @staticmethod
+  def concat(maps: list["_RowMap"]) -> "_RowMap":
+    sources, piece, local = [], [], []
+    for m in maps:
+      piece.append(m.piece + len(sources))
+      local.append(m.local)
+      sources.extend(m.pieces.sources)
+    merged = _RowMap(_Pieces(sources), np.concatenate(piece), np.concatenate(local))
+    return merged
+
+  def groups(self, rows: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """(piece, positions in ``rows``, local rows) for the pieces ``rows`` touch, in piece order."""
+    pieces = self.piece[rows]
+    for p in np.unique(pieces):
+      where = np.flatnonzero(pieces == p)
+      yield int(p), where, self.local[rows[where]]
+
+
+class LazyRows:
+  """An array of rows (shape [W, ...]) read from shards on demand.
+
+  Reads like the numpy array it stands for: ``shape``, ``dtype``, ``len``,
+  ``a[i]``, ``a[rows]``, ``a[i, j]``, ``np.asarray(a)`` (every row: the whole
+  array in memory). :meth:`blocks` is the bounded-memory way through it.
+
+  Args:
+    sources: per piece, an array or a loader returning one.
+    counts: rows per piece.
+    row_shape: the shape of one row; dtype: the element type.
+  """
+
+  def __init__(self, sources: list, counts: list[int], row_shape: tuple, dtype, rowmap: _RowMap | None = None):
+    self._map = rowmap if rowmap is not None else _RowMap.of(sources, counts)
+    self.row_shape = tuple(row_shape)
+    self.dtype = np.dtype(dtype)
+    self._all = None
+
+  @classmethod
+  def of(cls, array: np.ndarray) -> "LazyRows":
+    """An in-memory array as a one-piece LazyRows."""
+    return cls([np.asarray(array)], [len(array)], array.shape[1:], array.dtype)
+
+  @property
+  def shape(self) -> tuple:
+    return (len(self._map.piece),) + self.row_shape
+
+  @property
+  def ndim(self) -> int:
+    return 1 + len(self.row_shape)
+
+  @property
+  def nbytes(self) -> int:
+    """Bytes of the decoded array (what ``np.asarray`` would hold)."""
+    return int(np.prod(self.shape, dtype=np.int64)) * self.dtype.itemsize
+
+  def __len__(self) -> int:
+    return len(self._map.piece)
+
+  def __repr__(self) -> str:
+    return f"LazyRows(shape={self.shape}, dtype={self.dtype}, pieces={len(self._map.pieces.sources)})"
+
+  def rows(self, rows) -> np.ndarray:
+    """[k, ...] the given rows (i64[k]), in that order."""
+    rows = np.asarray(rows, np.int64).reshape(-1)
+    if self._all is not None:
+      return self._all[rows]
+    out = np.empty((rows.size,) + self.row_shape, self.dtype)
+    for p, where, local in self._map.groups(rows):
+      out[where] = self._map.pieces.get(p)[local]
+    return out
+
+  def __getitem__(self, key):
+    rest = ()
+    if isinstance(key, tuple):
+      key, rest = key[0], key[1:]
+    n = len(self)
+    if isinstance(key, (int, np.integer)):
+      k = int(key) + n if key < 0 else int(key)
+      if not 0 <= k < n:
+        raise IndexError(f"row {key} out of range for {n} rows")
+      out = self.rows([k])[0]
+    elif isinstance(key, slice):
+      out = self.rows(np.arange(n)[key])
+    else:
+      index = np.asarray(key)
+      out = self.rows(np.flatnonzero(index) if index.dtype == bool else index.reshape(-1))
+      if index.dtype != bool and index.ndim != 1:
+        out = out.reshape(index.shape + self.row_shape)
+    return out[rest] if rest else out
+
+  def __array__(self, dtype=None, copy=None):
+    out = self.rows(np.arange(len(self)))
+    return out if dtype is None else out.astype(dtype)
+
+  def materialized(self) -> np.ndarray:
+    """Every row in memory, read once and kept (this object is immutable)."""
+    if self._all is None:
+      self._all = np.asarray(self)
+    return self._all
+
+  def blocks(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """(i64[k] bank rows, [k, ...] their values) a piece at a time: every row once."""
+    rows = np.arange(len(self))
+    for p, where, local in self._map.groups(rows):
+      yield rows[where], self._map.pieces.get(p)[local]
+
+  def take(self, rows) -> "LazyRows":
+    return LazyRows([], [], self.row_shape, self.dtype, self._map.take(rows))
+
+  @staticmethod
+  def concat(arrays: list) -> "LazyRows":
+    """One LazyRows of arrays and LazyRows of the same row shape, in order."""
+    lazy = [a if isinstance(a, LazyRows) else LazyRows.of(np.asarray(a)) for a in arrays]
+    first = lazy[0]
+    return LazyRows([], [], first.row_shape, first.dtype, _RowMap.concat([a._map for a in lazy]))
+
+
+def take_rows(array, rows):
+  """``array[rows]`` that stays lazy for a :class:`LazyRows`."""
+  return array.take(rows) if isinstance(array, LazyRows) else array[rows]
+
+
+def concat_rows(arrays: list):
+  """``np.concatenate(arrays)`` that stays lazy if any is a :class:`LazyRows`."""
+  if any(isinstance(a, LazyRows) for a in arrays):
+    return LazyRows.concat(arrays)
+  return np.concatenate(arrays)
+
+
+def concat_stores(stores: list):
+  """One store of the worlds of ``stores`` (same kind), in order; lazy if any
+  of them is a :class:`LazyQposStore`, else a concrete copy."""
+  if any(isinstance(s, LazyQposStore) for s in stores):
+    maps = [s._map if isinstance(s, LazyQposStore) else _RowMap.of([s.copy()], [s.n_worlds]) for s in stores]
+    nbytes = sum(s.nbytes for s in stores)
+    return LazyQposStore(stores[0].kind, [], [], nbytes, _RowMap.concat(maps))
+  out = stores[0].copy()
+  for s in stores[1:]:
+    out.extend(s)
+  return out
+
+
+class LazyQposStore:
+  """A :class:`~mwbx.qpos_store.QposStore` whose shards are read on demand.
+
+  ``frames`` reads the one shard holding the world; ``take``, ``copy`` and
+  ``extend`` stay lazy; ``state``, ``stats``, ``refined`` and anything else
+  build the concrete store of the rows held (every shard they touch).
+
+  Args:
+    kind: the stores' kind; sources: per piece, a store or a loader returning
+      one; counts: worlds per piece; nbytes: bytes the pieces take on disk.
+  """
+
+  def __init__(self, kind: str, sources: list, counts: list[int], nbytes: int = 0,
+               rowmap: _RowMap | None = None):
+    self.kind = kind
+    self._map = rowmap if rowmap is not None else _RowMap.of(sources, counts)
+    self._nbytes = int(nbytes)
+
+  def _with(self, rowmap: _RowMap) -> "LazyQposStore":
+    return LazyQposStore(self.kind, [], [], self._nbytes, rowmap)
+
+  def concrete(self):
+    """The concrete store of the rows held, in order (reads their shards)."""
+    rows = np.arange(self.n_worlds)
+    store = None
+    for p, _, local in self._map.groups(rows):
+      part = self._map.pieces.get(p).take(local)
+      if store is None:
+        store = part
+      else:
+        store.extend(part)
+    if store is None:  # no rows: an empty store of the first piece's settings
+      store = self._map.pieces.get(0).empty()
+    if not np.all(np.diff(self._map.piece) >= 0):  # rows not in piece order: reorder
+      order = np.concatenate([where for _, where, _ in self._map.groups(rows)])
+      store = store.take(np.argsort(order))
+    return store
+
+  # -- the QposStore protocol -----------------------------------------------------
+
+  def append(self, qpos, frame_count) -> None:
+    store = self._map.pieces.get(0).empty()
+    store.append(qpos, frame_count)
+    self.extend(store)
+
+  def extend(self, other) -> None:
+    other_map = other._map if isinstance(other, LazyQposStore) else _RowMap.of([other.copy()], [other.n_worlds])
+    self._map = _RowMap.concat([self._map, other_map])
+
+  def copy(self) -> "LazyQposStore":
+    return self._with(self._map.take(np.arange(self.n_worlds)))
+
+  def empty(self):
+    return self._map.pieces.get(0).empty()
+
+  def take(self, rows) -> "LazyQposStore":
+    return self._with(self._map.take(rows))
+
+  def refined(self, qpos, frame_count, parent, parent_frames, keep_qpos):
+    p, local = int(self._map.piece[parent]), int(self._map.local[parent])
+    return self._map.pieces.get(p).refined(qpos, frame_count, local, parent_frames, keep_qpos)
+
+  def frames(self, world: int, start: int = 0, stop: int | None = None, columns=None) -> np.ndarray:
+    p, local = int(self._map.piece[world]), int(self._map.local[world])
+    return self._map.pieces.get(p).frames(local, start, stop, columns)
+
+  def frames_batch(self, worlds=None, start: int = 0, stop: int | None = None, **kwargs):
+    worlds = np.arange(self.n_worlds) if worlds is None else np.asarray(worlds, np.int64)
+    return self.take(worlds).concrete().frames_batch(None, start, stop, **kwargs)
+
+  @property
+  def n_worlds(self) -> int:
+    return len(self._map.piece)
+
+  @property
+  def nbytes(self) -> int:
+    """Bytes of the stored streams on disk (none of them is in memory until read)."""
+    return self._nbytes
+
+  def stats(self) -> dict:
+    return self.concrete().stats()
+
+  def state(self) -> tuple[dict, dict]:
+    return self.concrete().state()
+
+  @classmethod
+  def restore(cls, arrays: dict, meta: dict):
+    raise TypeError("LazyQposStore is made by Bank.load; restore the concrete store class")
+
+  def __getattr__(self, name):  # the concrete store's other methods (stream, ...)
+    if name.startswith("_"):
+      raise AttributeError(name)
+    return getattr(self.concrete(), name)
+
+

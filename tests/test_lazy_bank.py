@@ -1,0 +1,164 @@
+"""Banks opened lazily: the manifest and small arrays at once, COM polylines
+and qpos per shard on demand; queries stream a shard at a time with the same
+answers as a bank in memory; a corrupt shard is named when it is read."""
+
+from __future__ import annotations
+
+import pathlib
+import tracemalloc
+
+import jax
+import numpy as np
+import pytest
+
+import mwbx
+from mwbx import cli
+from mwbx.bank import lazy, shards
+from mwbx.queries import query as query_lib
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+TINY = REPO / "tests" / "refine_scenes" / "tiny.yaml"
+N_SHARDS = 8
+PER_SHARD = 4
+
+
+@pytest.fixture(scope="module")
+def sharded(tmp_path_factory):
+  """(path, the bank in memory): 8 shards of 4 tiny worlds each."""
+  config = mwbx.load_config(TINY)
+  path = tmp_path_factory.mktemp("lazy") / "bank"
+  directory = mwbx.bank.BankDirectory(path)
+  parts = []
+  with mwbx.Sampler(config, backend="native", chunk_size=PER_SHARD) as sampler:
+    for part, _ in sampler.run_chunks(N_SHARDS * PER_SHARD, jax.random.key(3)):
+      directory.append(part)
+      parts.append(part)
+  return path, mwbx.Bank.concatenate(parts)
+
+
+def _queries(bank):
+  """A few boxes over where the worlds' paths go, include and exclude, any and all."""
+  com = np.asarray(bank.com)
+  lo, hi = com.reshape(-1, 3).min(0), com.reshape(-1, 3).max(0)
+  mid = (lo + hi) / 2
+  return [
+      mwbx.Query.region(lo, mid),
+      mwbx.Query.region(mid, hi, sign="exclude", window=(0.5, None)),
+      mwbx.Query.region(lo, (lo + 3 * hi) / 4, mode="all", radius=0.02),
+  ]
+
+
+def test_opening_reads_no_polylines_or_qpos(sharded):
+  path, memory = sharded
+  bank = mwbx.Bank.load(path)
+  assert isinstance(bank.com, lazy.LazyRows) and isinstance(bank.qpos_store, lazy.LazyQposStore)
+  assert not bank.com._map.pieces._cache and not bank.qpos_store._map.pieces._cache
+  assert bank.com.shape == memory.com.shape and bank.n_worlds == N_SHARDS * PER_SHARD
+  np.testing.assert_array_equal(bank.metrics, memory.metrics)
+  # One world's qpos reads its one shard.
+  world = int(bank.world_ids[PER_SHARD * 5 + 1])
+  np.testing.assert_array_equal(bank.qpos_frames(world), memory.qpos_frames(world))
+  assert list(bank.qpos_store._map.pieces._cache) == [5]
+  np.testing.assert_array_equal(bank.com[PER_SHARD * 2 + 3], memory.com[PER_SHARD * 2 + 3])
+  assert list(bank.com._map.pieces._cache) == [2]
+  np.testing.assert_array_equal(np.asarray(bank.com), memory.com)
+
+
+def test_streamed_queries_answer_like_the_bank_in_memory(sharded, monkeypatch):
+  path, memory = sharded
+  queries = _queries(memory)
+  expected = mwbx.evaluate_each(memory, queries)
+  assert expected.any() and not expected.all()  # the boxes tell worlds apart
+  monkeypatch.setattr(query_lib, "IN_MEMORY_COM_BYTES", 0)  # stream even this small bank
+  bank = mwbx.Bank.load(path)
+  assert query_lib.streams(bank)
+  np.testing.assert_array_equal(mwbx.evaluate_each(bank, queries), expected)
+  np.testing.assert_array_equal(mwbx.constraints_satisfied(bank, queries),
+                                mwbx.constraints_satisfied(memory, queries))
+  for got, want in zip(mwbx.rank(bank, "collisions", queries=queries[:1], top=5),
+                       mwbx.rank(memory, "collisions", queries=queries[:1], top=5)):
+    np.testing.assert_array_equal(got, want)
+  for w in (0, 13, 30):
+    frustum = queries[0].frustum
+    assert (query_lib.first_entry(bank, w, None, frustum)
+            == query_lib.first_entry(memory, w, None, frustum))
+  # Dropping worlds keeps the bank lazy and the answers right.
+  dropped = bank.drop([1, 2, 17])
+  keep = ~np.isin(memory.world_ids, [1, 2, 17])
+  assert isinstance(dropped.com, lazy.LazyRows)
+  np.testing.assert_array_equal(mwbx.evaluate_each(dropped, queries), expected[keep])
+
+
+def _peak_of_streamed_evaluation(memory, path: pathlib.Path, n_shards: int, per_shard: int = 512):
+  """(numpy peak bytes of one streamed evaluate_each, decoded COM bytes) on a
+  bank of ``n_shards`` shards of the sampled worlds under new ids."""
+  directory = mwbx.bank.BankDirectory(path)
+  for s in range(n_shards):
+    part = memory._take(np.arange(per_shard) % memory.n_worlds)
+    part.world_ids = np.arange(s * per_shard, (s + 1) * per_shard, dtype=np.int64)
+    directory.append(part)
+  queries = _queries(memory)
+  bank = mwbx.Bank.load(path)
+  expected = np.tile(mwbx.evaluate_each(memory, queries), (n_shards * per_shard // memory.n_worlds, 1))
+  np.testing.assert_array_equal(mwbx.evaluate_each(bank, queries), expected)  # also compiles
+  bank = mwbx.Bank.load(path)
+  tracemalloc.start()
+  try:
+    mwbx.evaluate_each(bank, queries)
+    _, peak = tracemalloc.get_traced_memory()
+  finally:
+    tracemalloc.stop()
+  return peak, bank.com.nbytes
+
+
+def test_streamed_queries_hold_a_few_shards_at_a_time(sharded, tmp_path, monkeypatch):
+  """Peak numpy memory of a streamed evaluation does not grow with the bank."""
+  monkeypatch.setattr(query_lib, "IN_MEMORY_COM_BYTES", 0)
+  small, small_whole = _peak_of_streamed_evaluation(sharded[1], tmp_path / "small", 4)
+  big, big_whole = _peak_of_streamed_evaluation(sharded[1], tmp_path / "big", 32)
+  assert big_whole == 8 * small_whole
+  assert big < 1.3 * small, (small, big)
+  assert big < big_whole / 2, (big, big_whole)
+
+
+def test_a_corrupt_shard_is_named_when_read(sharded, tmp_path, capsys):
+  import shutil
+  path = tmp_path / "bank"
+  shutil.copytree(sharded[0], path)
+  target = path / "shards" / "00003" / "com_grid.npy"
+  data = bytearray(target.read_bytes())
+  data[-5] ^= 0x01
+  target.write_bytes(bytes(data))
+  bank = mwbx.Bank.load(path)  # the small arrays are intact: it opens
+  bank.qpos_frames(0)  # other shards read fine
+  np.testing.assert_array_equal(bank.com[0], sharded[1].com[0])
+  with pytest.raises(mwbx.MwbxError, match=r"shards/00003: corrupt bank: checksum mismatch in com_grid"):
+    mwbx.evaluate_each(bank, _queries(sharded[1]))
+  with pytest.raises(mwbx.MwbxError, match=r"shards/00003: corrupt bank: checksum mismatch in com_grid"):
+    mwbx.Bank.load(path, lazy=False)
+  problems = shards.verify(path)
+  assert len(problems) == 1 and "00003" in problems[0] and "com_grid" in problems[0]
+  assert cli.main(["info", str(path), "--verify"]) == 2
+  err = capsys.readouterr().err
+  assert "00003" in err and "com_grid" in err
+  rest = mwbx.Bank.load(path, skip_corrupt=True)
+  assert rest.n_worlds == (N_SHARDS - 1) * PER_SHARD and rest.run["corrupt_shards"] == ["00003"]
+
+
+def test_refining_a_lazy_bank_saves_one_new_shard(sharded, tmp_path):
+  import shutil
+  path = tmp_path / "bank"
+  shutil.copytree(sharded[0], path)
+  bank = mwbx.Bank.load(path)
+  world = int(bank.world_ids[9])
+  grown = mwbx.refine(bank, world, list(bank.objects)[:1], t_min=0.5, n_samples=2,
+                      key=jax.random.key(1))
+  new = grown._take(np.flatnonzero(grown.parent_world == world))
+  assert new.n_worlds == 2
+  assert isinstance(grown.qpos_store, lazy.LazyQposStore)
+  grown.save(path)
+  assert len(list((path / "shards").iterdir())) == N_SHARDS + 1
+  again = mwbx.Bank.load(path)
+  for w in new.world_ids:
+    np.testing.assert_array_equal(again.qpos_frames(int(w)), new.qpos_frames(int(w)))
+  assert again.ancestors(int(new.world_ids[0])).tolist() == [world]
