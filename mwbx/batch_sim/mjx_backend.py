@@ -21,10 +21,17 @@ from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
-# Frames per jitted block: long enough to amortize dispatch, short enough for a
-# live progress bar and an early exit once every world has finished. The last
-# block runs only the frames left (a traced loop bound, the same compiled code).
+# Frames per jitted block at most: long enough to amortize dispatch, short
+# enough for a live progress bar and an early exit once every world has
+# finished. The frames a block runs are a traced loop bound (one compiled code
+# for any count), sized while running so a block takes about
+# BLOCK_SECONDS: Ctrl-C (handled between blocks) stops within a block or two.
 FRAMES_PER_BLOCK = 30
+BLOCK_SECONDS = 1.0
+
+# Worlds per device are a multiple of this: whole groups of XLA's 8 float32
+# CPU lanes (a batch of 3 took scalar code, slower and rounding otherwise).
+LANE = 8
 
 
 def frame_block(frame_fn, n_frames: int):
@@ -76,18 +83,27 @@ class MjxBackend:
     impl: ``jax`` or ``warp``.
   """
 
-  def __init__(self, model: mujoco.MjModel, impl: str = "jax"):
+  def __init__(self, model: mujoco.MjModel, impl: str = "jax", devices=None):
     self.model = model
     self.impl = impl
-    self.mx = mjx.put_model(model, impl=impl)
+    # This process's devices: a batch's worlds are split over them; under
+    # jax.distributed every process runs its own worlds on its own devices.
+    self.devices = list(devices) if devices is not None else jax.local_devices()
+    self.mx = mjx.put_model(model, device=self.devices[0], impl=impl)
     self._quiet_mx = None
     self._blocks: dict = {}
+
+  @property
+  def lane(self) -> int:
+    """Batches are a multiple of this many worlds (LANE per device)."""
+    return LANE * len(self.devices)
 
   @property
   def quiet_mx(self):
     """The MJX model with sensors disabled (put on the device when first needed)."""
     if self._quiet_mx is None:
-      self._quiet_mx = mjx.put_model(free_bodies_lib.quiet_copy(self.model), impl=self.impl)
+      self._quiet_mx = mjx.put_model(free_bodies_lib.quiet_copy(self.model), device=self.devices[0],
+                                     impl=self.impl)
     return self._quiet_mx
 
   def close(self) -> None:
@@ -95,7 +111,7 @@ class MjxBackend:
 
   def make_data(self, qpos: jax.Array, qvel: jax.Array) -> mjx.Data:
     """Batched ``mjx.Data`` at time 0 from qpos f32[W, nq], qvel f32[W, nv]."""
-    base = mjx.make_data(self.model, impl=self.impl)
+    base = mjx.make_data(self.model, device=self.devices[0], impl=self.impl)
     return jax.vmap(lambda q, v: base.replace(qpos=q, qvel=v))(qpos, qvel)
 
   def step(self, d: mjx.Data, xfrc: jax.Array) -> mjx.Data:
@@ -144,45 +160,62 @@ class MjxBackend:
 
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                 n_frames: int, progress=None) -> ChunkResult:
-    """Runs C worlds in lockstep until all have finished (see NativeBackend.run_chunk)."""
+    """Runs C worlds in lockstep until all have finished (see NativeBackend.run_chunk).
+
+    With several devices, each runs C / devices of the worlds with the same
+    compiled block a one-device run of that batch uses (dispatched to all,
+    then gathered), so a world does not depend on how many devices there are.
+    """
     m = self.model
     c = len(qpos0)
     active = np.asarray(active)
     body_ids = scene.body_ids
     block_frames = min(FRAMES_PER_BLOCK, n_frames)
     fn = self.block(params, body_ids, block_frames)
+    n_dev = len(self.devices)
+    if c % n_dev:
+      raise ValueError(f"a batch of {c} worlds does not split over {n_dev} devices")
+    per = c // n_dev
 
     d = self.make_data(jnp.asarray(qpos0), jnp.asarray(qvel0))
     carry = jax.vmap(world.init_carry, in_axes=(None, 0))(len(body_ids), jnp.asarray(active))
     wrench = jnp.zeros((c, params.steps_per_frame, len(body_ids), 6), jnp.float32)
     state = (d, carry, wrench, step_keys)
+    states = [jax.device_put(jax.tree.map(lambda x, k=k: x[k * per:(k + 1) * per], state), device)
+              for k, device in enumerate(self.devices)]
 
     t0 = time.perf_counter()
-    compiled = fn.lower(state, None, jnp.int32(block_frames)).compile()
+    compiled = [fn.lower(s, None, jnp.int32(block_frames)).compile() for s in states]
     compile_seconds = time.perf_counter() - t0
 
+    gather = lambda xs, axis=0: np.concatenate([np.asarray(x) for x in xs], axis=axis)
     qpos_buf = np.zeros((c, n_frames, m.nq), np.float32)
     com_buf = np.zeros((c, n_frames, len(body_ids), 3), np.float32)
     t0 = time.perf_counter()
     start = 0
+    count = 1  # the first block measures a frame's cost
     while start < n_frames:
-      stop = min(start + block_frames, n_frames)
-      state, (record, qpos, com) = compiled(state, None, jnp.int32(stop - start))
-      record, qpos, com = (np.asarray(x) for x in (record, qpos, com))  # [F, C, ...]
+      stop = min(start + count, n_frames)
+      block_start = time.perf_counter()
+      outs = [run(s, None, jnp.int32(stop - start)) for run, s in zip(compiled, states)]  # all devices
+      states = [out[0] for out in outs]
+      record, qpos, com = (gather([out[1][i] for out in outs], axis=1) for i in range(3))  # [F, C, ...]
+      per_frame = (time.perf_counter() - block_start) / (stop - start)
+      count = int(np.clip(BLOCK_SECONDS / max(per_frame, 1e-9), 1, block_frames))
       f, w = np.nonzero(record[: stop - start])
       qpos_buf[w, start + f] = qpos[f, w]
       com_buf[w, start + f] = com[f, w]
       start = stop
-      carry = state[1]
-      status = np.asarray(carry.status)
+      status = gather([s[1].status for s in states])
       if progress is not None:
-        progress(int(np.asarray(carry.step).sum()), int(((status != world.RUNNING) & active).sum()))
+        steps = gather([s[1].step for s in states])
+        progress(int(steps.sum()), int(((status != world.RUNNING) & active).sum()))
       if (status != world.RUNNING).all():
         break
-    jax.block_until_ready(state)
+    jax.block_until_ready(states)
     run_seconds = time.perf_counter() - t0
 
-    carry = state[1]
+    carry = jax.tree.map(lambda *xs: gather(xs), *[s[1] for s in states])
     frame_count = np.asarray(carry.frame_count)
     return ChunkResult(
         qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),

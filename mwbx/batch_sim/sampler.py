@@ -154,6 +154,25 @@ class Sampler:
       parts.append(part)
     return bank_lib.Bank.concatenate(parts), stats
 
+  def batch_size(self, n_worlds: int) -> int:
+    """Worlds simulated per batch for a run of ``n_worlds``.
+
+    Sized to the work: no more than the run needs (a run of 8 worlds
+    simulates 8). Native: at most ``chunk_size``. MJX: ``chunk_size`` is per
+    device, a device's share is rounded up to a whole ``mjx_backend.LANE``
+    (padding with finished copies), and every device runs the same compiled
+    block on its share: a world is bit-identical across runs with the same
+    per-device batch, on any number of devices. Across per-device batch
+    shapes XLA may round differently in the last bit (contacts then amplify
+    it; tests/test_mjx.py states the agreement).
+    """
+    if self.backend_name != "mjx":
+      return min(self.chunk_size, n_worlds)
+    n_dev = len(self.backend.devices)
+    lane = self.backend.lane // n_dev
+    per_device = min(self.chunk_size, -(-n_worlds // n_dev))
+    return -(-per_device // lane) * lane * n_dev
+
   def run_chunks(self, n_worlds: int, key: jax.Array, *, first_world: int = 0, ids=None,
                  store: QposStore | None = None, progress: ProgressFn | None = None):
     """:meth:`run` one chunk at a time, for writing each as it finishes.
@@ -170,10 +189,7 @@ class Sampler:
     stats = SampleStats(backend=self.backend_label)
     keys, init_keys, step_keys = world_keys(key, ids)
     template = self.store if store is None else store
-    # Native: batches sized to the work (a run of 8 worlds simulates 8). MJX
-    # results depend on the batch shape at the last bit, so there every batch
-    # keeps the chunk shape and a world is the same whatever the run's size.
-    c = self.chunk_size if self.backend_name == "mjx" else min(self.chunk_size, n_worlds)
+    c = self.batch_size(n_worlds)
     done_worlds = 0
     for lo in range(0, n_worlds, c):
       n = min(c, n_worlds - lo)
