@@ -1,6 +1,7 @@
 """The ``mwbx`` command: thin wrappers over the public API.
 
   mwbx sample CONFIG [--worlds N] [--seed S] [--backend auto|mjx|native] [--out DIR]
+              [--num-processes N --process-id I --coordinator HOST:PORT | --distributed]
   mwbx info DIR [--json]
   mwbx query BANK QUERIES.yaml [--rank METRIC[:sum|max]] [--top K] [--under ID] [--json]
   mwbx view BANK [--worlds 3,17 | --top K --rank METRIC] [--queries Q.yaml] [--html OUT.html] [--no-browser]
@@ -29,14 +30,69 @@ from mwbx.progress import reporter
 
 
 def _cmd_sample(args) -> int:
+  import uuid
+
   import jax
   import numpy as np
   import mwbx
+  from mwbx import distributed
   from mwbx.bank import BankDirectory
   from mwbx.bank.shards import id_ranges
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
   scene = mwbx.Scene(config)
+  group = distributed.join(args.coordinator, args.num_processes, args.process_id, auto=args.distributed,
+                           timeout=args.timeout)
+  plan = _plan_run(args, out, scene) if group.leader else None
+  plan = distributed.share_plan(group, plan, timeout=args.timeout)
+  seed, todo = plan["seed"], np.asarray(plan["todo"], np.int64)
+  if plan["resume"] and group.leader:
+    done, target = plan["resume"]
+    print(f"mwbx: resuming: {done} of {target} worlds done (seed {seed})", file=sys.stderr)
+  mine = distributed.my_share(todo, group)
+  directory = BankDirectory(out)
+  record = {"id": uuid.uuid4().hex, "seed": seed, "id_ranges": id_ranges(mine),
+            "group_ranges": id_ranges(todo), "process": group.process_id,
+            "processes": group.num_processes, "finished": False}
+  if directory.manifest is not None:  # recorded now: a process killed before its first shard is resumed too
+    directory.append_run(record)
+  who = f" (process {group.process_id} of {group.num_processes})" if group.num_processes > 1 else ""
+  summary = _RunSummary()
+  if mine.size:
+    with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
+      print(f"mwbx: sampling {mine.size} worlds of {args.config} on {sampler.backend_label}"
+            f" (worlds {mine[0]}..{mine[-1]}, seed {seed}){who} into {out}", file=sys.stderr)
+      record["chunk_size"], record["backend"] = sampler.chunk_size, sampler.backend_label
+      try:
+        with reporter("sample") as update:
+          for part, stats in sampler.run_chunks(mine.size, jax.random.key(seed), ids=mine, progress=update):
+            part.run = {"seed": seed}
+            # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the
+            # chunk in flight, and the same command resumes it.
+            directory.append(part, run=record)
+            summary.add(part)
+            for world_id, message in stats.sim_errors[summary.errors_shown:]:
+              print(f"mwbx: world {world_id}: MuJoCo error, world flagged and the run goes on: "
+                    f"{' '.join(message.split())}", file=sys.stderr)
+            summary.errors_shown = len(stats.sim_errors)
+      except KeyboardInterrupt:
+        print(f"mwbx: interrupted; {summary.worlds} worlds of this run are saved in {out};"
+              f" run the same command again to resume", file=sys.stderr)
+        return 130
+    summary.stats = stats
+  if directory.manifest is not None:
+    directory.finish_run(record["id"])
+    (out / "config.resolved.json").write_text(json.dumps(config.resolved(), indent=2))
+    (out / "scene.xml").write_text(scene.mjcf_text)
+  summary.print(out, len(directory.stored_ids()))
+  return 0
+
+
+def _plan_run(args, out: pathlib.Path, scene) -> dict:
+  """What a sampling run does (decided by process 0 of a group): the seed, the
+  world ids to sample, and for a resumed run (worlds done, worlds in it)."""
+  import mwbx
+  from mwbx.bank import BankDirectory
   directory = BankDirectory(out)
   if directory.manifest is None and (out / "checkpoints").is_dir():
     mwbx.Bank.load(out).save(out)  # a bank of the orbax format: its worlds become the first shard
@@ -48,49 +104,18 @@ def _cmd_sample(args) -> int:
   if args.seed is not None and bank_seed is not None and args.seed != bank_seed:
     raise MwbxError(f"--seed: {out} was sampled with seed {bank_seed}, not {args.seed}")
   seed = args.seed if args.seed is not None else (0 if bank_seed is None else bank_seed)
-  unfinished = directory.unfinished_run()
-  if unfinished is not None:
-    run_index, record = unfinished
-    target = [i for lo, hi in record["id_ranges"] for i in range(lo, hi + 1)]
-    done = directory.stored_ids() & set(target)
-    todo = np.array(sorted(set(target) - done), np.int64)
-    print(f"mwbx: resuming: {len(done)} of {len(target)} worlds done (seed {seed})", file=sys.stderr)
-  else:
-    n_worlds = 256 if args.worlds is None else args.worlds
-    if n_worlds < 1:
-      raise MwbxError(f"--worlds: must be at least 1, got {n_worlds}")
-    first = 0 if manifest is None else int(manifest["next_id"])
-    todo = np.arange(first, first + n_worlds, dtype=np.int64)
-    run_index, record = None, {"seed": seed, "id_ranges": id_ranges(todo), "finished": False}
-  summary = _RunSummary()
-  if todo.size:
-    with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
-      print(f"mwbx: sampling {todo.size} worlds of {args.config} on {sampler.backend_label}"
-            f" (worlds {todo[0]}..{todo[-1]}, seed {seed}) into {out}", file=sys.stderr)
-      record["chunk_size"], record["backend"] = sampler.chunk_size, sampler.backend_label
-      try:
-        with reporter("sample") as update:
-          for part, stats in sampler.run_chunks(todo.size, jax.random.key(seed), ids=todo, progress=update):
-            part.run = {"seed": seed}
-            # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the
-            # chunk in flight, and the same command resumes it.
-            run_index = directory.append(part, run=record if run_index is None else None,
-                                         run_index=run_index)
-            summary.add(part)
-            for world_id, message in stats.sim_errors[summary.errors_shown:]:
-              print(f"mwbx: world {world_id}: MuJoCo error, world flagged and the run goes on: "
-                    f"{' '.join(message.split())}", file=sys.stderr)
-            summary.errors_shown = len(stats.sim_errors)
-      except KeyboardInterrupt:
-        print(f"mwbx: interrupted; {summary.worlds} worlds of this run are saved in {out};"
-              f" run the same command again to resume", file=sys.stderr)
-        return 130
-    summary.stats = stats
-  directory.finish_run(run_index)
-  (out / "config.resolved.json").write_text(json.dumps(config.resolved(), indent=2))
-  (out / "scene.xml").write_text(scene.mjcf_text)
-  summary.print(out, len(directory.stored_ids()))
-  return 0
+  unfinished = directory.unfinished_runs()
+  if unfinished:
+    target = {i for record in unfinished for lo, hi in record.get("group_ranges", record["id_ranges"])
+              for i in range(lo, hi + 1)}
+    done = directory.stored_ids() & target
+    directory.supersede_unfinished()  # this run takes over their ids
+    return {"seed": unfinished[-1]["seed"], "todo": sorted(target - done), "resume": [len(done), len(target)]}
+  n_worlds = 256 if args.worlds is None else args.worlds
+  if n_worlds < 1:
+    raise MwbxError(f"--worlds: must be at least 1, got {n_worlds}")
+  first = 0 if manifest is None else int(manifest["next_id"])
+  return {"seed": seed, "todo": list(range(first, first + n_worlds)), "resume": None}
 
 
 class _RunSummary:
@@ -287,6 +312,15 @@ def build_parser() -> argparse.ArgumentParser:
 
   p = sub.add_parser("sample", help="sample worlds of a config into a bank")
   p.add_argument("config", help="YAML config (e.g. configs/quickstart.yaml)")
+  p.add_argument("--num-processes", type=int, default=None, metavar="N",
+                 help="processes (hosts) sampling this run together, each its share of the worlds")
+  p.add_argument("--process-id", type=int, default=None, metavar="I", help="this process, 0..N-1")
+  p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                 help="process 0's address, where the processes agree on the run")
+  p.add_argument("--distributed", action="store_true",
+                 help="let jax.distributed.initialize() find the processes (Slurm, MPI)")
+  p.add_argument("--timeout", type=int, default=300, metavar="S",
+                 help="seconds to wait for the other processes (default 300)")
   p.add_argument("--worlds", type=int, default=None, help="worlds to sample (default 256)")
   p.add_argument("--seed", type=int, default=None, help="run seed (default 0, or the bank's)")
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)

@@ -62,7 +62,8 @@ def test_killed_run_resumes_to_the_same_bank(tmp_path):
   assert again.returncode == 0, again.stderr
   assert f"resuming: {saved} of 64 worlds done" in again.stderr
   resumed = mwbx.Bank.load(out)
-  assert _manifest(out)["runs"][-1]["finished"] and len(_manifest(out)["runs"]) == 1
+  runs = _manifest(out)["runs"]  # the killed run, taken over by the resuming one
+  assert len(runs) == 2 and runs[0]["superseded"] and all(r["finished"] for r in runs)
   whole = mwbx.sample(mwbx.load_config(TINY), 64, jax.random.key(0), backend="native")
   order = np.argsort(resumed.world_ids)
   same_worlds(resumed._take(order), whole)

@@ -22,6 +22,8 @@ are sampled again, and a world depends only on the seed and its id.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import pathlib
@@ -35,6 +37,7 @@ from mwbx.errors import MwbxError
 
 FORMAT = 3
 MANIFEST = "manifest.json"
+LOCK = ".lock"  # flock()ed around every manifest update
 SHARDS = "shards"
 
 
@@ -99,16 +102,27 @@ class BankDirectory:
         ids.update(i for lo, hi in entry["id_ranges"] for i in range(lo, hi + 1))
     return ids - set(int(i) for i in self.manifest["dropped"])
 
-  def unfinished_run(self) -> tuple[int, dict] | None:
-    """(index, record) of the last run not finished, if any."""
+  def unfinished_runs(self) -> list[dict]:
+    """Run records not finished (of one or of several processes)."""
     if self.manifest is None:
-      return None
-    for index in range(len(self.manifest["runs"]) - 1, -1, -1):
-      if not self.manifest["runs"][index]["finished"]:
-        return index, self.manifest["runs"][index]
-    return None
+      return []
+    return [r for r in self.manifest["runs"] if not r["finished"]]
 
   # -- writing ----------------------------------------------------------------------
+
+  @contextlib.contextmanager
+  def _locked(self):
+    """Holds the directory's lock and re-reads the manifest: several processes
+    (``mwbx sample --num-processes``) write shards into one bank."""
+    self.path.mkdir(parents=True, exist_ok=True)
+    with open(self.path / LOCK, "a+b") as lock:
+      fcntl.flock(lock, fcntl.LOCK_EX)
+      try:
+        if has_manifest(self.path):
+          self.manifest = read_manifest(self.path)
+        yield
+      finally:
+        fcntl.flock(lock, fcntl.LOCK_UN)
 
   def _check_scene(self, bank) -> None:
     if self.manifest is None:
@@ -117,39 +131,57 @@ class BankDirectory:
     elif self.manifest["scene"]["digest"] != bank.digest:
       raise MwbxError(f"{self.path}: holds a bank of a different config or MJCF; choose another directory")
 
-  def append(self, bank, rows=None, run: dict | None = None, run_index: int | None = None) -> int | None:
+  def append(self, bank, rows=None, run: dict | None = None) -> None:
     """Writes the worlds ``rows`` of ``bank`` (default all) as one new shard.
 
     Args:
       bank: worlds of this directory's scene.
       rows: i64[k] bank rows to write (default: every row).
-      run: a run record to add (the same manifest write makes it known).
-      run_index: a run record already there to keep (with ``run``: replaced).
-
-    Returns:
-      the index of the run record, if one was given.
+      run: a run record (with an ``id``) to add or replace in the same
+        manifest write.
     """
-    self._check_scene(bank)
     rows = np.arange(bank.n_worlds) if rows is None else np.asarray(rows, np.int64)
-    entries = list(self.manifest["shards"])
-    if rows.size:
-      entries.append(_write_shard(self.path, bank, rows, self._next_shard_name()))
-    if run is not None:
-      if run_index is None:
-        self.manifest["runs"].append(dict(run))
-        run_index = len(self.manifest["runs"]) - 1
-      else:
-        self.manifest["runs"][run_index] = dict(run)
-    self.manifest["shards"] = entries
-    self.manifest["next_id"] = max(int(self.manifest["next_id"]), bank.next_world_id)
-    if bank.run:  # how the bank's worlds are drawn (the seed later runs continue with)
-      self.manifest["run"] = {k: v for k, v in bank.run.items() if k != "corrupt_shards"}
-    self.commit()
-    return run_index
+    with self._locked():
+      self._check_scene(bank)
+      if rows.size:
+        self.manifest["shards"].append(_write_shard(self.path, bank, rows, self._next_shard_name()))
+      if run is not None:
+        self._put_run(run)
+      self.manifest["next_id"] = max(int(self.manifest["next_id"]), bank.next_world_id)
+      if bank.run:  # how the bank's worlds are drawn (the seed later runs continue with)
+        self.manifest["run"] = {k: v for k, v in bank.run.items() if k != "corrupt_shards"}
+      self.commit()
 
-  def finish_run(self, index: int) -> None:
-    self.manifest["runs"][index]["finished"] = True
-    self.commit()
+  def append_run(self, run: dict) -> None:
+    """Adds (or replaces, by ``id``) a run record of a bank that exists."""
+    with self._locked():
+      self._put_run(run)
+      self.commit()
+
+  def _put_run(self, run: dict) -> None:
+    runs = self.manifest["runs"]
+    for i, old in enumerate(runs):
+      if old.get("id") == run["id"]:
+        runs[i] = dict(run)
+        return
+    runs.append(dict(run))
+
+  def finish_run(self, run_id: str) -> None:
+    with self._locked():
+      for record in self.manifest["runs"]:
+        if record.get("id") == run_id:
+          record["finished"] = True
+      self.commit()
+
+  def supersede_unfinished(self) -> None:
+    """Marks every unfinished run finished (a resuming run has taken over its ids)."""
+    if self.manifest is None:
+      return
+    with self._locked():
+      for record in self.manifest["runs"]:
+        if not record["finished"]:
+          record.update(finished=True, superseded=True)
+      self.commit()
 
   def commit(self) -> None:
     """Replaces the manifest atomically."""
@@ -353,14 +385,16 @@ def save(bank, path: str | pathlib.Path) -> pathlib.Path:
   """Writes the worlds of ``bank`` not yet in ``path`` as one new shard, and
   records worlds stored there but no longer in ``bank`` as dropped."""
   directory = BankDirectory(path)
-  directory._check_scene(bank)
-  stored = directory.stored_ids()
-  present = set(int(i) for i in bank.world_ids)
-  # Worlds of shards this bank was loaded without (corrupt) are not dropped.
-  unread = stored - directory.stored_ids(skip=tuple(bank.run.get("corrupt_shards", ())))
-  gone = sorted(stored - present - unread)
-  if gone:
-    directory.manifest["dropped"] = sorted(set(directory.manifest["dropped"]) | set(gone))
+  with directory._locked():
+    directory._check_scene(bank)
+    stored = directory.stored_ids()
+    present = set(int(i) for i in bank.world_ids)
+    # Worlds of shards this bank was loaded without (corrupt) are not dropped.
+    unread = stored - directory.stored_ids(skip=tuple(bank.run.get("corrupt_shards", ())))
+    gone = sorted(stored - present - unread)
+    if gone:
+      directory.manifest["dropped"] = sorted(set(directory.manifest["dropped"]) | set(gone))
+      directory.commit()
   rows = np.flatnonzero([int(i) not in stored for i in bank.world_ids])
   directory.append(bank, rows)
   (directory.path / "config.resolved.json").write_text(json.dumps(bank.config, indent=2))
