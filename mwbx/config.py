@@ -100,8 +100,10 @@ class SimSection(_Strict):
     query_fps: rate of the COM polylines used by queries; divides record_fps.
     backend: ``auto`` (mjx on GPU/TPU, native on CPU), ``mjx`` or ``native``.
     mjx_impl: ``jax``, ``warp`` or ``auto`` (warp when importable on a GPU).
-    chunk_size: worlds simulated per batch (in lockstep on MJX; on native, the
-      threads pull the chunk's worlds one by one), then compressed together.
+    chunk_size: worlds simulated per batch, then compressed together and
+      written as one shard. Native: the threads pull the chunk's worlds one by
+      one. MJX: worlds per device, in lockstep (rounded up to whole lanes of
+      8; a run needing fewer simulates fewer).
     threads: native backend threads (0: one per CPU core).
     max_speed: a body faster than this (m/s) marks its world unstable.
   """

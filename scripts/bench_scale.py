@@ -12,12 +12,14 @@ so phases can run at different times):
   the physics floor; the ratio says what the sampler's own work costs.
 - ``tower``: opening that bank and answering its query file
   (configs/queries/trebuchet_tower.yaml), each in a fresh child process: wall
-  time and peak memory. Baseline: the same query answered on the bank opened
-  eagerly (``Bank.load(path, lazy=False)``), whose answers must be equal.
+  time and peak memory, opened lazily (the default: indexed whole below
+  ``query.IN_MEMORY_COM_BYTES``), lazily and streamed a shard at a time, and
+  -- the baseline -- eagerly (``Bank.load(path, lazy=False)``); the answers
+  must be equal.
 - ``synthetic``: a pachinko-size bank of 100 k worlds (sampled worlds of
   configs/pachinko.yaml written again under new ids, shard after shard), then
-  opened and queried as above, lazily only (eagerly it is the whole bank in
-  memory).
+  opened and queried as above but for eagerly; baseline: its COM polylines
+  as float32 (the least an eager bank holds).
 
 Usage:
 
@@ -118,28 +120,40 @@ RESULT = dict(open_seconds=t_open, worlds=bank.n_worlds)
 
 _QUERY = """
 import time, hashlib, mwbx
+from mwbx.queries import query
+if {streamed}:
+  query.IN_MEMORY_COM_BYTES = 0  # a shard at a time, whatever the bank's size
 t0 = time.perf_counter(); bank = mwbx.Bank.load({path!r}{lazy}); t_open = time.perf_counter() - t0
 qs = mwbx.load_queries({queries!r}, bank)
 t0 = time.perf_counter(); each = mwbx.evaluate_each(bank, qs); t_first = time.perf_counter() - t0
 t0 = time.perf_counter(); each = mwbx.evaluate_each(bank, qs); t_second = time.perf_counter() - t0
 RESULT = dict(open_seconds=t_open, query_seconds=t_first, query_again_seconds=t_second,
+              streamed=query.streams(bank),
               matches=[int(x) for x in each.sum(0)], all_match=int(each.all(1).sum()),
               answers_sha=hashlib.sha256(each.tobytes()).hexdigest()[:16], worlds=bank.n_worlds)
 """
 
 
 def open_and_query(path: pathlib.Path, queries: pathlib.Path, eager_baseline: bool) -> dict:
+  """Opening and querying in fresh processes: lazily (mwbx's default policy:
+  indexed whole up to query.IN_MEMORY_COM_BYTES), lazily and streamed a shard
+  at a time, and (baseline) eagerly."""
   out = {}
-  modes = (("lazy", ""), ("eager", ", lazy=False")) if eager_baseline else (("lazy", ""),)
-  for label, lazy in modes:
-    out[label] = {"open": _child(_OPEN.format(path=str(path), lazy=lazy)),
-                  "query": _child(_QUERY.format(path=str(path), lazy=lazy, queries=str(queries)))}
+  modes = [("lazy", "", False), ("streamed", "", True)]
   if eager_baseline:
-    out["same_answers"] = out["lazy"]["query"]["answers_sha"] == out["eager"]["query"]["answers_sha"]
+    modes.append(("eager", ", lazy=False", False))
+  for label, lazy, streamed in modes:
+    out[label] = {"open": _child(_OPEN.format(path=str(path), lazy=lazy)),
+                  "query": _child(_QUERY.format(path=str(path), lazy=lazy, queries=str(queries),
+                                                streamed=streamed))}
+  out["same_answers"] = len({out[label]["query"]["answers_sha"] for label, _, _ in modes}) == 1
+  if eager_baseline:
     out["query_time_ratio_lazy_to_eager"] = (out["lazy"]["query"]["query_seconds"]
                                              / out["eager"]["query"]["query_seconds"])
     out["peak_memory_ratio_lazy_to_eager"] = (out["lazy"]["query"]["peak_rss_mb"]
                                               / out["eager"]["query"]["peak_rss_mb"])
+    out["peak_memory_ratio_streamed_to_eager"] = (out["streamed"]["query"]["peak_rss_mb"]
+                                                  / out["eager"]["query"]["peak_rss_mb"])
   out["bank_bytes"] = _disk_bytes(path)
   return out
 
@@ -182,6 +196,9 @@ def phase_synthetic(n_worlds: int, seed_worlds: int = 1024) -> dict:
   result.update(worlds=n_worlds, seed_worlds=seed_worlds, sample_seconds=sample_seconds,
                 write_seconds=write_seconds, bank_bytes_per_world=result["bank_bytes"] / n_worlds,
                 com_float32_bytes=int(n_worlds * part.com[0].nbytes))
+  # Baseline: the polylines alone as float32 in memory (what an eager bank holds at least).
+  result["peak_memory_ratio_streamed_to_float32_com"] = (
+      result["streamed"]["query"]["peak_rss_mb"] * 2**20 / result["com_float32_bytes"])
   return result
 
 

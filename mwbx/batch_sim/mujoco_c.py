@@ -72,7 +72,7 @@ def available() -> bool:
 
 _ERROR_FN = ctypes.CFUNCTYPE(None, ctypes.c_char_p)
 _trap_lock = threading.Lock()
-_callbacks: list = []  # a parked thread is still inside its callback: never freed
+_callbacks: list = []  # callbacks a parked thread is still inside: never freed
 
 
 def _user_error_slot():
@@ -108,7 +108,10 @@ def trap_errors(on_error: Callable[[str], None]):
     yield False
     return
 
+  fired = []
+
   def handler(message):
+    fired.append(True)
     try:
       on_error((message or b"").decode(errors="replace").strip())
     finally:
@@ -123,3 +126,5 @@ def trap_errors(on_error: Callable[[str], None]):
       yield True
     finally:
       slot.value = previous
+      if not fired:  # no thread is inside it: let it (and what on_error holds) go
+        _callbacks.remove(callback)

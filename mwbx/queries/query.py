@@ -146,10 +146,10 @@ class _BankState:
 
 _CACHE: dict[int, tuple[object, _BankState]] = {}
 
-# COM polylines up to this size (decoded) are indexed whole and the index is
+# COM polylines up to this size (decoded, 1 GiB) are indexed whole and the index is
 # cached: browsing asks again and again. A lazily opened bank beyond it is
 # indexed a shard at a time in each evaluation, in the memory of one shard.
-IN_MEMORY_COM_BYTES = 2 << 30
+IN_MEMORY_COM_BYTES = 1 << 30
 
 
 def streams(bank) -> bool:
