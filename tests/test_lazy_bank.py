@@ -162,3 +162,18 @@ def test_refining_a_lazy_bank_saves_one_new_shard(sharded, tmp_path):
   for w in new.world_ids:
     np.testing.assert_array_equal(again.qpos_frames(int(w)), new.qpos_frames(int(w)))
   assert again.ancestors(int(new.world_ids[0])).tolist() == [world]
+
+
+def test_lazy_rows_index_like_numpy():
+  """LazyRows over three pieces against the numpy array it stands for."""
+  a = np.random.default_rng(0).random((10, 4, 3)).astype(np.float32)
+  rows = lazy.LazyRows([lambda: a[:3], a[3:7], lambda: a[7:]], [3, 4, 3], (4, 3), np.float32)
+  keys = [5, -1, slice(2, 8), [1, 8, 1], np.array([[0, 9], [4, 4]]), a[:, 0, 0] > 0.5, (slice(1, 9, 2), 2),
+          (np.array([1, 5]), np.array([0, 3])), (3, 1, 2), (np.array([2, 7]), slice(None), 1)]
+  for key in keys:
+    np.testing.assert_array_equal(rows[key], a[key], err_msg=str(key))
+  np.testing.assert_array_equal(np.asarray(rows.take([9, 0, 4])), a[[9, 0, 4]])
+  np.testing.assert_array_equal(np.asarray(lazy.LazyRows.concat([rows, a[:2]])), np.concatenate([a, a[:2]]))
+  assert rows.shape == a.shape and rows.nbytes == a.nbytes and len(rows) == 10
+  with pytest.raises(IndexError):
+    rows[10]

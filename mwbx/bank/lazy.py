@@ -146,6 +146,8 @@ class LazyRows:
     return out
 
   def __getitem__(self, key):
+    """numpy indexing: the rows the first index names are read, then the whole
+    index is applied to them (so ``a[rows, frames]`` pairs like numpy's)."""
     rest = ()
     if isinstance(key, tuple):
       key, rest = key[0], key[1:]
@@ -155,14 +157,16 @@ class LazyRows:
       if not 0 <= k < n:
         raise IndexError(f"row {key} out of range for {n} rows")
       out = self.rows([k])[0]
-    elif isinstance(key, slice):
+      return out[rest] if rest else out
+    if isinstance(key, slice):
       out = self.rows(np.arange(n)[key])
-    else:
-      index = np.asarray(key)
-      out = self.rows(np.flatnonzero(index) if index.dtype == bool else index.reshape(-1))
-      if index.dtype != bool and index.ndim != 1:
-        out = out.reshape(index.shape + self.row_shape)
-    return out[rest] if rest else out
+      return out[(slice(None),) + rest] if rest else out
+    index = np.asarray(key)
+    if index.dtype == bool:
+      index = np.flatnonzero(index)
+    index = np.where(index < 0, index + n, index)
+    wanted, position = np.unique(index, return_inverse=True)
+    return self.rows(wanted)[(position.reshape(index.shape),) + rest]
 
   def __array__(self, dtype=None, copy=None):
     out = self.rows(np.arange(len(self)))
