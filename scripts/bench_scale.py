@@ -57,9 +57,11 @@ def _machine() -> dict:
 
 def _child(code: str) -> dict:
   """Runs python ``code`` in a fresh process; it prints one JSON line. Adds the
-  child's peak RSS (MB)."""
-  wrapper = (code + "\nimport resource, json as _j\n"
-             "print(_j.dumps(dict(RESULT, peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)))")
+  child's peak RSS (MB): VmHWM, which starts afresh at exec (ru_maxrss keeps
+  the forking parent's)."""
+  wrapper = (code + "\nimport json as _j\n"
+             "_hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]\n"
+             "print(_j.dumps(dict(RESULT, peak_rss_mb=int(_hwm) / 1024)))")
   out = subprocess.run([sys.executable, "-c", wrapper], capture_output=True, text=True, cwd=ROOT)
   if out.returncode:
     raise SystemExit(f"child failed:\n{out.stderr[-3000:]}")

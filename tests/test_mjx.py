@@ -170,3 +170,35 @@ bank.save({str(tmp_path / "two")!r})
     assert len(sampler.backend.devices) == 1 and sampler.batch_size(16) == 8
     one, _ = sampler.run(16, jax.random.key(6))
   _same_banks(one, two)
+
+
+def test_ctrl_c_stops_mjx_sampling_between_blocks_and_keeps_finished_chunks(tmp_path):
+  """SIGINT while MJX blocks run: the run stops (blocks last about a second),
+  says so, and the finished chunks are a readable bank."""
+  import json
+  import signal
+  import subprocess
+  import sys
+  import time
+  out = tmp_path / "bank"
+  tiny = pathlib.Path(__file__).parent / "scenes" / "tiny.yaml"
+  proc = subprocess.Popen([sys.executable, "-m", "mwbx.cli", "sample", str(tiny), "--backend", "mjx",
+                           "--worlds", "64", "--chunk-size", "8", "--out", str(out)],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+  try:
+    deadline = time.monotonic() + 900
+    while time.monotonic() < deadline and proc.poll() is None:
+      manifest = out / "manifest.json"
+      if manifest.exists() and json.loads(manifest.read_text())["shards"]:
+        break
+      time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+  finally:
+    if proc.poll() is None:
+      proc.kill()
+  assert proc.returncode == 130, err[-2000:]
+  assert "interrupted;" in err and "run the same command again to resume" in err
+  bank = mwbx.Bank.load(out)
+  assert 0 < bank.n_worlds < 64 and bank.n_worlds % 8 == 0
