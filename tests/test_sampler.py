@@ -14,18 +14,14 @@ from mwbx.batch_sim import world
 from conftest import REPO, TESTS
 
 
-def same_world(a, i, b, j, metrics_tol: tuple | None = None):
-  """Bit-identical recorded world i of bank a and world j of bank b (metrics
-  to ``metrics_tol`` = (rtol, atol) where given)."""
+def same_world(a, i, b, j):
+  """Bit-identical recorded world i of bank a and world j of bank b."""
   assert a.world_ids[i] == b.world_ids[j]
   np.testing.assert_array_equal(a.keys[i], b.keys[j])
   assert a.flags[i] == b.flags[j] and a.frame_count[i] == b.frame_count[j]
   np.testing.assert_array_equal(a.qpos_frames(int(a.world_ids[i])), b.qpos_frames(int(b.world_ids[j])))
   np.testing.assert_array_equal(a.com[i], b.com[j])
-  if metrics_tol:
-    np.testing.assert_allclose(a.metrics[i], b.metrics[j], rtol=metrics_tol[0], atol=metrics_tol[1])
-  else:
-    np.testing.assert_array_equal(a.metrics[i], b.metrics[j])
+  np.testing.assert_array_equal(a.metrics[i], b.metrics[j])
   assert a.perturbations[i] == b.perturbations[j]
 
 

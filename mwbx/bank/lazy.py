@@ -81,8 +81,7 @@ class _RowMap:
       piece.append(m.piece + len(sources))
       local.append(m.local)
       sources.extend(m.pieces.sources)
-    merged = _RowMap(_Pieces(sources), np.concatenate(piece), np.concatenate(local))
-    return merged
+    return _RowMap(_Pieces(sources), np.concatenate(piece), np.concatenate(local))
 
   def groups(self, rows: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """(piece, positions in ``rows``, local rows) for the pieces ``rows`` touch, in piece order."""
@@ -211,13 +210,18 @@ def concat_stores(stores: list):
   """One store of the worlds of ``stores`` (same kind), in order; lazy if any
   of them is a :class:`LazyQposStore`, else a concrete copy."""
   if any(isinstance(s, LazyQposStore) for s in stores):
-    maps = [s._map if isinstance(s, LazyQposStore) else _RowMap.of([s.copy()], [s.n_worlds]) for s in stores]
+    maps = [_store_map(s) for s in stores]
     nbytes = sum(s.nbytes for s in stores)
     return LazyQposStore(stores[0].kind, [], [], nbytes, _RowMap.concat(maps))
   out = stores[0].copy()
   for s in stores[1:]:
     out.extend(s)
   return out
+
+
+def _store_map(store) -> _RowMap:
+  """The row map of a lazy store, or a one-piece map of a copy of a concrete one."""
+  return store._map if isinstance(store, LazyQposStore) else _RowMap.of([store.copy()], [store.n_worlds])
 
 
 class LazyQposStore:
@@ -266,8 +270,7 @@ class LazyQposStore:
     self.extend(store)
 
   def extend(self, other) -> None:
-    other_map = other._map if isinstance(other, LazyQposStore) else _RowMap.of([other.copy()], [other.n_worlds])
-    self._map = _RowMap.concat([self._map, other_map])
+    self._map = _RowMap.concat([self._map, _store_map(other)])
 
   def copy(self) -> "LazyQposStore":
     return self._with(self._map.take(np.arange(self.n_worlds)))
@@ -313,5 +316,3 @@ class LazyQposStore:
     if name.startswith("_"):
       raise AttributeError(name)
     return getattr(self.concrete(), name)
-
-

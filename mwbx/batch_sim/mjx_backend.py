@@ -95,8 +95,8 @@ class MjxBackend:
 
   @property
   def lane(self) -> int:
-    """Batches are a multiple of this many worlds (LANE per device)."""
-    return LANE * len(self.devices)
+    """A device's share of a batch is a multiple of this many worlds."""
+    return LANE
 
   @property
   def quiet_mx(self):

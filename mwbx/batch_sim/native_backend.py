@@ -220,6 +220,7 @@ class NativeBackend:
       ipos, iquat = np.zeros((0, 3)), np.zeros((0, 4))
     model = self.quiet_model if free else m
     gravity = np.asarray(m.opt.gravity, np.float64)
+
     def run(row, data, running_flags):
       return world_loop.run_world(
           row, model._address, data._address, data.xfrc_applied, data.sensordata, initial, n_frames,

@@ -168,8 +168,7 @@ class Sampler:
     """
     if self.backend_name != "mjx":
       return min(self.chunk_size, n_worlds)
-    n_dev = len(self.backend.devices)
-    lane = self.backend.lane // n_dev
+    n_dev, lane = len(self.backend.devices), self.backend.lane
     per_device = min(self.chunk_size, -(-n_worlds // n_dev))
     return -(-per_device // lane) * lane * n_dev
 
