@@ -175,11 +175,53 @@ class CodecSection(_Strict):
   e_com: float | None = pydantic.Field(5e-4, gt=0)
 
 
+class ControlSchedule(_Strict):
+  """An actuator's control over time: knots ``(times[i], values[i])``.
+
+  Attributes:
+    times: knot times, seconds, strictly increasing.
+    values: control at each knot (a position actuator's target: radians or
+      metres; a motor's force or torque).
+    interpolation: ``linear`` between knots, or ``step`` (each value held
+      until the next knot). Before the first knot the first value holds, after
+      the last the last.
+  """
+
+  times: tuple[float, ...] = pydantic.Field(min_length=1)
+  values: tuple[float, ...] = pydantic.Field(min_length=1)
+  interpolation: Literal["linear", "step"] = "linear"
+
+  @pydantic.model_validator(mode="before")
+  @classmethod
+  def _fixed(cls, data):
+    """A plain number is a control held from time 0."""
+    if isinstance(data, (int, float)) and not isinstance(data, bool):
+      return {"times": [0.0], "values": [float(data)]}
+    return data
+
+  @pydantic.model_validator(mode="after")
+  def _knots(self):
+    if len(self.times) != len(self.values):
+      raise ValueError(f"times has {len(self.times)} knots but values has {len(self.values)}")
+    if any(b <= a for a, b in zip(self.times, self.times[1:])):
+      raise ValueError(f"times must increase strictly, got {list(self.times)}")
+    if not all(math.isfinite(x) for x in self.times + self.values):
+      raise ValueError("times and values must be finite")
+    return self
+
+
 class Config(_Strict):
-  """A whole sampling config. ``source`` is the YAML file it came from."""
+  """A whole sampling config. ``source`` is the YAML file it came from.
+
+  ``controls`` maps actuator names of the MJCF to a :class:`ControlSchedule`
+  or a fixed control (a number: held from time 0); actuators not named keep control 0 (MuJoCo's
+  default). Both backends, and refinement, apply the same control at every
+  physics step (the schedule's value at the step's start time).
+  """
 
   scene: SceneSection
   randomize: dict[str, Randomization] = {}
+  controls: dict[str, ControlSchedule] = {}
   sim: SimSection = SimSection()
   rest: RestSection = RestSection()
   perturb: PerturbSection = PerturbSection()

@@ -217,6 +217,8 @@ class Scene:
     self.perturbable = np.ones(len(self.body_names), bool)
     self.perturbable[excluded] = False
     self.object_inits = self._object_inits(source, subtree, root_names)
+    from mwbx.batch_sim import controls  # here: batch_sim imports this module
+    controls.actuator_ids(self.model, config.controls, source)  # names each unknown actuator
 
   # -- names ------------------------------------------------------------------
 

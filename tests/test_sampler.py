@@ -230,9 +230,10 @@ def test_state_observation_samples_like_the_sensors(tiny_config, monkeypatch):
 def _reference_chunk(sampler, qpos0, qvel0, step_keys):
   """Worlds one after another through ``mujoco.mj_step`` and the host loops,
   the slow and obvious form of the compiled per-world loop (world_loop)."""
-  from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops
+  from mwbx.batch_sim import controls, free_bodies, host_bookkeeping, host_loops
 
   backend, scene, params = sampler.backend, sampler.scene, sampler.params
+  ctrl = controls.scene_table(scene, sampler.n_frames * params.steps_per_frame)
   m = backend.model
   fb = free_bodies.free_bodies(m, scene.body_ids)
   model = backend.quiet_model if fb is not None else m
@@ -260,6 +261,8 @@ def _reference_chunk(sampler, qpos0, qvel0, step_keys):
       mujoco.mj_getState(model, d, before[0], spec)
       for s in range(spf):
         d.xfrc_applied[:] = wrench_full[r, s]
+        if ctrl.shape[1]:
+          d.ctrl[:] = ctrl[frame * spf + s]
         mujoco.mj_step(model, d)
         mujoco.mj_getState(model, d, after[0, s], spec)
         if fb is None:

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from mwbx.batch_sim import controls
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
@@ -119,8 +120,9 @@ class MjxBackend:
     return jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d.replace(xfrc_applied=xfrc))
 
   def block(self, params: world.WorldParams, body_ids: np.ndarray, n_frames: int):
-    """``run(state, None, count)`` for up to ``n_frames`` sampled frames (cached;
-    see :func:`frame_block`)."""
+    """``run(state, ctrl_table, count)`` for up to ``n_frames`` sampled frames
+    (cached; see :func:`frame_block`). ``ctrl_table``: f32[N, nu] control of
+    each step (:mod:`controls`), or None for a scene without controls."""
     cache_key = (id(params), n_frames)
     if cache_key in self._blocks:
       return self._blocks[cache_key][1]
@@ -130,9 +132,12 @@ class MjxBackend:
     bodies = free_bodies_lib.free_bodies(self.model, body_ids)
     mx = self.mx if bodies is None else self.quiet_mx
 
-    def physics_step(d, xfrc_tracked):
-      xfrc = scatter_wrench(xfrc_tracked, nbody, ids)
-      d_next = jax.vmap(mjx.step, in_axes=(None, 0))(mx, d.replace(xfrc_applied=xfrc))
+    def physics_step(d, inputs):
+      xfrc_tracked, ctrl = inputs  # ctrl: f32[W, nu] or None
+      d = d.replace(xfrc_applied=scatter_wrench(xfrc_tracked, nbody, ids))
+      if ctrl is not None:
+        d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype))
+      d_next = jax.vmap(mjx.step, in_axes=(None, 0))(mx, d)
       return d_next, (d_next.sensordata if bodies is None else (d.qpos, d.qvel))
 
     def observe(d_next, out):
@@ -144,10 +149,14 @@ class MjxBackend:
       return jax.vmap(free_bodies_lib.observe, in_axes=(1, 1, None, None, None))(
           qpos, qvel, bodies, params.dt, params.gravity)
 
-    def frame(_, state):
+    def frame(ctrl_table, state):
       d, carry, wrench, keys = state  # wrench: f32[W, S, B, 6]
       qpos = d.qpos  # s_k at the frame boundary, recorded if `record`.
-      d_next, out = jax.lax.scan(physics_step, d, jnp.swapaxes(wrench, 0, 1))
+      ctrl = None
+      if ctrl_table is not None:  # f32[N, nu]: row k is step k's control
+        rows = jnp.minimum(carry.step[:, None] + jnp.arange(params.steps_per_frame), ctrl_table.shape[0] - 1)
+        ctrl = jnp.swapaxes(ctrl_table[rows], 0, 1)  # [S, W, nu]
+      d_next, out = jax.lax.scan(physics_step, d, (jnp.swapaxes(wrench, 0, 1), ctrl))
       obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(
           observe(d_next, out))
       carry, out = world.frame_update(carry, obs, keys, params)
@@ -183,9 +192,12 @@ class MjxBackend:
     state = (d, carry, wrench, step_keys)
     states = [jax.device_put(jax.tree.map(lambda x, k=k: x[k * per:(k + 1) * per], state), device)
               for k, device in enumerate(self.devices)]
+    table = controls.scene_table(scene, n_frames * params.steps_per_frame)
+    tables = [None if table.shape[1] == 0 else jax.device_put(jnp.asarray(table, jnp.float32), device)
+              for device in self.devices]
 
     t0 = time.perf_counter()
-    compiled = [fn.lower(s, None, jnp.int32(block_frames)).compile() for s in states]
+    compiled = [fn.lower(s, t, jnp.int32(block_frames)).compile() for s, t in zip(states, tables)]
     compile_seconds = time.perf_counter() - t0
 
     gather = lambda xs, axis=0: np.concatenate([np.asarray(x) for x in xs], axis=axis)
@@ -197,7 +209,7 @@ class MjxBackend:
     while start < n_frames:
       stop = min(start + count, n_frames)
       block_start = time.perf_counter()
-      outs = [run(s, None, jnp.int32(stop - start)) for run, s in zip(compiled, states)]  # all devices
+      outs = [run(s, t, jnp.int32(stop - start)) for run, s, t in zip(compiled, states, tables)]  # all devices
       states = [out[0] for out in outs]
       record, qpos, com = (gather([out[1][i] for out in outs], axis=1) for i in range(3))  # [F, C, ...]
       per_frame = (time.perf_counter() - block_start) / (stop - start)

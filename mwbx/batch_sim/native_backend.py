@@ -26,7 +26,7 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
-from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, world_loop
+from mwbx.batch_sim import controls, host_bookkeeping, host_loops, mujoco_c, world, world_loop
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 from mwbx.errors import MwbxError
 
@@ -35,6 +35,9 @@ _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 # parks a thread for good (see ``mujoco_c.trap_errors``).
 MAX_SIM_ERRORS = 32
 _CONTROL = mujoco.mjtState.mjSTATE_XFRC_APPLIED
+# With actuator controls: rollout's control vector is ctrl then xfrc_applied
+# (mj_getState order: the spec's bits in increasing order).
+_CONTROL_CTRL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 
 
 class _Chunk(NamedTuple):
@@ -96,7 +99,8 @@ class NativeBackend:
     return states
 
   def step(self, states: np.ndarray, wrench: np.ndarray, warmstart: np.ndarray, models: list | None = None,
-           *, sensors: bool = True, out: tuple[np.ndarray, np.ndarray] | None = None):
+           *, sensors: bool = True, out: tuple[np.ndarray, np.ndarray] | None = None,
+           ctrl: np.ndarray | None = None):
     """The S physics steps of one frame for a batch.
 
     Args:
@@ -109,6 +113,8 @@ class NativeBackend:
         and returns no sensors.
       out: optional (f64[N, S, nstate], f64[N, S, nsensordata or 0]) buffers,
         N ≥ n, whose first n rows receive the result (no allocation per frame).
+      ctrl: optional f64[S, nu] actuator controls of the steps, the same for
+        every world (:mod:`controls`); None or width 0 leaves ``ctrl`` at 0.
 
     Returns:
       (f64[n, S, nstate] states s_{k+1} … s_{k+S},
@@ -123,8 +129,12 @@ class NativeBackend:
       if len(self._models) < n or self._models[0] is not model:
         self._models = [model] * max(n, len(self._models))
       models = self._models[:n]
+    spec = _CONTROL
+    if ctrl is not None and ctrl.shape[-1] > 0:
+      spec = _CONTROL_CTRL
+      wrench = np.concatenate([np.broadcast_to(ctrl, (n,) + ctrl.shape), wrench], axis=-1)
     self.pool.rollout(
-        models, self.datas, states, wrench, control_spec=_CONTROL, nstep=n_steps,
+        models, self.datas, states, wrench, control_spec=spec, nstep=n_steps,
         initial_warmstart=warmstart, state=out_state, sensordata=out_sensor if sensors else None,
         skip_checks=True, chunk_size=max(1, n // (4 * self.threads)))
     return out_state, out_sensor
@@ -220,10 +230,12 @@ class NativeBackend:
       ipos, iquat = np.zeros((0, 3)), np.zeros((0, 4))
     model = self.quiet_model if free else m
     gravity = np.asarray(m.opt.gravity, np.float64)
+    ctrl_table = controls.scene_table(scene, n_frames * params.steps_per_frame)
 
     def run(row, data, running_flags):
       return world_loop.run_world(
-          row, model._address, data._address, data.xfrc_applied, data.sensordata, initial, n_frames,
+          row, model._address, data._address, data.xfrc_applied, data.sensordata, data.ctrl, ctrl_table,
+          initial, n_frames,
           m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, ch.sensordata, ch.warmstart,
           ch.states, ch.key_data, ch.host_params, carry, ch.tracked_ids, ch.qpos_buf, ch.com_buf,
           ch.wrench_full, running_flags)
@@ -337,6 +349,7 @@ class NativeBackend:
     # Buffers reused every frame; the running worlds use their first rows.
     before_buf = np.empty_like(states)
     out = (np.empty((c, spf, self.nstate)), np.empty((c, spf, m.nsensordata if free_bodies is None else 0)))
+    ctrl_table = controls.scene_table(scene, n_frames * spf)
     while running.any():
       everyone = running.all()
       # While every world runs, whole arrays stand in for gathers.
@@ -350,7 +363,8 @@ class NativeBackend:
       wrench_in = wrench_full.reshape(c, spf, -1) if everyone else wrench_full[idx].reshape(n_run, spf, -1)
       warm_in = warmstart if everyone else warmstart[idx]
       physics_start = time.perf_counter()
-      after, sensors = self.step(before, wrench_in, warm_in, sensors=free_bodies is None, out=out)
+      ctrl = ctrl_table[frame * spf:(frame + 1) * spf]
+      after, sensors = self.step(before, wrench_in, warm_in, sensors=free_bodies is None, out=out, ctrl=ctrl)
       physics_seconds += time.perf_counter() - physics_start
       self.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states, free_bodies)
       world_steps += n_run * spf

@@ -41,8 +41,8 @@ def _now(ts):
 
 
 @_jit
-def run_world(row, model_adr, data_adr, xfrc_applied, data_sensordata, initial_states, n_frames,
-              timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
+def run_world(row, model_adr, data_adr, xfrc_applied, data_sensordata, data_ctrl, ctrl_table,
+              initial_states, n_frames, timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
               states, key_data, p, carry, tracked, qpos_buf, com_buf, wrench_full, running):
   """Runs world ``row`` of a chunk until it finishes; returns seconds inside ``mj_step``.
 
@@ -50,8 +50,10 @@ def run_world(row, model_adr, data_adr, xfrc_applied, data_sensordata, initial_s
     row: chunk row of the world.
     model_adr, data_adr: ``MjModel._address`` and ``MjData._address`` (this
       thread's data).
-    xfrc_applied: f64[nbody, 6] and data_sensordata: f64[nsensordata], views of
-      that ``MjData``'s arrays.
+    xfrc_applied: f64[nbody, 6], data_sensordata: f64[nsensordata] and
+      data_ctrl: f64[nu], views of that ``MjData``'s arrays.
+    ctrl_table: f64[n_frames · S, nu] control of each step
+      (:func:`controls.control_table`); width 0: ``ctrl`` is left alone.
     initial_states: f64[C, nstate] full physics states at time 0.
     n_frames: frames per world at most.
     timestep: physics step, s. gravity: f64[3], m/s**2.
@@ -81,6 +83,8 @@ def run_world(row, model_adr, data_adr, xfrc_applied, data_sensordata, initial_s
     start = _now(ts)
     for s in range(n_steps):
       xfrc_applied[:, :] = wrench_full[row, s]
+      if ctrl_table.shape[1] > 0:
+        data_ctrl[:] = ctrl_table[min(frame * n_steps + s, ctrl_table.shape[0] - 1)]
       _step(model_adr, data_adr)
       _get_state(model_adr, data_adr, after[0, s].ctypes.data, _FULLPHYSICS)
       if not free:

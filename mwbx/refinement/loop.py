@@ -59,6 +59,8 @@ class RefineInputs(NamedTuple):
     free_bodies: native loop only: the tracked bodies' state addresses when
       they are all free bodies; the sensor block then comes from the states
       and ``models`` step with sensors disabled (:mod:`free_bodies`).
+    ctrl: f64[n_frames · S, nu] actuator control of each step from step 0
+      (:mod:`mwbx.batch_sim.controls`; width 0: none).
   """
 
   params: world.WorldParams
@@ -78,6 +80,7 @@ class RefineInputs(NamedTuple):
   body_ids: np.ndarray
   models: kinematic.ContactFreeModels | None = None
   free_bodies: free_bodies_lib.FreeBodies | None = None
+  ctrl: np.ndarray | None = None
 
 
 class RefineOutput(NamedTuple):
@@ -218,7 +221,8 @@ def _unpack(packed: np.ndarray, spf: int, n_bodies: int, n_objects: int):
           running[:, 0] > 0.5, worst[:, 0], stray[:, 0].astype(np.int64))
 
 
-def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, targets, qvel, sensors=True):
+def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, targets, qvel, sensors=True,
+                   ctrl=None):
   """One frame as S one-step rollouts, inactive objects put on the stored
   path before each step after the first (``every_step`` playback).
 
@@ -230,6 +234,7 @@ def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, tar
     targets: f32[S, nq] stored qpos at the frame's steps; qvel: f32[nv] the
       frame's chord velocity.
     sensors: as in :meth:`NativeBackend.step`.
+    ctrl: optional f64[S, nu] actuator controls of the frame's steps.
 
   Returns:
     as :meth:`NativeBackend.step`.
@@ -245,7 +250,8 @@ def _steps_on_path(backend, states, wrench, warmstart, models, qmask, vmask, tar
       # `current` is the last call's own output (already copied out): reset in place.
       np.copyto(current[:, qadr], targets[j], where=qmask)
       np.copyto(current[:, vadr], qvel, where=vmask)
-    after, step_sensors = backend.step(current, wrench[:, j:j + 1], warmstart, models, sensors=sensors)
+    after, step_sensors = backend.step(current, wrench[:, j:j + 1], warmstart, models, sensors=sensors,
+                                       ctrl=None if ctrl is None else ctrl[j:j + 1])
     warmstart = (after[:, 0, vadr] - current[:, vadr]) / m.opt.timestep
     out_states[:, j] = after[:, 0]
     out_sensors[:, j] = step_sensors[:, 0]
@@ -311,12 +317,14 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
     inactive = ~active[idx]
     models = inp.models(inactive)
     wrench_in = wrench_full[idx].reshape(len(idx), spf, -1)
+    ctrl = None if inp.ctrl is None else inp.ctrl[frame * spf:(frame + 1) * spf]
     if every_step:
       qmask, vmask = masks(inactive)
       after, sensors = _steps_on_path(backend, before, wrench_in, warmstart[idx], models, qmask, vmask,
-                                      targets[frame], path.qvel[frame], sensors=use_sensors)
+                                      targets[frame], path.qvel[frame], sensors=use_sensors, ctrl=ctrl)
     else:
-      after, sensors = backend.step(before, wrench_in, warmstart[idx], models, sensors=use_sensors)
+      after, sensors = backend.step(before, wrench_in, warmstart[idx], models, sensors=use_sensors,
+                                    ctrl=ctrl)
     # Inactive objects' observations are replaced by their stored motion in
     # the kernel, so observing them from un-reset states is harmless.
     backend.absorb_frame(idx, before, after, sensors, sensordata, warmstart, states, inp.free_bodies)
@@ -355,7 +363,8 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
   block = min(frames_per_block or FRAMES_PER_BLOCK, n_out)
   consts = (jnp.asarray(inp.step_targets), jnp.asarray(path.qvel), jnp.asarray(path.com),
             jnp.asarray(inp.qpos_object, jnp.float32), jnp.asarray(inp.dof_object, jnp.float32), inter,
-            tuple(jnp.asarray(x) for x in (path.com, path.quat, path.lin_vel, path.ang_vel)))
+            tuple(jnp.asarray(x) for x in (path.com, path.quat, path.lin_vel, path.ang_vel)),
+            None if inp.ctrl is None or inp.ctrl.shape[1] == 0 else jnp.asarray(inp.ctrl, jnp.float32))
   run = _mjx_block(backend, params, np.asarray(inp.body_ids), block, len(inter.radius) * world.SENSOR_WIDTH)
   d = backend.make_data(jnp.asarray(inp.qpos0), jnp.asarray(inp.qvel0))
   d = d.replace(time=jnp.full((c,), f0 * spf * m.opt.timestep, d.time.dtype))
@@ -415,7 +424,7 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
   ids = jnp.asarray(body_ids)
 
   def put_on_path(d, inactive, frame, j, consts):
-    targets, qvel_path, _, qpos_object, dof_object, _, _ = consts
+    targets, qvel_path, _, qpos_object, dof_object, _, _, _ = consts
     qm = (inactive.astype(jnp.float32) @ qpos_object) > 0.5
     vm = (inactive.astype(jnp.float32) @ dof_object) > 0.5
     return d.replace(qpos=jnp.where(qm, targets[frame * spf + j], d.qpos),
@@ -430,6 +439,10 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
     def physics_step(d, inputs):
       j, xfrc_tracked = inputs
       d = jax.lax.cond(j > 0, lambda x: put_on_path(x, ~active, frame, j, consts), lambda x: x, d)
+      ctrl_table = consts[7]
+      if ctrl_table is not None:  # f32[N, nu], row k: step k's control, the same for every world
+        row = jnp.minimum(frame * spf + j, ctrl_table.shape[0] - 1)
+        d = d.replace(ctrl=jnp.broadcast_to(ctrl_table[row], d.ctrl.shape).astype(d.ctrl.dtype))
       d = backend.step(d, scatter_wrench(xfrc_tracked, nbody, ids))
       return d, d.sensordata
 

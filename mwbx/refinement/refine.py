@@ -30,6 +30,7 @@ import mujoco
 import numpy as np
 
 from mwbx import bank as bank_lib
+from mwbx.batch_sim import controls
 from mwbx.batch_sim import free_bodies
 from mwbx.batch_sim import world as world_lib
 from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
@@ -189,6 +190,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
       cfg.rest.angular_speed, cfg.perturb.linear_threshold,
       max(1, int(round(cfg.perturb.collision_gap * fps))))
 
+  ctrl = controls.scene_table(scene, n_frames * spf)
   ids = np.arange(n_samples, dtype=np.int64)
   keys, _, step_keys = world_keys(key, ids)
   stats = RefineStats(backend=sampler.backend_label, first_frame=f0)
@@ -208,7 +210,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
         qpos0=np.tile(qpos0, (chunk, 1)), qvel0=np.tile(qvel0, (chunk, 1)),
         active0=np.tile(asked, (chunk, 1)), carry0=carry, qpos_object=qm, dof_object=vm,
         step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=models,
-        free_bodies=bodies)
+        free_bodies=bodies, ctrl=ctrl)
     if mjx:
       run = refine_loop.run_mjx
     else:
