@@ -29,6 +29,7 @@ from mwbx.config import load_config
 from mwbx.errors import MwbxError
 from mwbx.queries import Camera
 from mwbx.queries import Frustum
+from mwbx.queries import JointQuery
 from mwbx.queries import Query
 from mwbx.queries import QuerySet
 from mwbx.queries import ScreenBox
@@ -59,6 +60,7 @@ __all__ = [
     "FLAG_SIM_ERROR",
     "FLAG_UNSTABLE",
     "Frustum",
+    "JointQuery",
     "METRIC_NAMES",
     "MwbxError",
     "QposStore",

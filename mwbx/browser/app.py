@@ -205,7 +205,7 @@ class Browser:
     edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
     for i, entry in enumerate(self.session.entries):
       q = entry.query
-      corners = q.frustum.corners
+      corners = None if q.frustum is None else q.frustum.corners  # joint queries draw nothing
       if corners is None or not entry.enabled:
         continue
       seg = np.array([[corners[a], corners[b]] for a, b in edges], np.float32)
@@ -351,7 +351,9 @@ class Browser:
     for i, (e, n) in enumerate(zip(session.entries, counts.per_query)):
       q = e.query
       state = "" if e.enabled else " (off)"
-      lines.append(f"- q{i} {q.sign} {','.join(q.bodies) if q.bodies else 'any body'}: {n}{state}")
+      what = f"joint {q.joint} turns {q.turn}" if q.frustum is None else \
+          f"{q.sign} {','.join(q.bodies) if q.bodies else 'any body'}"
+      lines.append(f"- q{i} {what}: {n}{state}")
     hidden = [f"{n} {name}" for name, n in left_out.items() if n]
     if hidden:
       lines.append(f"(paths not drawn: {', '.join(hidden)} worlds)")

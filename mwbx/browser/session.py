@@ -212,7 +212,7 @@ class Session:
   def first_entry_of_last_box(self, world: int, objects) -> float:
     """t_min for "first entry of the last box": when the objects first enter the
     frustum of the last enabled include query (paper §5)."""
-    boxes = [q for q in self.enabled if q.include]
+    boxes = [q for q in self.enabled if q.include and q.frustum is not None]
     if not boxes:
       raise MwbxError("refine: draw an include box first (its first entry is the start time)")
     names = list(objects) if not isinstance(objects, str) else [objects]

@@ -28,6 +28,7 @@ import numpy as np
 
 from mwbx.errors import MwbxError
 from mwbx.queries import index as index_lib
+from mwbx.queries import joint as joint_lib
 from mwbx.queries import segments
 from mwbx.queries.camera import Camera
 from mwbx.queries.camera import ScreenBox
@@ -121,15 +122,15 @@ class Query:
                **fields)
 
 
-def as_queries(queries) -> tuple[Query, ...]:
-  """A Query, a sequence of them or an object with `.queries` -> tuple."""
-  if isinstance(queries, Query):
+def as_queries(queries) -> tuple:
+  """A Query (or JointQuery), a sequence of them or an object with `.queries` -> tuple."""
+  if isinstance(queries, (Query, joint_lib.JointQuery)):
     return (queries,)
   queries = getattr(queries, "queries", queries)
   out = tuple(queries)
   for i, q in enumerate(out):
-    if not isinstance(q, Query):
-      raise MwbxError(f"queries[{i}]: expected a Query, got {type(q).__name__}")
+    if not isinstance(q, (Query, joint_lib.JointQuery)):
+      raise MwbxError(f"queries[{i}]: expected a Query or JointQuery, got {type(q).__name__}")
   return out
 
 
@@ -286,9 +287,16 @@ def evaluate_each(bank, queries) -> np.ndarray:
   if bank.n_worlds == 0 or not queries:
     return out
   valid = np.asarray(bank.valid, bool)
+  paths = [i for i, q in enumerate(queries) if isinstance(q, Query)]
+  for i, query in enumerate(queries):
+    if not isinstance(query, Query):
+      out[:, i] = joint_lib.evaluate_joint(bank, query)
+  if not paths:
+    return out
   blocks = _blocks(bank, valid) if streams(bank) else [(slice(None), _state(bank))]
   for rows, state in blocks:
-    for i, query in enumerate(queries):
+    for i in paths:
+      query = queries[i]
       normals, offsets, mask, window = resolve(bank, query, state)
       hits = np.asarray(index_lib.path_hits(state.index, normals, offsets, mask, window))
       out[rows, i] = combine(hits, mask, query) & valid[rows]

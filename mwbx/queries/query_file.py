@@ -17,6 +17,10 @@ queries:
   - name: never_on_ramp
     region: {min: [-1, -0.3, 0.9], max: [0, 0.3, 1.3]}   # a world box instead
     sign: exclude
+  - name: bucket_tips_forward
+    joint: bucket_hinge            # a hinge/slide joint's change over the window
+    turn: [0.5, null]              # radians (metres): at least +0.5 (null: open)
+    window: [0.0, null]
 rank:                              # optional default ranking
   - {metric: angular_travel, bodies: [ball], reduce: sum, weight: 1.0}
 order: desc                        # desc | asc
@@ -37,6 +41,8 @@ from mwbx.queries.camera import Camera
 from mwbx.queries.camera import ScreenBox
 from mwbx.queries.metrics import Term
 from mwbx.queries.metrics import parse_term
+from mwbx.queries.joint import JointQuery
+from mwbx.queries.joint import joint_column
 from mwbx.queries.query import Query
 
 _STRICT = pydantic.ConfigDict(extra="forbid")
@@ -81,6 +87,8 @@ class _QuerySpec(pydantic.BaseModel):
   mode: Literal["any", "all"] = "any"
   window: tuple[float | None, float | None] | None = None
   radius: float | Literal["auto"] = 0.0
+  joint: str | None = None
+  turn: tuple[float | None, float | None] | None = None
 
 
 class _TermSpec(pydantic.BaseModel):
@@ -155,6 +163,11 @@ def _camera_dict(camera: Camera) -> dict:
 
 def _query_dict(q: Query, index: int) -> dict:
   out: dict = {"name": q.name or f"q{index}"}  # the name load_queries gives an unnamed one
+  if isinstance(q, JointQuery):
+    out.update(joint=q.joint, turn=list(q.turn))
+    if q.window is not None:
+      out["window"] = list(q.window)
+    return out
   if q.box is not None and q.camera is not None:
     out["box"] = [float(q.box.u0), float(q.box.v0), float(q.box.u1), float(q.box.v1)]
     out["camera"] = _camera_dict(q.camera)
@@ -244,6 +257,8 @@ def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
 
 def _query(q: _QuerySpec, i: int, path: str, default_camera, model, bank) -> Query:
   where = f"queries[{i}]"
+  if q.joint is not None or q.turn is not None:
+    return _joint_query(q, where, path, model)
   if (q.box is None) == (q.region is None):
     raise MwbxError(f"{path}: {where}: give exactly one of 'box' (screen) or 'region' (world)")
   fields = dict(bodies=q.bodies, sign=q.sign, mode=q.mode, window=q.window,
@@ -268,6 +283,24 @@ def _query(q: _QuerySpec, i: int, path: str, default_camera, model, bank) -> Que
       bank.select_bodies(list(query.bodies))
     except MwbxError as err:
       raise MwbxError(f"{path}: {where}.bodies: {err}") from None
+  return query
+
+
+def _joint_query(q: _QuerySpec, where: str, path: str, model) -> JointQuery:
+  spatial = [name for name in ("box", "region", "camera", "near", "far", "bodies") if getattr(q, name) is not None]
+  if spatial or q.sign != "include" or q.mode != "any" or q.radius != 0.0:
+    extra = spatial + [n for n, bad in (("sign", q.sign != "include"), ("mode", q.mode != "any"),
+                                        ("radius", q.radius != 0.0)) if bad]
+    raise MwbxError(f"{path}: {where}: a joint query takes joint, turn, window and name, not "
+                    f"{', '.join(extra)}")
+  if q.joint is None or q.turn is None:
+    raise MwbxError(f"{path}: {where}: a joint query needs both 'joint' and 'turn' ([lo, hi])")
+  try:
+    query = JointQuery(q.joint, q.turn, q.window, q.name or where)
+    if model is not None:
+      joint_column(model, q.joint)
+  except MwbxError as err:
+    raise MwbxError(f"{path}: {where}: {err}") from None
   return query
 
 

@@ -131,7 +131,8 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   if bodies is not None:
     path_rows = None if path_worlds is None else bank.row_of(np.asarray(list(path_worlds), np.int64))
     classes = classify_worlds(np.asarray(bank.valid), path_rows, match, exclude)
-  volumes = [as_volume(q, i) for i, q in enumerate(queries)]
+  # Joint queries (no volume) colour the paths but draw nothing.
+  volumes = [as_volume(q, i) for i, q in enumerate(queries) if not _volumeless(q)]
   lo, hi = scene_bounds(bank, model, worlds, classes, bodies, visible_groups)
   radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
   visuals = scene_visuals(model, visible_groups, plane_extent=2.0 * radius + float(np.max(np.abs(hi))))
@@ -165,6 +166,11 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
     else:
       draw_volume(root["queries"][f"q{i}"], volume, i, max_depth=depth, eye_radius=marker)
   return DrawInfo(centre, np.asarray(bank.world_ids)[worlds], offsets, counts, len(volumes), eye)
+
+
+def _volumeless(query: Any) -> bool:
+  """A mwbx.queries.JointQuery: a constraint with no volume to draw."""
+  return hasattr(query, "frustum") and query.frustum is None
 
 
 def as_query_list(queries: Any) -> list:

@@ -15,7 +15,7 @@ from mwbx import queries as mq
 
 
 def is_query(q: Any) -> bool:
-  return isinstance(q, mq.Query)
+  return isinstance(q, (mq.Query, mq.JointQuery))
 
 
 def evaluate_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,141 @@
+"""Joint queries: how far a hinge or slide joint turned over a time window.
+
+COM paths cannot see a bucket turning on its hinge; its joint angle can. A
+JointQuery asks that the change of one hinge (radians) or slide (metres)
+joint between the window's ends lie in a range: ``turn=(0.5, None)`` turned
+at least half a radian the positive way about the joint axis,
+``turn=(None, -0.5)`` the other way. Angles come from the decoded stored
+qpos (within the codec's ``e_scalar`` bound of the simulation), read once
+per bank and joint and cached.
+
+Example::
+
+  q = JointQuery("bucket_1_hinge", turn=(0.5, None), window=(0.0, None))
+  mwbx.evaluate(bank, [q, screen_query])   # mixes with frustum queries
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import weakref
+
+import mujoco
+import numpy as np
+
+from mwbx.errors import MwbxError
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class JointQuery:
+  """The change of one hinge/slide joint over a window lies in a range.
+
+  joint: the joint's MJCF name (a hinge or slide joint).
+  turn: (lo, hi) bounds of ``q(t1) - q(t0)``, radians or metres; None for an
+    open end.
+  window: (t0, t1) seconds, None ends for the path's start and end; past a
+    world's last frame its last frame holds (it came to rest).
+  name: label for output.
+  """
+
+  joint: str
+  turn: tuple[float | None, float | None] = (None, None)
+  window: tuple[float | None, float | None] | None = None
+  name: str = ""
+  # Shared with mwbx.queries.Query, so lists of queries mix: a joint query is
+  # a positive constraint on no tracked body's path and draws no volume.
+  sign = "include"
+  include = True
+  bodies = None
+  frustum = None
+
+  def __post_init__(self):
+    label = f"query {self.name!r}" if self.name else "query"
+    try:
+      lo, hi = self.turn
+      lo = None if lo is None else float(lo)
+      hi = None if hi is None else float(hi)
+    except (TypeError, ValueError):
+      raise MwbxError(f"{label}: turn must be [lo, hi] (null for open), got {self.turn!r}") from None
+    if any(v is not None and math.isnan(v) for v in (lo, hi)):
+      raise MwbxError(f"{label}: turn must not be NaN, got {self.turn!r}")
+    if lo is not None and hi is not None and lo > hi:
+      raise MwbxError(f"{label}: turn is empty, lo {lo} > hi {hi}")
+    object.__setattr__(self, "turn", (lo, hi))
+    if self.window is not None:
+      try:
+        t0, t1 = (None if t is None else float(t) for t in self.window)
+      except (TypeError, ValueError):
+        raise MwbxError(f"{label}: window must be [t0, t1] in seconds (null for open), "
+                        f"got {self.window!r}") from None
+      if t0 is not None and t1 is not None and t0 > t1:
+        raise MwbxError(f"{label}: window is empty, t0 {t0} > t1 {t1} seconds")
+      object.__setattr__(self, "window", (t0, t1))
+
+
+_CACHE: dict = {}
+
+
+def joint_column(model: mujoco.MjModel, joint: str) -> int:
+  """qpos address of a hinge or slide joint; MwbxError naming it otherwise."""
+  jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+  if jid < 0:
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(model.njnt)]
+    scalar = [n for j, n in enumerate(names) if n and int(model.jnt_type[j]) in (2, 3)]
+    raise MwbxError(f"joint query: unknown joint {joint!r} (hinge and slide joints: "
+                    f"{', '.join(scalar) or 'none'})")
+  if int(model.jnt_type[jid]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+    raise MwbxError(f"joint query: joint {joint!r} is not a hinge or slide joint")
+  return int(model.jnt_qposadr[jid])
+
+
+def joint_paths(bank, joint: str) -> np.ndarray:
+  """f32[W, F] the joint's decoded value at every recorded frame (tails hold
+  the last frame), cached per bank and joint."""
+  column = joint_column(bank.model(), joint)
+  key = (id(bank), joint)
+  entry = _CACHE.get(key)
+  if entry is not None and entry[0]() is bank and entry[1].shape[0] == bank.n_worlds:
+    return entry[1]
+  n = bank.n_worlds
+  counts = np.asarray(bank.frame_count, np.int64)
+  out = np.zeros((n, max(int(counts.max(initial=1)), 1)), np.float32)
+  store = bank.qpos_store
+  columns = np.array([column])
+  if hasattr(store, "frames_batch"):
+    frames = store.frames_batch(None, columns=columns)
+  else:
+    frames = [store.frames(w, columns=columns) for w in range(n)]
+  for w, f in enumerate(frames):
+    if len(f):
+      out[w, :len(f)] = f[:, column]
+      out[w, len(f):] = f[-1, column]
+  try:
+    _CACHE[key] = (weakref.ref(bank, lambda _, k=key: _CACHE.pop(k, None)), out)
+  except TypeError:
+    pass
+  return out
+
+
+def joint_turn(bank, joint: str, window=None) -> np.ndarray:
+  """f64[W] ``q(t1) - q(t0)`` of a hinge/slide joint (radians or metres)."""
+  paths = joint_paths(bank, joint)
+  t0, t1 = (None, None) if window is None else window
+  fps = float(bank.record_fps)
+  last = np.maximum(np.asarray(bank.frame_count, np.int64) - 1, 0)
+  f0 = np.zeros_like(last) if t0 is None else np.minimum(int(round(t0 * fps)), last)
+  f1 = last if t1 is None else np.minimum(int(round(t1 * fps)), last)
+  rows = np.arange(bank.n_worlds)
+  return paths[rows, f1].astype(np.float64) - paths[rows, f0]
+
+
+def evaluate_joint(bank, query: JointQuery) -> np.ndarray:
+  """bool[W] worlds whose joint change lies in ``query.turn`` (unstable: False)."""
+  turn = joint_turn(bank, query.joint, query.window)
+  lo, hi = query.turn
+  ok = np.ones(bank.n_worlds, bool)
+  if lo is not None:
+    ok &= turn >= lo
+  if hi is not None:
+    ok &= turn <= hi
+  return ok & np.asarray(bank.valid, bool)
