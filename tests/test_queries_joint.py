@@ -33,6 +33,13 @@ def test_joint_turn_is_the_decoded_change(servo_bank):
   # Before the ramp the arm only sags: a turn of less than 0.1 rad either way.
   still = mwbx.JointQuery("shoulder", turn=(-0.1, 0.1), window=(0.0, 0.55))
   assert mwbx.evaluate(bank, [still]).all()
+  # Extremes over the window: the lowest point of the arm's path against a
+  # decoded reference.
+  low = joint_lib.joint_turn(bank, "shoulder", (0.5, None), of="min")
+  for w in range(bank.n_worlds):
+    q = bank.qpos_frames(int(bank.world_ids[w]))[:, 0]
+    assert low[w] == pytest.approx(float(q[60:].min()) - float(q[60]), abs=1e-6)
+  assert (low <= joint_lib.joint_turn(bank, "shoulder", (0.5, None)) + 1e-9).all()
 
 
 def test_joint_queries_load_save_and_name_mistakes(servo_bank, tmp_path):
@@ -47,7 +54,8 @@ def test_joint_queries_load_save_and_name_mistakes(servo_bank, tmp_path):
       ("{joint: elbow, turn: [0, 1]}", "queries[0]: joint query: unknown joint 'elbow' (hinge and slide joints: shoulder)"),
       ("{joint: shoulder}", "queries[0]: a joint query needs both 'joint' and 'turn'"),
       ("{joint: shoulder, turn: [1, 0]}", "queries[0]: query 'queries[0]': turn is empty"),
-      ("{joint: shoulder, turn: [0, 1], bodies: [ball]}", "a joint query takes joint, turn, window and name, not bodies"),
+      ("{joint: shoulder, turn: [0, 1], bodies: [ball]}", "a joint query takes joint, turn, of, window and name, not bodies"),
+      ("{joint: shoulder, turn: [0, 1], of: mean}", "queries[0].of: Input should be 'change', 'max' or 'min'"),
   ]:
     path.write_text(f"queries:\n  - {text}\n")
     with pytest.raises(mwbx.MwbxError) as err:

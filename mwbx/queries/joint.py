@@ -2,15 +2,18 @@
 
 COM paths cannot see a bucket turning on its hinge; its joint angle can. A
 JointQuery asks that the change of one hinge (radians) or slide (metres)
-joint between the window's ends lie in a range: ``turn=(0.5, None)`` turned
-at least half a radian the positive way about the joint axis,
-``turn=(None, -0.5)`` the other way. Angles come from the decoded stored
+joint over a window lie in a range: ``turn=(0.5, None)`` turned at least
+half a radian the positive way about the joint axis, ``turn=(None, -0.5)``
+the other way. The change is measured between the window's ends
+(``of="change"``), or as the largest (``"max"``) or smallest (``"min"``)
+value of ``q(t) - q(t0)`` inside it: a bucket that tips and swings back has
+no net change but a large ``max`` or ``min``. Angles come from the decoded stored
 qpos (within the codec's ``e_scalar`` bound of the simulation), read once
 per bank and joint and cached.
 
 Example::
 
-  q = JointQuery("bucket_1_hinge", turn=(0.5, None), window=(0.0, None))
+  q = JointQuery("bucket_top_hinge", turn=(0.5, None), of="max")  # tipped right at some time
   mwbx.evaluate(bank, [q, screen_query])   # mixes with frustum queries
 """
 
@@ -36,12 +39,15 @@ class JointQuery:
   window: (t0, t1) seconds, None ends for the path's start and end; past a
     world's last frame its last frame holds (it came to rest).
   name: label for output.
+  of: ``change`` (t1 against t0), ``max`` or ``min`` (extremes of
+    ``q(t) - q(t0)`` over the window).
   """
 
   joint: str
   turn: tuple[float | None, float | None] = (None, None)
   window: tuple[float | None, float | None] | None = None
   name: str = ""
+  of: str = "change"
   # Shared with mwbx.queries.Query, so lists of queries mix: a joint query is
   # a positive constraint on no tracked body's path and draws no volume.
   sign = "include"
@@ -62,6 +68,8 @@ class JointQuery:
     if lo is not None and hi is not None and lo > hi:
       raise MwbxError(f"{label}: turn is empty, lo {lo} > hi {hi}")
     object.__setattr__(self, "turn", (lo, hi))
+    if self.of not in MEASURES:
+      raise MwbxError(f"{label}: of must be one of {MEASURES}, got {self.of!r}")
     if self.window is not None:
       try:
         t0, t1 = (None if t is None else float(t) for t in self.window)
@@ -74,6 +82,7 @@ class JointQuery:
 
 
 _CACHE: dict = {}
+MEASURES = ("change", "max", "min")
 
 
 def joint_column(model: mujoco.MjModel, joint: str) -> int:
@@ -117,8 +126,9 @@ def joint_paths(bank, joint: str) -> np.ndarray:
   return out
 
 
-def joint_turn(bank, joint: str, window=None) -> np.ndarray:
-  """f64[W] ``q(t1) - q(t0)`` of a hinge/slide joint (radians or metres)."""
+def joint_turn(bank, joint: str, window=None, of: str = "change") -> np.ndarray:
+  """f64[W] ``q(t1) - q(t0)`` of a hinge/slide joint (radians or metres), or
+  the max / min of ``q(t) - q(t0)`` over the window (``of``)."""
   paths = joint_paths(bank, joint)
   t0, t1 = (None, None) if window is None else window
   fps = float(bank.record_fps)
@@ -126,12 +136,20 @@ def joint_turn(bank, joint: str, window=None) -> np.ndarray:
   f0 = np.zeros_like(last) if t0 is None else np.minimum(int(round(t0 * fps)), last)
   f1 = last if t1 is None else np.minimum(int(round(t1 * fps)), last)
   rows = np.arange(bank.n_worlds)
-  return paths[rows, f1].astype(np.float64) - paths[rows, f0]
+  start = paths[rows, f0].astype(np.float64)
+  if of == "change":
+    return paths[rows, f1] - start
+  frames = np.arange(paths.shape[1])[None]
+  inside = (frames >= f0[:, None]) & (frames <= f1[:, None])
+  fill = -np.inf if of == "max" else np.inf
+  values = np.where(inside, paths, fill)
+  extreme = values.max(axis=1) if of == "max" else values.min(axis=1)
+  return extreme - start
 
 
 def evaluate_joint(bank, query: JointQuery) -> np.ndarray:
   """bool[W] worlds whose joint change lies in ``query.turn`` (unstable: False)."""
-  turn = joint_turn(bank, query.joint, query.window)
+  turn = joint_turn(bank, query.joint, query.window, query.of)
   lo, hi = query.turn
   ok = np.ones(bank.n_worlds, bool)
   if lo is not None:

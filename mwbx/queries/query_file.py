@@ -20,6 +20,7 @@ queries:
   - name: bucket_tips_forward
     joint: bucket_hinge            # a hinge/slide joint's change over the window
     turn: [0.5, null]              # radians (metres): at least +0.5 (null: open)
+    of: max                        # change (t1 vs t0, default) | max | min over the window
     window: [0.0, null]
 rank:                              # optional default ranking
   - {metric: angular_travel, bodies: [ball], reduce: sum, weight: 1.0}
@@ -89,6 +90,7 @@ class _QuerySpec(pydantic.BaseModel):
   radius: float | Literal["auto"] = 0.0
   joint: str | None = None
   turn: tuple[float | None, float | None] | None = None
+  of: Literal["change", "max", "min"] | None = None
 
 
 class _TermSpec(pydantic.BaseModel):
@@ -164,7 +166,7 @@ def _camera_dict(camera: Camera) -> dict:
 def _query_dict(q: Query, index: int) -> dict:
   out: dict = {"name": q.name or f"q{index}"}  # the name load_queries gives an unnamed one
   if isinstance(q, JointQuery):
-    out.update(joint=q.joint, turn=list(q.turn))
+    out.update(joint=q.joint, turn=list(q.turn), of=q.of)
     if q.window is not None:
       out["window"] = list(q.window)
     return out
@@ -257,7 +259,7 @@ def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
 
 def _query(q: _QuerySpec, i: int, path: str, default_camera, model, bank) -> Query:
   where = f"queries[{i}]"
-  if q.joint is not None or q.turn is not None:
+  if q.joint is not None or q.turn is not None or q.of is not None:
     return _joint_query(q, where, path, model)
   if (q.box is None) == (q.region is None):
     raise MwbxError(f"{path}: {where}: give exactly one of 'box' (screen) or 'region' (world)")
@@ -291,12 +293,12 @@ def _joint_query(q: _QuerySpec, where: str, path: str, model) -> JointQuery:
   if spatial or q.sign != "include" or q.mode != "any" or q.radius != 0.0:
     extra = spatial + [n for n, bad in (("sign", q.sign != "include"), ("mode", q.mode != "any"),
                                         ("radius", q.radius != 0.0)) if bad]
-    raise MwbxError(f"{path}: {where}: a joint query takes joint, turn, window and name, not "
+    raise MwbxError(f"{path}: {where}: a joint query takes joint, turn, of, window and name, not "
                     f"{', '.join(extra)}")
   if q.joint is None or q.turn is None:
     raise MwbxError(f"{path}: {where}: a joint query needs both 'joint' and 'turn' ([lo, hi])")
   try:
-    query = JointQuery(q.joint, q.turn, q.window, q.name or where)
+    query = JointQuery(q.joint, q.turn, q.window, q.name or where, q.of or "change")
     if model is not None:
       joint_column(model, q.joint)
   except MwbxError as err:
