@@ -39,15 +39,17 @@ class _Strict(pydantic.BaseModel):
 
 
 class Distribution(_Strict):
-  """A zero-mean random offset.
+  """A random offset about ``mean`` (default 0).
 
-  ``uniform``: each component uniform in ``[-scale, scale]``; ``normal``: each
-  component normal with standard deviation ``scale``. ``scale`` is a scalar
-  (all components) or one value per component.
+  ``uniform``: each component uniform in ``[mean - scale, mean + scale]``;
+  ``normal``: each component normal with standard deviation ``scale``.
+  ``scale`` and ``mean`` are a scalar (all components) or one value per
+  component (e.g. a push: ``linear_velocity: {mean: [0, 1, 0], scale: 0.2}``).
   """
 
   dist: Literal["uniform", "normal"] = "uniform"
   scale: float | tuple[float, ...] = 0.0
+  mean: float | tuple[float, ...] = 0.0
 
 
 class Randomization(_Strict):

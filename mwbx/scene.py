@@ -278,10 +278,11 @@ class Scene:
       dist = {k: Distribution.model_validate(v) for k, v in fields.items()}
       for k, d in dist.items():
         width = len(scalar) if k == "joint_noise" else 3
-        scale = np.atleast_1d(d.scale)
-        if scale.size not in (1, width):
-          raise MwbxError(
-              f"{source}: randomize.{obj}.{k}.scale: expected 1 or {width} values, got {scale.size}")
+        for field in ("scale", "mean"):
+          size = np.atleast_1d(getattr(d, field)).size
+          if size not in (1, width):
+            raise MwbxError(
+                f"{source}: randomize.{obj}.{k}.{field}: expected 1 or {width} values, got {size}")
       inits.append(ObjectInit(
           free_qpos=int(m.jnt_qposadr[free[0]]) if free else -1,
           free_dof=int(m.jnt_dofadr[free[0]]) if free else -1,
@@ -378,9 +379,10 @@ def _draw(key: jax.Array, dist: Distribution | None, width: int) -> jax.Array:
   if dist is None:
     return jnp.zeros(width, jnp.float32)
   scale = jnp.broadcast_to(jnp.asarray(dist.scale, jnp.float32), (width,))
+  mean = jnp.broadcast_to(jnp.asarray(dist.mean, jnp.float32), (width,))
   if dist.dist == "uniform":
-    return scale * jax.random.uniform(key, (width,), jnp.float32, -1.0, 1.0)
-  return scale * jax.random.normal(key, (width,), jnp.float32)
+    return mean + scale * jax.random.uniform(key, (width,), jnp.float32, -1.0, 1.0)
+  return mean + scale * jax.random.normal(key, (width,), jnp.float32)
 
 
 def load_scene(config: Config) -> Scene:

@@ -28,7 +28,7 @@ TIMESTEP = 1.0 / 480  # s: 4 steps per 120 fps frame
 LETTERS = ("S", "I", "G", "G", "R", "A", "P", "H")
 SLOT = 0.14  # m, slot width; slot k is centred at SLOT_X[k]
 SLOT_X = [(k - 3.5) * SLOT for k in range(8)]
-W, H, T = 0.035, 0.05, 0.008  # letter half width, half height, stroke half thickness (m)
+W, H, T = 0.03, 0.042, 0.007  # letter half width, half height, stroke half thickness (m)
 DEPTH = 0.018  # letter half depth (y), m
 
 
@@ -96,16 +96,17 @@ def siggraph() -> str:
   for k, rgb in enumerate(LETTER_RGB):  # a coloured label under each slot
     lines.append(f'    <geom name="label_{k}" type="box" size="{SLOT / 2 - 0.012:.3f} 0.002 0.012"'
                  f' pos="{SLOT_X[k]:.3f} -0.047 0.012" rgba="{rgb} 1" contype="0" conaffinity="0"/>')
-  for row in range(7):
-    z = 0.42 + 0.13 * row
+  for row in range(6):
+    z = 0.45 + 0.15 * row
     offset = 0.0 if row % 2 == 0 else SLOT / 2
     n = 8 if row % 2 == 0 else 7
     for i in range(n):
       x = SLOT_X[0] + offset + i * SLOT
       if abs(x) < half - 0.03:
         lines.append(f'    <geom name="peg_{row}_{i}" class="peg" pos="{x:.3f} 0 {z:.3f}"/>')
-  # The letters start in two staggered rows above the board, out of order.
-  start_order = [5, 2, 7, 0, 3, 6, 1, 4]  # letter k starts at column start_order[k]
+  # The letters start in two staggered rows above the board, neighbours
+  # swapped: "I S G G A R H P".
+  start_order = [1, 0, 3, 2, 5, 4, 7, 6]  # letter k starts above slot start_order[k]
   for k, (c, name) in enumerate(zip(LETTERS, letter_names())):
     x = SLOT_X[start_order[k]]
     z = 1.42 + (0.13 if k % 2 else 0.0)
@@ -128,6 +129,7 @@ STEPS = 10  # per flight
 STEP_DEG = 24.0  # each step turns this much
 TOP = 2 * STEPS * RISE  # m, top landing height (2.4)
 LANDING_DEG = 60.0
+LEAN_DEG = 25.0  # the figure's forward lean at the start
 C = 'contype="1" conaffinity="2"'  # staircase: touches the figure
 F = 'contype="2" conaffinity="1"'  # figure: touches the staircase, never itself
 
@@ -145,6 +147,19 @@ def _sector(name, a0_deg, a1_deg, z_top, rgba, thickness=0.06):
     out.append(f'    <geom name="{name}_{i}" type="box" size="{half_radial:.3f} {half_tangent:.3f} {thickness / 2}"'
                f' pos="{x:.3f} {y:.3f} {z_top - thickness / 2:.3f}" euler="0 0 {a:.2f}" rgba="{rgba}" {C}/>')
   return out
+
+
+def _lean_then_turn(lean_deg: float, heading_deg: float) -> str:
+  """Quaternion (w x y z) of a forward lean about the body's y axis (+x
+  tips down: the head goes forward), then a turn about the world z axis."""
+  lean, turn = math.radians(lean_deg) / 2, math.radians(heading_deg) / 2
+  qy = (math.cos(lean), 0.0, math.sin(lean), 0.0)
+  qz = (math.cos(turn), 0.0, 0.0, math.sin(turn))
+  w1, x1, y1, z1 = qz
+  w2, x2, y2, z2 = qy
+  q = (w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+       w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2)
+  return " ".join(f"{c:.6f}" for c in q)
 
 
 def spiral_staircase() -> str:
@@ -180,11 +195,12 @@ def spiral_staircase() -> str:
     if flight == 0:
       lines += _sector("landing_middle", angle, angle + LANDING_DEG, TOP - RISE * STEPS, "0.55 0.45 0.35 1", 0.1)
       angle += LANDING_DEG
-  # The figure, facing +x: standing on the top landing at 30 degrees (set by the config's randomize).
-  a = math.radians(LANDING_DEG / 2)
+  # The figure stands at the top landing's edge facing down the stairs (its
+  # +x along the direction of increasing angle), leaning forward: it falls.
+  a = math.radians(LANDING_DEG - 12)
   x, y = 0.62 * math.cos(a), 0.62 * math.sin(a)
   lines += [
-      f'    <body name="figure" pos="{x:.3f} {y:.3f} {TOP + 0.22:.3f}" euler="0 0 {LANDING_DEG / 2 + 90:.1f}">',
+      f'    <body name="figure" pos="{x:.3f} {y:.3f} {TOP + 0.36:.3f}" quat="{_lean_then_turn(LEAN_DEG, LANDING_DEG - 12 + 90)}">',
       "      <freejoint/>",
       f'      <geom name="pelvis" type="capsule" fromto="0 -0.06 0 0 0.06 0" size="0.045" rgba="0.3 0.4 0.8 1" {F}/>',
       '      <body name="torso" pos="0 0 0.05">',
