@@ -39,13 +39,10 @@ def involved_objects(bank, query) -> list[str]:
     body = model.jnt_bodyid[model.joint(query.joint).id]
     root = model.body(int(model.body_rootid[body])).name
     return [root]
-  names = query.bodies or tuple(bank.objects)
-  out = []
-  for name in names:
-    for obj, bodies in bank.objects.items():
-      if (name == obj or name in bodies or obj in bank.groups.get(name, ())) and obj not in out:
-        out.append(obj)
-  return out
+  if query.bodies is None:
+    return list(bank.objects)
+  chosen = {bank.body_names[b] for b in bank.select_bodies(list(query.bodies)).tolist()}
+  return [obj for obj, bodies in bank.objects.items() if chosen & set(bodies)]
 
 
 def restart_time(bank, world: int, query, objects) -> float:
@@ -59,11 +56,11 @@ def restart_time(bank, world: int, query, objects) -> float:
   return end / 3
 
 
-def best(bank, queries, rows) -> int:
-  """World id among ``rows`` with the most queries met, fewest collisions on ties."""
-  met = mwbx.constraints_satisfied(bank, queries)[rows]
+def best(bank, met, rows) -> int:
+  """World id among ``rows`` with the most queries met (``met``: i32[W]),
+  fewest collisions on ties."""
   collisions = mwbx.queries.metric(bank, "collisions")[rows]
-  order = np.lexsort((collisions, -met))
+  order = np.lexsort((collisions, -met[rows]))
   return int(bank.world_ids[rows[order[0]]])
 
 
@@ -93,16 +90,15 @@ def main():
   per_query = each[bank.valid].mean(axis=0)
   print(f"  independent-query estimate of plain sampling: {np.prod(per_query):.2e} per world")
 
-  world = best(bank, queries.queries, np.flatnonzero(bank.valid))
+  met = each.sum(axis=1)  # queries met per world (0 if unstable), kept up to date with the bank
+  world = best(bank, met, np.flatnonzero(bank.valid))
   n_queries = len(queries.queries)
-  met = lambda w: int(mwbx.constraints_satisfied(bank, queries)[bank.row_of(w)])
-  print(f"best sampled world {world}: {met(world)} of {n_queries} queries")
+  print(f"best sampled world {world}: {met[bank.row_of(world)]} of {n_queries} queries")
   refinements = 0
   for round_ in range(args.rounds):
-    if met(world) == n_queries:
+    if met[bank.row_of(world)] == n_queries:
       break
-    row = bank.row_of(world)
-    unmet = [q for q, ok in zip(queries.queries, mwbx.evaluate_each(bank, queries)[row]) if not ok]
+    unmet = [q for q, ok in zip(queries.queries, each[bank.row_of(world)]) if not ok]
     query = unmet[round_ % len(unmet)]
     objects = involved_objects(bank, query)
     t_min = restart_time(bank, world, query, objects)
@@ -110,14 +106,18 @@ def main():
     bank = mwbx.refine(bank, world, objects, t_min=t_min, n_samples=args.samples,
                        key=jax.random.key(1000 + round_), backend=args.backend)
     refinements += 1
+    each = mwbx.evaluate_each(bank, queries)
+    met = each.sum(axis=1)
     children = np.arange(before, bank.n_worlds)
-    child = best(bank, queries.queries, children[bank.valid[children]]) if bank.valid[children].any() else None
-    if child is not None and met(child) >= met(world):
-      world = child
+    children = children[bank.valid[children]]
+    if children.size:
+      child = best(bank, met, children)
+      if met[bank.row_of(child)] >= met[bank.row_of(world)]:
+        world = child
     print(f"round {round_ + 1}: refined {', '.join(objects)} from {t_min:.2f} s for {query.name}:"
-          f" best world {world} meets {met(world)} of {n_queries}")
+          f" best world {world} meets {met[bank.row_of(world)]} of {n_queries}")
   wall = time.perf_counter() - start
-  print(f"found world {world}: {met(world)} of {n_queries} queries after {refinements} refinements,"
+  print(f"found world {world}: {met[bank.row_of(world)]} of {n_queries} queries after {refinements} refinements,"
         f" {wall:.0f} s wall in all")
   if args.out:
     bank.save(args.out)

@@ -40,10 +40,9 @@ def actuator_ids(model: mujoco.MjModel, controls: dict, source: str = "<config>"
   return np.asarray(ids, np.int64)
 
 
-def schedule_values(spec: ControlSchedule | float, times: np.ndarray) -> np.ndarray:
-  """f64[n] one control's value at ``times`` (s)."""
-  if not isinstance(spec, ControlSchedule):
-    return np.full(len(times), float(spec))
+def schedule_values(spec: ControlSchedule, times: np.ndarray) -> np.ndarray:
+  """f64[n] one control's value at ``times`` (s); a fixed control is a
+  schedule of one knot (the config makes it one)."""
   knots, values = np.asarray(spec.times), np.asarray(spec.values)
   if spec.interpolation == "linear":
     return np.interp(times, knots, values)
@@ -57,7 +56,7 @@ def control_table(model: mujoco.MjModel, controls: dict, n_steps: int, *, first_
 
   Args:
     model: the scene model (its ``opt.timestep`` spaces the steps).
-    controls: the config's ``controls`` (actuator name -> value or schedule).
+    controls: the config's ``controls`` (actuator name -> ControlSchedule).
     n_steps: rows wanted.
     first_step: index of the first row's step (refinement starts mid-way).
 

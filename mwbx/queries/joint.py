@@ -20,13 +20,14 @@ Example::
 from __future__ import annotations
 
 import dataclasses
-import math
 import weakref
 
 import mujoco
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.joints import JNT_HINGE, JNT_SLIDE
+from mwbx.queries.intervals import checked_interval
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -57,28 +58,11 @@ class JointQuery:
 
   def __post_init__(self):
     label = f"query {self.name!r}" if self.name else "query"
-    try:
-      lo, hi = self.turn
-      lo = None if lo is None else float(lo)
-      hi = None if hi is None else float(hi)
-    except (TypeError, ValueError):
-      raise MwbxError(f"{label}: turn must be [lo, hi] (null for open), got {self.turn!r}") from None
-    if any(v is not None and math.isnan(v) for v in (lo, hi)):
-      raise MwbxError(f"{label}: turn must not be NaN, got {self.turn!r}")
-    if lo is not None and hi is not None and lo > hi:
-      raise MwbxError(f"{label}: turn is empty, lo {lo} > hi {hi}")
-    object.__setattr__(self, "turn", (lo, hi))
+    object.__setattr__(self, "turn", checked_interval(label, "turn", self.turn))
     if self.of not in MEASURES:
       raise MwbxError(f"{label}: of must be one of {MEASURES}, got {self.of!r}")
     if self.window is not None:
-      try:
-        t0, t1 = (None if t is None else float(t) for t in self.window)
-      except (TypeError, ValueError):
-        raise MwbxError(f"{label}: window must be [t0, t1] in seconds (null for open), "
-                        f"got {self.window!r}") from None
-      if t0 is not None and t1 is not None and t0 > t1:
-        raise MwbxError(f"{label}: window is empty, t0 {t0} > t1 {t1} seconds")
-      object.__setattr__(self, "window", (t0, t1))
+      object.__setattr__(self, "window", checked_interval(label, "window", self.window, ("t0", "t1"), "seconds"))
 
 
 _CACHE: dict = {}
@@ -90,10 +74,10 @@ def joint_column(model: mujoco.MjModel, joint: str) -> int:
   jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
   if jid < 0:
     names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(model.njnt)]
-    scalar = [n for j, n in enumerate(names) if n and int(model.jnt_type[j]) in (2, 3)]
+    scalar = [n for j, n in enumerate(names) if n and int(model.jnt_type[j]) in (JNT_HINGE, JNT_SLIDE)]
     raise MwbxError(f"joint query: unknown joint {joint!r} (hinge and slide joints: "
                     f"{', '.join(scalar) or 'none'})")
-  if int(model.jnt_type[jid]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+  if int(model.jnt_type[jid]) not in (JNT_HINGE, JNT_SLIDE):
     raise MwbxError(f"joint query: joint {joint!r} is not a hinge or slide joint")
   return int(model.jnt_qposadr[jid])
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from mwbx.errors import MwbxError
 from mwbx.queries import index as index_lib
+from mwbx.queries.intervals import checked_interval
 from mwbx.queries import joint as joint_lib
 from mwbx.queries import segments
 from mwbx.queries.camera import Camera
@@ -82,18 +83,7 @@ class Query:
     if self.mode not in MODES:
       raise MwbxError(f"{label}: mode must be one of {MODES}, got {self.mode!r}")
     if self.window is not None:
-      try:
-        t0, t1 = self.window
-        t0 = None if t0 is None else float(t0)
-        t1 = None if t1 is None else float(t1)
-      except (TypeError, ValueError):
-        raise MwbxError(f"{label}: window must be [t0, t1] in seconds (null for open), "
-                        f"got {self.window!r}") from None
-      if any(t is not None and math.isnan(t) for t in (t0, t1)):
-        raise MwbxError(f"{label}: window must not be NaN, got {self.window!r}")
-      if t0 is not None and t1 is not None and t0 > t1:
-        raise MwbxError(f"{label}: window is empty, t0 {t0} > t1 {t1} seconds")
-      object.__setattr__(self, "window", (t0, t1))
+      object.__setattr__(self, "window", checked_interval(label, "window", self.window, ("t0", "t1"), "seconds"))
     if isinstance(self.radius, str):
       if self.radius != "auto":
         raise MwbxError(f"{label}: radius must be a number of metres or 'auto', got {self.radius!r}")
