@@ -41,6 +41,8 @@ from mwbx.queries import load_queries
 from mwbx.queries import rank
 from mwbx.scene import Scene
 from mwbx.browser import browse
+from mwbx import search
+from mwbx.search import solve
 from mwbx.viewer import export_html
 from mwbx.viewer import view
 from mwbx.qpos_store import QposStore
@@ -84,5 +86,7 @@ __all__ = [
     "rank",
     "refine",
     "sample",
+    "search",
+    "solve",
     "view",
 ]

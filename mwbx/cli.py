@@ -283,6 +283,36 @@ def _cmd_refine(args) -> int:
   return 0
 
 
+def _cmd_solve(args) -> int:
+  import jax
+  import mwbx
+  from mwbx.search import Budget, progress_plot, solve
+  bank = mwbx.Bank.load(args.bank)
+  queries = mwbx.load_queries(args.queries, bank=bank)
+  budget = Budget(refinements=args.budget, seconds=args.time_budget,
+                  world_steps=None if args.step_budget is None else int(args.step_budget))
+  with reporter("solve") as update:
+    result = solve(bank, queries, budget=budget, key=jax.random.key(args.seed), samples=args.samples,
+                   keep=args.keep, tries_per_world=args.tries, backend=args.backend,
+                   guided_rounds=args.guided_rounds, guided_batch=args.guided_batch, progress=update)
+  out = pathlib.Path(args.out or args.bank)
+  print(f"mwbx: saving {result.bank.n_worlds} worlds to {out}", file=sys.stderr)
+  result.bank.save(out)
+  plot = pathlib.Path(args.plot) if args.plot else out.parent / f"{out.name}-solve.png"
+  plot.parent.mkdir(parents=True, exist_ok=True)
+  progress_plot(result.steps, plot, title=f"mwbx solve {pathlib.Path(args.queries).name}")
+  history = plot.with_suffix(".json")
+  history.write_text(json.dumps({"message": result.message, "world": result.world, "solved": result.solved,
+                                 "steps": [s._asdict() for s in result.steps]}, indent=1))
+  lineage = [int(i) for i in result.bank.ancestors(result.world)][::-1] + [result.world]
+  print(result.message)
+  print(f"world               {result.world} ({result.satisfied} of {result.n_queries} queries;"
+        f" lineage {' -> '.join(str(i) for i in lineage)})")
+  print(f"bank                {out} ({result.bank.n_worlds} worlds)")
+  print(f"progress            {plot} and {history.name}")
+  return 0 if result.solved else 1
+
+
 def _cmd_drop(args) -> int:
   import mwbx
   from mwbx.viewer.select import parse_world_ids
@@ -372,6 +402,24 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
   p.set_defaults(func=_cmd_refine)
+
+  p = sub.add_parser("solve", help="search refinements for a world that meets every query, unattended")
+  p.add_argument("bank", help="bank directory")
+  p.add_argument("queries", help="query YAML: the goal (every query met)")
+  p.add_argument("--budget", type=int, default=100, metavar="N", help="refinements at most (default 100)")
+  p.add_argument("--time-budget", type=float, default=None, metavar="S", help="wall seconds at most")
+  p.add_argument("--step-budget", type=float, default=None, metavar="N", help="world-steps at most")
+  p.add_argument("--samples", type=int, default=32, help="refined worlds per refinement (default 32)")
+  p.add_argument("--keep", type=int, default=4, help="best children kept per refinement (default 4)")
+  p.add_argument("--tries", type=int, default=4, help="refinements from one world before moving on (default 4)")
+  p.add_argument("--guided-rounds", type=int, default=0, metavar="R",
+                 help="batches of guided sampling added before the search (default 0)")
+  p.add_argument("--guided-batch", type=int, default=64, metavar="M", help="worlds per guided batch")
+  p.add_argument("--seed", type=int, default=0, help="search seed (default 0: repeatable)")
+  p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
+  p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
+  p.add_argument("--plot", default=None, help="progress plot PNG (default: BANK-solve.png next to the bank)")
+  p.set_defaults(func=_cmd_solve)
 
   p = sub.add_parser("drop", help="remove worlds from a bank (their ids are never reused)")
   p.add_argument("bank", help="bank directory")

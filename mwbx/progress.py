@@ -36,7 +36,13 @@ ProgressFn = Callable[[Progress], None]
 # Plain (non-terminal) output: a line per phase change and per this fraction.
 PLAIN_STEP = 0.1
 # Phases that step worlds: the only ones a world-steps/s rate describes.
-STEPPING_PHASES = ("simulating", "refining")
+STEPPING_PHASES = ("simulating", "refining", "guided sampling", "solving")
+# What ``done`` counts, where it is not worlds.
+UNITS = {"solving": "refinement"}
+
+
+def _unit(phase: str) -> str:
+  return UNITS.get(phase, "world")
 
 
 class reporter:
@@ -84,7 +90,7 @@ class reporter:
       bar = self.bars.get(p.phase)
       if bar is None:
         from tqdm import tqdm
-        bar = self.bars[p.phase] = tqdm(total=p.total, desc=f"{self.label}: {p.phase}", unit="world",
+        bar = self.bars[p.phase] = tqdm(total=p.total, desc=f"{self.label}: {p.phase}", unit=_unit(p.phase),
                                         dynamic_ncols=True, file=self.stream, position=len(self.bars))
       bar.n = round(p.done, 1) if p.done % 1 else int(p.done)
       bar.set_postfix_str(self._rate(p, now), refresh=False)
@@ -100,7 +106,7 @@ class reporter:
     frac = p.done / max(p.total, 1)
     eta = f", ETA {elapsed * (1 - frac) / frac:.0f} s" if 0 < frac < 1 else ""
     rate = self._rate(p, now)
-    print(f"{self.label}: {p.phase} {p.done:.0f}/{p.total} worlds ({frac:.0%}), {elapsed:.1f} s"
+    print(f"{self.label}: {p.phase} {p.done:.0f}/{p.total} {_unit(p.phase)}s ({frac:.0%}), {elapsed:.1f} s"
           f"{', ' + rate if rate else ''}{eta}", file=self.stream, flush=True)
 
   def close(self, finished: bool = True) -> None:

@@ -11,6 +11,7 @@ config file and field.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import fnmatch
 import pathlib
 import xml.etree.ElementTree
@@ -112,6 +113,7 @@ class ObjectInit:
   """Static description of how one object's initial state is randomized.
 
   Attributes:
+    name: the object.
     free_qpos: qpos address of the root free joint, or -1.
     free_dof: dof address of the root free joint, or -1.
     joint_qpos: i32[k] qpos addresses of its hinge/slide joints.
@@ -119,6 +121,7 @@ class ObjectInit:
       distributions (None: no noise).
   """
 
+  name: str
   free_qpos: int
   free_dof: int
   joint_qpos: tuple[int, ...]
@@ -127,6 +130,28 @@ class ObjectInit:
   linear_velocity: Distribution | None
   angular_velocity: Distribution | None
   joint_noise: Distribution | None
+
+
+# The randomized quantities of an object, in the order of their keys
+# (``split(fold_in(world_key, object_index), 5)[k]`` draws field k).
+RANDOMIZED_FIELDS = ("position", "rotation", "linear_velocity", "angular_velocity", "joint_noise")
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseSlot:
+  """One randomized quantity's place in a world's unit noise vector.
+
+  Attributes:
+    object: the object's name. field: one of ``RANDOMIZED_FIELDS``.
+    start, width: its components are ``unit[start:start + width]``.
+    dist: its configured distribution (the quantity is ``mean + scale * unit``).
+  """
+
+  object: str
+  field: str
+  start: int
+  width: int
+  dist: Distribution
 
 
 class Scene:
@@ -284,6 +309,7 @@ class Scene:
             raise MwbxError(
                 f"{source}: randomize.{obj}.{k}.{field}: expected 1 or {width} values, got {size}")
       inits.append(ObjectInit(
+          name=obj,
           free_qpos=int(m.jnt_qposadr[free[0]]) if free else -1,
           free_dof=int(m.jnt_dofadr[free[0]]) if free else -1,
           joint_qpos=tuple(int(m.jnt_qposadr[j]) for j in scalar),
@@ -292,6 +318,68 @@ class Scene:
           joint_noise=dist.get("joint_noise"),
       ))
     return tuple(inits)
+
+  @functools.cached_property
+  def noise_slots(self) -> tuple[NoiseSlot, ...]:
+    """Where each randomized quantity sits in a world's unit noise vector
+    (:meth:`unit_noise`), in the order the draws are made; D = the last slot's
+    ``start + width``."""
+    slots, start = [], 0
+    for init in self.object_inits:
+      widths = {"joint_noise": len(init.joint_qpos)} if init.joint_qpos else {}
+      if init.free_qpos >= 0:
+        widths.update({f: 3 for f in RANDOMIZED_FIELDS[:4]})
+      for field in RANDOMIZED_FIELDS:
+        dist = getattr(init, field)
+        if field in widths and dist is not None:
+          slots.append(NoiseSlot(init.name, field, start, widths[field], dist))
+          start += widths[field]
+    return tuple(slots)
+
+  def unit_noise(self, key: jax.Array) -> jax.Array:
+    """ONE world's standardized draws: f32[D] (uniform in [-1, 1] or standard
+    normal per :attr:`noise_slots`); :meth:`initial_state_from_noise` makes
+    the state from them."""
+    parts = []
+    for slot in self.noise_slots:
+      index = next(i for i, init in enumerate(self.object_inits) if init.name == slot.object)
+      keys = jax.random.split(jax.random.fold_in(key, index), len(RANDOMIZED_FIELDS))
+      parts.append(_unit_draw(keys[RANDOMIZED_FIELDS.index(slot.field)], slot.dist, slot.width))
+    return jnp.concatenate(parts) if parts else jnp.zeros(0, jnp.float32)
+
+  def initial_state_from_noise(self, unit: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Initial state of ONE world from its unit noise.
+
+    Args:
+      unit: f32[D] standardized draws (:meth:`unit_noise`); each randomized
+        quantity is ``mean + scale * unit`` (metres, radians, m/s, rad/s).
+
+    Returns:
+      qpos: f32[nq] and qvel: f32[nv] (the model's reference pose plus noise).
+    """
+    slots = {(s.object, s.field): s for s in self.noise_slots}
+
+    def offset(init, field, width):
+      slot = slots.get((init.name, field))
+      if slot is None:
+        return jnp.zeros(width, jnp.float32)
+      return _scaled(slot.dist, unit[slot.start:slot.start + slot.width], width)
+
+    qpos = jnp.asarray(self.model.qpos0, jnp.float32)
+    qvel = jnp.zeros(self.model.nv, jnp.float32)
+    for init in self.object_inits:
+      if init.free_qpos >= 0:
+        a = init.free_qpos
+        qpos = qpos.at[a:a + 3].add(offset(init, "position", 3))
+        rotvec = offset(init, "rotation", 3)
+        qpos = qpos.at[a + 3:a + 7].set(rotations.quat_multiply(rotations.quat_from_rotvec(rotvec), qpos[a + 3:a + 7]))
+        v = init.free_dof
+        qvel = qvel.at[v:v + 3].add(offset(init, "linear_velocity", 3))
+        qvel = qvel.at[v + 3:v + 6].add(offset(init, "angular_velocity", 3))
+      if init.joint_qpos:
+        idx = np.array(init.joint_qpos)
+        qpos = qpos.at[idx].add(offset(init, "joint_noise", len(idx)))
+    return qpos, qvel
 
   def initial_state(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Randomized initial state of ONE world.
@@ -302,22 +390,7 @@ class Scene:
     Returns:
       qpos: f32[nq] and qvel: f32[nv] (the model's reference pose plus noise).
     """
-    qpos = jnp.asarray(self.model.qpos0, jnp.float32)
-    qvel = jnp.zeros(self.model.nv, jnp.float32)
-    for index, init in enumerate(self.object_inits):
-      keys = jax.random.split(jax.random.fold_in(key, index), 5)
-      if init.free_qpos >= 0:
-        a = init.free_qpos
-        qpos = qpos.at[a:a + 3].add(_draw(keys[0], init.position, 3))
-        rotvec = _draw(keys[1], init.rotation, 3)
-        qpos = qpos.at[a + 3:a + 7].set(rotations.quat_multiply(rotations.quat_from_rotvec(rotvec), qpos[a + 3:a + 7]))
-        v = init.free_dof
-        qvel = qvel.at[v:v + 3].add(_draw(keys[2], init.linear_velocity, 3))
-        qvel = qvel.at[v + 3:v + 6].add(_draw(keys[3], init.angular_velocity, 3))
-      if init.joint_qpos:
-        idx = np.array(init.joint_qpos)
-        qpos = qpos.at[idx].add(_draw(keys[4], init.joint_noise, len(idx)))
-    return qpos, qvel
+    return self.initial_state_from_noise(self.unit_noise(key))
 
 
 # Prefixes that say what a name is where an object and its root body share it
@@ -375,14 +448,18 @@ def objects_of(spelled: str, object_names, groups, field: str, source: str) -> t
       f" (objects: {', '.join(object_names)}; groups: {', '.join(groups) or 'none'}){hint}")
 
 
-def _draw(key: jax.Array, dist: Distribution | None, width: int) -> jax.Array:
-  if dist is None:
-    return jnp.zeros(width, jnp.float32)
+def _unit_draw(key: jax.Array, dist: Distribution, width: int) -> jax.Array:
+  """f32[width] in [-1, 1] (uniform) or standard normal."""
+  if dist.dist == "uniform":
+    return jax.random.uniform(key, (width,), jnp.float32, -1.0, 1.0)
+  return jax.random.normal(key, (width,), jnp.float32)
+
+
+def _scaled(dist: Distribution, unit: jax.Array, width: int) -> jax.Array:
+  """``mean + scale * unit``: f32[width]."""
   scale = jnp.broadcast_to(jnp.asarray(dist.scale, jnp.float32), (width,))
   mean = jnp.broadcast_to(jnp.asarray(dist.mean, jnp.float32), (width,))
-  if dist.dist == "uniform":
-    return mean + scale * jax.random.uniform(key, (width,), jnp.float32, -1.0, 1.0)
-  return mean + scale * jax.random.normal(key, (width,), jnp.float32)
+  return mean + scale * unit
 
 
 def load_scene(config: Config) -> Scene:

@@ -119,6 +119,7 @@ class Sampler:
       self.backend = NativeBackend(model, cfg.sim.threads)
       self.backend_label = "native"
     self._init = jax.jit(jax.vmap(self.scene.initial_state))
+    self._init_from_noise = jax.jit(jax.vmap(self.scene.initial_state_from_noise))
 
   def close(self) -> None:
     self.backend.close()
@@ -130,7 +131,7 @@ class Sampler:
     self.close()
 
   def run(self, n_worlds: int, key: jax.Array, *, first_world: int = 0, ids=None,
-          store: QposStore | None = None,
+          store: QposStore | None = None, noise=None,
           progress: ProgressFn | None = None) -> tuple[bank_lib.Bank, SampleStats]:
     """Samples worlds ``first_world … first_world + n_worlds - 1`` (or ``ids``).
 
@@ -142,6 +143,9 @@ class Sampler:
         world depends only on ``key`` and its id), e.g. the ones a killed run
         did not finish.
       store: how this run keeps qpos (default: the sampler's ``store``).
+      noise: f32[n_worlds, D] each world's unit noise (``scene.noise_slots``;
+        e.g. from a guided proposal, :mod:`mwbx.search`) instead of the draws
+        of its key; perturbations still come from the key.
       progress: optional callback taking a :class:`mwbx.progress.Progress`
         (``simulating`` / ``compressing``; e.g. :class:`mwbx.progress.reporter`).
 
@@ -150,7 +154,7 @@ class Sampler:
     """
     parts = []
     for part, stats in self.run_chunks(n_worlds, key, first_world=first_world, ids=ids, store=store,
-                                       progress=progress):
+                                       noise=noise, progress=progress):
       parts.append(part)
     return bank_lib.Bank.concatenate(parts), stats
 
@@ -173,7 +177,7 @@ class Sampler:
     return -(-per_device // lane) * lane * n_dev
 
   def run_chunks(self, n_worlds: int, key: jax.Array, *, first_world: int = 0, ids=None,
-                 store: QposStore | None = None, progress: ProgressFn | None = None):
+                 store: QposStore | None = None, noise=None, progress: ProgressFn | None = None):
     """:meth:`run` one chunk at a time, for writing each as it finishes.
 
     Yields:
@@ -184,6 +188,12 @@ class Sampler:
     if ids.size < 1 or (ids.size != n_worlds):
       raise MwbxError(f"n_worlds: must be at least 1 and match the ids given, got {n_worlds}"
                       f" ({ids.size} ids)")
+    if noise is not None:
+      noise = np.asarray(noise, np.float32)
+      width = sum(slot.width for slot in self.scene.noise_slots)
+      if noise.shape != (n_worlds, width) or not np.all(np.isfinite(noise)):
+        raise MwbxError(f"noise: expected finite f32[{n_worlds}, {width}] unit noise (one row per world),"
+                        f" got shape {noise.shape}")
     start_wall = time.perf_counter()
     stats = SampleStats(backend=self.backend_label)
     keys, init_keys, step_keys = world_keys(key, ids)
@@ -196,7 +206,10 @@ class Sampler:
       # and the same per-world arithmetic whatever the batch holds.
       pad = np.concatenate([np.arange(lo, lo + n), np.full(c - n, lo)])
       active = np.arange(c) < n
-      qpos0, qvel0 = self._init(init_keys[pad])
+      if noise is None:
+        qpos0, qvel0 = self._init(init_keys[pad])
+      else:
+        qpos0, qvel0 = self._init_from_noise(noise[pad])
       base_steps = stats.world_steps
 
       def report(world_steps, finished, _base=base_steps, _done=done_worlds):

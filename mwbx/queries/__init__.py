@@ -3,6 +3,7 @@
 from mwbx.queries.camera import Camera
 from mwbx.queries.camera import ScreenBox
 from mwbx.queries.frustum import Frustum
+from mwbx.queries.gaps import query_gaps
 from mwbx.queries.joint import JointQuery
 from mwbx.queries.metrics import Term
 from mwbx.queries.metrics import metric

@@ -9,3 +9,4 @@ from mwbx.refinement.refine import DEFAULT_MARGIN
 from mwbx.refinement.refine import RefineStats
 from mwbx.refinement.refine import refine
 from mwbx.refinement.refine import refine_run
+from mwbx.refinement.refine import sampler_for

@@ -135,7 +135,7 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
     raise MwbxError(f"refine: margin must be >= 0 m, got {margin!r}")
   names = resolve_objects(bank, objects)
   t_min = resolve_t_min(bank, world, names, frustum, t_min)
-  sampler = _sampler(bank, backend)
+  sampler = sampler_for(bank, backend)
   chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
   return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, progress,
               start_wall)
@@ -144,7 +144,7 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
 _SAMPLERS: dict = {}
 
 
-def _sampler(bank, backend: str | None) -> Sampler:
+def sampler_for(bank, backend: str | None = None) -> Sampler:
   """A sampler for the bank's scene, kept for later refinements of that scene
   (its thread pool and compiled kernels are reused)."""
   cache_key = (bank.digest, backend)

@@ -1,0 +1,355 @@
+"""Goal-seeking: find a world that satisfies every query by refinement alone.
+
+The paper leaves the search to a person and sketches how an algorithm could
+do it (§6): repair the objects that are wrong, from a time before they go
+wrong, keep what works, back-track when stuck. :func:`solve` is that search,
+best-first over the bank's refinement tree:
+
+1. Rank the worlds: most queries met, then the smallest summed gap to the
+   unmet ones (:func:`mwbx.queries.query_gaps`, each squashed by a typical
+   gap), then the fewest collisions (or another metric).
+2. Take the best world that has been tried fewer than ``tries_per_world``
+   times. Its unmet queries are ordered farthest first; attempt k repairs
+   query ``k mod n`` (from the second round on, together with the next one:
+   pairs of objects, as the paper's user did).
+3. The objects involved (the query's bodies' objects, or the object a joint
+   query's joint belongs to) are refined from a time before they go wrong:
+   when they leave the nearest path of a world that meets the query
+   (:func:`divergence_time`; without such a world, the query's deadline: an
+   include query's window start, an exclude query's first entry, a joint
+   query's window), a fraction of it that shrinks at each attempt
+   (:data:`RESTART_FRACTIONS`).
+4. The best ``keep`` children join the bank under their parent; the others
+   are dropped. A branch that stops improving is abandoned once its worlds'
+   tries run out, and the search goes on from the next best world: an
+   ancestor, a sibling, or another sampled world (back-tracking).
+
+Every step is an ordinary :func:`mwbx.refine`: the result is an ordinary,
+plausible world with its full lineage, viewable and refinable by hand.
+A budget that runs out ends with the best world found and a message saying so
+(``solved=False``); ``throw=True`` raises instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import NamedTuple, Sequence
+
+import jax
+import numpy as np
+
+from mwbx.bank import Bank
+from mwbx.errors import MwbxError
+from mwbx.progress import Progress
+from mwbx.queries import JointQuery, evaluate_each, first_entry, metric, query_gaps
+from mwbx.queries.query import as_queries, body_radii, selection_mask
+from mwbx.refinement import refine_run, sampler_for
+from mwbx.search.guided import fitness, guided_sample, typical_gaps
+
+# Restart times of successive attempts on one world, as fractions of the time
+# its objects go wrong: late first (small changes keep more of what works),
+# then earlier (bigger changes).
+RESTART_FRACTIONS = (0.85, 0.6, 0.35, 0.0)
+SOLVE_PHASE = "solving"
+# Two paths part where their bodies are this many bounding radii apart.
+DIVERGENCE_TOLERANCE = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+  """When :func:`solve` gives up (whichever comes first; None: no limit).
+
+  Attributes:
+    refinements: refinement calls.
+    seconds: wall time, s.
+    world_steps: physics steps of refined (and guided) worlds.
+  """
+
+  refinements: int | None = 100
+  seconds: float | None = None
+  world_steps: int | None = None
+
+  def __post_init__(self):
+    for field in ("refinements", "seconds", "world_steps"):
+      value = getattr(self, field)
+      if value is not None and not value > 0:
+        raise MwbxError(f"solve: budget.{field} must be > 0 or None, got {value!r}")
+    if self.refinements is None and self.seconds is None and self.world_steps is None:
+      raise MwbxError("solve: budget: set at least one of refinements, seconds, world_steps")
+
+  def spent(self, refinements: int, seconds: float, world_steps: int) -> bool:
+    return ((self.refinements is not None and refinements >= self.refinements)
+            or (self.seconds is not None and seconds >= self.seconds)
+            or (self.world_steps is not None and world_steps >= self.world_steps))
+
+
+class SolveStep(NamedTuple):
+  """The search after one refinement (or the start, or guided sampling).
+
+  Attributes:
+    refinements: refinements done. world_steps: physics steps spent.
+    seconds: wall time. satisfied: queries the best world meets.
+    world: the best world's id. refined: the world refined in this step (-1: none).
+    objects: objects refined. t_min: restart time, s (nan: none).
+  """
+
+  refinements: int
+  world_steps: int
+  seconds: float
+  satisfied: int
+  world: int
+  refined: int
+  objects: tuple[str, ...]
+  t_min: float
+
+
+class SolveResult(NamedTuple):
+  """What :func:`solve` found.
+
+  Attributes:
+    bank: the bank with every kept refinement (and guided world) appended.
+    world: id of the best world found.
+    satisfied: queries it meets. n_queries: queries asked.
+    solved: whether it meets all of them.
+    unmet: names (or indices) of the queries it does not meet.
+    message: one line saying what happened.
+    steps: the search's progress, one :class:`SolveStep` per step.
+  """
+
+  bank: Bank
+  world: int
+  satisfied: int
+  n_queries: int
+  solved: bool
+  unmet: tuple[str, ...]
+  message: str
+  steps: tuple[SolveStep, ...]
+
+
+def involved_objects(bank, query) -> list[str]:
+  """Objects whose motion decides a query: its bodies' objects, or the
+  object a joint query's joint belongs to."""
+  if isinstance(query, JointQuery):
+    model = bank.model()
+    body = model.jnt_bodyid[model.joint(query.joint).id]
+    root = model.body(int(model.body_rootid[body])).name
+    return [root] if root in bank.objects else []
+  if query.bodies is None:
+    return list(bank.objects)
+  chosen = {bank.body_names[b] for b in np.asarray(bank.select_bodies(list(query.bodies))).tolist()}
+  return [obj for obj, bodies in bank.objects.items() if chosen & set(bodies)]
+
+
+def deadline(bank, world: int, query) -> float:
+  """Seconds by which a query's objects must be right, in one world: an
+  include query's window start (else the world's end), an exclude query's
+  first entry, a joint query's window start (else its end)."""
+  end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
+  if isinstance(query, JointQuery) or query.include:
+    window = query.window or (None, None)
+    t = window[0] if window[0] is not None else window[1]
+    return min(end, t) if t is not None else end
+  t = first_entry(bank, world, query.bodies, query.frustum, window=query.window, radius=query.radius)
+  return end if t is None else t
+
+
+def divergence_time(bank, row: int, matching: np.ndarray, bodies: np.ndarray) -> float | None:
+  """When a world's bodies leave the nearest path that meets the query.
+
+  Args:
+    bank: the bank. row: the world's row.
+    matching: i[K] rows of worlds that meet the query.
+    bodies: bool[B] the query's bodies.
+
+  Returns:
+    seconds: over the matching worlds, the latest time up to which the
+    world's chosen bodies stayed within :data:`DIVERGENCE_TOLERANCE` of that
+    world's bodies' bounding radius of it; None without matching worlds.
+  """
+  matching = matching[matching != row]
+  if matching.size == 0 or not bodies.any():
+    return None
+  com = np.asarray(bank.com[np.concatenate([[row], matching])], np.float32)[:, :, bodies]  # [1+K, P, b, 3]
+  radius = np.maximum(body_radii(bank.model(), np.asarray(bank.body_ids)[bodies]), 1e-3)
+  apart = (np.linalg.norm(com[1:] - com[:1], axis=-1) > DIVERGENCE_TOLERANCE * radius).any(axis=-1)  # [K, P]
+  first_apart = np.where(apart.any(axis=1), apart.argmax(axis=1), apart.shape[1])
+  return float(first_apart.max()) / float(bank.query_fps)
+
+
+def _restart_goal(bank, row: int, world: int, query, met: np.ndarray) -> float:
+  """The time a query's objects go wrong in a world: when they leave the
+  nearest path of a world that meets it, else the query's deadline."""
+  if isinstance(query, JointQuery):
+    objects = involved_objects(bank, query)
+    bodies = selection_mask(bank, objects) if objects else np.zeros(len(bank.body_names), bool)
+  else:
+    bodies = selection_mask(bank, query.bodies)
+  t = divergence_time(bank, row, np.flatnonzero(met & np.asarray(bank.valid, bool)), bodies)
+  return deadline(bank, world, query) if t is None else min(t, deadline(bank, world, query))
+
+
+def _label(query, index: int) -> str:
+  return query.name or f"query {index}"
+
+
+def solve(bank: Bank, queries, *, budget: Budget | int = Budget(), key: jax.Array | None = None,
+          samples: int = 32, keep: int = 4, tries_per_world: int = 4, backend: str | None = None,
+          guided_rounds: int = 0, guided_batch: int = 64, tie_metric: str = "collisions",
+          progress=None, throw: bool = False) -> SolveResult:
+  """Searches the bank's refinement tree for a world that meets every query.
+
+  Args:
+    bank: the sampled bank to start from (worlds, or a bank already refined).
+    queries: the goal: a query list or :class:`~mwbx.QuerySet`.
+    budget: a :class:`Budget`, or an int (refinements).
+    key: search key (default ``jax.random.key(0)``: a search is repeatable).
+    samples: refined worlds per refinement. keep: children kept per refinement.
+    tries_per_world: refinements from one world before the search moves on.
+    backend: ``native`` | ``mjx`` (default: the bank's config's).
+    guided_rounds: batches of guided sampling (:func:`guided_sample`) added to
+      the bank before the search, ``guided_batch`` worlds each.
+    tie_metric: metric (summed over bodies) that breaks ties, smaller first.
+    progress: optional callback taking a :class:`mwbx.progress.Progress`.
+    throw: raise :class:`~mwbx.MwbxError` when the budget runs out unsolved.
+
+  Returns:
+    a :class:`SolveResult`; ``result.bank`` holds every kept world.
+
+  Example::
+
+    bank = mwbx.Bank.load("out/siggraph")
+    queries = mwbx.load_queries("configs/queries/siggraph.yaml", bank=bank)
+    result = mwbx.solve(bank, queries, budget=mwbx.search.Budget(seconds=600))
+    print(result.message)
+    result.bank.save("out/siggraph")
+  """
+  queries = as_queries(queries)
+  if not queries:
+    raise MwbxError("solve: give at least one query to satisfy")
+  budget = Budget(refinements=int(budget)) if isinstance(budget, (int, np.integer)) else budget
+  if samples < 1 or keep < 1 or tries_per_world < 1:
+    raise MwbxError(f"solve: samples, keep and tries_per_world must be >= 1, got {samples}, {keep},"
+                    f" {tries_per_world}")
+  key = jax.random.key(0) if key is None else key
+  start = time.perf_counter()
+  n_queries = len(queries)
+  met, gaps = evaluate_each(bank, queries), query_gaps(bank, queries)
+  scale = typical_gaps(gaps)
+  ties = metric(bank, tie_metric)
+  steps: list[SolveStep] = []
+  spent_steps, refinements = 0, 0
+  tries: dict[int, int] = {}
+
+  def best_rows(rows: np.ndarray) -> np.ndarray:
+    """``rows`` best first: most met, smallest squashed gaps, smallest tie metric."""
+    f = fitness(met[rows], gaps[rows], scale)
+    return rows[np.lexsort((ties[rows], -f))]
+
+  def note(refined=-1, objects=(), t_min=float("nan")):
+    rows = best_rows(np.flatnonzero(bank.valid)) if bank.valid.any() else np.zeros(0, int)
+    row = rows[0] if rows.size else 0
+    steps.append(SolveStep(refinements, spent_steps, time.perf_counter() - start, int(met[row].sum()),
+                           int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min)))
+    if progress is not None:
+      total = budget.refinements or max(refinements + 1, 1)
+      progress(Progress(SOLVE_PHASE, min(refinements, total), total, spent_steps))
+
+  if guided_rounds > 0:
+    sampler = sampler_for(bank, backend)
+    result = guided_sample(sampler, queries, rounds=guided_rounds, batch=guided_batch,
+                           key=jax.random.fold_in(key, 1), first_world=bank.next_world_id)
+    bank = bank.append(result.bank)
+    met = np.concatenate([met, evaluate_each(result.bank, queries)])
+    gaps = np.concatenate([gaps, query_gaps(result.bank, queries)])
+    ties = np.concatenate([ties, metric(result.bank, tie_metric)])
+    spent_steps += int(result.bank.steps.sum())
+  note()
+  reason = ""
+  while True:
+    best = steps[-1]
+    if best.satisfied == n_queries:
+      break
+    if budget.spent(refinements, time.perf_counter() - start, spent_steps):
+      reason = "budget spent"
+      break
+    rows = best_rows(np.flatnonzero(bank.valid))
+    rows = [r for r in rows if tries.get(int(bank.world_ids[r]), 0) < tries_per_world]
+    if not rows:
+      reason = "every world tried"
+      break
+    row = rows[0]
+    world = int(bank.world_ids[row])
+    attempt = tries.get(world, 0)
+    tries[world] = attempt + 1
+    unmet = [q for q in np.argsort(-gaps[row] / scale, kind="stable") if not met[row, q]]
+    chosen = [unmet[attempt % len(unmet)]]
+    if attempt >= 1 and len(unmet) >= 2:  # pairs, from the second try on
+      chosen.append(unmet[(attempt + 1) % len(unmet)])
+    objects = []
+    for q in chosen:
+      objects += [o for o in involved_objects(bank, queries[q]) if o not in objects]
+    if not objects:
+      tries[world] = tries_per_world  # nothing to refine for these queries here
+      continue
+    t_goal = min(_restart_goal(bank, row, world, queries[q], met[:, q]) for q in chosen)
+    t_min = RESTART_FRACTIONS[min(attempt, len(RESTART_FRACTIONS) - 1)] * t_goal
+    try:
+      children, stats = refine_run(bank, world, objects, t_min=t_min, n_samples=samples,
+                                   key=jax.random.fold_in(key, 1000 + refinements), backend=backend)
+    except MwbxError as err:  # e.g. a restart past the end: this world cannot be repaired so
+      tries[world] = tries_per_world
+      reason = f"world {world}: {err}"
+      continue
+    refinements += 1
+    spent_steps += int(stats.world_steps)
+    c_met, c_gaps = evaluate_each(children, queries), query_gaps(children, queries)
+    c_ties = metric(children, tie_metric)
+    f = fitness(c_met, c_gaps, scale)
+    order = np.lexsort((c_ties, -f))
+    kept = np.sort(order[:keep][children.valid[order[:keep]]])
+    if kept.size:
+      dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
+      bank = bank.append(children.drop(children.world_ids[dropped]) if dropped.size else children)
+      met = np.concatenate([met, c_met[kept]])
+      gaps = np.concatenate([gaps, c_gaps[kept]])
+      ties = np.concatenate([ties, c_ties[kept]])
+    note(world, objects, t_min)
+
+  last = steps[-1]
+  row = bank.row_of(last.world)
+  unmet = tuple(_label(queries[q], q) for q in range(n_queries) if not met[row, q])
+  elapsed = time.perf_counter() - start
+  spent = f"{refinements} refinements, {spent_steps:,} world-steps, {elapsed:.0f} s"
+  solved = last.satisfied == n_queries
+  if solved:
+    message = f"solved: world {last.world} meets all {n_queries} queries ({spent})"
+  else:
+    message = (f"not solved ({reason}; {spent}): best world {last.world} meets {last.satisfied} of"
+               f" {n_queries} queries; unmet: {', '.join(unmet)}")
+    if throw:
+      raise MwbxError(f"solve: {message}")
+  return SolveResult(bank, last.world, last.satisfied, n_queries, solved, unmet, message, tuple(steps))
+
+
+def progress_plot(steps: Sequence[SolveStep], path, title: str = "") -> str:
+  """Writes the search's curve (queries met by the best world against
+  world-steps and wall time) as a PNG; returns its path."""
+  import matplotlib
+  matplotlib.use("Agg")
+  import matplotlib.pyplot as plt
+  steps = list(steps)
+  met = [s.satisfied for s in steps]
+  fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.2), sharey=True)
+  a.step([s.world_steps / 1e6 for s in steps], met, where="post")
+  a.set_xlabel("world-steps (millions)")
+  a.set_ylabel("queries met by the best world")
+  b.step([s.seconds for s in steps], met, where="post")
+  b.set_xlabel("wall time (s)")
+  for ax in (a, b):
+    ax.grid(alpha=0.3)
+  fig.suptitle(title or f"solve: {len([s for s in steps if s.refined >= 0])} refinements")
+  fig.tight_layout()
+  fig.savefig(path, dpi=110)
+  plt.close(fig)
+  return str(path)

@@ -1,0 +1,188 @@
+"""mwbx.search: query gaps, guided proposals and the unattended solve loop.
+
+Scene: tests/refine_scenes/tiny (a sphere dropped onto a resting one, a third
+far away, 0.5 s). Goals are region queries on where the spheres end.
+"""
+
+import pathlib
+
+import jax
+import numpy as np
+import optax
+import pytest
+import scipy.stats
+
+import mwbx
+from mwbx.queries import Query, query_gaps
+from mwbx.search import proposal as proposal_lib
+
+TESTS = pathlib.Path(__file__).parent
+
+
+@pytest.fixture(scope="module")
+def tiny_sampler():
+  with mwbx.Sampler(mwbx.load_config(TESTS / "refine_scenes" / "tiny.yaml"), backend="native") as sampler:
+    yield sampler
+
+
+@pytest.fixture(scope="module")
+def tiny_bank(tiny_sampler):
+  bank, _ = tiny_sampler.run(8, jax.random.key(0))
+  return bank
+
+
+# The striker bounces off the target a little farther than in any of the 8
+# sampled worlds (asserted), and the target is not pushed far: refinement
+# reaches it (children spread by about 5 mm).
+REACHABLE = (
+    Query.region((0.114, -0.1, 0.0), (0.125, 0.1, 0.2), bodies="striker", window=(0.5, None), name="striker_band"),
+    Query.region((-0.029, -0.1, 0.0), (0.0, 0.1, 0.2), bodies="target", window=(0.5, None), name="target_short"),
+)
+# The far sphere never moves: nothing can lift it a metre.
+UNREACHABLE = REACHABLE[:1] + (
+    Query.region((1.0, -1.0, 1.0), (2.0, 1.0, 2.0), bodies="far", window=(0.4, None), name="far_flies"),)
+
+
+def _reference_gap(bank, query: Query) -> np.ndarray:
+  """Plain loops: an include query's gap is the smallest, over window points,
+  of the largest distance outside the box's planes."""
+  lo, hi = (np.asarray(x) for x in query.world_box)
+  body = list(bank.body_names).index(query.bodies[0])
+  t0 = query.window[0]
+  out = np.zeros(bank.n_worlds)
+  for w in range(bank.n_worlds):
+    best = np.inf
+    for k in range(bank.com.shape[1]):
+      if k / bank.query_fps < t0 - 1e-9:
+        continue
+      p = np.asarray(bank.com[w, k, body], np.float64)
+      best = min(best, max(0.0, *(p - hi), *(lo - p)))
+    out[w] = best
+  return out
+
+
+def test_gaps_are_zero_exactly_where_queries_are_met(tiny_bank):
+  met = mwbx.evaluate_each(tiny_bank, REACHABLE)
+  gaps = query_gaps(tiny_bank, REACHABLE)
+  assert gaps.shape == met.shape
+  assert np.array_equal(gaps == 0, met)
+  assert np.all(gaps[~met] >= mwbx.queries.gaps.MIN_GAP)
+  for q, query in enumerate(REACHABLE):
+    ref = _reference_gap(tiny_bank, query)
+    graded = ~met[:, q] & (ref > 0)
+    # The float32 plane distances of the kernel against float64 loops.
+    np.testing.assert_allclose(gaps[graded, q], ref[graded], atol=1e-6)
+
+
+def test_exclude_gap_is_depth_inside(tiny_bank):
+  # Every world's target starts inside this box: the gap is how deep it goes.
+  box = Query.region((-0.2, -0.2, 0.0), (0.2, 0.2, 0.2), bodies="target", sign="exclude", name="keep_out")
+  gaps = query_gaps(tiny_bank, [box])[:, 0]
+  com = np.asarray(tiny_bank.com[:, :, 1], np.float64)
+  depth = np.minimum(com - (-0.2, -0.2, 0.0), (0.2, 0.2, 0.2) - com).min(axis=-1).max(axis=1)
+  np.testing.assert_allclose(gaps, depth, atol=1e-6)
+
+
+def test_unit_noise_reproduces_the_sampler(tiny_sampler, tiny_bank):
+  # A world's unit noise from its own key gives the same world bit for bit.
+  from mwbx.batch_sim.sampler import world_keys
+  _, init_keys, _ = world_keys(jax.random.key(0), np.arange(8))
+  noise = jax.vmap(tiny_sampler.scene.unit_noise)(init_keys)
+  assert noise.shape == (8, 3)  # the striker's position only
+  assert np.all(np.abs(np.asarray(noise)) <= 1.0)
+  again, _ = tiny_sampler.run(8, jax.random.key(0), noise=np.asarray(noise))
+  for w in range(8):
+    np.testing.assert_array_equal(again.qpos_frames(w), tiny_bank.qpos_frames(w))
+  with pytest.raises(mwbx.MwbxError, match=r"noise: expected finite f32\[8, 3\]"):
+    tiny_sampler.run(8, jax.random.key(0), noise=np.zeros((8, 2)))
+
+
+def test_initial_proposal_is_the_configured_distribution():
+  uniform = np.array([True, False])
+  _, z = proposal_lib.draw(proposal_lib.init_proposal(2), jax.random.key(1), 4000)
+  u = np.asarray(proposal_lib.unit_from_latent(z, uniform))
+  assert scipy.stats.kstest(u[:, 0], "uniform", args=(-1, 2)).pvalue > 1e-3
+  assert np.abs(u[:, 0]).max() <= 1.0
+  assert scipy.stats.kstest(u[:, 1], "norm").pvalue > 1e-3
+  assert np.abs(u[:, 1]).max() <= proposal_lib.NORMAL_CLIP
+
+
+def test_es_steps_move_the_proposal_toward_better_fitness():
+  # Fitness peaks at latent 1.5 in dimension 0 and ignores dimension 1.
+  optimizer = optax.adam(0.1)
+  proposal = proposal_lib.init_proposal(2)
+  state = optimizer.init(proposal)
+  for i in range(60):
+    eps, z = proposal_lib.draw(proposal, jax.random.key(i), 64)
+    fitness = -np.abs(np.asarray(z)[:, 0] - 1.5)
+    proposal, state = proposal_lib.es_step(proposal, state, eps, fitness, optimizer)
+  mean, scale = np.asarray(proposal.mean), np.exp(np.asarray(proposal.log_scale))
+  assert abs(mean[0] - 1.5) < 0.3, mean
+  assert scale[0] < 0.5 * scale[1], scale  # narrowed where it matters only
+  assert np.all(scale <= 1.0) and np.all(np.abs(mean) <= proposal_lib.MAX_MEAN)
+
+
+def test_centered_ranks_share_ties():
+  r = np.asarray(proposal_lib.centered_ranks(np.array([3.0, 1.0, 3.0, 0.0], np.float32)))
+  np.testing.assert_allclose(r, [0.5 - 1 / 6, -0.5 + 1 / 3, 0.5 - 1 / 6, -0.5], atol=1e-6)
+
+
+def test_guided_sampling_keeps_worlds_plausible_and_recorded(tiny_sampler):
+  result = mwbx.search.guided_sample(tiny_sampler, REACHABLE, rounds=2, batch=8, key=jax.random.key(3),
+                                     first_world=100)
+  bank = result.bank
+  assert bank.n_worlds == 16 and list(bank.world_ids) == list(range(100, 116))
+  assert [r.worlds for r in result.rounds] == [8, 8]
+  assert result.rounds[1].world_steps > 0
+  scene = tiny_sampler.scene
+  scale = np.asarray(scene.config.randomize["striker"].position.scale)
+  start = np.asarray(scene.model.qpos0[:3])
+  for world in bank.world_ids:
+    noise = np.asarray(bank.lineage[str(int(world))]["proposal"]["noise"], np.float32)
+    assert np.all(np.abs(noise) <= 1.0)  # inside the configured range
+    qpos, _ = scene.initial_state_from_noise(noise)
+    first = bank.qpos_frames(int(world))[0]
+    # The stored first frame is the state the noise makes, within the codec's bound.
+    np.testing.assert_allclose(first[:3], np.asarray(qpos)[:3], atol=scene.config.codec.e_pos + 1e-6)
+    assert np.all(np.abs(first[:2] - start[:2]) <= scale[:2] + scene.config.codec.e_pos + 1e-6)
+
+
+def test_solve_reaches_a_reachable_goal(tiny_bank):
+  assert not mwbx.evaluate(tiny_bank, REACHABLE).any()  # not already solved by sampling
+  result = mwbx.solve(tiny_bank, REACHABLE, budget=12, key=jax.random.key(0), samples=16, backend="native")
+  assert result.solved, result.message
+  assert result.message.startswith("solved: world")
+  bank = result.bank
+  assert mwbx.evaluate(bank, REACHABLE)[bank.row_of(result.world)]
+  # An ordinary refined world: its lineage leads back to a sampled world.
+  ancestors = bank.ancestors(result.world)
+  assert len(ancestors) >= 1 and ancestors[-1] in tiny_bank.world_ids
+  entry = bank.lineage[str(result.world)]
+  assert entry["parent"] == ancestors[0] and set(entry["objects"]) <= {"striker", "target"}
+  # The far sphere was never asked for and never touched: its stored path is its ancestor's.
+  root = int(ancestors[-1])
+  far = list(bank.body_names).index("far")
+  np.testing.assert_array_equal(bank.com[bank.row_of(result.world), :, far], tiny_bank.com[tiny_bank.row_of(root), :, far])
+  steps = result.steps
+  assert steps[-1].satisfied == 2 and steps[0].refined == -1
+  assert all(a.world_steps <= b.world_steps for a, b in zip(steps, steps[1:]))
+
+
+def test_solve_out_of_budget_ends_with_the_best_world_and_a_message(tiny_bank):
+  result = mwbx.solve(tiny_bank, UNREACHABLE, budget=3, key=jax.random.key(0), samples=8, backend="native")
+  assert not result.solved and result.satisfied <= 1
+  assert "far_flies" in result.unmet
+  assert result.message.startswith("not solved (budget spent; 3 refinements"), result.message
+  assert "far_flies" in result.message
+  assert result.world in result.bank.world_ids
+  with pytest.raises(mwbx.MwbxError, match="solve: not solved"):
+    mwbx.solve(tiny_bank, UNREACHABLE, budget=1, samples=4, backend="native", throw=True)
+
+
+def test_solve_refuses_bad_arguments(tiny_bank):
+  with pytest.raises(mwbx.MwbxError, match="at least one query"):
+    mwbx.solve(tiny_bank, [])
+  with pytest.raises(mwbx.MwbxError, match="budget.seconds must be > 0"):
+    mwbx.search.Budget(seconds=-1)
+  with pytest.raises(mwbx.MwbxError, match="samples, keep and tries_per_world"):
+    mwbx.solve(tiny_bank, REACHABLE, samples=0)
