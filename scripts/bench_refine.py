@@ -74,16 +74,20 @@ def main() -> None:
               for name in bank.objects}
     args.object = max(travel, key=travel.get)
 
-  def refine_once(playback):
+  def refine_once(playback, loop, progress=None):
     start = time.perf_counter()
     new, stats = refine_run(bank, parent, [args.object], t_min=t_min, n_samples=n, key=jax.random.key(1),
-                            backend=args.backend, chunk_size=n, playback=playback)
+                            backend=args.backend, chunk_size=n, playback=playback, loop=loop, progress=progress)
     return new, stats, time.perf_counter() - start - stats.compile_seconds
 
-  playbacks = ("step", "frame") if args.backend == "native" else ("step",)
-  for playback in playbacks:  # warm-up
+  # name -> (playback, loop): the compiled per-world loop is the default; the
+  # lockstep rollout loop (per step and per frame playback) is the one it replaced.
+  variants = ({"compiled": ("step", "compiled"), "lockstep": ("step", "lockstep"), "frame": ("frame", "lockstep")}
+              if args.backend == "native" else {"mjx": ("step", "auto")})
+  main_variant = next(iter(variants))
+  for playback, loop in variants.values():  # warm-up
     refine_run(bank, parent, [args.object], t_min=t_min, n_samples=n, key=jax.random.key(98),
-               backend=args.backend, chunk_size=n, playback=playback)
+               backend=args.backend, chunk_size=n, playback=playback, loop=loop)
   # Plain sampling of the same time span: every object simulated and perturbed
   # from the parent's state at t_min (same phase of the scene as refinement).
   from mwbx.refinement import kinematic
@@ -109,29 +113,50 @@ def main() -> None:
     if "span" not in best or span[0] < best["span"][0]:
       best["span"] = span
     runs = {"sample": sample_once()[1:]}
-    for playback in playbacks:
-      new, stats, wall = refine_once(playback)
-      runs[playback] = (stats, wall)
+    for name, (playback, loop) in variants.items():
+      new_v, stats, wall = refine_once(playback, loop)
+      runs[name] = (stats, wall)
+      if name == main_variant:
+        new = new_v
     for name, (stats, wall) in runs.items():
       if name not in best or stats.run_seconds < best[name][0].run_seconds:
         best[name] = (stats, wall)
+  # When the first refined world is done (worlds finish one by one in the
+  # compiled loop; the lockstep loop finishes them together).
+  first_done = {}
+  clock = time.perf_counter()
+
+  def watch(p):
+    if p.phase == "refining" and p.done >= 1 and "t" not in first_done:
+      first_done["t"] = time.perf_counter() - clock
+  refine_once(*variants[main_variant], progress=watch)
   sampler.close()
   s, sample_wall = best["sample"]
-  r, refine_wall = best["step"]
-  frame_playback = None
-  if "frame" in best:
-    rs = best["frame"][0]
-    frame_playback = {"world_steps": rs.world_steps, "run_s": rs.run_seconds,
+  r, refine_wall = best[main_variant]
+
+  def variant(name):
+    if name not in best:
+      return None
+    rs = best[name][0]
+    return {"world_steps": rs.world_steps, "run_s": rs.run_seconds,
                       "us_per_world_step": 1e6 * rs.run_seconds / rs.world_steps,
                       "step_cost_ratio": (rs.run_seconds / rs.world_steps) / (s.run_seconds / s.world_steps),
-                      "speedup_run": s.run_seconds / rs.run_seconds}
+                      "speedup_run": s.run_seconds / rs.run_seconds, "wall_s": best[name][1]}
 
   sample_step = s.run_seconds / s.world_steps
   refine_step = r.run_seconds / r.world_steps
   span_step = best["span"][0] / best["span"][1]
-  if frame_playback is not None:
-    frame_playback["step_cost_ratio_same_span"] = frame_playback["us_per_world_step"] * 1e-6 / span_step
+  frame_playback, lockstep = variant("frame"), variant("lockstep")
+  for v in (frame_playback, lockstep):
+    if v is not None:
+      v["step_cost_ratio_same_span"] = v["us_per_world_step"] * 1e-6 / span_step
   active = np.array([len(new.lineage[str(int(i))]["active"]) for i in new.world_ids])
+  # Activation against an exact test (MuJoCo's geom distance, same margin).
+  from mwbx.refinement import exact_active
+  both = bank.append(new)
+  exact = np.array([len(exact_active(both, int(i))) for i in new.world_ids])
+  subset = all(set(exact_active(both, int(i))) <= set(new.lineage[str(int(i))]["active"])
+               for i in new.world_ids[:8])
   result = {
       "machine": f"{os.cpu_count()}-core {platform.machine()} CPU, no GPU" if jax.default_backend() == "cpu"
                  else jax.devices()[0].device_kind,
@@ -145,7 +170,11 @@ def main() -> None:
                  "samples_per_s_run": n / r.run_seconds, "samples_per_s_wall": n / refine_wall,
                  "us_per_world_step": 1e6 * refine_step, "compile_s": r.compile_seconds,
                  "mean_active_objects": float(active.mean()), "max_active_objects": int(active.max()),
-                 "max_perturbation_ratio": float(r.max_perturbation_ratio.max())},
+                 "max_perturbation_ratio": float(r.max_perturbation_ratio.max()),
+                 "first_world_s": first_done.get("t"), "loop": variants[main_variant][1]},
+      "activation": {"sphere_active": active.tolist(), "exact_active": exact.tolist(),
+                     "ratio_mean": float(active.sum() / exact.sum()), "ratio_max": float((active / exact).max()),
+                     "never_fewer": bool((active >= exact).all() and subset)},
       "step_cost_ratio": refine_step / sample_step,
       "span_sampling": {"world_steps": best["span"][1], "run_s": best["span"][0],
                         "us_per_world_step": 1e6 * span_step},
@@ -154,6 +183,7 @@ def main() -> None:
       "speedup_wall": sample_wall / refine_wall,
       "steps_fraction": r.world_steps / s.world_steps,
       "refine_frame_playback": frame_playback,
+      "refine_lockstep": lockstep,
   }
   out = pathlib.Path(args.out)
   out.parent.mkdir(parents=True, exist_ok=True)
@@ -178,6 +208,14 @@ def main() -> None:
     print(f"with frame-boundary playback: {frame_playback['us_per_world_step']:.2f} us per world-step"
           f" (ratio {frame_playback['step_cost_ratio']:.2f}; {frame_playback['step_cost_ratio_same_span']:.2f}"
           f" against the same span), speedup {frame_playback['speedup_run']:.2f}")
+  if lockstep is not None:
+    print(f"lockstep rollout loop (the baseline it replaced): {lockstep['us_per_world_step']:.2f} us per world-step"
+          f" ({lockstep['step_cost_ratio_same_span']:.2f} against the same span); compiled is"
+          f" {lockstep['run_s'] / r.run_seconds:.2f}x faster")
+  print(f"wall (warm, with compression) {refine_wall:.2f} s for {n} refined worlds; first world done after"
+        f" {first_done.get('t', float('nan')):.2f} s")
+  print(f"activation: sphere test {active.sum()} objects, exact geom-distance test {exact.sum()}"
+        f" ({active.sum() / exact.sum():.2f}x; never fewer: {result['activation']['never_fewer']})")
   print(f"active objects per refined world: mean {active.mean():.2f}, max {active.max()}"
         f" (of {len(bank.objects)}); largest |perturbation|/(alpha|dv|) {r.max_perturbation_ratio.max():.3f}")
   print(f"wrote {out}")

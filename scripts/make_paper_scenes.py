@@ -130,6 +130,9 @@ STEP_DEG = 24.0  # each step turns this much
 TOP = 2 * STEPS * RISE  # m, top landing height (2.4)
 LANDING_DEG = 60.0
 LEAN_DEG = 25.0  # the figure's forward lean at the start
+START_BACK_DEG = 12.0  # the figure starts this far round the column before the top landing's edge
+START_RADIUS = 0.62  # m from the column's axis
+STAIR_FRICTION = 0.8
 C = 'contype="1" conaffinity="2"'  # staircase: touches the figure
 F = 'contype="2" conaffinity="1"'  # figure: touches the staircase, never itself
 
@@ -171,7 +174,7 @@ def spiral_staircase() -> str:
       f'  <option timestep="{TIMESTEP!r}" gravity="0 0 -9.81"/>',
       '  <visual><global offwidth="800" offheight="800"/></visual>',
       "  <default>",
-      '    <geom friction="0.8 0.005 0.0001" solref="0.01 1"/>',
+      f'    <geom friction="{STAIR_FRICTION} 0.005 0.0001" solref="0.01 1"/>',
       '    <joint damping="0.05" armature="0.002"/>',
       '    <position kp="3" ctrlrange="-3 3"/>',
       "  </default>",
@@ -197,10 +200,10 @@ def spiral_staircase() -> str:
       angle += LANDING_DEG
   # The figure stands at the top landing's edge facing down the stairs (its
   # +x along the direction of increasing angle), leaning forward: it falls.
-  a = math.radians(LANDING_DEG - 12)
-  x, y = 0.62 * math.cos(a), 0.62 * math.sin(a)
+  a = math.radians(LANDING_DEG - START_BACK_DEG)
+  x, y = START_RADIUS * math.cos(a), START_RADIUS * math.sin(a)
   lines += [
-      f'    <body name="figure" pos="{x:.3f} {y:.3f} {TOP + 0.36:.3f}" quat="{_lean_then_turn(LEAN_DEG, LANDING_DEG - 12 + 90)}">',
+      f'    <body name="figure" pos="{x:.3f} {y:.3f} {TOP + 0.36:.3f}" quat="{_lean_then_turn(LEAN_DEG, LANDING_DEG - START_BACK_DEG + 90)}">',
       "      <freejoint/>",
       f'      <geom name="pelvis" type="capsule" fromto="0 -0.06 0 0 0.06 0" size="0.045" rgba="0.3 0.4 0.8 1" {F}/>',
       '      <body name="torso" pos="0 0 0.05">',

@@ -236,3 +236,25 @@ def test_refined_worlds_do_not_depend_on_the_batching(bank, case_a):
   for w in range(N):
     np.testing.assert_array_equal(again.qpos_frames(again.world_ids[w]), new.qpos_frames(new.world_ids[w]))
   assert again.lineage == new.lineage
+
+
+@pytest.mark.parametrize("case", ["case_a", "case_b"])
+def test_compiled_loop_matches_the_lockstep_loop(bank, case, request):
+  """The compiled per-world loop (the default) against the lockstep rollout
+  loop it replaced: the same activations and the same motion; the two differ
+  only in how MuJoCo's solver is warm-started at frame starts and in float32
+  (jitted) against float64 (compiled) bookkeeping."""
+  parent = request.getfixturevalue(case)[0]
+  runs = {loop: refine_run(bank, parent, ["striker"], t_min=T_MIN, n_samples=N, key=jax.random.key(1),
+                           backend="native", loop=loop) for loop in ("compiled", "lockstep")}
+  (compiled, c_stats), (lockstep, l_stats) = runs["compiled"], runs["lockstep"]
+  for w in range(N):
+    i, j = str(int(compiled.world_ids[w])), str(int(lockstep.world_ids[w]))
+    assert compiled.lineage[i]["active"] == lockstep.lineage[j]["active"]
+    assert compiled.lineage[i]["activated_at"] == lockstep.lineage[j]["activated_at"]
+    a, b = compiled.qpos_frames(int(i)), lockstep.qpos_frames(int(j))
+    assert len(a) == len(b)
+    np.testing.assert_allclose(a, b, atol=2e-3)  # within the codec's bounds of each other
+  np.testing.assert_allclose(compiled.metrics, lockstep.metrics, rtol=1e-3, atol=1e-3)
+  assert np.all(c_stats.max_perturbation_ratio <= 1.0 + 1e-5) and np.all(c_stats.inactive_perturbations == 0)
+  np.testing.assert_allclose(c_stats.max_perturbation_ratio, l_stats.max_perturbation_ratio, rtol=1e-4)

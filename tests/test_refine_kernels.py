@@ -75,6 +75,10 @@ def test_activate_matches_the_loop_reference():
     got = np.asarray(fn(jnp.asarray(active), com_sim, speed, com_now, com_next, p))
     want = interactions.activate_reference(active, com_sim, speed, com_now, com_next, p)
     np.testing.assert_array_equal(got, want)
+    host = np.zeros(5, bool)  # the numba twin of the compiled refinement loop
+    interactions.activate_host(active, com_sim.astype(np.float64), speed.astype(np.float64), com_now, com_next,
+                               *interactions.host_interaction(p), host)
+    np.testing.assert_array_equal(host, want)
     assert np.all(got[active])  # never deactivates
     checked += int(np.any(got != active))
   assert checked > 5  # the cases do activate objects

@@ -4,6 +4,7 @@ Scene: tests/refine_scenes/tiny (a sphere dropped onto a resting one, a third
 far away, 0.5 s). Goals are region queries on where the spheres end.
 """
 
+import json
 import pathlib
 
 import jax
@@ -186,3 +187,46 @@ def test_solve_refuses_bad_arguments(tiny_bank):
     mwbx.search.Budget(seconds=-1)
   with pytest.raises(mwbx.MwbxError, match="samples, keep and tries_per_world"):
     mwbx.solve(tiny_bank, REACHABLE, samples=0)
+
+
+QUERY_FILE = """\
+queries:
+  - name: striker_band
+    region: {min: [0.114, -0.1, 0.0], max: [0.125, 0.1, 0.2]}
+    bodies: [striker]
+    window: [0.5, null]
+  - name: target_short
+    region: {min: [-0.029, -0.1, 0.0], max: [0.0, 0.1, 0.2]}
+    bodies: [target]
+    window: [0.5, null]
+"""
+
+
+def test_cli_solve_writes_the_bank_and_its_progress(tiny_bank, tmp_path, capsys):
+  from mwbx import cli
+  bank_dir = tmp_path / "tiny"
+  tiny_bank.save(bank_dir)
+  queries = tmp_path / "goal.yaml"
+  queries.write_text(QUERY_FILE)
+  code = cli.main(["solve", str(bank_dir), str(queries), "--budget", "12", "--samples", "16",
+                   "--backend", "native"])
+  out = capsys.readouterr().out
+  assert code == 0, out
+  assert "solved: world" in out and "lineage" in out
+  world = int(out.split("solved: world ")[1].split()[0])
+  saved = mwbx.Bank.load(bank_dir)
+  goal = mwbx.load_queries(queries, bank=saved)
+  assert mwbx.evaluate(saved, goal)[saved.row_of(world)]
+  assert (tmp_path / "tiny-solve.png").stat().st_size > 1000
+  history = json.loads((tmp_path / "tiny-solve.json").read_text())
+  assert history["solved"] and history["steps"][-1]["satisfied"] == 2
+  # A goal out of reach: exit status 1 with the message, the bank still written.
+  far = tmp_path / "far.yaml"
+  far.write_text(QUERY_FILE + "  - name: far_flies\n    region: {min: [1, -1, 1], max: [2, 1, 2]}\n"
+                 "    bodies: [far]\n")
+  code = cli.main(["solve", str(bank_dir), str(far), "--budget", "2", "--samples", "4", "--backend", "native",
+                   "--out", str(tmp_path / "far_bank")])
+  captured = capsys.readouterr()
+  assert code == 1
+  assert "not solved (budget spent; 2 refinements" in captured.out and "far_flies" in captured.out
+  assert mwbx.Bank.load(tmp_path / "far_bank").n_worlds > tiny_bank.n_worlds

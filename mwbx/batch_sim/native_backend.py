@@ -246,13 +246,55 @@ class NativeBackend:
     run(0, mujoco.MjData(model), np.zeros(c, bool))
     compile_seconds = time.perf_counter() - t0
 
-    rows = iter(np.flatnonzero(active).tolist())
+    def on_sim_error(row):
+      running[row] = False
+      carry.status[row] = world.SIM_ERROR
+
+    def poll():
+      if progress is not None:
+        progress(int(carry.step.sum()), int((~running & active).sum()))
+
+    t0 = time.perf_counter()
+    physics, busy, sim_errors = self.run_per_world(
+        np.flatnonzero(active), lambda row, data: run(row, data, running), model, on_sim_error, poll)
+    run_seconds = time.perf_counter() - t0
+    if progress is not None:
+      progress(int(carry.step.sum()), int(active.sum()))
+    # The share of the threads' time spent inside mj_step, applied to the wall time.
+    physics_seconds = run_seconds * float(physics / max(busy, 1e-12))
+    return self._result(ch, compile_seconds, run_seconds, physics_seconds)._replace(
+        errors=tuple(sim_errors))
+
+  def run_per_world(self, rows, work, model: mujoco.MjModel, on_sim_error, poll=None):
+    """Runs ``work(row, data)`` for every row on the backend's threads, each
+    thread with its own ``MjData`` of ``model`` (reused from world to world),
+    with MuJoCo errors trapped (:func:`mujoco_c.trap_errors`).
+
+    Args:
+      rows: the rows to run, in order (threads pull the next one when free).
+      work: ``work(row, data) -> seconds inside mj_step``; runs without the GIL
+        where it calls compiled loops.
+      model: the model the threads' data are made for.
+      on_sim_error: ``on_sim_error(row)`` on the erring thread when MuJoCo
+        raises an error in that row's world: flag it (the thread is then
+        parked for good and a fresh one takes its place).
+      poll: optional callable, called about every 0.25 s while the threads run.
+
+    Returns:
+      (seconds inside mj_step, seconds the threads were busy, summed over
+      threads; [(row, message)] of the worlds MuJoCo raised an error in).
+
+    Raises:
+      the first exception a ``work`` call raised, after the threads stopped;
+      MwbxError after more than MAX_SIM_ERRORS MuJoCo errors.
+    """
+    rows = iter(np.asarray(rows).tolist())
     lock = threading.Lock()
     physics, busy = [], []
     errors: list = []  # Python exceptions, re-raised here
     sim_errors: list = []  # (row, message) of worlds MuJoCo raised an error in
     stop = threading.Event()
-    current: dict[int, int] = {}  # thread ident -> chunk row it is stepping
+    current: dict[int, int] = {}  # thread ident -> row it is running
     parked: set[int] = set()  # idents of threads parked inside MuJoCo's error call
     threads: list = []
 
@@ -266,7 +308,7 @@ class NativeBackend:
           if row is None:
             break
           current[threading.get_ident()] = row
-          physics[t] += run(row, data, running)
+          physics[t] += work(row, data)
       except BaseException as exc:  # noqa: BLE001 - re-raised on the calling thread
         errors.append(exc)
         stop.set()
@@ -282,8 +324,7 @@ class NativeBackend:
     def on_error(message):
       """On the erring thread: flag its world; a fresh thread takes its place."""
       row = current[threading.get_ident()]
-      running[row] = False
-      carry.status[row] = world.SIM_ERROR
+      on_sim_error(row)
       with lock:
         parked.add(threading.get_ident())
         sim_errors.append((row, message))
@@ -298,7 +339,6 @@ class NativeBackend:
       with lock:
         return [th for th in threads if th.is_alive() and th.ident not in parked]
 
-    t0 = time.perf_counter()
     with mujoco_c.trap_errors(on_error):
       with lock:
         for _ in range(self.threads):
@@ -306,21 +346,15 @@ class NativeBackend:
       try:
         while live := working():
           live[0].join(0.25)
-          if progress is not None:
-            progress(int(carry.step.sum()), int((~running & active).sum()))
+          if poll is not None:
+            poll()
       finally:
         stop.set()  # e.g. on Ctrl-C: the threads stop after the world they are on
         for thread in working():
           thread.join()
-    run_seconds = time.perf_counter() - t0
     if errors:
       raise errors[0]
-    if progress is not None:
-      progress(int(carry.step.sum()), int(active.sum()))
-    # The share of the threads' time spent inside mj_step, applied to the wall time.
-    physics_seconds = run_seconds * float(sum(physics) / max(sum(busy), 1e-12))
-    return self._result(ch, compile_seconds, run_seconds, physics_seconds)._replace(
-        errors=tuple(sim_errors))
+    return float(sum(physics)), float(sum(busy)), sim_errors
 
   def run_chunk_lockstep(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                          n_frames: int, progress=None) -> ChunkResult:

@@ -10,3 +10,4 @@ from mwbx.refinement.refine import RefineStats
 from mwbx.refinement.refine import refine
 from mwbx.refinement.refine import refine_run
 from mwbx.refinement.refine import sampler_for
+from mwbx.refinement.exact_activation import exact_active

@@ -25,6 +25,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import mujoco
+import numba
 import numpy as np
 
 from mwbx.errors import MwbxError
@@ -156,6 +157,73 @@ def activate(active: jax.Array, com_sim: jax.Array, speed_sim: jax.Array, com_no
   for _ in range(max(1, math.ceil(math.log2(max(n_objects, 2))))):
     closure = ((closure @ closure) > 0.5).astype(jnp.float32)
   return (active.astype(jnp.float32) @ closure) > 0.5
+
+
+def host_interaction(p: InteractionParams) -> tuple:
+  """``p`` as the plain arrays and floats :func:`activate_host` takes:
+  (body_object i64[B], radius f64[B], ghost_slack f64[B], margin, horizon,
+  speed_factor, gravity)."""
+  f64 = lambda x: np.ascontiguousarray(np.asarray(x, np.float64))
+  return (np.asarray(p.body_object).argmax(axis=1).astype(np.int64), f64(p.radius), f64(p.ghost_slack),
+          float(p.margin), float(p.horizon), float(p.speed_factor), float(p.gravity))
+
+
+@numba.njit(cache=True, nogil=True)
+def activate_host(active, com_sim, speed_sim, com_now, com_next, body_object, radius, ghost_slack, margin,
+                  horizon, speed_factor, gravity, out):
+  """:func:`activate` for ONE world, compiled for the host's per-world
+  refinement loop (its numba twin, in float64; tests/test_refine_kernels.py
+  compares the two and :func:`activate_reference`).
+
+  Args:
+    active: bool[O]; com_sim: f[B, 3]; speed_sim: f[B]; com_now, com_next:
+      f[B, 3] (as :func:`activate`).
+    body_object, radius, ghost_slack, margin, horizon, speed_factor, gravity:
+      :func:`host_interaction` of the scene's :class:`InteractionParams`.
+    out: bool[O] out: the active set for the coming frame.
+  """
+  n_bodies = body_object.size
+  mid = np.empty((n_bodies, 3))
+  center = np.empty((n_bodies, 3))
+  extent = np.empty(n_bodies)
+  stored_extent = np.empty(n_bodies)
+  vmax = 0.0
+  for b in range(n_bodies):
+    if active[body_object[b]]:
+      vmax = max(vmax, speed_sim[b])
+  for b in range(n_bodies):
+    half = 0.0
+    for a in range(3):
+      mid[b, a] = 0.5 * (float(com_now[b, a]) + float(com_next[b, a]))
+      half += (float(com_next[b, a]) - float(com_now[b, a])) ** 2
+    half = 0.5 * np.sqrt(half)
+    stored_extent[b] = radius[b] + half + 0.5 * margin
+    if active[body_object[b]]:
+      reach = (max(speed_sim[b], vmax) * speed_factor + gravity * horizon) * horizon
+      for a in range(3):
+        center[b, a] = com_sim[b, a]
+      extent[b] = radius[b] + reach + 0.5 * margin
+    else:
+      for a in range(3):
+        center[b, a] = mid[b, a]
+      extent[b] = stored_extent[b]
+  for o in range(out.size):
+    out[o] = active[o]
+  changed = True
+  while changed:
+    changed = False
+    for i in range(n_bodies):
+      if not out[body_object[i]]:
+        continue
+      for j in range(n_bodies):
+        if out[body_object[j]]:
+          continue
+        d_now = np.sqrt((center[i, 0] - center[j, 0]) ** 2 + (center[i, 1] - center[j, 1]) ** 2
+                        + (center[i, 2] - center[j, 2]) ** 2)
+        d_ghost = np.sqrt((mid[i, 0] - mid[j, 0]) ** 2 + (mid[i, 1] - mid[j, 1]) ** 2 + (mid[i, 2] - mid[j, 2]) ** 2)
+        if d_now <= extent[i] + extent[j] or d_ghost <= stored_extent[i] + ghost_slack[i] + stored_extent[j]:
+          out[body_object[j]] = True
+          changed = True
 
 
 def activate_reference(active, com_sim, speed_sim, com_now, com_next, p: InteractionParams) -> np.ndarray:

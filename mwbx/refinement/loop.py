@@ -164,7 +164,7 @@ def _body_mask(active: jax.Array, inter: interactions.InteractionParams) -> jax.
   return (active.astype(jnp.float32) @ inter.body_object.T) > 0.5
 
 
-def _start(inp: RefineInputs):
+def start_active(inp: RefineInputs):
   """(active for frame f0, host speeds) from the stored path at f0."""
   p, f0 = inp.path, inp.first_frame
   c = len(inp.qpos0)
@@ -291,7 +291,7 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
   dof_object = inp.dof_object.astype(np.float32)
 
   t0 = time.perf_counter()
-  active = _start(inp)
+  active = start_active(inp)
   stored = tuple(jnp.asarray(x) for x in (path.com, path.quat, path.lin_vel, path.ang_vel))
   jax.block_until_ready(kernel(inp.carry0, sensordata, inp.step_keys, np.asarray(active), np.int32(f0),
                                stored, jax.device_put(inter)))
@@ -369,7 +369,7 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
   d = backend.make_data(jnp.asarray(inp.qpos0), jnp.asarray(inp.qvel0))
   d = d.replace(time=jnp.full((c,), f0 * spf * m.opt.timestep, d.time.dtype))
   t0 = time.perf_counter()
-  active = _start(inp)
+  active = start_active(inp)
   wrench = jnp.zeros((c, spf, len(inp.body_ids), 6), jnp.float32)
   state = (d, inp.carry0, wrench, inp.step_keys, active, jnp.asarray(~np.asarray(inp.active0)),
            jnp.int32(f0))

@@ -41,6 +41,7 @@ from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
 from mwbx.refinement import interactions, kinematic
 from mwbx.scene import objects_of
 from mwbx.refinement import loop as refine_loop
+from mwbx.refinement import world_loop
 
 DEFAULT_MARGIN = 0.01  # m, contact margin of the interaction test
 
@@ -88,7 +89,7 @@ def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_mi
   return t_min
 
 
-def _object_masks(model: mujoco.MjModel, object_names) -> tuple[np.ndarray, np.ndarray]:
+def object_coordinates(model: mujoco.MjModel, object_names) -> tuple[np.ndarray, np.ndarray]:
   """(bool[O, nq], bool[O, nv]) coordinates of each object's joints."""
   qm = np.zeros((len(object_names), model.nq), bool)
   vm = np.zeros((len(object_names), model.nv), bool)
@@ -115,8 +116,15 @@ class RefineStats(SampleStats):
 
 def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
                key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-               margin: float = DEFAULT_MARGIN, playback: str = "step", progress=None):
-  """:func:`refine` that also returns :class:`RefineStats` and only the new worlds."""
+               margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None):
+  """:func:`refine` that also returns :class:`RefineStats` and only the new worlds.
+
+  ``loop`` (native backend, ``playback="step"``): ``compiled`` runs each
+  refined world in compiled calls (:mod:`mwbx.refinement.world_loop`),
+  ``lockstep`` steps the batch through ``mujoco.rollout`` a step at a time
+  (:func:`mwbx.refinement.loop.run_native`), ``auto`` the first where
+  MuJoCo's C library can be bound.
+  """
   start_wall = time.perf_counter()
   world = int(world)
   try:
@@ -133,12 +141,15 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
     raise MwbxError(f"refine: playback must be 'frame' or 'step', got {playback!r}")
   if not margin >= 0:
     raise MwbxError(f"refine: margin must be >= 0 m, got {margin!r}")
+  if loop not in ("auto", "compiled", "lockstep"):
+    raise MwbxError(f"refine: loop must be 'auto', 'compiled' or 'lockstep', got {loop!r}")
+  compiled_loop = loop == "compiled" or (loop == "auto" and world_loop.available())
   names = resolve_objects(bank, objects)
   t_min = resolve_t_min(bank, world, names, frustum, t_min)
   sampler = sampler_for(bank, backend)
   chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
-  return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, progress,
-              start_wall)
+  return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, compiled_loop,
+              progress, start_wall)
 
 
 _SAMPLERS: dict = {}
@@ -155,7 +166,8 @@ def sampler_for(bank, backend: str | None = None) -> Sampler:
   return _SAMPLERS[cache_key]
 
 
-def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, progress, start_wall):
+def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, compiled_loop, progress,
+         start_wall):
   scene, params = sampler.scene, sampler.params
   model = scene.model
   fps, spf = bank.record_fps, params.steps_per_frame
@@ -170,7 +182,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   mjx = sampler.backend_name == "mjx"
   targets = kinematic.step_targets(model, path, spf, model.opt.timestep) if mjx or playback == "step" else None
   object_names = tuple(scene.object_names)
-  qm, vm = _object_masks(model, object_names)
+  qm, vm = object_coordinates(model, object_names)
   # Native: free bodies are observed from their states, so the rollout models
   # (and their contact-free copies) step with sensors disabled.
   bodies = None if mjx else free_bodies.free_bodies(model, scene.body_ids)
@@ -213,6 +225,8 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
         free_bodies=bodies, ctrl=ctrl)
     if mjx:
       run = refine_loop.run_mjx
+    elif playback == "step" and compiled_loop:
+      run = world_loop.run_compiled
     else:
       run = functools.partial(refine_loop.run_native, every_step=playback == "step")
     base = stats.world_steps
@@ -306,7 +320,7 @@ def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, out
 
 def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
            key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-           margin: float = DEFAULT_MARGIN, playback: str = "step", progress=None):
+           margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None):
   """Resamples the marked objects of one world from t_min on (paper §5).
 
   Args:
@@ -328,6 +342,9 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
       frame, a few per cent cheaper; inside a frame they move freely from the
       stored state, touching nothing, and report their stored motion). The
       MJX backend always does it every step.
+    loop: native backend, ``playback="step"``: ``auto`` | ``compiled`` (each
+      refined world in compiled calls, the fast path) | ``lockstep``
+      (``mujoco.rollout`` a step at a time).
     progress: optional callback taking a :class:`mwbx.progress.Progress`.
 
   Returns:
@@ -340,6 +357,6 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
       outside the recording, or a box the objects never enter.
   """
   new, _ = refine_run(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
-                      backend=backend, chunk_size=chunk_size, margin=margin, playback=playback,
+                      backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
                       progress=progress)
   return bank.append(new)

@@ -10,11 +10,11 @@ It simulates nothing of its own: it calls the sampler and
 from mwbx.search.guided import GuidedResult
 from mwbx.search.guided import GuidedRound
 from mwbx.search.guided import guided_sample
+from mwbx.search.objects import involved_objects
 from mwbx.search.proposal import Proposal
 from mwbx.search.proposal import init_proposal
 from mwbx.search.solver import Budget
 from mwbx.search.solver import SolveResult
 from mwbx.search.solver import SolveStep
-from mwbx.search.solver import involved_objects
 from mwbx.search.solver import progress_plot
 from mwbx.search.solver import solve

@@ -18,8 +18,9 @@ from mwbx.progress import Progress
 from mwbx.queries import evaluate_each, query_gaps
 from mwbx.queries.query import as_queries
 from mwbx.search import proposal as proposal_lib
+from mwbx.search.objects import involved_objects
 
-DEFAULT_LEARNING_RATE = 0.15
+DEFAULT_LEARNING_RATE = 0.5  # Adam, latent units: measured on quickstart (docs/search.md)
 GUIDED_PHASE = "guided sampling"
 
 
@@ -30,7 +31,8 @@ class GuidedRound(NamedTuple):
     round: its index. worlds: worlds sampled in it.
     matches: worlds that met every query. met_mean: queries met per world, mean.
     world_steps: physics steps of its worlds. seconds: wall time so far.
-    scale_mean: mean latent standard deviation of the proposal it drew from.
+    scale_mean: mean latent standard deviation, over the learnt components,
+      of the proposal it drew from.
   """
 
   round: int
@@ -84,7 +86,8 @@ def typical_gaps(gaps: np.ndarray) -> np.ndarray:
 
 def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: jax.Array,
                   first_world: int = 0, optimizer: optax.GradientTransformation | None = None,
-                  proposal: proposal_lib.Proposal | None = None, progress=None) -> GuidedResult:
+                  proposal: proposal_lib.Proposal | None = None, objects=None,
+                  progress=None) -> GuidedResult:
   """Samples ``rounds`` batches, each from the proposal the previous ones taught.
 
   Args:
@@ -95,8 +98,11 @@ def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: ja
       their perturbations from ``fold_in(key, id)``; the latent draws come from
       a key split off ``key``.
     first_world: id of the first world.
-    optimizer: optax optimiser of the proposal (default ``adam(0.15)``).
+    optimizer: optax optimiser of the proposal (default ``adam(0.5)``).
     proposal: where to start (default: the configured distribution).
+    objects: objects whose randomization is learnt (default: those the
+      queries involve, :func:`mwbx.search.involved_objects`); the others, and
+      components configured with scale 0, keep the configured distribution.
     progress: optional callback taking a :class:`mwbx.progress.Progress`.
 
   Returns:
@@ -118,6 +124,12 @@ def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: ja
   if uniform.size == 0:
     raise MwbxError(f"guided sampling: {scene.config.source or 'the config'} randomizes nothing"
                     f" (no randomize entries), so there is nothing to guide")
+  if objects is None:
+    objects = {o for q in queries for o in involved_objects(scene, q)}
+  learnt = proposal_lib.learnt_slots(scene, set(objects))
+  if not learnt.any():
+    raise MwbxError(f"guided sampling: none of the objects {sorted(objects)} has a randomized quantity"
+                    f" with a nonzero scale in {scene.config.source or 'the config'}")
   optimizer = optimizer or optax.adam(DEFAULT_LEARNING_RATE)
   proposal = proposal or proposal_lib.init_proposal(uniform.size)
   opt_state = optimizer.init(proposal)
@@ -142,12 +154,12 @@ def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: ja
     history.append(GuidedRound(
         round=r, worlds=batch, matches=int(met.all(axis=1).sum()), met_mean=float(met.sum(axis=1).mean()),
         world_steps=int(part.steps.sum()), seconds=time.perf_counter() - start,
-        scale_mean=float(np.exp(np.asarray(proposal.log_scale)).mean())))
+        scale_mean=float(np.exp(np.asarray(proposal.log_scale))[learnt].mean())))
     lineage = {str(int(i)): {"proposal": {"round": r, "noise": [float(x) for x in u]}}
                for i, u in zip(part.world_ids, noise)}
     parts.append(dataclasses.replace(part, lineage=lineage))
     proposal, opt_state = proposal_lib.es_step(proposal, opt_state, eps, fitness(met, gaps, gap_scale),
-                                               optimizer)
+                                               optimizer, learnt)
   if progress is not None:
     progress(Progress(GUIDED_PHASE, rounds * batch, rounds * batch, steps))
   return GuidedResult(Bank.concatenate(parts), proposal, tuple(history))

@@ -59,6 +59,16 @@ def uniform_slots(scene) -> np.ndarray:
   return np.asarray(out, bool)
 
 
+def learnt_slots(scene, objects) -> np.ndarray:
+  """bool[D] components worth learning: those of ``objects`` with a nonzero
+  configured scale (the others keep the configured distribution)."""
+  out = []
+  for slot in scene.noise_slots:
+    scale = np.broadcast_to(np.asarray(slot.dist.scale, np.float64), (slot.width,))
+    out.extend((scale != 0) & (slot.object in objects))
+  return np.asarray(out, bool)
+
+
 def unit_from_latent(z: jax.Array, uniform: jax.Array) -> jax.Array:
   """Unit noise from the latent: f32[..., D] (see the module docstring).
 
@@ -112,8 +122,11 @@ def clip_proposal(proposal: Proposal) -> Proposal:
 
 
 def es_step(proposal: Proposal, opt_state, eps: jax.Array, fitness: jax.Array,
-            optimizer: optax.GradientTransformation) -> tuple[Proposal, optax.OptState]:
+            optimizer: optax.GradientTransformation, learnt=None) -> tuple[Proposal, optax.OptState]:
   """One optimiser step of the proposal on one batch's fitness.
+
+  ``learnt``: optional bool[D]; other components get no gradient and keep
+  their values.
 
   Example::
 
@@ -125,5 +138,7 @@ def es_step(proposal: Proposal, opt_state, eps: jax.Array, fitness: jax.Array,
     proposal, opt_state = es_step(proposal, opt_state, eps, fitness, optimizer)
   """
   grad = es_gradient(proposal, jnp.asarray(eps), jnp.asarray(fitness, jnp.float32))
+  if learnt is not None:
+    grad = jax.tree.map(lambda g: jnp.where(jnp.asarray(learnt), g, 0.0), grad)
   updates, opt_state = optimizer.update(grad, opt_state, proposal)
   return clip_proposal(optax.apply_updates(proposal, updates)), opt_state

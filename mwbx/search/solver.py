@@ -46,6 +46,7 @@ from mwbx.queries import JointQuery, evaluate_each, first_entry, metric, query_g
 from mwbx.queries.query import as_queries, body_radii, selection_mask
 from mwbx.refinement import refine_run, sampler_for
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
+from mwbx.search.objects import involved_objects
 
 # Restart times of successive attempts on one world, as fractions of the time
 # its objects go wrong: late first (small changes keep more of what works),
@@ -66,7 +67,7 @@ class Budget:
     world_steps: physics steps of refined (and guided) worlds.
   """
 
-  refinements: int | None = 100
+  refinements: int | None = None
   seconds: float | None = None
   world_steps: int | None = None
 
@@ -77,6 +78,15 @@ class Budget:
         raise MwbxError(f"solve: budget.{field} must be > 0 or None, got {value!r}")
     if self.refinements is None and self.seconds is None and self.world_steps is None:
       raise MwbxError("solve: budget: set at least one of refinements, seconds, world_steps")
+
+  def expected_refinements(self, refinements: int, seconds: float, world_steps: int) -> int:
+    """How many refinements the budget allows at the rate so far (for progress)."""
+    limits = [self.refinements] if self.refinements is not None else []
+    if refinements > 0 and self.seconds is not None:
+      limits.append(refinements * self.seconds / max(seconds, 1e-9))
+    if refinements > 0 and self.world_steps is not None:
+      limits.append(refinements * self.world_steps / max(world_steps, 1))
+    return int(max(refinements, min(limits))) if limits else refinements + 1
 
   def spent(self, refinements: int, seconds: float, world_steps: int) -> bool:
     return ((self.refinements is not None and refinements >= self.refinements)
@@ -125,20 +135,6 @@ class SolveResult(NamedTuple):
   unmet: tuple[str, ...]
   message: str
   steps: tuple[SolveStep, ...]
-
-
-def involved_objects(bank, query) -> list[str]:
-  """Objects whose motion decides a query: its bodies' objects, or the
-  object a joint query's joint belongs to."""
-  if isinstance(query, JointQuery):
-    model = bank.model()
-    body = model.jnt_bodyid[model.joint(query.joint).id]
-    root = model.body(int(model.body_rootid[body])).name
-    return [root] if root in bank.objects else []
-  if query.bodies is None:
-    return list(bank.objects)
-  chosen = {bank.body_names[b] for b in np.asarray(bank.select_bodies(list(query.bodies))).tolist()}
-  return [obj for obj, bodies in bank.objects.items() if chosen & set(bodies)]
 
 
 def deadline(bank, world: int, query) -> float:
@@ -193,7 +189,7 @@ def _label(query, index: int) -> str:
   return query.name or f"query {index}"
 
 
-def solve(bank: Bank, queries, *, budget: Budget | int = Budget(), key: jax.Array | None = None,
+def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | None = None,
           samples: int = 32, keep: int = 4, tries_per_world: int = 4, backend: str | None = None,
           guided_rounds: int = 0, guided_batch: int = 64, tie_metric: str = "collisions",
           progress=None, throw: bool = False) -> SolveResult:
@@ -202,7 +198,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = Budget(), key: jax.Arra
   Args:
     bank: the sampled bank to start from (worlds, or a bank already refined).
     queries: the goal: a query list or :class:`~mwbx.QuerySet`.
-    budget: a :class:`Budget`, or an int (refinements).
+    budget: a :class:`Budget`, or an int: refinements (default 100).
     key: search key (default ``jax.random.key(0)``: a search is repeatable).
     samples: refined worlds per refinement. keep: children kept per refinement.
     tries_per_world: refinements from one world before the search moves on.
@@ -252,7 +248,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = Budget(), key: jax.Arra
     steps.append(SolveStep(refinements, spent_steps, time.perf_counter() - start, int(met[row].sum()),
                            int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min)))
     if progress is not None:
-      total = budget.refinements or max(refinements + 1, 1)
+      total = budget.expected_refinements(refinements, time.perf_counter() - start, spent_steps)
       progress(Progress(SOLVE_PHASE, min(refinements, total), total, spent_steps))
 
   if guided_rounds > 0:

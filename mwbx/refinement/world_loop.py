@@ -1,0 +1,359 @@
+"""Refined worlds on the native backend, each in compiled calls (paper §5:
+refinement cheaper than sampling).
+
+The lockstep loop (:func:`loop.run_native`) steps every refined world of a
+batch through ``mujoco.rollout`` one physics step at a time, with a jitted
+kernel per frame: its cost per step is Python and dispatch, more than the
+physics of the few objects that move. Here, as in sampling's
+:mod:`mwbx.batch_sim.world_loop`, a numba function (no GIL) steps ONE refined
+world with MuJoCo's C ``mj_step`` frame after frame and runs the same
+per-frame work on it:
+
+1. objects inactive before the frame are put on their stored state (decoded
+   ``qpos[f]``, chord ``qvel[f]``);
+2. the frame's S physics steps, objects inactive during the frame put back
+   on the stored path before every step after the first
+   (``playback="step"``), in a model where they collide with nothing
+   (:class:`kinematic.ContactFreeModels`);
+3. the observations (MuJoCo's sensors, or the states of free bodies), with
+   inactive bodies reporting their stored motion (COM along the chord, chord
+   velocities, no contact acceleration);
+4. the bookkeeping (:func:`host_bookkeeping.frame_update`) with only active
+   bodies perturbable, and the plausibility audit;
+5. the interaction test (:func:`interactions.activate_host`, the numba twin
+   of :func:`interactions.activate`).
+
+When the active set grows, the call returns so that the host can hand it the
+contact-free model of the new inactive set, and the world goes on from where
+it was (its ``MjData`` is kept). A thread per core pulls worlds from a shared
+counter (:meth:`NativeBackend.run_per_world`). World i still depends only on
+the parent, t_min, the objects and ``(key, i)``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import jax
+import mujoco
+import numba
+import numpy as np
+
+from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world
+from mwbx.batch_sim.backend import fill_tail
+from mwbx.refinement import interactions
+from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR_WIDTH
+
+_jit = numba.njit(cache=True, nogil=True)
+
+_step = mujoco_c.mj_step
+_get_state = mujoco_c.mj_getState
+_clock = mujoco_c.clock_gettime
+_CLOCK = mujoco_c.CLOCK_MONOTONIC
+_FULLPHYSICS = mujoco_c.STATE_FULLPHYSICS
+
+# What a call of run_refined_world ended with.
+FINISHED = 0
+ACTIVATED = 1  # the active set grew: call again with the new inactive set's model
+
+
+@_jit
+def _now(ts):
+  _clock(_CLOCK, ts.ctypes.data)
+  return ts[0] + 1e-9 * ts[1]
+
+
+@_jit
+def _put_on_path(data_qpos, data_qvel, inactive, qpos_object, dof_object, qpos_target, qvel_target):
+  """Sets the coordinates of the ``inactive`` objects (bool[O]) to the targets."""
+  for o in range(inactive.size):
+    if not inactive[o]:
+      continue
+    for a in range(data_qpos.size):
+      if qpos_object[o, a]:
+        data_qpos[a] = qpos_target[a]
+    for a in range(data_qvel.size):
+      if dof_object[o, a]:
+        data_qvel[a] = qvel_target[a]
+
+
+@_jit
+def _stored_motion(sensordata_row, active, body_object, frame, path_com, path_quat, path_lin_vel, path_ang_vel):
+  """Inactive bodies' sensor blocks (f32[S, B·W], in place) from the stored
+  path: COM along the chord f → f + 1, the frame's orientation and chord
+  velocities, no contact acceleration (twin of ``loop._with_stored_motion``)."""
+  n_steps = sensordata_row.shape[0]
+  for b in range(body_object.size):
+    if active[body_object[b]]:
+      continue
+    o = b * SENSOR_WIDTH
+    for s in range(n_steps):
+      a_frac = np.float32(s) / np.float32(n_steps)
+      for a in range(3):
+        sensordata_row[s, o + COM_POS + a] = path_com[frame, b, a] + a_frac * (
+            path_com[frame + 1, b, a] - path_com[frame, b, a])
+        sensordata_row[s, o + LIN_VEL + a] = path_lin_vel[frame, b, a]
+        sensordata_row[s, o + ANG_VEL + a] = path_ang_vel[frame, b, a]
+        sensordata_row[s, o + LIN_ACC + a] = 0.0  # the sensor reads a - g: free motion
+        sensordata_row[s, o + ANG_ACC + a] = 0.0
+      for a in range(4):
+        sensordata_row[s, o + QUAT + a] = path_quat[frame, b, a]
+
+
+@_jit
+def _audit(sensordata_row, wrench_row, tracked, mass, inertia, perturbable, alpha, dt):
+  """(largest ``‖dv‖ / (α‖Δv‖)`` or angular alike, perturbations on bodies
+  not perturbable) of one frame's next wrenches (f64[S, nbody, 6])."""
+  worst = 0.0
+  stray = 0
+  for s in range(wrench_row.shape[0]):
+    for b in range(tracked.size):
+      w = wrench_row[s, tracked[b]]
+      if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0 and w[3] == 0.0 and w[4] == 0.0 and w[5] == 0.0:
+        continue
+      if not perturbable[b]:
+        stray += 1
+      o = b * SENSOR_WIDTH
+      q = sensordata_row[s, o + QUAT:o + QUAT + 4]
+      norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+      r00, r01, r02, r10, r11, r12, r20, r21, r22 = host_loops.rotation_matrix(
+          q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm)
+      dv = math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) * dt / mass[b]
+      # dw = R · diag(1/I) · Rᵀ · torque · dt (inverse of the impulse wrench)
+      bx = (r00 * w[3] + r10 * w[4] + r20 * w[5]) / inertia[b, 0]
+      by = (r01 * w[3] + r11 * w[4] + r21 * w[5]) / inertia[b, 1]
+      bz = (r02 * w[3] + r12 * w[4] + r22 * w[5]) / inertia[b, 2]
+      dw = math.sqrt(bx * bx + by * by + bz * bz) * dt
+      delta_v = dt * math.sqrt(float(sensordata_row[s, o + LIN_ACC]) ** 2 + float(sensordata_row[s, o + LIN_ACC + 1]) ** 2
+                               + float(sensordata_row[s, o + LIN_ACC + 2]) ** 2)
+      delta_w = dt * math.sqrt(float(sensordata_row[s, o + ANG_ACC]) ** 2 + float(sensordata_row[s, o + ANG_ACC + 1]) ** 2
+                               + float(sensordata_row[s, o + ANG_ACC + 2]) ** 2)
+      if dv > 0.0:
+        worst = max(worst, dv / max(alpha * delta_v, 1e-30))
+      if dw > 0.0:
+        worst = max(worst, dw / max(alpha * delta_w, 1e-30))
+  return worst, stray
+
+
+@_jit
+def run_refined_world(row, model_adr, data_adr, data_qpos, data_qvel, xfrc_applied, data_sensordata, data_ctrl,
+                      ctrl_table, n_frames, first_frame, timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat,
+                      path_qpos, path_qvel, step_targets, path_com, path_quat, path_lin_vel, path_ang_vel,
+                      qpos_object, dof_object, body_object, radius, ghost_slack, margin, horizon, speed_factor,
+                      g_norm, scene_perturbable, sensordata, warmstart, states, key_data, p, carry, tracked,
+                      qpos_buf, com_buf, wrench_full, running, frame_of, active, prev_inactive, activated,
+                      audit_ratio, audit_stray):
+  """Runs refined world ``row`` until it finishes or its active set grows.
+
+  Args:
+    row: chunk row of the world.
+    model_adr, data_adr: ``MjModel._address`` (the contact-free model of the
+      world's current inactive set) and this thread's ``MjData._address``.
+    data_qpos, data_qvel, xfrc_applied, data_sensordata, data_ctrl: views of
+      that ``MjData``'s arrays.
+    ctrl_table: f64[n_frames · S, nu] control of each step from step 0 (width 0: none).
+    n_frames: end_frame + 1. first_frame: f0.
+    timestep: s. gravity: f64[3] m/s². free, qpos_adr, dof_adr, ipos, iquat:
+      free-body observation (as sampling's ``world_loop.run_world``).
+    path_qpos, path_qvel, step_targets, path_com, path_quat, path_lin_vel,
+      path_ang_vel: the parent's :class:`kinematic.StoredPath` arrays and the
+      per-step playback qpos (f32[F · S, nq]).
+    qpos_object: bool[O, nq]; dof_object: bool[O, nv] each object's coordinates.
+    body_object, radius, ghost_slack, margin, horizon, speed_factor, g_norm:
+      :func:`interactions.host_interaction`.
+    scene_perturbable: bool[B] the scene's perturbable bodies.
+    sensordata, warmstart, states, key_data, p, carry, tracked, qpos_buf,
+      com_buf, wrench_full, running: as in sampling (recording from f0:
+      ``qpos_buf[row, f - f0]``); ``p.perturbable`` is this thread's own
+      bool[B], rewritten here for the world's active bodies.
+    frame_of: i64[C] the next frame of each world (updated).
+    active: bool[C, O] objects simulated in the coming frame (updated).
+    prev_inactive: bool[C, O] objects inactive in the last frame (updated).
+    activated: i32[C, O] frame each object became active, -1: never (updated).
+    audit_ratio: f64[C]; audit_stray: i64[C] plausibility audit (updated).
+
+  Returns:
+    (FINISHED or ACTIVATED, seconds inside ``mj_step``).
+  """
+  n_steps = wrench_full.shape[1]
+  nstate = states.shape[1]
+  nq = qpos_buf.shape[2]
+  n_bodies = tracked.size
+  n_objects = active.shape[1]
+  rows = np.full(1, row, np.int64)
+  before = np.empty((1, nstate))
+  after = np.empty((1, n_steps, nstate))
+  sensors = np.zeros((1, n_steps, 0 if free else data_sensordata.size))
+  com_sim = np.empty((n_bodies, 3))
+  speed_sim = np.empty(n_bodies)
+  inactive = np.empty(n_objects, np.bool_)
+  nxt = np.empty(n_objects, np.bool_)
+  ts = np.zeros(2, np.int64)
+  physics = 0.0
+  for b in range(n_bodies):
+    p.perturbable[b] = scene_perturbable[b] and active[row, body_object[b]]
+  while running[row] and frame_of[row] < n_frames:
+    frame = frame_of[row]
+    _put_on_path(data_qpos, data_qvel, prev_inactive[row], qpos_object, dof_object, path_qpos[frame],
+                 path_qvel[frame])
+    _get_state(model_adr, data_adr, before[0].ctypes.data, _FULLPHYSICS)
+    for o in range(n_objects):
+      inactive[o] = not active[row, o]
+    start = _now(ts)
+    for s in range(n_steps):
+      if s > 0:
+        _put_on_path(data_qpos, data_qvel, inactive, qpos_object, dof_object, step_targets[frame * n_steps + s],
+                     path_qvel[frame])
+      xfrc_applied[:, :] = wrench_full[row, s]
+      if ctrl_table.shape[1] > 0:
+        data_ctrl[:] = ctrl_table[min(frame * n_steps + s, ctrl_table.shape[0] - 1)]
+      _step(model_adr, data_adr)
+      _get_state(model_adr, data_adr, after[0, s].ctypes.data, _FULLPHYSICS)
+      if not free:
+        sensors[0, s, :] = data_sensordata
+    physics += _now(ts) - start
+    host_loops.absorb_rows(rows, before, after, sensors, timestep, 1 + nq, sensordata, warmstart, states)
+    if free:
+      host_loops.observe_free_bodies(rows, before, after, timestep, gravity, 1, 1 + nq, qpos_adr, dof_adr,
+                                     ipos, iquat, sensordata)
+    _stored_motion(sensordata[row], active[row], body_object, frame, path_com, path_quat, path_lin_vel,
+                   path_ang_vel)
+    host_bookkeeping.frame_update(rows, sensordata, key_data, p, carry, tracked, before, 1, frame - first_frame,
+                                  qpos_buf, com_buf, wrench_full, running)
+    worst, stray = _audit(sensordata[row], wrench_full[row], tracked, p.mass, p.inertia, p.perturbable,
+                          p.perturb.alpha, timestep)
+    audit_ratio[row] = max(audit_ratio[row], worst)
+    audit_stray[row] += stray
+    # The interaction test for the next frame, on the last step's observations.
+    last = sensordata[row, n_steps - 1]
+    for b in range(n_bodies):
+      o = b * SENSOR_WIDTH
+      for a in range(3):
+        com_sim[b, a] = last[o + COM_POS + a]
+      speed_sim[b] = math.sqrt(float(last[o + LIN_VEL]) ** 2 + float(last[o + LIN_VEL + 1]) ** 2
+                               + float(last[o + LIN_VEL + 2]) ** 2)
+    interactions.activate_host(active[row], com_sim, speed_sim, path_com[frame + 1], path_com[frame + 2],
+                               body_object, radius, ghost_slack, margin, horizon, speed_factor, g_norm, nxt)
+    grew = False
+    for o in range(n_objects):
+      prev_inactive[row, o] = not active[row, o]
+      if running[row] and nxt[o] and not active[row, o]:
+        active[row, o] = True
+        activated[row, o] = frame + 1
+        grew = True
+    frame_of[row] = frame + 1
+    if grew:
+      return ACTIVATED, physics
+  return FINISHED, physics
+
+
+def run_compiled(backend, inp, progress=None):
+  """Refined worlds on the native backend, each world in compiled calls
+  (``playback="step"``); same inputs and output as :func:`loop.run_native`.
+
+  Args:
+    backend: the :class:`~mwbx.batch_sim.native_backend.NativeBackend`.
+    inp: :class:`loop.RefineInputs` (``models`` and ``step_targets`` required).
+    progress: optional callback(world_steps_done, worlds_finished).
+  """
+  from mwbx.refinement.loop import RefineOutput, start_active
+
+  m = backend.model
+  params, path = inp.params, inp.path
+  c, spf, f0 = len(inp.qpos0), params.steps_per_frame, inp.first_frame
+  n_out = inp.n_frames - f0
+  body_ids = np.asarray(inp.body_ids, np.int64)
+  n_bodies, n_objects = len(body_ids), inp.active0.shape[1]
+  free = inp.free_bodies is not None
+  if free:
+    qpos_adr, dof_adr, ipos, iquat = inp.free_bodies
+  else:
+    qpos_adr = dof_adr = np.zeros(0, np.int64)
+    ipos, iquat = np.zeros((0, 3)), np.zeros((0, 4))
+  p = host_bookkeeping.host_params(params)
+  scene_perturbable = p.perturbable.copy()
+  carry = host_bookkeeping.init_carry(n_bodies, inp.running0)
+  carry0 = inp.carry0
+  for name in ("step", "metrics", "prev_com", "init_quat"):
+    getattr(carry, name)[...] = np.asarray(getattr(carry0, name))
+  inter = interactions.host_interaction(inp.inter)
+  running = np.asarray(inp.running0).copy()
+  active = np.array(start_active(inp), bool)
+  prev_inactive = ~np.asarray(inp.active0, bool)
+  activated = np.where(active, f0, -1).astype(np.int32)
+  frame_of = np.full(c, f0, np.int64)
+  audit_ratio, audit_stray = np.zeros(c), np.zeros(c, np.int64)
+  key_data = np.asarray(jax.random.key_data(inp.step_keys), np.uint32)
+  sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
+  warmstart, states = np.zeros((c, m.nv)), np.zeros((c, backend.nstate))
+  qpos_buf = np.zeros((c, n_out, m.nq), np.float32)
+  com_buf = np.zeros((c, n_out, n_bodies, 3), np.float32)
+  wrench_full = np.zeros((c, spf, m.nbody, 6))
+  ctrl = np.zeros((0, 0)) if inp.ctrl is None else np.ascontiguousarray(inp.ctrl, np.float64)
+  if ctrl.ndim != 2 or ctrl.shape[1] == 0:
+    ctrl = np.zeros((1, 0))
+  f32 = lambda x: np.ascontiguousarray(np.asarray(x, np.float32))
+  arrays = (f32(path.qpos), f32(path.qvel), f32(inp.step_targets), f32(path.com), f32(path.quat),
+            f32(path.lin_vel), f32(path.ang_vel), np.ascontiguousarray(inp.qpos_object, bool),
+            np.ascontiguousarray(inp.dof_object, bool))
+  gravity = np.asarray(m.opt.gravity, np.float64)
+  models_lock = threading.Lock()
+  thread_params = threading.local()
+
+  def model_for(row):
+    with models_lock:
+      return inp.models(~active[row:row + 1])[0]
+
+  def call(row, model, data, flags):
+    if not hasattr(thread_params, "p"):  # each thread rewrites its own perturbable mask
+      thread_params.p = p._replace(perturbable=scene_perturbable.copy())
+    return run_refined_world(
+        row, model._address, data._address, data.qpos, data.qvel, data.xfrc_applied, data.sensordata,
+        data.ctrl, ctrl, inp.n_frames, f0, m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat,
+        *arrays, *inter, scene_perturbable, sensordata, warmstart, states, key_data, thread_params.p, carry,
+        body_ids, qpos_buf, com_buf, wrench_full, flags, frame_of, active, prev_inactive, activated,
+        audit_ratio, audit_stray)
+
+  def work(row, data):
+    mujoco.mj_resetData(m, data)
+    data.qpos[:] = inp.qpos0[row]
+    data.qvel[:] = inp.qvel0[row]
+    data.time = f0 * spf * m.opt.timestep
+    physics = 0.0
+    while True:
+      code, seconds = call(row, model_for(row), data, running)
+      physics += seconds
+      if code == FINISHED:
+        return physics
+
+  base = inp.models(np.zeros((1, n_objects), bool))[0]
+  t0 = time.perf_counter()
+  call(0, base, mujoco.MjData(base), np.zeros(c, bool))  # compiles, or loads numba's cache
+  compile_seconds = time.perf_counter() - t0
+
+  def on_sim_error(row):
+    running[row] = False
+    carry.status[row] = world.SIM_ERROR
+
+  def poll():
+    if progress is not None:
+      progress(int((carry.step - f0 * spf)[inp.running0].sum()), int((~running & inp.running0).sum()))
+
+  t0 = time.perf_counter()
+  backend.run_per_world(np.flatnonzero(inp.running0), work, base, on_sim_error, poll)
+  run_seconds = time.perf_counter() - t0
+  frame_count = carry.frame_count.astype(np.int32)
+  steps = np.where(inp.running0, carry.step - f0 * spf, 0).astype(np.int32)
+  return RefineOutput(
+      qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count), frame_count=frame_count,
+      status=carry.status.astype(np.int32), metrics=world.finalize_metrics(carry).astype(np.float32),
+      perturbations=carry.perturbations.astype(np.int32), steps=steps, active=active, activated=activated,
+      max_perturbation_ratio=audit_ratio.astype(np.float32), inactive_perturbations=audit_stray,
+      compile_seconds=compile_seconds, run_seconds=run_seconds)
+
+
+def available() -> bool:
+  """Whether the compiled loop can run here (MuJoCo's C library is bound)."""
+  return mujoco_c.available()

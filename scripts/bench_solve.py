@@ -1,0 +1,174 @@
+"""Unattended goal-seeking (mwbx.solve) and guided sampling, measured in one run.
+
+Three parts, each against a baseline measured here:
+
+  siggraph   sample worlds of configs/siggraph.yaml, then `mwbx.solve` for all
+             eight letters in their slots within a wall-time budget. Baseline:
+             plain sampling's odds, estimated from the sampled bank as the
+             product of the per-letter rates (the paper: ~1e-11), and the
+             paper's person, about an hour.
+  staircase  the same on configs/spiral_staircase.yaml (reach the ground floor
+             without falling off) within a budget.
+  guided     a query about 1 % of plain worlds meet (quickstart's box_a ends at
+             the back, y >= 0.5 m): guided sampling (`mwbx.search.guided_sample`,
+             R rounds of M worlds) against plain sampling of at least as many
+             world-steps with the same run key family. Matching worlds per
+             million world-steps, guided over plain (goal >= 10x).
+
+  .venv/bin/python scripts/bench_solve.py [--parts siggraph,staircase,guided] [--budget-s 600]
+
+Writes out/bench/solve.json (and solve_<scene>.png progress plots) and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import subprocess
+import time
+
+import jax
+import numpy as np
+import optax
+
+import mwbx
+from mwbx.progress import reporter
+from mwbx.queries import Query
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+# quickstart's box_a (it slides down the upper ramp) ends at the back of the floor.
+RARE_QUERY = Query.region((-1.4, 0.5, 0.0), (1.4, 1.2, 0.5), bodies="box_a", window=(3.5, None),
+                          name="box_a_ends_at_the_back")
+
+
+def _machine() -> dict:
+  commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                          text=True).stdout.strip()
+  return {"cpus": os.cpu_count(), "machine": platform.machine(), "backend": jax.default_backend(),
+          "commit": commit, "load_average": os.getloadavg()[0]}
+
+
+def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: pathlib.Path) -> dict:
+  config = mwbx.load_config(REPO / "configs" / f"{name}.yaml")
+  start = time.perf_counter()
+  with reporter(f"{name}: sample") as update:
+    bank = mwbx.sample(config, worlds, jax.random.key(0), backend="native", progress=update)
+  sample_s = time.perf_counter() - start
+  queries = mwbx.load_queries(REPO / "configs" / "queries" / f"{name}.yaml", bank=bank)
+  each = mwbx.evaluate_each(bank, queries)
+  rates = each[bank.valid].mean(axis=0)
+  with reporter(f"{name}: solve") as update:
+    result = mwbx.solve(bank, queries, budget=mwbx.search.Budget(seconds=budget_s), key=jax.random.key(0),
+                        samples=samples, backend="native", progress=update)
+  wall = time.perf_counter() - start
+  refined = [s for s in result.steps if s.refined >= 0]
+  plot = mwbx.search.progress_plot(result.steps, out.parent / f"solve_{name}.png",
+                                   title=f"{name}: queries met by the best world")
+  return {
+      "scene": name, "worlds_sampled": worlds, "sample_seconds": sample_s,
+      "valid": int(bank.valid.sum()), "unstable": int((~bank.valid).sum()),
+      "queries": [q.name for q in queries], "per_query_rate": rates.tolist(),
+      "sampled_best_met": int(each.sum(axis=1).max()), "sampled_all_met": int(each.all(axis=1).sum()),
+      "independent_estimate": float(np.prod(rates)),
+      "budget_seconds": budget_s, "samples_per_refinement": samples,
+      "solved": bool(result.solved), "satisfied": result.satisfied, "n_queries": result.n_queries,
+      "message": result.message, "world": result.world,
+      "lineage_depth": int(len(result.bank.ancestors(result.world))),
+      "refinements": len(refined), "world_steps": result.steps[-1].world_steps,
+      "solve_seconds": result.steps[-1].seconds, "wall_seconds": wall,
+      "first_all_met_seconds": next((s.seconds for s in result.steps if s.satisfied == result.n_queries), None),
+      "curve": [[s.seconds, s.world_steps, s.satisfied] for s in result.steps],
+      "plot": pathlib.Path(plot).name,
+  }
+
+
+def guided_vs_plain(rounds: int, batch: int, lr: float) -> dict:
+  config = mwbx.load_config(REPO / "configs" / "quickstart.yaml")
+  with mwbx.Sampler(config, backend="native") as sampler:
+    sampler.run(8, jax.random.key(99))  # warm-up: compile once, outside both timings
+    start = time.perf_counter()
+    with reporter("guided") as update:
+      guided = mwbx.search.guided_sample(sampler, [RARE_QUERY], rounds=rounds, batch=batch,
+                                         key=jax.random.key(1), optimizer=optax.adam(lr), progress=update)
+    guided_s = time.perf_counter() - start
+    g_steps = int(guided.bank.steps.sum())
+    g_match = int(mwbx.evaluate(guided.bank, [RARE_QUERY]).sum())
+    # Plain sampling of at least as many world-steps (batches of the same size).
+    start = time.perf_counter()
+    p_steps, p_match, p_worlds, first = 0, 0, 0, 0
+    with reporter("plain") as update:
+      while p_steps < g_steps:
+        part, _ = sampler.run(batch, jax.random.key(2), first_world=first, progress=update)
+        first += batch
+        p_steps += int(part.steps.sum())
+        p_match += int(mwbx.evaluate(part, [RARE_QUERY]).sum())
+        p_worlds += part.n_worlds
+    plain_s = time.perf_counter() - start
+  half = rounds // 2
+  late = guided.rounds[half:]
+  late_rate = sum(r.matches for r in late) / sum(r.world_steps for r in late) * 1e6
+  plain_rate = p_match / p_steps * 1e6
+  return {
+      "config": "configs/quickstart.yaml", "query": RARE_QUERY.name, "rounds": rounds, "batch": batch,
+      "learning_rate": lr,
+      "guided": {"worlds": guided.bank.n_worlds, "world_steps": g_steps, "matches": g_match,
+                 "seconds": guided_s, "per_million_steps": g_match / g_steps * 1e6,
+                 "late_per_million_steps": late_rate,
+                 "per_round_matches": [r.matches for r in guided.rounds],
+                 "per_round_scale": [r.scale_mean for r in guided.rounds]},
+      "plain": {"worlds": p_worlds, "world_steps": p_steps, "matches": p_match, "seconds": plain_s,
+                "rate": p_match / max(p_worlds, 1), "per_million_steps": plain_rate},
+      "ratio": (g_match / g_steps * 1e6) / plain_rate if p_match else None,
+      "late_ratio": late_rate / plain_rate if p_match else None,
+  }
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--parts", default="siggraph,staircase,guided")
+  parser.add_argument("--budget-s", type=float, default=600.0, help="solve budget per scene, s (paper goal 600)")
+  parser.add_argument("--staircase-budget-s", type=float, default=300.0)
+  parser.add_argument("--worlds", type=int, default=64, help="worlds sampled before solving")
+  parser.add_argument("--samples", type=int, default=32, help="refined worlds per refinement")
+  parser.add_argument("--rounds", type=int, default=24)
+  parser.add_argument("--batch", type=int, default=64)
+  parser.add_argument("--lr", type=float, default=0.5)
+  parser.add_argument("--out", default=str(REPO / "out" / "bench" / "solve.json"))
+  args = parser.parse_args()
+  out = pathlib.Path(args.out)
+  out.parent.mkdir(parents=True, exist_ok=True)
+  parts = args.parts.split(",")
+  result = json.loads(out.read_text()) if out.exists() else {}
+  result["machine"] = _machine()
+  if "siggraph" in parts:
+    result["siggraph"] = solve_scene("siggraph", args.worlds, args.budget_s, args.samples, out)
+    out.write_text(json.dumps(result, indent=1))
+  if "staircase" in parts:
+    result["staircase"] = solve_scene("spiral_staircase", args.worlds, args.staircase_budget_s, args.samples, out)
+    out.write_text(json.dumps(result, indent=1))
+  if "guided" in parts:
+    result["guided"] = guided_vs_plain(args.rounds, args.batch, args.lr)
+  result["machine"]["load_average_after"] = os.getloadavg()[0]
+  out.write_text(json.dumps(result, indent=1))
+
+  m = result["machine"]
+  print(f"{m['cpus']}-core {m['machine']} ({m['backend']}), commit {m['commit']}")
+  for key in ("siggraph", "staircase"):
+    if key in result:
+      r = result[key]
+      print(f"{r['scene']:<17} {r['message']}; plain-sampling estimate {r['independent_estimate']:.1e} per world")
+  if "guided" in result:
+    g = result["guided"]
+    print(f"guided           {g['guided']['matches']} of {g['guided']['worlds']} worlds match"
+          f" ({g['guided']['per_million_steps']:.1f} per million world-steps; last half"
+          f" {g['guided']['late_per_million_steps']:.1f}) vs plain {g['plain']['matches']} of"
+          f" {g['plain']['worlds']} ({g['plain']['per_million_steps']:.1f}): ratio"
+          f" {g['ratio'] or float('nan'):.1f}x (last half {g['late_ratio'] or float('nan'):.1f}x)")
+  print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+  main()
