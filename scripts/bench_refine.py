@@ -16,7 +16,10 @@ batch size. Reported:
     default does it before every physics step).
 Compile time is kept apart and never counted; both paths are warmed up first.
 
-  .venv/bin/python scripts/bench_refine.py [--worlds 64] [--object NAME] [--backend native]
+  .venv/bin/python scripts/bench_refine.py [--worlds 64] [--object NAME] [--few NAME] [--backend native]
+
+Two cases: the object still moving most after mid-way (it meets others), and
+``--few`` (default ball_6), one that touches few others.
 
 Writes out/bench/refine.json and prints a table.
 """
@@ -41,6 +44,8 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--few", default="ball_6",
+                      help="a second object to refine, one that touches few others (empty: none)")
   parser.add_argument("--config", default=str(REPO / "configs" / "pachinko.yaml"))
   parser.add_argument("--worlds", type=int, default=64)
   parser.add_argument("--object", default=None,
@@ -50,7 +55,19 @@ def main() -> None:
   parser.add_argument("--repeats", type=int, default=3, help="interleaved timed runs (fastest kept)")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "refine.json"))
   args = parser.parse_args()
+  cases = []
+  for obj in [args.object] + ([args.few] if args.few else []):
+    args.object = obj
+    cases.append(measure(args))
+  result = dict(cases[0], cases=cases)
+  out = pathlib.Path(args.out)
+  out.parent.mkdir(parents=True, exist_ok=True)
+  out.write_text(json.dumps(result, indent=2))
+  print(f"wrote {out}")
 
+
+def measure(args) -> dict:
+  """One refinement case against sampling (see the module docstring); prints its table."""
   config = mwbx.load_config(args.config)
   n = args.worlds
   sampler = mwbx.Sampler(config, backend=args.backend, chunk_size=n)
@@ -185,10 +202,6 @@ def main() -> None:
       "refine_frame_playback": frame_playback,
       "refine_lockstep": lockstep,
   }
-  out = pathlib.Path(args.out)
-  out.parent.mkdir(parents=True, exist_ok=True)
-  out.write_text(json.dumps(result, indent=2))
-
   print(f"{result['machine']}; {result['config']} on {result['backend']}, {n} worlds,"
         f" refining {args.object} of world {parent} from t_min = {result['t_min_s']:.3f} s"
         f" (parent {result['parent_frames']} frames)")
@@ -218,7 +231,7 @@ def main() -> None:
         f" ({active.sum() / exact.sum():.2f}x; never fewer: {result['activation']['never_fewer']})")
   print(f"active objects per refined world: mean {active.mean():.2f}, max {active.max()}"
         f" (of {len(bank.objects)}); largest |perturbation|/(alpha|dv|) {r.max_perturbation_ratio.max():.3f}")
-  print(f"wrote {out}")
+  return result
 
 
 if __name__ == "__main__":

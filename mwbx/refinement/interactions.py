@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 from mwbx.errors import MwbxError
-from mwbx.joints import JNT_SLIDE
+from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
 
 
 class InteractionParams(NamedTuple):
@@ -91,20 +91,65 @@ def body_radii(model: mujoco.MjModel, body_ids: np.ndarray, objects: dict, body_
   return radius.astype(np.float32)
 
 
+def ghost_slack(model: mujoco.MjModel, body_ids: np.ndarray, radius: np.ndarray, codec_bounds) -> np.ndarray:
+  """f64[B] how far a tracked body's geoms can lie from where its decoded
+  (stored) pose puts them, given the codec's bounds ``(e_pos m, e_rot rad,
+  e_scalar rad or m)``: a ghost is the original motion, the stored path is
+  within this of it.
+
+  Each joint from the object's root down to the body moves the body's geoms
+  by at most its bound times its lever arm: a free joint ``√3·e_pos`` (an ℓ∞
+  bound per axis) plus ``e_rot`` times its reach; a ball joint ``e_rot``, a
+  hinge ``e_scalar`` (rad) times the reach; a slide ``e_scalar`` (m). The
+  reach from a joint on body k to any geom point of body b is at most the
+  joint's offset in k, the chain of body offsets from k down to b, b's COM
+  offset and b's radius (whatever the joint angles). Joints of untracked
+  descendants (whose geoms the radius covers) add their bound times twice
+  the radius.
+  """
+  e_pos, e_rot, e_scalar = codec_bounds
+  tracked = {int(b) for b in body_ids}
+  slack = np.zeros(len(body_ids))
+  for i, b in enumerate(np.asarray(body_ids)):
+    b = int(b)
+    reach_b = float(np.linalg.norm(model.body_ipos[b])) + float(radius[i])
+    chain, k = 0.0, b
+    while k != 0:
+      for j in range(model.body_jntadr[k], model.body_jntadr[k] + model.body_jntnum[k]):
+        kind = int(model.jnt_type[j])
+        lever = float(np.linalg.norm(model.jnt_pos[j])) + chain + reach_b
+        if kind == JNT_FREE:
+          slack[i] += np.sqrt(3.0) * e_pos + e_rot * (chain + reach_b)
+        elif kind == JNT_BALL:
+          slack[i] += e_rot * lever
+        elif kind == JNT_HINGE:
+          slack[i] += e_scalar * lever
+        else:
+          slack[i] += e_scalar
+      chain += float(np.linalg.norm(model.body_pos[k]))
+      k = int(model.body_parentid[k])
+    # Untracked descendants that the body's radius covers.
+    for d in range(b + 1, model.nbody):
+      a = d
+      while a not in tracked and a != 0:
+        a = int(model.body_parentid[a])
+      if a != b or d == b:
+        continue
+      for j in range(model.body_jntadr[d], model.body_jntadr[d] + model.body_jntnum[d]):
+        kind = int(model.jnt_type[j])
+        slack[i] += e_scalar if kind == JNT_SLIDE else max(e_rot, e_scalar) * 2.0 * float(radius[i])
+  return slack
+
+
 def interaction_params(model, body_ids, body_names, objects: dict, object_names, codec_bounds,
                        margin: float, horizon: float, alpha: float) -> InteractionParams:
   """Builds :class:`InteractionParams` for a scene (host, once)."""
   radius = body_radii(model, body_ids, objects, body_names)
   onehot = np.zeros((len(body_names), len(object_names)), np.float32)
-  joints = np.zeros(len(body_names))
   for o, name in enumerate(object_names):
-    root = model.body(name).id
-    n_joints = sum(1 for j in range(model.njnt) if model.body_rootid[model.jnt_bodyid[j]] == root)
     for b in objects[name]:
       onehot[body_names.index(b), o] = 1.0
-      joints[body_names.index(b)] = n_joints
-  e_pos, e_rot, e_scalar = codec_bounds
-  slack = np.sqrt(3.0) * e_pos + joints * max(e_rot, e_scalar) * (radius + 1.0)
+  slack = ghost_slack(model, body_ids, radius, codec_bounds)
   return InteractionParams(
       body_object=jnp.asarray(onehot), radius=jnp.asarray(radius), ghost_slack=jnp.asarray(slack, jnp.float32),
       margin=float(margin), horizon=float(horizon), speed_factor=1.0 + 2.0 * float(alpha),
