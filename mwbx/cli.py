@@ -293,7 +293,7 @@ def _cmd_solve(args) -> int:
                   world_steps=None if args.step_budget is None else int(args.step_budget))
   with reporter("solve") as update:
     result = solve(bank, queries, budget=budget, key=jax.random.key(args.seed), samples=args.samples,
-                   keep=args.keep, tries_per_world=args.tries, backend=args.backend,
+                   keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
                    guided_rounds=args.guided_rounds, guided_batch=args.guided_batch, progress=update)
   out = pathlib.Path(args.out or args.bank)
   print(f"mwbx: saving {result.bank.n_worlds} worlds to {out}", file=sys.stderr)
@@ -412,6 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--samples", type=int, default=32, help="refined worlds per refinement (default 32)")
   p.add_argument("--keep", type=int, default=4, help="best children kept per refinement (default 4)")
   p.add_argument("--tries", type=int, default=4, help="refinements from one world before moving on (default 4)")
+  p.add_argument("--patience", type=int, default=40,
+                 help="refinements without progress before the blocking query is fixed (default 40)")
   p.add_argument("--guided-rounds", type=int, default=0, metavar="R",
                  help="batches of guided sampling added before the search (default 0)")
   p.add_argument("--guided-batch", type=int, default=64, metavar="M", help="worlds per guided batch")

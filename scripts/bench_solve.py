@@ -70,7 +70,7 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
   return {
       "scene": name, "worlds_sampled": worlds, "sample_seconds": sample_s,
       "valid": int(bank.valid.sum()), "unstable": int((~bank.valid).sum()),
-      "queries": [q.name for q in queries], "per_query_rate": rates.tolist(),
+      "queries": [q.name for q in queries.queries], "per_query_rate": rates.tolist(),
       "sampled_best_met": int(each.sum(axis=1).max()), "sampled_all_met": int(each.all(axis=1).sum()),
       "independent_estimate": float(np.prod(rates)),
       "budget_seconds": budget_s, "samples_per_refinement": samples,

@@ -16,6 +16,8 @@ import pathlib
 import re
 import shutil
 
+import numpy as np
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 HEADLINE = re.compile(r"(<!-- headline figures: generated -->\n).*?(<!-- end of generated figures -->)", re.S)
 
@@ -162,14 +164,86 @@ def refinement(d: dict) -> tuple[list[str], list[str]]:
            f"| refinement's cost per step relative to it | {d['step_cost_ratio']:.2f} | "
            f"{d['step_cost_ratio_same_span']:.2f} | 1 |", "",
            f"Largest applied perturbation: {r['max_perturbation_ratio']:.3f} α‖Δv‖."]
-  fp = d.get("refine_frame_playback")
-  if fp:
-    lines.append(f"Frame-boundary playback: {fp['us_per_world_step']:.1f} µs per world-step "
-                 f"({fp['step_cost_ratio']:.2f}× whole worlds, {fp['step_cost_ratio_same_span']:.2f}× "
-                 "the same span).")
+  for key, label in (("refine_lockstep", "Lockstep rollout loop (`loop=\"lockstep\"`, the loop the compiled one "
+                                         "replaced)"),
+                     ("refine_frame_playback", "Lockstep with frame-boundary playback")):
+    fp = d.get(key)
+    if fp:
+      lines.append(f"{label}: {fp['us_per_world_step']:.1f} µs per world-step "
+                   f"({fp['step_cost_ratio']:.2f}× whole worlds, {fp['step_cost_ratio_same_span']:.2f}× "
+                   "the same span).")
+  cases = d.get("cases", [])
+  if cases and "activation" in cases[0]:
+    lines += ["", "Per case (the compiled loop; *exact*: the objects `mwbx.refinement.exact_active` activates, "
+              "MuJoCo's geom distance with the same margin at every stored frame; interactive: "
+              f"{d['worlds']} refined worlds, warm, compression included):", "",
+              "| refined object | active objects (sphere test) | exact test | ratio | never fewer | "
+              "cost per step vs the same span | vs the lockstep loop | wall | first world done |",
+              "|---|---:|---:|---:|---|---:|---:|---:|---:|"]
+    for c in cases:
+      a, rr = c["activation"], c["refine"]
+      lock = c.get("refine_lockstep")
+      lines.append(
+          f"| `{c['object']}` | {np.mean(a['sphere_active']):.2f} | {np.mean(a['exact_active']):.2f} | "
+          f"{a['ratio_mean']:.2f} | {'yes' if a['never_fewer'] else '**no**'} | "
+          f"{c['step_cost_ratio_same_span']:.2f} | "
+          f"{(lock['run_s'] / rr['run_s']) if lock else float('nan'):.2f}× faster | {rr['wall_s']:.2f} s | "
+          f"{rr['first_world_s']:.2f} s |")
   head = [f"**refinement**: {d['step_cost_ratio_same_span']:.2f}× the cost per step of plain sampling "
           f"over the same span, {d['speedup_wall']:.2f}× faster than sampling whole worlds (wall)"]
+  few = [c for c in cases[1:] if "activation" in c]
+  if few:
+    c = few[0]
+    head[0] += (f"; {c['step_cost_ratio_same_span']:.2f}× with {np.mean(c['activation']['sphere_active']):.0f} "
+                f"object active; {d['worlds']} refined worlds in {d['refine']['wall_s']:.2f} s wall")
   return lines, head
+
+
+def solve(d: dict) -> tuple[list[str], list[str]]:
+  m = d["machine"]
+  lines = ["## Solve", "",
+           "`scripts/bench_solve.py`: `mwbx.solve` searching the refinement tree unattended "
+           "([search](search.md)), and guided sampling against plain sampling. "
+           f"Machine: {m['cpus']}-core {m['machine']} CPU, no GPU ({m['backend']}); commit {m['commit']}; "
+           f"load average {m['load_average']:.1f} at the start.", ""]
+  head = []
+  rows = [d[k] for k in ("siggraph", "staircase") if k in d]
+  if rows:
+    lines += ["| scene | sampled | valid | best sampled | plain-sampling estimate | budget | result | "
+              "refinements | world-steps | wall (sample + solve) |",
+              "|---|---:|---:|---:|---:|---:|---|---:|---:|---:|"]
+    for r in rows:
+      result = "all met" if r["solved"] else f"{r['satisfied']} of {r['n_queries']} met"
+      lines.append(f"| {r['scene']} | {r['worlds_sampled']} | {r['valid']} | {r['sampled_best_met']} of "
+                   f"{r['n_queries']} | {r['independent_estimate']:.1e} per world | {r['budget_seconds']:.0f} s | "
+                   f"{result} | {r['refinements']} | {r['world_steps']:,} | {r['wall_seconds']:.0f} s |")
+    lines += [""] + [f"![{r['scene']} solve progress](bench/{r['plot']})" for r in rows] + [""]
+    for r in rows:
+      lines.append(f"* {r['scene']}: {r['message']}")
+    lines.append("")
+    s = d.get("siggraph")
+    if s:
+      head.append(f"spelling SIGGRAPH {'solved' if s['solved'] else str(s['satisfied']) + ' of 8 letters'} "
+                  f"unattended in {s['wall_seconds'] / 60:.1f} min ({s['refinements']} refinements; plain "
+                  f"sampling ~{s['independent_estimate']:.0e} per world)")
+  g = d.get("guided")
+  if g:
+    gg, p = g["guided"], g["plain"]
+    lines += [f"**Guided vs plain sampling** on `{g['config']}`, query `{g['query']}` (plain rate "
+              f"{p['rate']:.1%}): {g['rounds']} rounds of {g['batch']} guided worlds (`adam({g['learning_rate']})`) "
+              "against plain sampling of at least as many world-steps.", "",
+              "| | worlds | world-steps | matching worlds | per million world-steps |",
+              "|---|---:|---:|---:|---:|",
+              f"| plain (baseline) | {p['worlds']} | {p['world_steps']:,} | {p['matches']} | "
+              f"{p['per_million_steps']:.1f} |",
+              f"| guided, all rounds | {gg['worlds']} | {gg['world_steps']:,} | {gg['matches']} | "
+              f"{gg['per_million_steps']:.1f} ({g['ratio']:.1f}×) |",
+              f"| guided, last half of the rounds | | | | {gg['late_per_million_steps']:.1f} "
+              f"({g['late_ratio']:.1f}×) |", "",
+              "Matches per round: " + ", ".join(str(x) for x in gg["per_round_matches"]) + ".", ""]
+    head.append(f"guided sampling finds {g['ratio']:.1f}× as many matching worlds per world-step as plain "
+                f"sampling ({g['late_ratio']:.1f}× once learnt)")
+  return lines, ([f"**solve**: {'; '.join(head)}"] if head else [])
 
 
 def bank(d: dict) -> tuple[list[str], list[str]]:
@@ -275,8 +349,22 @@ def scale(d: dict) -> tuple[list[str], list[str]]:
   return lines, ([f"**scale**: {'; '.join(head)}"] if head else [])
 
 
+def scenes(d: dict) -> tuple[list[str], list[str]]:
+  lines = ["## Paper scenes", "",
+           "`scripts/scene_counts.py`: each of the paper's §6 scenes sampled on both backends (seed 0; "
+           f"{d['machine']}): valid and unstable worlds, and how many meet each query of its query file.", "",
+           "| scene | backend | worlds | valid | unstable | MuJoCo errors | all queries met | per query |",
+           "|---|---|---:|---:|---:|---:|---:|---|"]
+  for r in d["rows"]:
+    per = ", ".join(f"{k} {v}" for k, v in r["per_query"].items())
+    lines.append(f"| {r['scene']} | {r['backend']} | {r['worlds']} | {r['valid']} | {r['unstable']} | "
+                 f"{r['sim_errors']} | {r['all_met']} | {per} |")
+  return lines + [""], []
+
+
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
-            ("refine", refinement), ("bank", bank), ("browse", browse), ("scale", scale))
+            ("refine", refinement), ("bank", bank), ("browse", browse), ("scale", scale), ("scenes", scenes),
+            ("solve", solve))
 
 
 def main() -> None:
@@ -301,7 +389,7 @@ def main() -> None:
     lines, head = section(data)
     doc += lines + [""]
     headline += head
-  for extra in ("codec_rd.png",):
+  for extra in ("codec_rd.png", "solve_siggraph.png", "solve_spiral_staircase.png"):
     if (args.bench / extra).exists() and args.bench.resolve() != keep.resolve():
       shutil.copy(args.bench / extra, keep / extra)
   (ROOT / "docs" / "benchmarks.md").write_text("\n".join(doc).rstrip() + "\n")

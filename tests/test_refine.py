@@ -258,3 +258,19 @@ def test_compiled_loop_matches_the_lockstep_loop(bank, case, request):
   np.testing.assert_allclose(compiled.metrics, lockstep.metrics, rtol=1e-3, atol=1e-3)
   assert np.all(c_stats.max_perturbation_ratio <= 1.0 + 1e-5) and np.all(c_stats.inactive_perturbations == 0)
   np.testing.assert_allclose(c_stats.max_perturbation_ratio, l_stats.max_perturbation_ratio, rtol=1e-4)
+
+
+def test_sphere_test_never_activates_fewer_than_an_exact_test(bank, case_a, case_b):
+  """The conservative sphere test against MuJoCo's geom distance with the same
+  margin (mwbx.refinement.exact_active): never fewer objects."""
+  from mwbx.refinement import exact_active
+  checked = 0
+  for parent, new, _ in (case_a, case_b):
+    both = bank.append(new)
+    for world in new.world_ids:
+      sphere = set(new.lineage[str(int(world))]["active"])
+      exact = set(exact_active(both, int(world)))
+      assert exact <= sphere, (int(world), exact, sphere)
+      assert "striker" in exact
+      checked += len(exact) > 1
+  assert checked > 0  # the exact test does activate the target in some worlds

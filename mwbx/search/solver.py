@@ -23,6 +23,10 @@ best-first over the bank's refinement tree:
    are dropped. A branch that stops improving is abandoned once its worlds'
    tries run out, and the search goes on from the next best world: an
    ancestor, a sibling, or another sampled world (back-tracking).
+5. After ``patience`` refinements without a better best world, the query the
+   search has aimed at most and still fails is *fixed*: the search goes on
+   only in worlds that already meet it (where the initial conditions put a
+   letter in its slot, say) and repairs the other queries there.
 
 Every step is an ordinary :func:`mwbx.refine`: the result is an ordinary,
 plausible world with its full lineage, viewable and refinable by hand.
@@ -190,7 +194,8 @@ def _label(query, index: int) -> str:
 
 
 def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | None = None,
-          samples: int = 32, keep: int = 4, tries_per_world: int = 4, backend: str | None = None,
+          samples: int = 32, keep: int = 4, tries_per_world: int = 4, patience: int = 40,
+          backend: str | None = None,
           guided_rounds: int = 0, guided_batch: int = 64, tie_metric: str = "collisions",
           progress=None, throw: bool = False) -> SolveResult:
   """Searches the bank's refinement tree for a world that meets every query.
@@ -202,6 +207,9 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     key: search key (default ``jax.random.key(0)``: a search is repeatable).
     samples: refined worlds per refinement. keep: children kept per refinement.
     tries_per_world: refinements from one world before the search moves on.
+    patience: refinements without a better best world before the search
+      fixes the query that blocks it: from then on it works only in worlds
+      that meet that query (see the module docstring).
     backend: ``native`` | ``mjx`` (default: the bank's config's).
     guided_rounds: batches of guided sampling (:func:`guided_sample`) added to
       the bank before the search, ``guided_batch`` worlds each.
@@ -236,6 +244,9 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
   steps: list[SolveStep] = []
   spent_steps, refinements = 0, 0
   tries: dict[int, int] = {}
+  fixed: list[int] = []  # queries every world worked on must meet (stalls)
+  attempts = np.zeros(n_queries, np.int64)  # refinements aimed at each query
+  last_gain, best_met = 0, -1
 
   def best_rows(rows: np.ndarray) -> np.ndarray:
     """``rows`` best first: most met, smallest squashed gaps, smallest tie metric."""
@@ -269,8 +280,26 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     if budget.spent(refinements, time.perf_counter() - start, spent_steps):
       reason = "budget spent"
       break
-    rows = best_rows(np.flatnonzero(bank.valid))
+    if best.satisfied > best_met:
+      best_met, last_gain = best.satisfied, refinements
+    elif refinements - last_gain >= patience:
+      # Stalled: the query the search keeps failing on may be out of reach
+      # from these worlds (their initial conditions decide it). Go on in the
+      # worlds that already meet it.
+      best_row = bank.row_of(best.world)
+      blocking = [q for q in np.argsort(-attempts, kind="stable") if not met[best_row, q] and q not in fixed]
+      pool = met[:, fixed].all(axis=1) & np.asarray(bank.valid, bool)
+      for q in blocking:
+        if (pool & met[:, q]).any():
+          fixed.append(int(q))
+          break
+      last_gain = refinements
+    eligible = np.asarray(bank.valid, bool) & met[:, fixed].all(axis=1)
+    rows = best_rows(np.flatnonzero(eligible))
     rows = [r for r in rows if tries.get(int(bank.world_ids[r]), 0) < tries_per_world]
+    if not rows and fixed:
+      fixed.clear()  # every world meeting the fixed queries was tried: all worlds again
+      continue
     if not rows:
       reason = "every world tried"
       break
@@ -282,6 +311,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     chosen = [unmet[attempt % len(unmet)]]
     if attempt >= 1 and len(unmet) >= 2:  # pairs, from the second try on
       chosen.append(unmet[(attempt + 1) % len(unmet)])
+    attempts[chosen] += 1
     objects = []
     for q in chosen:
       objects += [o for o in involved_objects(bank, queries[q]) if o not in objects]
