@@ -222,12 +222,7 @@ class NativeBackend:
     ch = self._chunk(scene, params, qpos0, qvel0, step_keys, active, n_frames)
     carry, running, active = ch.carry, ch.running, ch.active
     initial = ch.states.copy()  # ch.states moves on with each world
-    free = ch.free_bodies is not None
-    if free:
-      qpos_adr, dof_adr, ipos, iquat = ch.free_bodies
-    else:
-      qpos_adr = dof_adr = np.zeros(0, np.int64)
-      ipos, iquat = np.zeros((0, 3)), np.zeros((0, 4))
+    free, (qpos_adr, dof_adr, ipos, iquat) = free_bodies_lib.host_arrays(ch.free_bodies)
     model = self.quiet_model if free else m
     gravity = np.asarray(m.opt.gravity, np.float64)
     ctrl_table = controls.scene_table(scene, n_frames * params.steps_per_frame)
@@ -246,17 +241,13 @@ class NativeBackend:
     run(0, mujoco.MjData(model), np.zeros(c, bool))
     compile_seconds = time.perf_counter() - t0
 
-    def on_sim_error(row):
-      running[row] = False
-      carry.status[row] = world.SIM_ERROR
-
     def poll():
       if progress is not None:
         progress(int(carry.step.sum()), int((~running & active).sum()))
 
     t0 = time.perf_counter()
     physics, busy, sim_errors = self.run_per_world(
-        np.flatnonzero(active), lambda row, data: run(row, data, running), model, on_sim_error, poll)
+        np.flatnonzero(active), lambda row, data: run(row, data, running), model, running, carry.status, poll)
     run_seconds = time.perf_counter() - t0
     if progress is not None:
       progress(int(carry.step.sum()), int(active.sum()))
@@ -265,7 +256,7 @@ class NativeBackend:
     return self._result(ch, compile_seconds, run_seconds, physics_seconds)._replace(
         errors=tuple(sim_errors))
 
-  def run_per_world(self, rows, work, model: mujoco.MjModel, on_sim_error, poll=None):
+  def run_per_world(self, rows, work, model: mujoco.MjModel, running: np.ndarray, status: np.ndarray, poll=None):
     """Runs ``work(row, data)`` for every row on the backend's threads, each
     thread with its own ``MjData`` of ``model`` (reused from world to world),
     with MuJoCo errors trapped (:func:`mujoco_c.trap_errors`).
@@ -275,9 +266,9 @@ class NativeBackend:
       work: ``work(row, data) -> seconds inside mj_step``; runs without the GIL
         where it calls compiled loops.
       model: the model the threads' data are made for.
-      on_sim_error: ``on_sim_error(row)`` on the erring thread when MuJoCo
-        raises an error in that row's world: flag it (the thread is then
-        parked for good and a fresh one takes its place).
+      running: bool[C]; status: i[C] (out): a world MuJoCo raises an error in
+        stops running with status ``world.SIM_ERROR`` (its thread is parked
+        for good and a fresh one takes its place).
       poll: optional callable, called about every 0.25 s while the threads run.
 
     Returns:
@@ -324,7 +315,8 @@ class NativeBackend:
     def on_error(message):
       """On the erring thread: flag its world; a fresh thread takes its place."""
       row = current[threading.get_ident()]
-      on_sim_error(row)
+      running[row] = False
+      status[row] = world.SIM_ERROR
       with lock:
         parked.add(threading.get_ident())
         sim_errors.append((row, message))

@@ -34,10 +34,31 @@ _FULLPHYSICS = mujoco_c.STATE_FULLPHYSICS
 
 
 @_jit
-def _now(ts):
+def monotonic_seconds(ts):
   """Monotonic clock, s (``ts``: i64[2] scratch for the timespec)."""
   _clock(_CLOCK, ts.ctypes.data)
   return ts[0] + 1e-9 * ts[1]
+
+
+@_jit
+def physics_step(model_adr, data_adr, xfrc_applied, wrench, data_ctrl, ctrl_table, k, state_out, free,
+                 sensors_out, data_sensordata):
+  """One ``mj_step`` of a world with the step's applied wrenches and control.
+
+  Args:
+    wrench: f64[nbody, 6] ``xfrc_applied`` of the step.
+    ctrl_table: f64[N, nu] control per step (width 0: ``ctrl`` left alone); k: the step.
+    state_out: f64[nstate] out: the full physics state after the step.
+    sensors_out: f64[nsensordata] out unless ``free``: the sensors of the
+      state the step started from.
+  """
+  xfrc_applied[:, :] = wrench
+  if ctrl_table.shape[1] > 0:
+    data_ctrl[:] = ctrl_table[min(k, ctrl_table.shape[0] - 1)]
+  _step(model_adr, data_adr)
+  _get_state(model_adr, data_adr, state_out.ctypes.data, _FULLPHYSICS)
+  if not free:
+    sensors_out[:] = data_sensordata
 
 
 @_jit
@@ -80,16 +101,11 @@ def run_world(row, model_adr, data_adr, xfrc_applied, data_sensordata, data_ctrl
   frame = 0
   while running[row] and frame < n_frames:
     _get_state(model_adr, data_adr, before[0].ctypes.data, _FULLPHYSICS)
-    start = _now(ts)
+    start = monotonic_seconds(ts)
     for s in range(n_steps):
-      xfrc_applied[:, :] = wrench_full[row, s]
-      if ctrl_table.shape[1] > 0:
-        data_ctrl[:] = ctrl_table[min(frame * n_steps + s, ctrl_table.shape[0] - 1)]
-      _step(model_adr, data_adr)
-      _get_state(model_adr, data_adr, after[0, s].ctypes.data, _FULLPHYSICS)
-      if not free:
-        sensors[0, s, :] = data_sensordata  # the sensors of the state the step started from
-    physics += _now(ts) - start
+      physics_step(model_adr, data_adr, xfrc_applied, wrench_full[row, s], data_ctrl, ctrl_table,
+                   frame * n_steps + s, after[0, s], free, sensors[0, s], data_sensordata)
+    physics += monotonic_seconds(ts) - start
     host_loops.absorb_rows(rows, before, after, sensors, timestep, 1 + nq, sensordata, warmstart,
                            states)
     if free:

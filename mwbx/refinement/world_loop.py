@@ -41,28 +41,21 @@ import mujoco
 import numba
 import numpy as np
 
-from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world
+from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops, mujoco_c, world
 from mwbx.batch_sim.backend import fill_tail
+from mwbx.batch_sim.world_loop import monotonic_seconds as _now
+from mwbx.batch_sim.world_loop import physics_step
 from mwbx.refinement import interactions
 from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR_WIDTH
 
 _jit = numba.njit(cache=True, nogil=True)
 
-_step = mujoco_c.mj_step
 _get_state = mujoco_c.mj_getState
-_clock = mujoco_c.clock_gettime
-_CLOCK = mujoco_c.CLOCK_MONOTONIC
 _FULLPHYSICS = mujoco_c.STATE_FULLPHYSICS
 
 # What a call of run_refined_world ended with.
 FINISHED = 0
 ACTIVATED = 1  # the active set grew: call again with the new inactive set's model
-
-
-@_jit
-def _now(ts):
-  _clock(_CLOCK, ts.ctypes.data)
-  return ts[0] + 1e-9 * ts[1]
 
 
 @_jit
@@ -206,13 +199,8 @@ def run_refined_world(row, model_adr, data_adr, data_qpos, data_qvel, xfrc_appli
       if s > 0:
         _put_on_path(data_qpos, data_qvel, inactive, qpos_object, dof_object, step_targets[frame * n_steps + s],
                      path_qvel[frame])
-      xfrc_applied[:, :] = wrench_full[row, s]
-      if ctrl_table.shape[1] > 0:
-        data_ctrl[:] = ctrl_table[min(frame * n_steps + s, ctrl_table.shape[0] - 1)]
-      _step(model_adr, data_adr)
-      _get_state(model_adr, data_adr, after[0, s].ctypes.data, _FULLPHYSICS)
-      if not free:
-        sensors[0, s, :] = data_sensordata
+      physics_step(model_adr, data_adr, xfrc_applied, wrench_full[row, s], data_ctrl, ctrl_table,
+                   frame * n_steps + s, after[0, s], free, sensors[0, s], data_sensordata)
     physics += _now(ts) - start
     host_loops.absorb_rows(rows, before, after, sensors, timestep, 1 + nq, sensordata, warmstart, states)
     if free:
@@ -266,12 +254,7 @@ def run_compiled(backend, inp, progress=None):
   n_out = inp.n_frames - f0
   body_ids = np.asarray(inp.body_ids, np.int64)
   n_bodies, n_objects = len(body_ids), inp.active0.shape[1]
-  free = inp.free_bodies is not None
-  if free:
-    qpos_adr, dof_adr, ipos, iquat = inp.free_bodies
-  else:
-    qpos_adr = dof_adr = np.zeros(0, np.int64)
-    ipos, iquat = np.zeros((0, 3)), np.zeros((0, 4))
+  free, (qpos_adr, dof_adr, ipos, iquat) = free_bodies.host_arrays(inp.free_bodies)
   p = host_bookkeeping.host_params(params)
   scene_perturbable = p.perturbable.copy()
   carry = host_bookkeeping.init_carry(n_bodies, inp.running0)
@@ -333,16 +316,12 @@ def run_compiled(backend, inp, progress=None):
   call(0, base, mujoco.MjData(base), np.zeros(c, bool))  # compiles, or loads numba's cache
   compile_seconds = time.perf_counter() - t0
 
-  def on_sim_error(row):
-    running[row] = False
-    carry.status[row] = world.SIM_ERROR
-
   def poll():
     if progress is not None:
       progress(int((carry.step - f0 * spf)[inp.running0].sum()), int((~running & inp.running0).sum()))
 
   t0 = time.perf_counter()
-  backend.run_per_world(np.flatnonzero(inp.running0), work, base, on_sim_error, poll)
+  backend.run_per_world(np.flatnonzero(inp.running0), work, base, running, carry.status, poll)
   run_seconds = time.perf_counter() - t0
   frame_count = carry.frame_count.astype(np.int32)
   steps = np.where(inp.running0, carry.step - f0 * spf, 0).astype(np.int32)
