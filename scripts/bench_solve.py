@@ -12,8 +12,8 @@ Three parts, each against a baseline measured here:
   guided     a query about 1 % of plain worlds meet (quickstart's box_a ends at
              the back, y >= 0.5 m): guided sampling (`mwbx.search.guided_sample`,
              R rounds of M worlds) against plain sampling of at least as many
-             world-steps with the same run key family. Matching worlds per
-             million world-steps, guided over plain (goal >= 10x).
+             world-steps, once per seed (3 by default), pooled. Matching worlds
+             per million world-steps, guided over plain (goal >= 10x).
 
   .venv/bin/python scripts/bench_solve.py [--parts siggraph,staircase,guided] [--budget-s 600]
 
@@ -32,7 +32,6 @@ import time
 
 import jax
 import numpy as np
-import optax
 
 import mwbx
 from mwbx.progress import reporter
@@ -85,44 +84,57 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
   }
 
 
-def guided_vs_plain(rounds: int, batch: int, lr: float) -> dict:
+def guided_vs_plain(rounds: int, batch: int, seeds: list[int]) -> dict:
+  """Per seed: guided sampling (default optimiser), then plain sampling of at
+  least as many world-steps; pooled over the seeds."""
   config = mwbx.load_config(REPO / "configs" / "quickstart.yaml")
+  runs = []
   with mwbx.Sampler(config, backend="native") as sampler:
     sampler.run(8, jax.random.key(99))  # warm-up: compile once, outside both timings
-    start = time.perf_counter()
-    with reporter("guided") as update:
-      guided = mwbx.search.guided_sample(sampler, [RARE_QUERY], rounds=rounds, batch=batch,
-                                         key=jax.random.key(1), optimizer=optax.adam(lr), progress=update)
-    guided_s = time.perf_counter() - start
-    g_steps = int(guided.bank.steps.sum())
-    g_match = int(mwbx.evaluate(guided.bank, [RARE_QUERY]).sum())
-    # Plain sampling of at least as many world-steps (batches of the same size).
-    start = time.perf_counter()
-    p_steps, p_match, p_worlds, first = 0, 0, 0, 0
-    with reporter("plain") as update:
-      while p_steps < g_steps:
-        part, _ = sampler.run(batch, jax.random.key(2), first_world=first, progress=update)
-        first += batch
-        p_steps += int(part.steps.sum())
-        p_match += int(mwbx.evaluate(part, [RARE_QUERY]).sum())
-        p_worlds += part.n_worlds
-    plain_s = time.perf_counter() - start
-  half = rounds // 2
-  late = guided.rounds[half:]
-  late_rate = sum(r.matches for r in late) / sum(r.world_steps for r in late) * 1e6
-  plain_rate = p_match / p_steps * 1e6
+    for seed in seeds:
+      start = time.perf_counter()
+      with reporter(f"guided (seed {seed})") as update:
+        guided = mwbx.search.guided_sample(sampler, [RARE_QUERY], rounds=rounds, batch=batch,
+                                           key=jax.random.key(seed), progress=update)
+      guided_s = time.perf_counter() - start
+      g_steps = int(guided.bank.steps.sum())
+      g_match = int(mwbx.evaluate(guided.bank, [RARE_QUERY]).sum())
+      late = guided.rounds[rounds // 2:]
+      start = time.perf_counter()
+      p_steps, p_match, p_worlds = 0, 0, 0
+      with reporter(f"plain (seed {seed})") as update:
+        while p_steps < g_steps:
+          part, _ = sampler.run(batch, jax.random.key(1000 + seed), first_world=p_worlds, progress=update)
+          p_steps += int(part.steps.sum())
+          p_match += int(mwbx.evaluate(part, [RARE_QUERY]).sum())
+          p_worlds += part.n_worlds
+      runs.append({
+          "seed": seed, "guided_worlds": guided.bank.n_worlds, "guided_world_steps": g_steps,
+          "guided_matches": g_match, "guided_seconds": guided_s,
+          "late_matches": sum(r.matches for r in late), "late_world_steps": sum(r.world_steps for r in late),
+          "per_round_matches": [r.matches for r in guided.rounds],
+          "per_round_scale": [r.scale_mean for r in guided.rounds],
+          "plain_worlds": p_worlds, "plain_world_steps": p_steps, "plain_matches": p_match,
+          "plain_seconds": time.perf_counter() - start})
+  total = lambda key: sum(r[key] for r in runs)
+  plain_rate = total("plain_matches") / total("plain_world_steps") * 1e6
+  guided_rate = total("guided_matches") / total("guided_world_steps") * 1e6
+  late_rate = total("late_matches") / total("late_world_steps") * 1e6
+  for r in runs:
+    r["ratio"] = (r["guided_matches"] / r["guided_world_steps"]) / max(r["plain_matches"] / r["plain_world_steps"], 1e-30)
   return {
       "config": "configs/quickstart.yaml", "query": RARE_QUERY.name, "rounds": rounds, "batch": batch,
-      "learning_rate": lr,
-      "guided": {"worlds": guided.bank.n_worlds, "world_steps": g_steps, "matches": g_match,
-                 "seconds": guided_s, "per_million_steps": g_match / g_steps * 1e6,
-                 "late_per_million_steps": late_rate,
-                 "per_round_matches": [r.matches for r in guided.rounds],
-                 "per_round_scale": [r.scale_mean for r in guided.rounds]},
-      "plain": {"worlds": p_worlds, "world_steps": p_steps, "matches": p_match, "seconds": plain_s,
-                "rate": p_match / max(p_worlds, 1), "per_million_steps": plain_rate},
-      "ratio": (g_match / g_steps * 1e6) / plain_rate if p_match else None,
-      "late_ratio": late_rate / plain_rate if p_match else None,
+      "optimizer": f"adam({mwbx.search.guided.MEAN_LEARNING_RATE}) on means, "
+                   f"adam({mwbx.search.guided.SCALE_LEARNING_RATE}) on log scales",
+      "seeds": runs,
+      "guided": {"worlds": total("guided_worlds"), "world_steps": total("guided_world_steps"),
+                 "matches": total("guided_matches"), "per_million_steps": guided_rate,
+                 "late_per_million_steps": late_rate},
+      "plain": {"worlds": total("plain_worlds"), "world_steps": total("plain_world_steps"),
+                "matches": total("plain_matches"), "rate": total("plain_matches") / total("plain_worlds"),
+                "per_million_steps": plain_rate},
+      "ratio": guided_rate / plain_rate if plain_rate else None,
+      "late_ratio": late_rate / plain_rate if plain_rate else None,
   }
 
 
@@ -135,7 +147,7 @@ def main() -> None:
   parser.add_argument("--samples", type=int, default=32, help="refined worlds per refinement")
   parser.add_argument("--rounds", type=int, default=24)
   parser.add_argument("--batch", type=int, default=64)
-  parser.add_argument("--lr", type=float, default=0.5)
+  parser.add_argument("--seeds", default="1,2,3", help="guided vs plain: one run per seed, pooled")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "solve.json"))
   args = parser.parse_args()
   out = pathlib.Path(args.out)
@@ -150,7 +162,7 @@ def main() -> None:
     result["staircase"] = solve_scene("spiral_staircase", args.worlds, args.staircase_budget_s, args.samples, out)
     out.write_text(json.dumps(result, indent=1))
   if "guided" in parts:
-    result["guided"] = guided_vs_plain(args.rounds, args.batch, args.lr)
+    result["guided"] = guided_vs_plain(args.rounds, args.batch, [int(x) for x in args.seeds.split(",")])
   result["machine"]["load_average_after"] = os.getloadavg()[0]
   out.write_text(json.dumps(result, indent=1))
 

@@ -230,17 +230,16 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
   if g:
     gg, p = g["guided"], g["plain"]
     lines += [f"**Guided vs plain sampling** on `{g['config']}`, query `{g['query']}` (plain rate "
-              f"{p['rate']:.1%}): {g['rounds']} rounds of {g['batch']} guided worlds (`adam({g['learning_rate']})`) "
-              "against plain sampling of at least as many world-steps.", "",
-              "| | worlds | world-steps | matching worlds | per million world-steps |",
-              "|---|---:|---:|---:|---:|",
-              f"| plain (baseline) | {p['worlds']} | {p['world_steps']:,} | {p['matches']} | "
-              f"{p['per_million_steps']:.1f} |",
-              f"| guided, all rounds | {gg['worlds']} | {gg['world_steps']:,} | {gg['matches']} | "
-              f"{gg['per_million_steps']:.1f} ({g['ratio']:.1f}×) |",
-              f"| guided, last half of the rounds | | | | {gg['late_per_million_steps']:.1f} "
-              f"({g['late_ratio']:.1f}×) |", "",
-              "Matches per round: " + ", ".join(str(x) for x in gg["per_round_matches"]) + ".", ""]
+              f"{p['rate']:.1%}): per seed, {g['rounds']} rounds of {g['batch']} guided worlds ({g['optimizer']}) "
+              "against plain sampling of at least as many world-steps; pooled over the seeds.", "",
+              "| seed | guided matches | guided world-steps | plain matches | plain world-steps | ratio |",
+              "|---:|---:|---:|---:|---:|---:|"]
+    for r in g["seeds"]:
+      lines.append(f"| {r['seed']} | {r['guided_matches']} | {r['guided_world_steps']:,} | {r['plain_matches']} | "
+                   f"{r['plain_world_steps']:,} | {r['ratio']:.1f}× |")
+    lines += ["", f"Pooled: {gg['per_million_steps']:.1f} matching worlds per million world-steps guided against "
+              f"{p['per_million_steps']:.1f} plain ({g['ratio']:.1f}×); over the second half of the rounds "
+              f"{gg['late_per_million_steps']:.1f} ({g['late_ratio']:.1f}×).", ""]
     head.append(f"guided sampling finds {g['ratio']:.1f}× as many matching worlds per world-step as plain "
                 f"sampling ({g['late_ratio']:.1f}× once learnt)")
   return lines, ([f"**solve**: {'; '.join(head)}"] if head else [])

@@ -9,6 +9,7 @@ It simulates nothing of its own: it calls the sampler and
 
 from mwbx.search.guided import GuidedResult
 from mwbx.search.guided import GuidedRound
+from mwbx.search.guided import default_optimizer
 from mwbx.search.guided import guided_sample
 from mwbx.search.objects import involved_objects
 from mwbx.search.proposal import Proposal

@@ -20,7 +20,11 @@ from mwbx.queries.query import as_queries
 from mwbx.search import proposal as proposal_lib
 from mwbx.search.objects import involved_objects
 
-DEFAULT_LEARNING_RATE = 0.5  # Adam, latent units: measured on quickstart (docs/search.md)
+# Adam step sizes in latent units for the means and the log scales: the scales
+# learn slower, so the proposal does not narrow onto a region before its mean
+# has found it (measured on quickstart, docs/search.md).
+MEAN_LEARNING_RATE = 0.5
+SCALE_LEARNING_RATE = 0.15
 GUIDED_PHASE = "guided sampling"
 
 
@@ -84,6 +88,13 @@ def typical_gaps(gaps: np.ndarray) -> np.ndarray:
   return out
 
 
+def default_optimizer(mean_rate: float = MEAN_LEARNING_RATE,
+                      scale_rate: float = SCALE_LEARNING_RATE) -> optax.GradientTransformation:
+  """Adam on the proposal's means and, with a smaller step, its log scales."""
+  labels = proposal_lib.Proposal(mean="mean", log_scale="scale")
+  return optax.multi_transform({"mean": optax.adam(mean_rate), "scale": optax.adam(scale_rate)}, labels)
+
+
 def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: jax.Array,
                   first_world: int = 0, optimizer: optax.GradientTransformation | None = None,
                   proposal: proposal_lib.Proposal | None = None, objects=None,
@@ -98,7 +109,7 @@ def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: ja
       their perturbations from ``fold_in(key, id)``; the latent draws come from
       a key split off ``key``.
     first_world: id of the first world.
-    optimizer: optax optimiser of the proposal (default ``adam(0.5)``).
+    optimizer: optax optimiser of the proposal (default :func:`default_optimizer`).
     proposal: where to start (default: the configured distribution).
     objects: objects whose randomization is learnt (default: those the
       queries involve, :func:`mwbx.search.involved_objects`); the others, and
@@ -130,7 +141,7 @@ def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: ja
   if not learnt.any():
     raise MwbxError(f"guided sampling: none of the objects {sorted(objects)} has a randomized quantity"
                     f" with a nonzero scale in {scene.config.source or 'the config'}")
-  optimizer = optimizer or optax.adam(DEFAULT_LEARNING_RATE)
+  optimizer = optimizer or default_optimizer()
   proposal = proposal or proposal_lib.init_proposal(uniform.size)
   opt_state = optimizer.init(proposal)
   latent_key = jax.random.fold_in(key, 0x6D77)  # apart from the worlds' own keys
