@@ -3,9 +3,9 @@
 For a scene (``siggraph``, ``spiral_staircase``, ``refrigerator_toy``):
 sample worlds, run the scene's query file, report how many worlds satisfy
 each query and all of them, then repair the best world as the paper's user
-does (§5-6): refine the objects of its unmet queries from a time before they
-go wrong, keep the child that satisfies the most queries (fewest collisions
-on ties), and repeat. Optionally writes a picture of the best world through
+does (§5-6), here unattended with `mwbx.solve`: refine the objects of its
+unmet queries from a time before they go wrong, keep the best children,
+back-track when stuck. Optionally writes a picture of the best world through
 the viewer (the HTML export, screenshotted by headless Chromium).
 
   .venv/bin/python scripts/paper_scenes.py siggraph --worlds 256 --rounds 12
@@ -31,44 +31,11 @@ VIEW = {"siggraph": (0.0, -1.0, 0.15), "refrigerator_toy": (0.0, -1.0, 0.15),
         "spiral_staircase": (1.0, -1.4, 1.0)}
 
 
-def involved_objects(bank, query) -> list[str]:
-  """Objects whose motion decides a query: its bodies' objects, or the
-  object a joint query's hinge belongs to."""
-  if isinstance(query, mwbx.JointQuery):
-    model = bank.model()
-    body = model.jnt_bodyid[model.joint(query.joint).id]
-    root = model.body(int(model.body_rootid[body])).name
-    return [root]
-  if query.bodies is None:
-    return list(bank.objects)
-  chosen = {bank.body_names[b] for b in bank.select_bodies(list(query.bodies)).tolist()}
-  return [obj for obj, bodies in bank.objects.items() if chosen & set(bodies)]
-
-
-def restart_time(bank, world: int, query, objects) -> float:
-  """A time before the query's objects go wrong: half-way to the first entry
-  of the query's region where there is one, else a third into the world."""
-  end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
-  if getattr(query, "frustum", None) is not None and query.include:
-    t = mwbx.first_entry(bank, world, objects, query.frustum)
-    if t is not None:
-      return 0.5 * t
-  return end / 3
-
-
-def best(bank, met, rows) -> int:
-  """World id among ``rows`` with the most queries met (``met``: i32[W]),
-  fewest collisions on ties."""
-  collisions = mwbx.queries.metric(bank, "collisions")[rows]
-  order = np.lexsort((collisions, -met[rows]))
-  return int(bank.world_ids[rows[order[0]]])
-
-
 def main():
   parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("scene", choices=sorted(VIEW))
   parser.add_argument("--worlds", type=int, default=128)
-  parser.add_argument("--rounds", type=int, default=8, help="refinement rounds on the best world")
+  parser.add_argument("--rounds", type=int, default=8, help="refinements mwbx.solve may make")
   parser.add_argument("--samples", type=int, default=32, help="refined worlds per round")
   parser.add_argument("--backend", default="native")
   parser.add_argument("--seed", type=int, default=0)
@@ -90,35 +57,17 @@ def main():
   per_query = each[bank.valid].mean(axis=0)
   print(f"  independent-query estimate of plain sampling: {np.prod(per_query):.2e} per world")
 
-  met = each.sum(axis=1)  # queries met per world (0 if unstable), kept up to date with the bank
-  world = best(bank, met, np.flatnonzero(bank.valid))
-  n_queries = len(queries.queries)
-  print(f"best sampled world {world}: {met[bank.row_of(world)]} of {n_queries} queries")
-  refinements = 0
-  for round_ in range(args.rounds):
-    if met[bank.row_of(world)] == n_queries:
-      break
-    unmet = [q for q, ok in zip(queries.queries, each[bank.row_of(world)]) if not ok]
-    query = unmet[round_ % len(unmet)]
-    objects = involved_objects(bank, query)
-    t_min = restart_time(bank, world, query, objects)
-    before = bank.n_worlds
-    bank = mwbx.refine(bank, world, objects, t_min=t_min, n_samples=args.samples,
-                       key=jax.random.key(1000 + round_), backend=args.backend)
-    refinements += 1
-    each = mwbx.evaluate_each(bank, queries)
-    met = each.sum(axis=1)
-    children = np.arange(before, bank.n_worlds)
-    children = children[bank.valid[children]]
-    if children.size:
-      child = best(bank, met, children)
-      if met[bank.row_of(child)] >= met[bank.row_of(world)]:
-        world = child
-    print(f"round {round_ + 1}: refined {', '.join(objects)} from {t_min:.2f} s for {query.name}:"
-          f" best world {world} meets {met[bank.row_of(world)]} of {n_queries}")
-  wall = time.perf_counter() - start
-  print(f"found world {world}: {met[bank.row_of(world)]} of {n_queries} queries after {refinements} refinements,"
-        f" {wall:.0f} s wall in all")
+  # The repair (§5-6), unattended: mwbx.solve refines the objects of the best
+  # world's unmet queries from before they go wrong, keeps the best children
+  # and back-tracks when stuck.
+  world = int(bank.world_ids[np.argmax(each.sum(axis=1))])
+  if args.rounds > 0:
+    with reporter("solve") as update:
+      result = mwbx.solve(bank, queries, budget=args.rounds, key=jax.random.key(1000), samples=args.samples,
+                          backend=args.backend, progress=update)
+    bank, world = result.bank, result.world
+    print(result.message)
+  print(f"best world {world}; {time.perf_counter() - start:.0f} s wall in all")
   if args.out:
     bank.save(args.out)
     print(f"bank written to {args.out}")

@@ -230,3 +230,13 @@ def test_cli_solve_writes_the_bank_and_its_progress(tiny_bank, tmp_path, capsys)
   assert code == 1
   assert "not solved (budget spent; 2 refinements" in captured.out and "far_flies" in captured.out
   assert mwbx.Bank.load(tmp_path / "far_bank").n_worlds > tiny_bank.n_worlds
+
+
+def test_solve_with_guided_rounds_adds_guided_worlds_first(tiny_bank):
+  result = mwbx.solve(tiny_bank, UNREACHABLE, budget=1, samples=4, backend="native", guided_rounds=1,
+                      guided_batch=8, key=jax.random.key(2))
+  bank = result.bank
+  guided = [i for i in bank.world_ids if "proposal" in bank.lineage.get(str(int(i)), {})]
+  assert len(guided) == 8 and min(guided) == tiny_bank.next_world_id
+  assert result.steps[0].world_steps > 0  # the guided worlds' steps count against the budget
+  assert not result.solved and "far_flies" in result.message

@@ -76,8 +76,8 @@ def query_gaps(bank, queries) -> np.ndarray:
   """How far each world is from meeting each query.
 
   Args:
-    bank: a bank (its stored COM polylines are read whole; pass
-      ``bank.take(rows)``-sized banks for big ones).
+    bank: a bank (its stored COM polylines are read whole, so for a big
+      lazily opened bank pass the part to grade, e.g. refined worlds).
     queries: a query, a list of them or a :class:`~mwbx.QuerySet`.
 
   Returns:

@@ -245,6 +245,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
   spent_steps, refinements = 0, 0
   tries: dict[int, int] = {}
   fixed: list[int] = []  # queries every world worked on must meet (stalls)
+  released: set[int] = set()  # fixed once, every world meeting them tried: not fixed again
   attempts = np.zeros(n_queries, np.int64)  # refinements aimed at each query
   last_gain, best_met = 0, -1
 
@@ -287,7 +288,8 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       # from these worlds (their initial conditions decide it). Go on in the
       # worlds that already meet it.
       best_row = bank.row_of(best.world)
-      blocking = [q for q in np.argsort(-attempts, kind="stable") if not met[best_row, q] and q not in fixed]
+      blocking = [q for q in np.argsort(-attempts, kind="stable")
+                  if not met[best_row, q] and q not in fixed and q not in released]
       pool = met[:, fixed].all(axis=1) & np.asarray(bank.valid, bool)
       for q in blocking:
         if (pool & met[:, q]).any():
@@ -298,7 +300,8 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     rows = best_rows(np.flatnonzero(eligible))
     rows = [r for r in rows if tries.get(int(bank.world_ids[r]), 0) < tries_per_world]
     if not rows and fixed:
-      fixed.clear()  # every world meeting the fixed queries was tried: all worlds again
+      released.update(fixed)  # every world meeting them was tried: all worlds again
+      fixed.clear()
       continue
     if not rows:
       reason = "every world tried"
