@@ -36,6 +36,8 @@ bench: $(STAMP)
 	$(PY) scripts/bench_refine.py
 	$(PY) scripts/bench_bank.py
 	$(PY) scripts/bench_browse.py --browser
+	$(PY) scripts/bench_solve.py
+	$(PY) scripts/scene_counts.py
 	$(PY) scripts/make_benchmarks_doc.py
 
 clean:

@@ -223,9 +223,12 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
     lines.append("")
     s = d.get("siggraph")
     if s:
-      head.append(f"spelling SIGGRAPH {'solved' if s['solved'] else str(s['satisfied']) + ' of 8 letters'} "
-                  f"unattended in {s['wall_seconds'] / 60:.1f} min ({s['refinements']} refinements; plain "
-                  f"sampling ~{s['independent_estimate']:.0e} per world)")
+      reached = next(t for t, _, met in s["curve"] if met == s["satisfied"])
+      head.append(f"spelling SIGGRAPH unattended: {s['satisfied']} of 8 letters in their slots after "
+                  f"{reached / 60:.1f} min{' (all of them)' if s['solved'] else ''}, no more within "
+                  f"{s['budget_seconds'] / 60:.0f} min (plain sampling: ~{s['independent_estimate']:.0e} per world)"
+                  if not s["solved"] else
+                  f"spelling SIGGRAPH solved unattended in {reached / 60:.1f} min")
   g = d.get("guided")
   if g:
     gg, p = g["guided"], g["plain"]
