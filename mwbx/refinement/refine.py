@@ -143,6 +143,8 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
     raise MwbxError(f"refine: margin must be >= 0 m, got {margin!r}")
   if loop not in ("auto", "compiled", "lockstep"):
     raise MwbxError(f"refine: loop must be 'auto', 'compiled' or 'lockstep', got {loop!r}")
+  if loop == "compiled" and not world_loop.available():
+    raise MwbxError("refine: loop='compiled' needs MuJoCo's C library bound for numba; use 'lockstep'")
   compiled_loop = loop == "compiled" or (loop == "auto" and world_loop.available())
   names = resolve_objects(bank, objects)
   t_min = resolve_t_min(bank, world, names, frustum, t_min)
