@@ -294,7 +294,8 @@ def _cmd_solve(args) -> int:
   with reporter("solve") as update:
     result = solve(bank, queries, budget=budget, key=jax.random.key(args.seed), samples=args.samples,
                    keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
-                   guided_rounds=args.guided_rounds, guided_batch=args.guided_batch, progress=update)
+                   guided_rounds=args.guided_rounds, guided_batch=args.guided_batch,
+                   reseed_rounds=args.reseed_rounds, progress=update)
   out = pathlib.Path(args.out or args.bank)
   print(f"mwbx: saving {result.bank.n_worlds} worlds to {out}", file=sys.stderr)
   result.bank.save(out)
@@ -417,6 +418,8 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--guided-rounds", type=int, default=0, metavar="R",
                  help="batches of guided sampling added before the search (default 0)")
   p.add_argument("--guided-batch", type=int, default=64, metavar="M", help="worlds per guided batch")
+  p.add_argument("--reseed-rounds", type=int, default=4, metavar="R",
+                 help="at a stall, guided batches aimed at the blocking query (default 4; 0: none)")
   p.add_argument("--seed", type=int, default=0, help="search seed (default 0: repeatable)")
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")

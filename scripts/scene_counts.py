@@ -45,12 +45,13 @@ def main() -> None:
   parser.add_argument("--scenes", default=",".join(SCENES))
   parser.add_argument("--native-worlds", type=int, default=64)
   parser.add_argument("--mjx-worlds", type=int, default=16)
+  parser.add_argument("--mjx-scenes", default=",".join(SCENES), help="scenes to sample on MJX too")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "scenes.json"))
   args = parser.parse_args()
   rows = []
   for scene in args.scenes.split(","):
     for backend, worlds in (("native", args.native_worlds), ("mjx", args.mjx_worlds)):
-      if worlds > 0:
+      if worlds > 0 and (backend == "native" or scene in args.mjx_scenes.split(",")):
         rows.append(counts(scene, backend, worlds))
         r = rows[-1]
         print(f"{scene:<18} {backend:<7} {r['valid']}/{r['worlds']} valid, {r['unstable']} unstable,"

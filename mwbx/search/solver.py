@@ -24,9 +24,10 @@ best-first over the bank's refinement tree:
    tries run out, and the search goes on from the next best world: an
    ancestor, a sibling, or another sampled world (back-tracking).
 5. After ``patience`` refinements without a better best world, the query the
-   search has aimed at most and still fails is *fixed*: the search goes on
-   only in worlds that already meet it (where the initial conditions put a
-   letter in its slot, say) and repairs the other queries there.
+   search has aimed at most and still fails is *fixed*: ``reseed_rounds``
+   batches of guided sampling aimed at it add worlds where it holds (where
+   the initial conditions put a letter in its slot, say), and the search goes
+   on only in worlds that meet it, repairing the other queries there.
 
 Every step is an ordinary :func:`mwbx.refine`: the result is an ordinary,
 plausible world with its full lineage, viewable and refinable by hand.
@@ -196,7 +197,7 @@ def _label(query, index: int) -> str:
 def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | None = None,
           samples: int = 32, keep: int = 4, tries_per_world: int = 4, patience: int = 40,
           backend: str | None = None,
-          guided_rounds: int = 0, guided_batch: int = 64, tie_metric: str = "collisions",
+          guided_rounds: int = 0, guided_batch: int = 64, reseed_rounds: int = 4, tie_metric: str = "collisions",
           progress=None, throw: bool = False) -> SolveResult:
   """Searches the bank's refinement tree for a world that meets every query.
 
@@ -213,6 +214,10 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     backend: ``native`` | ``mjx`` (default: the bank's config's).
     guided_rounds: batches of guided sampling (:func:`guided_sample`) added to
       the bank before the search, ``guided_batch`` worlds each.
+    reseed_rounds: at a stall, batches of guided sampling aimed at the query
+      that blocks the search (``guided_batch`` worlds each), added to the bank
+      before that query is fixed: more worlds where it holds to repair the
+      rest in. 0: none.
     tie_metric: metric (summed over bodies) that breaks ties, smaller first.
     progress: optional callback taking a :class:`mwbx.progress.Progress`.
     throw: raise :class:`~mwbx.MwbxError` when the budget runs out unsolved.
@@ -263,15 +268,19 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       total = budget.expected_refinements(refinements, time.perf_counter() - start, spent_steps)
       progress(Progress(SOLVE_PHASE, min(refinements, total), total, spent_steps))
 
-  if guided_rounds > 0:
-    sampler = sampler_for(bank, backend)
-    result = guided_sample(sampler, queries, rounds=guided_rounds, batch=guided_batch,
-                           key=jax.random.fold_in(key, 1), first_world=bank.next_world_id)
+  def add_guided(goal, rounds, salt):
+    """Guided sampling toward ``goal``, its worlds added to the bank."""
+    nonlocal bank, met, gaps, ties, spent_steps
+    result = guided_sample(sampler_for(bank, backend), goal, rounds=rounds, batch=guided_batch,
+                           key=jax.random.fold_in(key, salt), first_world=bank.next_world_id)
     bank = bank.append(result.bank)
     met = np.concatenate([met, evaluate_each(result.bank, queries)])
     gaps = np.concatenate([gaps, query_gaps(result.bank, queries)])
     ties = np.concatenate([ties, metric(result.bank, tie_metric)])
     spent_steps += int(result.bank.steps.sum())
+
+  if guided_rounds > 0:
+    add_guided(queries, guided_rounds, 1)
   note()
   reason = ""
   while True:
@@ -291,6 +300,12 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       blocking = [q for q in np.argsort(-attempts, kind="stable")
                   if not met[best_row, q] and q not in fixed and q not in released]
       pool = met[:, fixed].all(axis=1) & np.asarray(bank.valid, bool)
+      if blocking and reseed_rounds > 0:
+        try:  # more worlds where the blocking query holds (its objects' initial conditions)
+          add_guided([queries[blocking[0]]], reseed_rounds, 2 + refinements)
+        except MwbxError:
+          pass  # nothing randomized to guide: fix among the worlds there are
+        pool = met[:, fixed].all(axis=1) & np.asarray(bank.valid, bool)
       for q in blocking:
         if (pool & met[:, q]).any():
           fixed.append(int(q))
