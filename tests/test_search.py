@@ -240,3 +240,15 @@ def test_solve_with_guided_rounds_adds_guided_worlds_first(tiny_bank):
   assert len(guided) == 8 and min(guided) == tiny_bank.next_world_id
   assert result.steps[0].world_steps > 0  # the guided worlds' steps count against the budget
   assert not result.solved and "far_flies" in result.message
+
+
+def test_a_stall_reseeds_with_worlds_guided_at_the_blocking_query(tiny_bank):
+  # Out of reach for the striker: the search stalls at once (patience 1) and
+  # guided sampling aimed at the query adds worlds before it is fixed.
+  far = Query.region((1.0, -1.0, 0.0), (2.0, 1.0, 0.5), bodies="striker", window=(0.5, None), name="striker_far")
+  result = mwbx.solve(tiny_bank, [far], budget=3, samples=2, backend="native", patience=1, reseed_rounds=1,
+                      guided_batch=4, key=jax.random.key(3))
+  bank = result.bank
+  guided = [i for i in bank.world_ids if "proposal" in bank.lineage.get(str(int(i)), {})]
+  assert len(guided) >= 4 and len(guided) % 4 == 0
+  assert not result.solved and result.unmet == ("striker_far",)

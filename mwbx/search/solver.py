@@ -360,6 +360,8 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       ties = np.concatenate([ties, c_ties[kept]])
     note(world, objects, t_min)
 
+  if progress is not None:  # the bar ends at the refinements made, not the budget's estimate
+    progress(Progress(SOLVE_PHASE, refinements, max(refinements, 1), spent_steps))
   last = steps[-1]
   row = bank.row_of(last.world)
   unmet = tuple(_label(queries[q], q) for q in range(n_queries) if not met[row, q])
