@@ -361,6 +361,10 @@ def scenes(d: dict) -> tuple[list[str], list[str]]:
     per = ", ".join(f"{k} {v}" for k, v in r["per_query"].items())
     lines.append(f"| {r['scene']} | {r['backend']} | {r['worlds']} | {r['valid']} | {r['unstable']} | "
                  f"{r['sim_errors']} | {r['all_met']} | {per} |")
+  sampled = {(r["scene"], r["backend"]) for r in d["rows"]}
+  missing = sorted({scene for scene, _ in sampled if (scene, "mjx") not in sampled})
+  if missing:
+    lines += ["", f"Not sampled on MJX here: {', '.join(missing)} ({d.get('mjx_note', 'not run')})."]
   return lines + [""], []
 
 

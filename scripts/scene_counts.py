@@ -46,6 +46,7 @@ def main() -> None:
   parser.add_argument("--native-worlds", type=int, default=64)
   parser.add_argument("--mjx-worlds", type=int, default=16)
   parser.add_argument("--mjx-scenes", default=",".join(SCENES), help="scenes to sample on MJX too")
+  parser.add_argument("--mjx-note", default="", help="why a scene was left off MJX, for the docs")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "scenes.json"))
   args = parser.parse_args()
   rows = []
@@ -59,7 +60,8 @@ def main() -> None:
   out = pathlib.Path(args.out)
   out.parent.mkdir(parents=True, exist_ok=True)
   out.write_text(json.dumps({"machine": f"{os.cpu_count()}-core {platform.machine()}, JAX on "
-                                        f"{jax.default_backend()}", "rows": rows}, indent=1))
+                                        f"{jax.default_backend()}", "rows": rows,
+                             "mjx_note": args.mjx_note or "not run"}, indent=1))
   print(f"wrote {out}")
 
 
