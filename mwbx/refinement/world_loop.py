@@ -274,9 +274,7 @@ def run_compiled(backend, inp, progress=None):
   qpos_buf = np.zeros((c, n_out, m.nq), np.float32)
   com_buf = np.zeros((c, n_out, n_bodies, 3), np.float32)
   wrench_full = np.zeros((c, spf, m.nbody, 6))
-  ctrl = np.zeros((0, 0)) if inp.ctrl is None else np.ascontiguousarray(inp.ctrl, np.float64)
-  if ctrl.ndim != 2 or ctrl.shape[1] == 0:
-    ctrl = np.zeros((1, 0))
+  ctrl = np.zeros((1, 0)) if inp.ctrl is None else np.ascontiguousarray(inp.ctrl, np.float64)  # width 0: none
   f32 = lambda x: np.ascontiguousarray(np.asarray(x, np.float32))
   arrays = (f32(path.qpos), f32(path.qvel), f32(inp.step_targets), f32(path.com), f32(path.quat),
             f32(path.lin_vel), f32(path.ang_vel), np.ascontiguousarray(inp.qpos_object, bool),
@@ -331,8 +329,3 @@ def run_compiled(backend, inp, progress=None):
       perturbations=carry.perturbations.astype(np.int32), steps=steps, active=active, activated=activated,
       max_perturbation_ratio=audit_ratio.astype(np.float32), inactive_perturbations=audit_stray,
       compile_seconds=compile_seconds, run_seconds=run_seconds)
-
-
-def available() -> bool:
-  """Whether the compiled loop can run here (MuJoCo's C library is bound)."""
-  return mujoco_c.available()

@@ -15,7 +15,7 @@ from mwbx.bank import Bank
 from mwbx.batch_sim.sampler import Sampler
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
-from mwbx.queries import evaluate_each, query_gaps
+from mwbx.queries import query_gaps
 from mwbx.queries.query import as_queries
 from mwbx.search import proposal as proposal_lib
 from mwbx.search.objects import involved_objects
@@ -65,16 +65,16 @@ class GuidedResult(NamedTuple):
   rounds: tuple[GuidedRound, ...]
 
 
-def fitness(met: np.ndarray, gaps: np.ndarray, gap_scale: np.ndarray) -> np.ndarray:
-  """f32[W] higher is better: queries met, minus each unmet query's gap
-  squashed into (0, 1) by ``gap / (gap + gap_scale)``.
+def fitness(gaps: np.ndarray, gap_scale: np.ndarray) -> np.ndarray:
+  """f32[W] higher is better: queries met (gap 0), minus each unmet query's
+  gap squashed into (0, 1) by ``gap / (gap + gap_scale)``.
 
   Args:
-    met: bool[W, Q]; gaps: f64[W, Q] (:func:`mwbx.queries.query_gaps`);
+    gaps: f64[W, Q] (:func:`mwbx.queries.query_gaps`: 0 exactly where met);
     gap_scale: f64[Q] > 0, a typical gap of each query.
   """
   squashed = np.where(np.isfinite(gaps), gaps / (gaps + gap_scale[None, :]), 1.0)
-  return (met.sum(axis=1) - squashed.sum(axis=1)).astype(np.float32)
+  return ((gaps == 0).sum(axis=1) - squashed.sum(axis=1)).astype(np.float32)
 
 
 def typical_gaps(gaps: np.ndarray) -> np.ndarray:
@@ -157,8 +157,8 @@ def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: ja
 
     part, _ = sampler.run(batch, key, first_world=first_world + r * batch, noise=noise,
                           progress=report if progress is not None else None)
-    met = evaluate_each(part, queries)
     gaps = query_gaps(part, queries)
+    met = gaps == 0  # query_gaps is 0 exactly where evaluate_each holds
     if gap_scale is None:  # fixed after the first batch, so fitness means the same every round
       gap_scale = typical_gaps(gaps)
     steps += int(part.steps.sum())
@@ -169,7 +169,7 @@ def guided_sample(sampler: Sampler, queries, *, rounds: int, batch: int, key: ja
     lineage = {str(int(i)): {"proposal": {"round": r, "noise": [float(x) for x in u]}}
                for i, u in zip(part.world_ids, noise)}
     parts.append(dataclasses.replace(part, lineage=lineage))
-    proposal, opt_state = proposal_lib.es_step(proposal, opt_state, eps, fitness(met, gaps, gap_scale),
+    proposal, opt_state = proposal_lib.es_step(proposal, opt_state, eps, fitness(gaps, gap_scale),
                                                optimizer, learnt)
   if progress is not None:
     progress(Progress(GUIDED_PHASE, rounds * batch, rounds * batch, steps))

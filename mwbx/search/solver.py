@@ -47,7 +47,7 @@ import numpy as np
 from mwbx.bank import Bank
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
-from mwbx.queries import JointQuery, evaluate_each, first_entry, metric, query_gaps
+from mwbx.queries import JointQuery, first_entry, metric, query_gaps
 from mwbx.queries.query import as_queries, body_radii, selection_mask
 from mwbx.refinement import refine_run, sampler_for
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
@@ -243,7 +243,8 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
   key = jax.random.key(0) if key is None else key
   start = time.perf_counter()
   n_queries = len(queries)
-  met, gaps = evaluate_each(bank, queries), query_gaps(bank, queries)
+  gaps = query_gaps(bank, queries)
+  met = gaps == 0  # query_gaps is 0 exactly where evaluate_each holds
   scale = typical_gaps(gaps)
   ties = metric(bank, tie_metric)
   steps: list[SolveStep] = []
@@ -256,7 +257,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
 
   def best_rows(rows: np.ndarray) -> np.ndarray:
     """``rows`` best first: most met, smallest squashed gaps, smallest tie metric."""
-    f = fitness(met[rows], gaps[rows], scale)
+    f = fitness(gaps[rows], scale)
     return rows[np.lexsort((ties[rows], -f))]
 
   def note(refined=-1, objects=(), t_min=float("nan")):
@@ -274,8 +275,8 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     result = guided_sample(sampler_for(bank, backend), goal, rounds=rounds, batch=guided_batch,
                            key=jax.random.fold_in(key, salt), first_world=bank.next_world_id)
     bank = bank.append(result.bank)
-    met = np.concatenate([met, evaluate_each(result.bank, queries)])
     gaps = np.concatenate([gaps, query_gaps(result.bank, queries)])
+    met = gaps == 0
     ties = np.concatenate([ties, metric(result.bank, tie_metric)])
     spent_steps += int(result.bank.steps.sum())
 
@@ -347,16 +348,16 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       continue
     refinements += 1
     spent_steps += int(stats.world_steps)
-    c_met, c_gaps = evaluate_each(children, queries), query_gaps(children, queries)
+    c_gaps = query_gaps(children, queries)
     c_ties = metric(children, tie_metric)
-    f = fitness(c_met, c_gaps, scale)
+    f = fitness(c_gaps, scale)
     order = np.lexsort((c_ties, -f))
     kept = np.sort(order[:keep][children.valid[order[:keep]]])
     if kept.size:
       dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
       bank = bank.append(children.drop(children.world_ids[dropped]) if dropped.size else children)
-      met = np.concatenate([met, c_met[kept]])
       gaps = np.concatenate([gaps, c_gaps[kept]])
+      met = gaps == 0
       ties = np.concatenate([ties, c_ties[kept]])
     note(world, objects, t_min)
 
