@@ -31,6 +31,7 @@ import numpy as np
 
 from mwbx import bank as bank_lib
 from mwbx.batch_sim import controls
+from mwbx.batch_sim import mujoco_c
 from mwbx.batch_sim import free_bodies
 from mwbx.batch_sim import world as world_lib
 from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
@@ -143,9 +144,9 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
     raise MwbxError(f"refine: margin must be >= 0 m, got {margin!r}")
   if loop not in ("auto", "compiled", "lockstep"):
     raise MwbxError(f"refine: loop must be 'auto', 'compiled' or 'lockstep', got {loop!r}")
-  if loop == "compiled" and not world_loop.available():
+  if loop == "compiled" and not mujoco_c.available():
     raise MwbxError("refine: loop='compiled' needs MuJoCo's C library bound for numba; use 'lockstep'")
-  compiled_loop = loop == "compiled" or (loop == "auto" and world_loop.available())
+  compiled_loop = loop == "compiled" or (loop == "auto" and mujoco_c.available())
   names = resolve_objects(bank, objects)
   t_min = resolve_t_min(bank, world, names, frustum, t_min)
   sampler = sampler_for(bank, backend)
@@ -301,6 +302,7 @@ def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, out
   flags = np.full(w, bank_lib.FLAG_FINISHED, np.uint8)
   flags[status == world_lib.AT_REST] |= bank_lib.FLAG_AT_REST
   flags[status == world_lib.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
+  flags[status == world_lib.SIM_ERROR] |= bank_lib.FLAG_SIM_ERROR  # trapped by the compiled loop
   first_id = bank.next_world_id
   t0 = f0 / bank.record_fps
   lineage = {}
