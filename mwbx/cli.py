@@ -6,6 +6,7 @@
   mwbx query BANK QUERIES.yaml [--rank METRIC[:sum|max]] [--top K] [--under ID] [--json]
   mwbx view BANK [--worlds 3,17 | --top K --rank METRIC] [--queries Q.yaml] [--html OUT.html] [--no-browser]
   mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N [--seed S] [--out DIR]
+              [--scene NEW.yaml --add NAMES] [--remove NAMES]
   mwbx drop BANK IDS [--out DIR]
   mwbx browse BANK [--port P] [--host 127.0.0.1] [--no-browser]
 
@@ -163,7 +164,8 @@ def _cmd_info(args) -> int:
     print(json.dumps({**s, "world_ids": [int(bank.world_ids.min()), int(bank.world_ids.max())]
                       if bank.n_worlds else None, "next_world_id": bank.next_world_id,
                       "cameras": _cameras(bank), "objects": {k: list(v) for k, v in bank.objects.items()},
-                      "config": bank.config, "digest": bank.digest, "run": bank.run}, indent=2))
+                      "config": bank.config, "digest": bank.digest, "run": bank.run,
+                      "scene_versions": [v["digest"] for v in bank.versions] + [bank.digest]}, indent=2))
     return 0
   print(f"bank                {args.bank}")
   errors = f", {s['sim_errors']} of them stopped by MuJoCo errors" if s["sim_errors"] else ""
@@ -177,6 +179,10 @@ def _cmd_info(args) -> int:
   print(f"world ids           {_id_span(bank)}")
   print(f"refined worlds      {int((bank.parent_world >= 0).sum())}")
   print(f"objects             {', '.join(bank.objects)}")
+  if bank.versions:
+    counts = [int((bank.scene_version == v).sum()) for v in range(len(bank.versions) + 1)]
+    print(f"scene versions      {len(bank.versions) + 1} (worlds per version: {', '.join(map(str, counts))};"
+          f" version 0 had {', '.join(bank.versions[0]['objects'])})")
   print(f"bodies              {', '.join(bank.body_names)}")
   print(f"groups              {', '.join(f'{k}={list(v)}' for k, v in bank.groups.items()) or 'none'}")
   print(f"cameras             {', '.join(_cameras(bank)) or 'none (screen queries need a named MJCF camera)'}")
@@ -248,7 +254,19 @@ def _cmd_refine(args) -> int:
   import jax
   import mwbx
   from mwbx.refinement import refine_run
+  from mwbx.refinement.refine import as_scene
   bank = mwbx.Bank.load(args.bank)
+  if args.objects is None and args.add is None and args.remove is None:
+    raise MwbxError("refine: name objects to refine (--objects), to add (--add) or to remove (--remove)")
+  if args.scene is not None:
+    before = bank.digest
+    bank = bank.with_scene(as_scene(args.scene))
+    if bank.digest != before:
+      print(f"mwbx: bank moved to scene version {len(bank.versions)} ({args.scene})", file=sys.stderr)
+  unknown = [o for o in (args.add or "").split(",") if o and o not in bank.objects and o not in bank.groups]
+  if unknown:
+    raise MwbxError(f"refine: --add: {', '.join(unknown)} is not an object of the bank's scene; give the scene"
+                    f" version that has it with --scene NEW.yaml")
   frustum = None
   if (args.box is None) == (args.time is None):
     raise MwbxError("refine: give either --box with --camera, or --time")
@@ -265,9 +283,9 @@ def _cmd_refine(args) -> int:
   # Without --seed every run draws new worlds; the seed is printed to repeat one.
   seed = secrets.randbits(31) if args.seed is None else args.seed
   with reporter("refine") as update:
-    new, stats = refine_run(bank, args.world, args.objects, frustum=frustum, t_min=args.time,
+    new, stats = refine_run(bank, args.world, args.objects or (), frustum=frustum, t_min=args.time,
                             n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
-                            progress=update)
+                            progress=update, add=args.add or (), remove=args.remove or ())
   total = bank.append(new)
   print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
   total.save(out)
@@ -275,7 +293,10 @@ def _cmd_refine(args) -> int:
   active = [len(new.lineage[str(int(i))]["active"]) for i in new.world_ids]
   print(f"refined worlds      {new.n_worlds} of world {args.world} from t_min = {new.refine_time[0]:.4f} s"
         f" (ids {ids}, seed {seed}; {int(new.valid.sum())} valid)")
-  print(f"active objects      {min(active)}..{max(active)} per world (asked: {args.objects})")
+  print(f"active objects      {min(active)}..{max(active)} per world (asked: {args.objects or 'none'})")
+  if args.add or args.remove:
+    print(f"scene changes       added: {args.add or 'none'}; removed: {args.remove or 'none'}"
+          f" (scene version {int(new.scene_version[0])})")
   print(f"world-steps/s       {stats.world_steps_per_second:,.0f} ({stats.backend};"
         f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s,"
         f" compression {stats.codec_seconds:.1f} s)")
@@ -394,7 +415,11 @@ def build_parser() -> argparse.ArgumentParser:
   p = sub.add_parser("refine", help="resample chosen objects of one world from a time or a screen box on")
   p.add_argument("bank", help="bank directory")
   p.add_argument("--world", type=int, required=True, help="id of the world to refine")
-  p.add_argument("--objects", required=True, help="objects or groups to refine, e.g. ball_0,cubes")
+  p.add_argument("--objects", default=None, help="objects or groups to refine, e.g. ball_0,cubes")
+  p.add_argument("--scene", default=None, metavar="NEW.yaml",
+                 help="a later version of the bank's scene (its objects first, then new ones) to add objects from")
+  p.add_argument("--add", default=None, metavar="NAMES", help="objects of --scene to insert at t_min")
+  p.add_argument("--remove", default=None, metavar="NAMES", help="objects to take out at t_min (their ghosts stay)")
   p.add_argument("--box", default=None, help="screen box u0,v0,u1,v1 (normalised, origin top-left)")
   p.add_argument("--camera", default=None, help="MJCF camera the box is drawn in")
   p.add_argument("--time", type=float, default=None, help="t_min in seconds (instead of --box)")

@@ -47,6 +47,11 @@ class QposStore(Protocol):
              columns=None) -> np.ndarray:
     """f32[n, nq] frames ``start:stop`` of row ``world``; with ``columns`` the others are zero."""
 
+  def relaid(self, target: "QposStore", fill: np.ndarray) -> "QposStore":
+    """Every world in ``target``'s settings (an empty store of a later scene
+    version whose qpos starts with this one's, f32[nq'] ``fill`` for the new
+    coordinates): stored coordinates decode exactly as before."""
+
   @property
   def n_worlds(self) -> int:
     """Worlds stored."""
@@ -101,6 +106,12 @@ class RawQposStore:
 
   def copy(self) -> "RawQposStore":
     return RawQposStore(self.nq, self.data.copy(), self.offsets.copy())
+
+  def relaid(self, target: "RawQposStore", fill: np.ndarray) -> "RawQposStore":
+    """This store's worlds with ``target.nq`` columns, the new ones ``fill[nq:]``."""
+    fill = np.asarray(fill, np.float32)
+    data = np.concatenate([self.data, np.broadcast_to(fill[self.nq:], (len(self.data), target.nq - self.nq))], 1)
+    return RawQposStore(target.nq, data, self.offsets.copy())
 
   def empty(self) -> "RawQposStore":
     return RawQposStore(self.nq)

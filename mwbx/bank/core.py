@@ -57,7 +57,12 @@ class Bank:
     config: resolved config (dict); mjcf_text: the MJCF; mjcf_includes: file name ->
       text of each MJCF file it includes; digest: sha256 of all three.
     lineage: per refined world (keyed by its id as a string): parent id, t_min,
-      the objects asked for, the final active set.
+      the objects asked for, the final active set, objects added or removed.
+    scene_version: i16[W] the version of the scene each world belongs to
+      (0: the scene the bank was sampled from; the current one is
+      ``len(versions)``; :mod:`mwbx.bank.versions`).
+    versions: the earlier versions' scene records (digest, config, MJCF,
+      objects), oldest first.
     next_id: the smallest id never given to a world of this bank.
     run: how the worlds were drawn (e.g. ``{"seed": 0}``).
   """
@@ -89,7 +94,13 @@ class Bank:
   lineage: dict = dataclasses.field(default_factory=dict)
   run: dict = dataclasses.field(default_factory=dict)
   next_id: int = 0
+  scene_version: np.ndarray | None = None
+  versions: list = dataclasses.field(default_factory=list)
   _model: object = dataclasses.field(default=None, repr=False, compare=False)
+
+  def __post_init__(self):
+    if self.scene_version is None:  # banks of one scene version, and those saved before versions
+      self.scene_version = np.full(len(self.world_ids), len(self.versions), np.int16)
 
   # -- views --------------------------------------------------------------------
 
@@ -243,6 +254,18 @@ class Bank:
       self._model.opt.timestep = self.timestep
     return self._model
 
+  def with_scene(self, scene, progress=None) -> "Bank":
+    """This bank in a later version of its scene (objects added after its
+    own), every world kept; see :func:`mwbx.bank.versions.upgrade`."""
+    from mwbx.bank import versions
+    return versions.upgrade(self, scene, progress)
+
+  def absent(self, world: int) -> dict[str, tuple[float, float]]:
+    """Objects not in world ``world`` for a while: name -> (from, until) s
+    (``until`` inf: to the end); see :func:`mwbx.bank.versions.absent`."""
+    from mwbx.bank import versions
+    return versions.absent(self, world)
+
   def metric(self, name: str) -> np.ndarray:
     """f32[W, B] one metric column."""
     if name not in self.metric_names:
@@ -267,7 +290,8 @@ class Bank:
   @property
   def nbytes(self) -> int:
     arrays = (self.world_ids, self.keys, self.flags, self.frame_count, self.com, self.com_count,
-              self.metrics, self.perturbations, self.steps, self.parent_world, self.refine_time)
+              self.metrics, self.perturbations, self.steps, self.parent_world, self.refine_time,
+              self.scene_version)
     return int(sum(a.nbytes for a in arrays) + self.qpos_store.nbytes)
 
   # -- growth -------------------------------------------------------------------
@@ -330,7 +354,7 @@ class Bank:
   # -- persistence --------------------------------------------------------------
 
   _ARRAYS = ("world_ids", "keys", "flags", "frame_count", "com", "com_count", "metrics",
-             "perturbations", "steps", "parent_world", "refine_time")
+             "perturbations", "steps", "parent_world", "refine_time", "scene_version")
 
   def save(self, path: str | pathlib.Path) -> pathlib.Path:
     """Writes the bank to directory ``path`` as append-only shards.

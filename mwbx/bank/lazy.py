@@ -305,6 +305,9 @@ class LazyQposStore:
   def stats(self) -> dict:
     return self.concrete().stats()
 
+  def relaid(self, target, fill):
+    return self.concrete().relaid(target, fill)
+
   def state(self) -> tuple[dict, dict]:
     return self.concrete().state()
 

@@ -23,6 +23,7 @@ are sampled again, and a world depends only on the seed and its id.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import json
 import os
@@ -76,6 +77,7 @@ def scene_meta(bank) -> dict:
       "groups": {k: list(v) for k, v in bank.groups.items()},
       "metric_names": list(bank.metric_names), "record_fps": bank.record_fps,
       "query_fps": bank.query_fps, "timestep": bank.timestep, "qpos_store": store_meta,
+      "versions": list(bank.versions),
   }
 
 
@@ -143,6 +145,10 @@ class BankDirectory:
     rows = np.arange(bank.n_worlds) if rows is None else np.asarray(rows, np.int64)
     with self._locked():
       self._check_scene(bank)
+      history = self.manifest["scene"].get("versions", [])
+      if len(bank.versions) < len(history):  # sampled from the current scene, without the bank's history
+        bank = dataclasses.replace(bank, versions=list(history),
+                                   scene_version=np.full(bank.n_worlds, len(history), np.int16))
       if rows.size:
         self.manifest["shards"].append(_write_shard(self.path, bank, rows, self._next_shard_name()))
       if run is not None:
@@ -364,6 +370,8 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   if corrupt:
     run["corrupt_shards"] = corrupt
   small_names = [n for n in cls._ARRAYS if n != "com"]
+  for arrays, _ in smalls:  # shards written before scene versions: all of version 0
+    arrays.setdefault("scene_version", np.zeros(len(arrays["world_ids"]), np.int16))
   bank = cls(
       **{name: np.concatenate([arrays[name] for arrays, _ in smalls]) for name in small_names},
       com=com, qpos_store=store, body_names=tuple(scene["body_names"]),
@@ -373,7 +381,8 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       metric_names=tuple(scene["metric_names"]), record_fps=scene["record_fps"],
       query_fps=scene["query_fps"], timestep=scene["timestep"], config=scene["config"],
       mjcf_text=scene["mjcf_text"], mjcf_includes=scene.get("mjcf_includes", {}),
-      digest=scene["digest"], lineage=lineage, run=run, next_id=int(manifest["next_id"]))
+      digest=scene["digest"], lineage=lineage, run=run, next_id=int(manifest["next_id"]),
+      versions=list(scene.get("versions", [])))
   dropped = np.asarray(manifest["dropped"], np.int64)
   if dropped.size:
     keep = np.flatnonzero(~np.isin(bank.world_ids, dropped))
@@ -383,7 +392,18 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
 
 def save(bank, path: str | pathlib.Path) -> pathlib.Path:
   """Writes the worlds of ``bank`` not yet in ``path`` as one new shard, and
-  records worlds stored there but no longer in ``bank`` as dropped."""
+  records worlds stored there but no longer in ``bank`` as dropped.
+
+  A bank moved to a later version of the scene stored there
+  (:meth:`mwbx.Bank.with_scene`) is rewritten whole, in the new layout, next
+  to it, and then takes the directory's place.
+  """
+  path = pathlib.Path(path).absolute()
+  if has_manifest(path):
+    stored = read_manifest(path)
+    if (stored["scene"]["digest"] != bank.digest
+        and stored["scene"]["digest"] in {v["digest"] for v in bank.versions}):
+      return _rewrite(bank, path, stored)
   directory = BankDirectory(path)
   with directory._locked():
     directory._check_scene(bank)
@@ -400,3 +420,24 @@ def save(bank, path: str | pathlib.Path) -> pathlib.Path:
   (directory.path / "config.resolved.json").write_text(json.dumps(bank.config, indent=2))
   (directory.path / "scene.xml").write_text(bank.mjcf_text)
   return directory.path
+
+
+def _rewrite(bank, path: pathlib.Path, stored: dict) -> pathlib.Path:
+  """Writes ``bank`` whole beside ``path`` (keeping the stored manifest's runs
+  and dropped ids), then swaps it in; the old directory is removed last."""
+  import shutil
+  tag = uuid.uuid4().hex[:8]
+  fresh = path.parent / f".{path.name}.upgrade-{tag}"
+  save(bank, fresh)
+  directory = BankDirectory(fresh)
+  with directory._locked():
+    directory.manifest["runs"] = stored.get("runs", [])
+    directory.manifest["dropped"] = stored.get("dropped", [])
+    directory.manifest["next_id"] = max(int(directory.manifest["next_id"]), int(stored.get("next_id", 0)))
+    directory.commit()
+  old = path.parent / f".{path.name}.previous-{tag}"
+  os.rename(path, old)
+  os.rename(fresh, path)
+  _fsync_dir(path.parent)
+  shutil.rmtree(old)
+  return path

@@ -85,22 +85,29 @@ def _extended(channel, extra: int, kind: str, code):
 
 
 def splice_stream(new_stream: np.ndarray, parent_stream: np.ndarray, parent_frames: np.ndarray,
-                  keep_qpos: np.ndarray) -> bytes:
+                  keep_qpos: np.ndarray, parent_channel=None) -> bytes:
   """A refined world's stream with the parent's channels where ``keep_qpos``.
 
   Args:
     new_stream: u8[n] stream of the refined world as encoded.
     parent_stream: u8[m] stream of the parent world.
-    parent_frames: f32[T, nq] the parent's decoded frames.
+    parent_frames: f32[T, nq] the parent's decoded frames, in the new
+      stream's qpos layout.
     keep_qpos: bool[nq] qpos coordinates whose channel comes from the parent
       (whole channels: a free joint's translation and rotation are separate).
+    parent_channel: optional i64[C] per channel of the new stream, the
+      parent's channel holding the same coordinates (-1: none), when the
+      parent was coded in an earlier scene version's layout
+      (:func:`channel_map`); default: the same layout, channel for channel.
   """
   new = parse(new_stream)
   parent = parse(parent_stream)
-  if parent.quanta != new.quanta or parent.layout != new.layout or parent.bounds != new.bounds:
+  same_layout = parent_channel is None
+  if parent.quanta != new.quanta or parent.bounds != new.bounds or (same_layout and parent.layout != new.layout):
     raise CodecError("splice: the parent's stream was coded with other codec settings")
   kinds, adrs = new.kinds(), new.addresses()
-  take = [bool(keep_qpos[a]) for a in adrs]
+  source = list(range(len(kinds))) if same_layout else [int(c) for c in parent_channel]
+  take = [bool(keep_qpos[a]) and source[c] >= 0 for c, a in enumerate(adrs)]
   n = new.n_frames
   modes = np.array(new.modes, np.uint8)
   initial = np.array(new.initial)
@@ -113,11 +120,12 @@ def splice_stream(new_stream: np.ndarray, parent_stream: np.ndarray, parent_fram
       if k != kind:
         continue
       if take[c]:
+        p = source[c]
         raw.pop(c, None)
-        initial[c] = parent.initial[c]
-        if n >= parent.n_frames and parent.modes[c] == MODE_FIT:
+        initial[c] = parent.initial[p]
+        if n >= parent.n_frames and parent.modes[p] == MODE_FIT:
           modes[c] = MODE_FIT
-          parts.append(_extended(theirs[c], n - parent.n_frames, kind, parent))
+          parts.append(_extended(theirs[p], n - parent.n_frames, kind, parent))
         else:
           modes[c] = MODE_RAW
           idx = np.minimum(np.arange(n), len(parent_frames) - 1)
@@ -133,3 +141,18 @@ def splice_stream(new_stream: np.ndarray, parent_stream: np.ndarray, parent_fram
   code = type(new)(n_frames=n, layout=new.layout, bounds=new.bounds, fps=new.fps, quanta=new.quanta,
                    modes=modes, initial=initial, raw=raw, segs=segs)
   return serialize(code)
+
+
+def channel_map(new_layout, old_layout) -> np.ndarray:
+  """i64[C_new]: per channel of ``new_layout`` (stream order), the channel of
+  ``old_layout`` coding the same qpos coordinates, -1 where none does. A later
+  scene version that appends objects after the bank's keeps the old qpos as
+  its prefix, so every old channel has its twin.
+
+  Args:
+    new_layout, old_layout: :class:`mwbx.codec.layout.ChannelLayout`.
+  """
+  def order(layout):
+    return [(k, int(a)) for k in KINDS for a in getattr(layout, f"{k}_adr")]
+  old = {entry: c for c, entry in enumerate(order(old_layout))}
+  return np.array([old.get(entry, -1) for entry in order(new_layout)], np.int64)

@@ -146,6 +146,43 @@ class CompressedQposStore:
     out.max_error = np.maximum(out.max_error, self.max_error[parent][None, :])
     return out
 
+  def relaid(self, target: "CompressedQposStore", fill: np.ndarray,
+             chunk: int = 256) -> "CompressedQposStore":
+    """Every world in ``target``'s layout (a later scene version's, whose qpos
+    starts with this one's): each world is coded with its new coordinates
+    held at ``fill`` (f32[nq']), then its stored channels are spliced in
+    verbatim (:func:`mwbx.codec.splice.splice_stream`), so they decode
+    exactly as before.
+    """
+    from mwbx.codec.splice import channel_map
+    if target.bounds != self.bounds or target.fps != self.fps:
+      raise CodecError("relaid: the target store has other error bounds or fps")
+    mapping = channel_map(target.layout, self.layout)
+    old = np.flatnonzero(mapping >= 0)
+    if len(old) != len(self.layout.pos_adr) + len(self.layout.rot_adr) + len(self.layout.scalar_adr):
+      raise CodecError("relaid: the target layout does not start with this store's qpos")
+    fill = np.asarray(fill, np.float32)
+    keep = np.zeros(target.layout.nq, bool)
+    keep[:self.layout.nq] = True
+    out = target.empty()
+    for lo in range(0, self.n_worlds, chunk):
+      rows = np.arange(lo, min(self.n_worlds, lo + chunk))
+      counts = self.frame_count[rows]
+      frames = np.broadcast_to(fill, (len(rows), int(counts.max()), len(fill))).copy()
+      decoded = self.frames_batch(rows)
+      for i, f in enumerate(decoded):
+        frames[i, :len(f), :self.layout.nq] = f
+      part = target.empty()
+      part.append(frames, counts)
+      streams = [splice_stream(part.stream(i), self.stream(int(r)), frames[i, :counts[i]], keep, mapping)
+                 for i, r in enumerate(rows)]
+      sizes = np.array([len(s) for s in streams], np.int64)
+      part.data = np.frombuffer(b"".join(streams), np.uint8).copy()
+      part.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+      part.max_error = np.maximum(part.max_error, self.max_error[rows])
+      out.extend(part)
+    return out
+
   def stream(self, world: int) -> np.ndarray:
     """u8[n] the stored stream of one world."""
     if not 0 <= world < self.n_worlds:

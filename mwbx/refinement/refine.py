@@ -13,10 +13,17 @@ decoded path, COM polylines and metrics exactly. They get new world ids;
 their lineage (parent id, t_min, objects asked for, final active set) is in
 ``bank.lineage`` under the new id, plus ``parent_world``/``refine_time``
 columns.
+
+Objects can be added and removed at t_min (paper §5, the refrigerator toy):
+an added object (of a later scene version, :mod:`mwbx.bank.versions`) is
+inserted into the active set at its configured initial state; a removed one
+is parked, colliding with nothing, while its ghost stays, so the objects it
+used to touch become active.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import math
@@ -60,18 +67,45 @@ def _scene_of(bank):
   return scene
 
 
-def resolve_objects(bank, objects: str | Sequence[str]) -> tuple[str, ...]:
+def resolve_objects(bank, objects: str | Sequence[str], field: str = "objects",
+                    required: bool = True) -> tuple[str, ...]:
   """Object names for object or group names (``object:``/``group:`` prefixes
   allowed; MwbxError naming an unknown one)."""
+  if objects is None:
+    objects = ()
   if isinstance(objects, str):
     objects = [o for o in objects.split(",") if o]
   out: list[str] = []
   for name in objects:
-    members = objects_of(name, tuple(bank.objects), bank.groups, "objects", "refine")
+    members = objects_of(name, tuple(bank.objects), bank.groups, field, "refine")
     out.extend(m for m in members if m not in out)
-  if not out:
+  if required and not out:
     raise MwbxError("refine: objects: name at least one object or group to refine")
   return tuple(out)
+
+
+def _resolve_changes(bank, world: int, names, add, remove, t_min: float):
+  """(added, removed) object names, checked against world ``world`` at t_min."""
+  added = resolve_objects(bank, add, "add", required=False)
+  removed = resolve_objects(bank, remove, "remove", required=False)
+  if not (names or added or removed):
+    raise MwbxError("refine: name objects to refine, add or remove")
+  gone = bank.absent(world)
+  there = lambda o: not (o in gone and gone[o][0] <= t_min + 1e-9 < gone[o][1])
+  for o in added:
+    if there(o):
+      raise MwbxError(f"refine: add: object {o!r} is already in world {world} at {t_min:g} s"
+                      + ("" if o in gone else " (to add an object, refine with a scene version that has it:"
+                         " scene=/--scene)"))
+  for o in removed + names:
+    if not there(o):
+      raise MwbxError(f"refine: {'remove' if o in removed else 'objects'}: object {o!r} is not in world "
+                      f"{world} at {t_min:g} s")
+  for a, b, what in ((names, added, "add"), (names, removed, "remove"), (added, removed, "remove")):
+    both = [o for o in a if o in b]
+    if both:
+      raise MwbxError(f"refine: {what}: {', '.join(both)} also named elsewhere; name each object once")
+  return added, removed
 
 
 def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_min: float | None = None) -> float:
@@ -117,8 +151,12 @@ class RefineStats(SampleStats):
 
 def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
                key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-               margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None):
+               margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None,
+               add=(), remove=()):
   """:func:`refine` that also returns :class:`RefineStats` and only the new worlds.
+
+  The bank must already be in the scene version holding objects to ``add``
+  (:meth:`mwbx.Bank.with_scene`; :func:`refine` does that from ``scene=``).
 
   ``loop`` (native backend, ``playback="step"``): ``compiled`` runs each
   refined world in compiled calls (:mod:`mwbx.refinement.world_loop`),
@@ -147,12 +185,16 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
   if loop == "compiled" and not mujoco_c.available():
     raise MwbxError("refine: loop='compiled' needs MuJoCo's C library bound for numba; use 'lockstep'")
   compiled_loop = loop == "compiled" or (loop == "auto" and mujoco_c.available())
-  names = resolve_objects(bank, objects)
-  t_min = resolve_t_min(bank, world, names, frustum, t_min)
+  names = resolve_objects(bank, objects, required=not (add or remove))
+  t_min = resolve_t_min(bank, world, names or resolve_objects(bank, add or remove, required=False), frustum,
+                        t_min)
+  added, removed = _resolve_changes(bank, world, names, add, remove, t_min)
   sampler = sampler_for(bank, backend)
+  if removed and sampler.backend_name == "mjx":
+    raise MwbxError("refine: remove: the MJX backend cannot park objects yet; use backend='native'")
   chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
   return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, compiled_loop,
-              progress, start_wall)
+              progress, start_wall, added, removed)
 
 
 _SAMPLERS: dict = {}
@@ -169,8 +211,48 @@ def sampler_for(bank, backend: str | None = None) -> Sampler:
   return _SAMPLERS[cache_key]
 
 
+def _removal_model(model: mujoco.MjModel, removed) -> mujoco.MjModel:
+  """``model`` with the ``removed`` objects colliding with nothing and
+  weightless (gravity compensated), so parked they stay put."""
+  if not removed:
+    return model
+  out = copy.copy(model)  # mj_copyModel
+  roots = [model.body(name).id for name in removed]
+  bodies = np.isin(model.body_rootid, roots)
+  geoms = bodies[model.geom_bodyid]
+  out.geom_contype[geoms] = 0
+  out.geom_conaffinity[geoms] = 0
+  out.body_gravcomp[bodies] = 1.0
+  return out
+
+
+def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, removed, keys):
+  """(f32[N, nq], f32[N, nv]) each refined world's state at t_min: the
+  parent's, added objects at their configured (randomized) initial state,
+  removed ones parked at rest."""
+  from mwbx.bank.versions import parked_columns, parked_qpos
+  n = len(keys)
+  qpos = np.tile(np.asarray(parent_qpos, np.float32), (n, 1))
+  qvel = np.tile(np.asarray(parent_qvel, np.float32), (n, 1))
+  if added:
+    q_init, v_init = jax.vmap(scene.initial_state)(keys)
+    q_init, v_init = np.asarray(q_init), np.asarray(v_init)
+    for o in added:
+      i = object_names.index(o)
+      qpos[:, qm[i]] = q_init[:, qm[i]]
+      qvel[:, vm[i]] = v_init[:, vm[i]]
+  if removed:
+    parked = parked_qpos(scene.model, removed).astype(np.float32)
+    for o in removed:
+      i = object_names.index(o)
+      free = qm[i] & parked_columns(scene.model, [o])
+      qpos[:, free] = parked[free]
+      qvel[:, vm[i]] = 0.0
+  return qpos, qvel
+
+
 def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, compiled_loop, progress,
-         start_wall):
+         start_wall, added=(), removed=()):
   scene, params = sampler.scene, sampler.params
   model = scene.model
   fps, spf = bank.record_fps, params.steps_per_frame
@@ -190,8 +272,10 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   # (and their contact-free copies) step with sensors disabled.
   bodies = None if mjx else free_bodies.free_bodies(model, scene.body_ids)
   models = None if mjx else kinematic.ContactFreeModels(
-      model if bodies is None else sampler.backend.quiet_model, object_names)
-  asked = np.array([o in names for o in object_names])
+      _removal_model(model if bodies is None else sampler.backend.quiet_model, removed), object_names)
+  # Added and removed objects are active from t_min: an added one is simulated,
+  # a removed one parked, its ghost (stored path) still tested.
+  asked = np.array([o in names or o in added or o in removed for o in object_names])
   cfg = scene.config
   inter = interactions.interaction_params(
       model, scene.body_ids, scene.body_names, scene.objects, object_names,
@@ -200,6 +284,9 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
 
   qpos0 = path.qpos[f0]
   qvel0 = np.where(vm[asked].any(axis=0), kinematic.central_velocity(model, path, f0, frame_time), path.qvel[f0])
+  params = params if not removed else params._replace(perturbable=jnp.asarray(
+      np.asarray(params.perturbable) & ~np.isin(np.asarray(scene.body_names),
+                                                 [b for o in removed for b in scene.objects[o]])))
   metrics0 = kinematic.prefix_metrics(
       path, f0, frame_time, model.opt.timestep, np.asarray(model.opt.gravity), cfg.rest.linear_speed,
       cfg.rest.angular_speed, cfg.perturb.linear_threshold,
@@ -208,6 +295,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   ctrl = controls.scene_table(scene, n_frames * spf)
   ids = np.arange(n_samples, dtype=np.int64)
   keys, _, step_keys = world_keys(key, ids)
+  start_qpos, start_qvel = _start_states(scene, qpos0, qvel0, qm, vm, object_names, added, removed, keys)
   stats = RefineStats(backend=sampler.backend_label, first_frame=f0)
   outputs = []
   for lo in range(0, n_samples, chunk):
@@ -222,7 +310,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
         init_quat=jnp.broadcast_to(jnp.asarray(path.quat[0]), carry.init_quat.shape))
     inp = refine_loop.RefineInputs(
         params=params, inter=inter, path=path, step_targets=targets, first_frame=f0,
-        qpos0=np.tile(qpos0, (chunk, 1)), qvel0=np.tile(qvel0, (chunk, 1)),
+        qpos0=start_qpos[pad], qvel0=start_qvel[pad],
         active0=np.tile(asked, (chunk, 1)), carry0=carry, qpos_object=qm, dof_object=vm,
         step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=models,
         free_bodies=bodies, ctrl=ctrl)
@@ -254,7 +342,8 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
     progress(Progress("refining", n_samples, n_samples, stats.world_steps))
     progress(Progress("compressing", 0, n_samples, stats.world_steps))
   codec_start = time.perf_counter()
-  new = _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler)
+  new = _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler, added,
+                  removed)
   stats.codec_seconds = time.perf_counter() - codec_start
   if progress is not None:
     progress(Progress("compressing", n_samples, n_samples, stats.world_steps))
@@ -262,7 +351,8 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   return new, stats
 
 
-def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler):
+def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler, added=(),
+              removed=()):
   """The refined worlds as a bank (same scene, config and digest as ``bank``)."""
   cat = lambda name: np.concatenate([getattr(o, name) for o in outputs])
   count = f0 + cat("frame_count").astype(np.int32)
@@ -298,7 +388,9 @@ def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, out
   com_count = ((count - 1) // stride + 1).astype(np.int32)
 
   metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
-  metrics = np.where(body_active[:, :, None], metrics, bank.metrics[row][None])
+  # A removed object keeps the parent's metrics (what it did while it was there).
+  body_kept = ~body_active | np.isin(np.asarray(bank.body_names), [b for o in removed for b in bank.objects[o]])
+  metrics = np.where(body_kept[:, :, None], bank.metrics[row][None], metrics)
   flags = np.full(w, bank_lib.FLAG_FINISHED, np.uint8)
   flags[status == world_lib.AT_REST] |= bank_lib.FLAG_AT_REST
   flags[status == world_lib.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
@@ -309,28 +401,38 @@ def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, out
   for i in range(w):
     lineage[str(first_id + i)] = {
         "parent": int(world), "t_min": t0, "objects": list(names),
-        "active": [o for o, a in zip(object_names, active[i]) if a],
-        "activated_at": {o: int(f) / bank.record_fps for o, f in zip(object_names, activated[i]) if f >= 0},
+        "active": [o for o, a in zip(object_names, active[i]) if a and o not in removed],
+        "activated_at": {o: int(f) / bank.record_fps for o, f in zip(object_names, activated[i])
+                         if f >= 0 and o not in removed},
     }
+    if added:
+      lineage[str(first_id + i)]["added"] = {o: t0 for o in added}
+    if removed:
+      lineage[str(first_id + i)]["removed"] = {o: t0 for o in removed}
+  # An added object puts a world in the bank's current scene version.
+  version = len(bank.versions) if added else int(bank.scene_version[row])
   return dataclasses.replace(
       bank, world_ids=np.arange(first_id, first_id + w, dtype=np.int64),
       keys=np.asarray(jax.random.key_data(keys)), flags=flags, frame_count=count, com=com.astype(np.float32),
       com_count=com_count, metrics=metrics.astype(np.float32),
       perturbations=cat("perturbations").astype(np.int32), steps=cat("steps").astype(np.int32),
       parent_world=np.full(w, world, np.int64), refine_time=np.full(w, t0, np.float32),
-      qpos_store=store, lineage=lineage, next_id=first_id + w, _model=None)
+      qpos_store=store, lineage=lineage, next_id=first_id + w, scene_version=np.full(w, version, np.int16),
+      _model=None)
 
 
 
-def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
+def refine(bank, world: int, objects=(), *, frustum=None, t_min: float | None = None, n_samples: int,
            key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-           margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None):
+           margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None,
+           scene=None, add=(), remove=()):
   """Resamples the marked objects of one world from t_min on (paper §5).
 
   Args:
     bank: the bank holding the parent world.
     world: the parent's world id.
-    objects: object or group names (a list, or one comma-separated string).
+    objects: object or group names (a list, or one comma-separated string);
+      may be empty when objects are added or removed.
     frustum: a :class:`mwbx.queries.Frustum` (e.g. ``camera.frustum(box)``):
       t_min is the first time any of the objects' COM is inside it; or
     t_min: the restart time in seconds (rounded down to a recorded frame).
@@ -350,17 +452,47 @@ def refine(bank, world: int, objects, *, frustum=None, t_min: float | None = Non
       refined world in compiled calls, the fast path) | ``lockstep``
       (``mujoco.rollout`` a step at a time).
     progress: optional callback taking a :class:`mwbx.progress.Progress`.
+    scene: a later version of the bank's scene (a :class:`mwbx.Scene`, a
+      :class:`mwbx.config.Config` or a config file path) holding the objects
+      to ``add``, appended after the bank's own (:mod:`mwbx.bank.versions`);
+      the bank moves to it first, every world kept.
+    add: objects (of ``scene``) inserted into the active set at t_min, at
+      their configured initial state (randomized per refined world).
+    remove: objects taken out at t_min: parked, colliding with nothing; their
+      ghosts stay, so the objects they used to touch are resimulated.
 
   Returns:
-    ``bank`` with the refined worlds appended, with new ids from
-    ``bank.next_world_id`` on, each with ``parent_world``, ``refine_time`` and
-    ``lineage`` entries (``bank.children(world)`` lists them).
+    ``bank`` (in ``scene``'s version if given) with the refined worlds
+    appended, with new ids from ``bank.next_world_id`` on, each with
+    ``parent_world``, ``refine_time`` and ``lineage`` entries
+    (``bank.children(world)`` lists them; ``added``/``removed`` name the
+    objects changed, ``bank.absent(id)`` when they are not there).
 
   Raises:
     MwbxError: unknown object, unknown world id, unstable parent, t_min
-      outside the recording, or a box the objects never enter.
+      outside the recording, a box the objects never enter, an object to add
+      that is already there or to remove that is not, or a scene that is not a
+      later version of the bank's.
+
+  Example:
+    >>> bank = mwbx.refine(bank, 12, scene="configs/fridge_v2.yaml", add="blocker", t_min=0.8,
+    ...                    n_samples=32)
+    >>> bank = mwbx.refine(bank, 12, remove="bucket_left", t_min=1.5, n_samples=32)
   """
+  if scene is not None:
+    bank = bank.with_scene(as_scene(scene), progress)
   new, _ = refine_run(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
                       backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
-                      progress=progress)
+                      progress=progress, add=add, remove=remove)
   return bank.append(new)
+
+
+def as_scene(scene):
+  """A :class:`mwbx.Scene` from a Scene, a Config or a config file path."""
+  from mwbx.config import Config, load_config
+  from mwbx.scene import Scene
+  if isinstance(scene, Scene):
+    return scene
+  if isinstance(scene, Config):
+    return Scene(scene)
+  return Scene(load_config(scene))

@@ -11,6 +11,7 @@ from typing import NamedTuple, Sequence
 import mujoco
 import numpy as np
 
+from mwbx.bank import versions
 from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS
 from mwbx.viewer.paths import PathClasses
@@ -98,12 +99,13 @@ def mjcf_camera(model: mujoco.MjModel, cam_id: int) -> tuple[np.ndarray, np.ndar
 
 def _finite_extent(com: np.ndarray, worlds: np.ndarray, bodies: np.ndarray,
                    chunk: int = 1024) -> np.ndarray:
-  """f64[k, 3] (k = 0 or 2) finite min and max over com[worlds][:, :, bodies],
-  in chunks of worlds so a large bank is never copied whole."""
+  """f64[k, 3] (k = 0 or 2) finite min and max over com[worlds][:, :, bodies]
+  (objects parked while absent from a world left out), in chunks of worlds so a
+  large bank is never copied whole."""
   lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
   for start in range(0, len(worlds), chunk):
     part = com[worlds[start:start + chunk]][:, :, bodies].reshape(-1, 3).astype(np.float64)
-    part = part[np.all(np.isfinite(part), axis=1)]
+    part = part[np.all(np.isfinite(part), axis=1) & ~versions.is_parked(part)]
     if part.size:
       lo, hi = np.minimum(lo, part.min(axis=0)), np.maximum(hi, part.max(axis=0))
   return np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((0, 3))
