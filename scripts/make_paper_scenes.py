@@ -6,7 +6,8 @@
 * ``spiral_staircase.xml``: an articulated figure (ball hips, neck and
   waist, hinged shoulders, elbows and knees, joint limits; position servos
   on the arms) on the top landing of a three-level spiral staircase (two
-  flights of ten steps, 240 degrees each, down to the ground floor).
+  flights of eight steep steps, a short middle landing, down to the ground
+  floor; a low curb on the open side).
 * ``refrigerator_toy.xml`` (Fig. 8 left): a marble rolls down a chute into a
   bucket on a hinge, which tips left or right onto a chute that feeds one of
   two lower buckets.
@@ -123,16 +124,18 @@ def siggraph() -> str:
 
 # -- Spiral staircase --------------------------------------------------------------------
 
-R_IN, R_OUT = 0.15, 1.05  # m, column radius and the steps' outer radius
-RISE = 0.12  # m per step
-STEPS = 10  # per flight
-STEP_DEG = 24.0  # each step turns this much
-TOP = 2 * STEPS * RISE  # m, top landing height (2.4)
-LANDING_DEG = 60.0
+R_IN, R_OUT = 0.15, 1.4  # m, column radius and the steps' outer radius
+RISE = 0.2  # m per step: steep (about 40 degrees at mid-width), so a fall can carry on
+STEPS = 8  # per flight (the upper one gives its last step to the middle landing)
+STEP_DEG = 16.0  # each step turns this much
+TOP = 2 * STEPS * RISE  # m, top landing height (3.2)
+LANDING_DEG = 60.0  # the top landing's sweep round the column
+MIDDLE_LANDING_DEG = 24.0  # short: a tumble across it is rare, not impossible
 LEAN_DEG = 25.0  # the figure's forward lean at the start
 START_BACK_DEG = 12.0  # the figure starts this far round the column before the top landing's edge
 START_RADIUS = 0.62  # m from the column's axis
 STAIR_FRICTION = 0.8
+CURB_HEIGHT = 0.15  # m: a lip along the steps' outer edge; a tumble can still go over it
 C = 'contype="1" conaffinity="2"'  # staircase: touches the figure
 F = 'contype="2" conaffinity="1"'  # figure: touches the staircase, never itself
 
@@ -149,6 +152,10 @@ def _sector(name, a0_deg, a1_deg, z_top, rgba, thickness=0.06):
     x, y = r_mid * math.cos(math.radians(a)), r_mid * math.sin(math.radians(a))
     out.append(f'    <geom name="{name}_{i}" type="box" size="{half_radial:.3f} {half_tangent:.3f} {thickness / 2}"'
                f' pos="{x:.3f} {y:.3f} {z_top - thickness / 2:.3f}" euler="0 0 {a:.2f}" rgba="{rgba}" {C}/>')
+    if CURB_HEIGHT > 0:
+      xc, yc = (R_OUT - 0.015) * math.cos(math.radians(a)), (R_OUT - 0.015) * math.sin(math.radians(a))
+      out.append(f'    <geom name="{name}_{i}_curb" type="box" size="0.015 {half_tangent:.3f} {CURB_HEIGHT / 2:.3f}"'
+                 f' pos="{xc:.3f} {yc:.3f} {z_top + CURB_HEIGHT / 2:.3f}" euler="0 0 {a:.2f}" rgba="{rgba}" {C}/>')
   return out
 
 
@@ -180,7 +187,7 @@ def spiral_staircase() -> str:
       "  </default>",
       "  <worldbody>",
       '    <light pos="0 -3 6" dir="0 0.4 -1"/>',
-      '    <camera name="front" pos="3.2 -4.6 3.2" xyaxes="0.82 0.57 0 -0.25 0.36 0.9" fovy="45"/>',
+      '    <camera name="front" pos="4.3 -6.1 4.4" xyaxes="0.82 0.57 0 -0.25 0.36 0.9" fovy="45"/>',
       f'    <geom name="floor" type="plane" size="4 4 0.1" rgba="0.8 0.8 0.8 1" {C}/>',
       f'    <geom name="column" type="cylinder" size="{R_IN} {TOP / 2 + 0.3:.2f}" pos="0 0 {TOP / 2 + 0.3:.2f}"'
       f' rgba="0.5 0.5 0.55 1" {C}/>',
@@ -196,8 +203,9 @@ def spiral_staircase() -> str:
                        "0.7 0.6 0.45 1" if s % 2 else "0.65 0.55 0.4 1", RISE)
       angle += STEP_DEG
     if flight == 0:
-      lines += _sector("landing_middle", angle, angle + LANDING_DEG, TOP - RISE * STEPS, "0.55 0.45 0.35 1", 0.1)
-      angle += LANDING_DEG
+      lines += _sector("landing_middle", angle, angle + MIDDLE_LANDING_DEG, TOP - RISE * STEPS, "0.55 0.45 0.35 1",
+                       0.1)
+      angle += MIDDLE_LANDING_DEG
   # The figure stands at the top landing's edge facing down the stairs (its
   # +x along the direction of increasing angle), leaning forward: it falls.
   a = math.radians(LANDING_DEG - START_BACK_DEG)
