@@ -9,11 +9,16 @@ Three parts, each against a baseline measured here:
              paper's person, about an hour.
   staircase  the same on configs/spiral_staircase.yaml (reach the ground floor
              without falling off) within a budget.
-  guided     a query about 1 % of plain worlds meet (quickstart's box_a ends at
-             the back, y >= 0.5 m): guided sampling (`mwbx.search.guided_sample`,
-             R rounds of M worlds) against plain sampling of at least as many
-             world-steps, once per seed (3 by default), pooled. Matching worlds
-             per million world-steps, guided over plain (goal >= 10x).
+  guided     queries about 1 % of plain worlds meet: the toss's ball lands in
+             one of the two far bins (configs/toss.yaml: decided mostly by the
+             throw, the randomized velocity) and quickstart's box_a ends at the
+             back (decided mostly by perturbations at its collisions). Guided
+             sampling (`mwbx.search.guided_sample`, R rounds of M worlds)
+             against plain sampling of at least as many world-steps, once per
+             seed (3 by default), pooled: matching worlds per million
+             world-steps, guided over plain (goal >= 10x). Also the share of
+             guided matches whose initial state matches again under fresh
+             perturbations (what a proposal over initial states can control).
 
   .venv/bin/python scripts/bench_solve.py [--parts siggraph,staircase,guided] [--budget-s 600]
 
@@ -41,6 +46,10 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 # quickstart's box_a (it slides down the upper ramp) ends at the back of the floor.
 RARE_QUERY = Query.region((-1.4, 0.5, 0.0), (1.4, 1.2, 0.5), bodies="box_a", window=(3.5, None),
                           name="box_a_ends_at_the_back")
+# The toss's ball (mwbx/assets/toss.xml) lands in one of the two far bins.
+FAR_BINS = Query.region((1.3, -0.1, 0.0), (1.8, 0.1, 0.25), bodies="ball", window=(2.5, None), name="far_bins")
+GUIDED_CASES = {"toss": ("toss.yaml", FAR_BINS), "quickstart": ("quickstart.yaml", RARE_QUERY)}
+REPEATS = 8  # fresh perturbation draws per guided match, for the repeat rate
 
 
 def _machine() -> dict:
@@ -84,30 +93,42 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
   }
 
 
-def guided_vs_plain(rounds: int, batch: int, seeds: list[int]) -> dict:
+def guided_vs_plain(case: str, rounds: int, batch: int, seeds: list[int]) -> dict:
   """Per seed: guided sampling (default optimiser), then plain sampling of at
-  least as many world-steps; pooled over the seeds."""
-  config = mwbx.load_config(REPO / "configs" / "quickstart.yaml")
+  least as many world-steps; pooled over the seeds. Plus the repeat rate: the
+  guided matches' initial states rerun with fresh perturbations."""
+  config_name, query = GUIDED_CASES[case]
+  config = mwbx.load_config(REPO / "configs" / config_name)
   runs = []
   with mwbx.Sampler(config, backend="native") as sampler:
     sampler.run(8, jax.random.key(99))  # warm-up: compile once, outside both timings
     for seed in seeds:
       start = time.perf_counter()
-      with reporter(f"guided (seed {seed})") as update:
-        guided = mwbx.search.guided_sample(sampler, [RARE_QUERY], rounds=rounds, batch=batch,
+      with reporter(f"{case}: guided (seed {seed})") as update:
+        guided = mwbx.search.guided_sample(sampler, [query], rounds=rounds, batch=batch,
                                            key=jax.random.key(seed), progress=update)
       guided_s = time.perf_counter() - start
       g_steps = int(guided.bank.steps.sum())
-      g_match = int(mwbx.evaluate(guided.bank, [RARE_QUERY]).sum())
+      hits = mwbx.evaluate(guided.bank, [query])
+      g_match = int(hits.sum())
       late = guided.rounds[rounds // 2:]
       start = time.perf_counter()
       p_steps, p_match, p_worlds = 0, 0, 0
-      with reporter(f"plain (seed {seed})") as update:
+      with reporter(f"{case}: plain (seed {seed})") as update:
         while p_steps < g_steps:
           part, _ = sampler.run(batch, jax.random.key(1000 + seed), first_world=p_worlds, progress=update)
           p_steps += int(part.steps.sum())
-          p_match += int(mwbx.evaluate(part, [RARE_QUERY]).sum())
+          p_match += int(mwbx.evaluate(part, [query]).sum())
           p_worlds += part.n_worlds
+      plain_s = time.perf_counter() - start
+      # Up to 16 guided matches, each rerun REPEATS times from its own initial state.
+      ids = guided.bank.world_ids[hits][:16]
+      noise = np.array([guided.bank.lineage[str(int(i))]["proposal"]["noise"] for i in ids], np.float32)
+      repeat = None
+      if len(noise):
+        again, _ = sampler.run(len(noise) * REPEATS, jax.random.key(5000 + seed),
+                               noise=np.repeat(noise, REPEATS, axis=0))
+        repeat = float(mwbx.evaluate(again, [query]).mean())
       runs.append({
           "seed": seed, "guided_worlds": guided.bank.n_worlds, "guided_world_steps": g_steps,
           "guided_matches": g_match, "guided_seconds": guided_s,
@@ -115,15 +136,16 @@ def guided_vs_plain(rounds: int, batch: int, seeds: list[int]) -> dict:
           "per_round_matches": [r.matches for r in guided.rounds],
           "per_round_scale": [r.scale_mean for r in guided.rounds],
           "plain_worlds": p_worlds, "plain_world_steps": p_steps, "plain_matches": p_match,
-          "plain_seconds": time.perf_counter() - start})
+          "plain_seconds": plain_s, "repeat_rate": repeat, "repeated_matches": int(len(noise))})
   total = lambda key: sum(r[key] for r in runs)
   plain_rate = total("plain_matches") / total("plain_world_steps") * 1e6
   guided_rate = total("guided_matches") / total("guided_world_steps") * 1e6
   late_rate = total("late_matches") / total("late_world_steps") * 1e6
   for r in runs:
     r["ratio"] = (r["guided_matches"] / r["guided_world_steps"]) / max(r["plain_matches"] / r["plain_world_steps"], 1e-30)
+  repeats = [r["repeat_rate"] for r in runs if r["repeat_rate"] is not None]
   return {
-      "config": "configs/quickstart.yaml", "query": RARE_QUERY.name, "rounds": rounds, "batch": batch,
+      "case": case, "config": f"configs/{config_name}", "query": query.name, "rounds": rounds, "batch": batch,
       "optimizer": f"adam({mwbx.search.guided.MEAN_LEARNING_RATE}) on means, "
                    f"adam({mwbx.search.guided.SCALE_LEARNING_RATE}) on log scales",
       "seeds": runs,
@@ -135,6 +157,7 @@ def guided_vs_plain(rounds: int, batch: int, seeds: list[int]) -> dict:
                 "per_million_steps": plain_rate},
       "ratio": guided_rate / plain_rate if plain_rate else None,
       "late_ratio": late_rate / plain_rate if plain_rate else None,
+      "repeat_rate": float(np.mean(repeats)) if repeats else None,
   }
 
 
@@ -148,6 +171,7 @@ def main() -> None:
   parser.add_argument("--rounds", type=int, default=24)
   parser.add_argument("--batch", type=int, default=64)
   parser.add_argument("--seeds", default="1,2,3", help="guided vs plain: one run per seed, pooled")
+  parser.add_argument("--guided-cases", default="toss,quickstart", help=f"of {', '.join(GUIDED_CASES)}")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "solve.json"))
   args = parser.parse_args()
   out = pathlib.Path(args.out)
@@ -162,7 +186,8 @@ def main() -> None:
     result["staircase"] = solve_scene("spiral_staircase", args.worlds, args.staircase_budget_s, args.samples, out)
     out.write_text(json.dumps(result, indent=1))
   if "guided" in parts:
-    result["guided"] = guided_vs_plain(args.rounds, args.batch, [int(x) for x in args.seeds.split(",")])
+    result["guided"] = {case: guided_vs_plain(case, args.rounds, args.batch, [int(x) for x in args.seeds.split(",")])
+                        for case in args.guided_cases.split(",")}
   result["machine"]["load_average_after"] = os.getloadavg()[0]
   out.write_text(json.dumps(result, indent=1))
 
@@ -172,13 +197,13 @@ def main() -> None:
     if key in result:
       r = result[key]
       print(f"{r['scene']:<17} {r['message']}; plain-sampling estimate {r['independent_estimate']:.1e} per world")
-  if "guided" in result:
-    g = result["guided"]
-    print(f"guided           {g['guided']['matches']} of {g['guided']['worlds']} worlds match"
+  for g in result.get("guided", {}).values():
+    print(f"guided {g['case']:<10} {g['guided']['matches']} of {g['guided']['worlds']} worlds match"
           f" ({g['guided']['per_million_steps']:.1f} per million world-steps; last half"
           f" {g['guided']['late_per_million_steps']:.1f}) vs plain {g['plain']['matches']} of"
           f" {g['plain']['worlds']} ({g['plain']['per_million_steps']:.1f}): ratio"
-          f" {g['ratio'] or float('nan'):.1f}x (last half {g['late_ratio'] or float('nan'):.1f}x)")
+          f" {g['ratio'] or float('nan'):.1f}x (last half {g['late_ratio'] or float('nan'):.1f}x);"
+          f" repeat rate {g['repeat_rate'] if g['repeat_rate'] is not None else float('nan'):.0%}")
   print(f"wrote {out}")
 
 
