@@ -79,3 +79,29 @@ def scene_table(scene, n_steps: int, first_step: int = 0) -> np.ndarray:
   cfg = scene.config
   return control_table(scene.model, dict(cfg.controls), n_steps, first_step=first_step,
                        source=cfg.source or "<config>")
+
+
+def activation_at(model: mujoco.MjModel, ctrl: np.ndarray, n_steps: int) -> np.ndarray:
+  """f64[na] actuator activations after the first ``n_steps`` steps of ``ctrl``.
+
+  Activation dynamics (integrator, filter, filterexact, muscle) depend on the
+  controls and the activation alone, not on the pose, so every world of a
+  scene has the same ``act`` at a given step; refinement restarts from it.
+  MuJoCo integrates it here exactly as while sampling (``mj_step`` with the
+  same control rows), the pose held at ``qpos0`` at rest.
+
+  Args:
+    model: the scene model.
+    ctrl: f64[N, nu] the control table (:func:`scene_table`), N >= n_steps.
+    n_steps: steps taken.
+  """
+  data = mujoco.MjData(model)
+  if model.na == 0 or n_steps == 0:
+    return np.array(data.act, np.float64)
+  for k in range(n_steps):
+    data.qpos[:] = model.qpos0
+    data.qvel[:] = 0.0
+    if model.nu:
+      data.ctrl[:] = ctrl[k]
+    mujoco.mj_step(model, data)
+  return np.array(data.act, np.float64)

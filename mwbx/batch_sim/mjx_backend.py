@@ -110,9 +110,12 @@ class MjxBackend:
   def close(self) -> None:
     pass
 
-  def make_data(self, qpos: jax.Array, qvel: jax.Array) -> mjx.Data:
-    """Batched ``mjx.Data`` at time 0 from qpos f32[W, nq], qvel f32[W, nv]."""
+  def make_data(self, qpos: jax.Array, qvel: jax.Array, act: jax.Array | None = None) -> mjx.Data:
+    """Batched ``mjx.Data`` at time 0 from qpos f32[W, nq], qvel f32[W, nv]
+    and, optionally, actuator activations f32[W, na]."""
     base = mjx.make_data(self.model, device=self.devices[0], impl=self.impl)
+    if act is not None:
+      return jax.vmap(lambda q, v, a: base.replace(qpos=q, qvel=v, act=a.astype(base.act.dtype)))(qpos, qvel, act)
     return jax.vmap(lambda q, v: base.replace(qpos=q, qvel=v))(qpos, qvel)
 
   def step(self, d: mjx.Data, xfrc: jax.Array) -> mjx.Data:

@@ -86,8 +86,9 @@ class NativeBackend:
   def close(self) -> None:
     self.pool.close()
 
-  def initial_states(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-    """f64[W, nstate] full physics states (time 0) from qpos f32[W, nq], qvel f32[W, nv]."""
+  def initial_states(self, qpos: np.ndarray, qvel: np.ndarray, act: np.ndarray | None = None) -> np.ndarray:
+    """f64[W, nstate] full physics states (time 0) from qpos f32[W, nq], qvel
+    f32[W, nv] and, optionally, actuator activations f[W, na]."""
     m = self.model
     data = mujoco.MjData(m)
     states = np.zeros((len(qpos), self.nstate))
@@ -95,6 +96,8 @@ class NativeBackend:
       mujoco.mj_resetData(m, data)
       data.qpos[:] = qpos[w]
       data.qvel[:] = qvel[w]
+      if act is not None:
+        data.act[:] = act[w]
       mujoco.mj_getState(m, data, states[w], _STATE)
     return states
 

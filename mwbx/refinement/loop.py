@@ -61,6 +61,7 @@ class RefineInputs(NamedTuple):
       and ``models`` step with sensors disabled (:mod:`free_bodies`).
     ctrl: f64[n_frames · S, nu] actuator control of each step from step 0
       (:mod:`mwbx.batch_sim.controls`; width 0: none).
+    act0: f64[C, na] actuator activations at f0 (None: the model has none).
   """
 
   params: world.WorldParams
@@ -81,6 +82,7 @@ class RefineInputs(NamedTuple):
   models: kinematic.ContactFreeModels | None = None
   free_bodies: free_bodies_lib.FreeBodies | None = None
   ctrl: np.ndarray | None = None
+  act0: np.ndarray | None = None
 
 
 class RefineOutput(NamedTuple):
@@ -279,7 +281,7 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
 
   kernel = _native_kernel(params, n_sensor)
   use_sensors = inp.free_bodies is None  # else the sensor block comes from the states
-  states = backend.initial_states(inp.qpos0, inp.qvel0)
+  states = backend.initial_states(inp.qpos0, inp.qvel0, inp.act0)
   states[:, 0] = f0 * spf * m.opt.timestep
   warmstart = np.zeros((c, nv))
   wrench_full = np.zeros((c, spf, m.nbody, 6))
@@ -366,7 +368,8 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
             tuple(jnp.asarray(x) for x in (path.com, path.quat, path.lin_vel, path.ang_vel)),
             None if inp.ctrl is None or inp.ctrl.shape[1] == 0 else jnp.asarray(inp.ctrl, jnp.float32))
   run = _mjx_block(backend, params, np.asarray(inp.body_ids), block, len(inter.radius) * world.SENSOR_WIDTH)
-  d = backend.make_data(jnp.asarray(inp.qpos0), jnp.asarray(inp.qvel0))
+  d = backend.make_data(jnp.asarray(inp.qpos0), jnp.asarray(inp.qvel0),
+                        None if inp.act0 is None else jnp.asarray(inp.act0))
   d = d.replace(time=jnp.full((c,), f0 * spf * m.opt.timestep, d.time.dtype))
   t0 = time.perf_counter()
   active = start_active(inp)

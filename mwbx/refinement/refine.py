@@ -296,6 +296,8 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   ids = np.arange(n_samples, dtype=np.int64)
   keys, _, step_keys = world_keys(key, ids)
   start_qpos, start_qvel = _start_states(scene, qpos0, qvel0, qm, vm, object_names, added, removed, keys)
+  # Actuator activations at t_min: the same in every world (they follow the controls).
+  act0 = controls.activation_at(model, ctrl, f0 * spf)[None] if model.na else None
   stats = RefineStats(backend=sampler.backend_label, first_frame=f0)
   outputs = []
   for lo in range(0, n_samples, chunk):
@@ -313,7 +315,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
         qpos0=start_qpos[pad], qvel0=start_qvel[pad],
         active0=np.tile(asked, (chunk, 1)), carry0=carry, qpos_object=qm, dof_object=vm,
         step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=models,
-        free_bodies=bodies, ctrl=ctrl)
+        free_bodies=bodies, ctrl=ctrl, act0=None if act0 is None else np.repeat(act0, chunk, axis=0))
     if mjx:
       run = refine_loop.run_mjx
     elif playback == "step" and compiled_loop:

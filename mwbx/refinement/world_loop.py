@@ -301,6 +301,8 @@ def run_compiled(backend, inp, progress=None):
     mujoco.mj_resetData(m, data)
     data.qpos[:] = inp.qpos0[row]
     data.qvel[:] = inp.qvel0[row]
+    if inp.act0 is not None:
+      data.act[:] = inp.act0[row]
     data.time = f0 * spf * m.opt.timestep
     physics = 0.0
     while True:
