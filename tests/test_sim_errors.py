@@ -79,3 +79,27 @@ def test_cli_names_each_erring_world_and_saves_the_bank(tmp_path):
                  if "MuJoCo error" in line)
   assert named == flagged
   assert f"{len(flagged)} of them stopped by MuJoCo errors" in result.stdout
+
+
+def test_a_refined_world_that_errs_is_flagged(tmp_path):
+  """A valid parent (its slab lands on the floor) refined with a second slab
+  added above the marbles: the children overflow MuJoCo's arena inside the
+  compiled refinement loop, are flagged FLAG_SIM_ERROR and left out of
+  queries, and keep the frames before the error."""
+  text = (TESTS / "scenes" / "stack_overflow.xml").read_text()
+  slab = '<body name="slab" pos="0.3 0 0.4"><freejoint/><geom type="box" size=".15 .15 .05"/></body>'
+  (tmp_path / "two_slabs.xml").write_text(text.replace(
+      slab, slab + '\n  <body name="slab2" pos="0 0 0.3"><freejoint/><geom type="box" size=".15 .15 .05"/></body>'))
+  (tmp_path / "two_slabs.yaml").write_text(SCENE.read_text().replace(
+      "mjcf: stack_overflow.xml", f"mjcf: {tmp_path / 'two_slabs.xml'}"))
+  bank = mwbx.sample(mwbx.load_config(SCENE), n_worlds=N_WORLDS, key=jax.random.key(0), backend="native")
+  parent = int(bank.world_ids[bank.valid][0])
+  new = mwbx.refine(bank, parent, scene=tmp_path / "two_slabs.yaml", add="slab2", t_min=0.1, n_samples=2,
+                    key=jax.random.key(1), backend="native")
+  children = new.row_of(new.children(parent))
+  assert (new.flags[children] & mwbx.FLAG_SIM_ERROR).all()
+  assert not new.valid[children].any() and new.valid[new.row_of(parent)]
+  f0 = int(round(0.1 * new.record_fps))
+  for row in children:
+    assert new.frame_count[row] > f0  # it ran a while after t_min before the error
+    assert np.isfinite(new.qpos_frames(int(new.world_ids[row]))).all()
