@@ -214,8 +214,10 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
               "|---|---:|---:|---:|---:|---:|---|---:|---:|---:|"]
     for r in rows:
       result = "all met" if r["solved"] else f"{r['satisfied']} of {r['n_queries']} met"
+      estimate = (f"{r['independent_estimate']:.1e} per world" if r["independent_estimate"] > 0 else
+                  f"below 1 in {r['valid']} (a query no sampled world meets)")
       lines.append(f"| {r['scene']} | {r['worlds_sampled']} | {r['valid']} | {r['sampled_best_met']} of "
-                   f"{r['n_queries']} | {r['independent_estimate']:.1e} per world | {r['budget_seconds']:.0f} s | "
+                   f"{r['n_queries']} | {estimate} | {r['budget_seconds']:.0f} s | "
                    f"{result} | {r['refinements']} | {r['world_steps']:,} | {r['wall_seconds']:.0f} s |")
     lines += [""] + [f"![{r['scene']} solve progress](bench/{r['plot']})" for r in rows] + [""]
     for r in rows:
@@ -365,12 +367,12 @@ def scenes(d: dict) -> tuple[list[str], list[str]]:
   lines = ["## Paper scenes", "",
            "`scripts/scene_counts.py`: each of the paper's §6 scenes sampled on both backends (seed 0; "
            f"{d['machine']}): valid and unstable worlds, and how many meet each query of its query file.", "",
-           "| scene | backend | worlds | valid | unstable | MuJoCo errors | all queries met | per query |",
-           "|---|---|---:|---:|---:|---:|---:|---|"]
+           "| scene | backend | worlds | valid | unstable | MuJoCo errors | all queries met | per query | commit |",
+           "|---|---|---:|---:|---:|---:|---:|---|---|"]
   for r in d["rows"]:
     per = ", ".join(f"{k} {v}" for k, v in r["per_query"].items())
     lines.append(f"| {r['scene']} | {r['backend']} | {r['worlds']} | {r['valid']} | {r['unstable']} | "
-                 f"{r['sim_errors']} | {r['all_met']} | {per} |")
+                 f"{r['sim_errors']} | {r['all_met']} | {per} | {r.get('commit', '-')} |")
   sampled = {(r["scene"], r["backend"]) for r in d["rows"]}
   missing = sorted({scene for scene, _ in sampled if (scene, "mjx") not in sampled})
   if missing:

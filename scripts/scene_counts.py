@@ -14,6 +14,7 @@ import json
 import os
 import pathlib
 import platform
+import subprocess
 import time
 
 import jax
@@ -37,7 +38,9 @@ def counts(scene: str, backend: str, worlds: int) -> dict:
           "sim_errors": int((bank.flags & mwbx.FLAG_SIM_ERROR > 0).sum()),
           "at_rest": int(bank.at_rest.sum()),
           "per_query": {q.name: int(n) for q, n in zip(queries.queries, each.sum(axis=0))},
-          "all_met": int(each.all(axis=1).sum()), "wall_seconds": time.perf_counter() - start}
+          "all_met": int(each.all(axis=1).sum()), "wall_seconds": time.perf_counter() - start,
+          "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                                   text=True).stdout.strip()}
 
 
 def main() -> None:
@@ -59,9 +62,15 @@ def main() -> None:
               f" {r['sim_errors']} MuJoCo errors; all queries met by {r['all_met']}; {r['per_query']}", flush=True)
   out = pathlib.Path(args.out)
   out.parent.mkdir(parents=True, exist_ok=True)
+  # Rows of scenes not run now stay as they were measured (each names its commit).
+  done = {r["scene"] for r in rows}
+  kept = [r for r in json.loads(out.read_text())["rows"] if r["scene"] not in done] if out.exists() else []
+  order = {name: i for i, name in enumerate(SCENES)}
+  rows = sorted(kept + rows, key=lambda r: (order.get(r["scene"], len(order)), r["backend"] != "native"))
+  previous_note = json.loads(out.read_text()).get("mjx_note") if out.exists() else None
   out.write_text(json.dumps({"machine": f"{os.cpu_count()}-core {platform.machine()}, JAX on "
                                         f"{jax.default_backend()}", "rows": rows,
-                             "mjx_note": args.mjx_note or "not run"}, indent=1))
+                             "mjx_note": args.mjx_note or previous_note or "not run"}, indent=1))
   print(f"wrote {out}")
 
 

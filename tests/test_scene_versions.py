@@ -112,6 +112,15 @@ def test_removing_the_top_bucket_lets_the_marble_fall_through(toy_bank):
       untouched += 1
       np.testing.assert_array_equal(q[:, left], stored[:len(q), left])
   assert untouched > 0
+  # Refined again later, the removed bucket stays out: parked at its angle,
+  # colliding with nothing, even when the marble passes where it was.
+  child = int(bank.children(parent)[0])
+  again = mwbx.refine(bank, child, "marble", t_min=1.2, n_samples=2, key=jax.random.key(3), backend="native")
+  for grandchild in (int(c) for c in again.children(child)):
+    assert again.absent(grandchild) == {"bucket_top": (t_min, math.inf)}
+    q = again.qpos_frames(grandchild)
+    np.testing.assert_array_equal(q[f0:, top], np.full(len(q) - f0, stored[f0, top]))
+    assert below_bucket(*_marble_xz(again, grandchild))
 
 
 def test_an_upgraded_bank_is_rewritten_in_place_and_loads_back(toy_bank, tmp_path):

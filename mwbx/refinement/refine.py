@@ -41,6 +41,7 @@ from mwbx.batch_sim import controls
 from mwbx.batch_sim import mujoco_c
 from mwbx.batch_sim import free_bodies
 from mwbx.batch_sim import world as world_lib
+from mwbx.bank.versions import parked_columns, parked_qpos
 from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
 from mwbx.codec import polyline
 from mwbx.errors import MwbxError
@@ -190,11 +191,15 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
                         t_min)
   added, removed = _resolve_changes(bank, world, names, add, remove, t_min)
   sampler = sampler_for(bank, backend)
-  if removed and sampler.backend_name == "mjx":
-    raise MwbxError("refine: remove: the MJX backend cannot park objects yet; use backend='native'")
   chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
+  # Objects already gone at t_min (removed by an ancestor, or of a later scene
+  # version) stay out: colliding with nothing even if something activates them.
+  gone = tuple(o for o, (a, b) in bank.absent(world).items() if a <= t_min + 1e-9 < b and o not in added)
+  if sampler.backend_name == "mjx" and (removed or any(not parked_columns(sampler.scene.model, [o]).any()
+                                                         for o in gone)):
+    raise MwbxError("refine: the MJX backend cannot keep removed objects out of contact yet; use backend='native'")
   return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, compiled_loop,
-              progress, start_wall, added, removed)
+              progress, start_wall, added, removed, gone)
 
 
 _SAMPLERS: dict = {}
@@ -230,7 +235,6 @@ def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, 
   """(f32[N, nq], f32[N, nv]) each refined world's state at t_min: the
   parent's, added objects at their configured (randomized) initial state,
   removed ones parked at rest."""
-  from mwbx.bank.versions import parked_columns, parked_qpos
   n = len(keys)
   qpos = np.tile(np.asarray(parent_qpos, np.float32), (n, 1))
   qvel = np.tile(np.asarray(parent_qvel, np.float32), (n, 1))
@@ -252,7 +256,7 @@ def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, 
 
 
 def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, compiled_loop, progress,
-         start_wall, added=(), removed=()):
+         start_wall, added=(), removed=(), gone=()):
   scene, params = sampler.scene, sampler.params
   model = scene.model
   fps, spf = bank.record_fps, params.steps_per_frame
@@ -272,7 +276,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   # (and their contact-free copies) step with sensors disabled.
   bodies = None if mjx else free_bodies.free_bodies(model, scene.body_ids)
   models = None if mjx else kinematic.ContactFreeModels(
-      _removal_model(model if bodies is None else sampler.backend.quiet_model, removed), object_names)
+      _removal_model(model if bodies is None else sampler.backend.quiet_model, removed + gone), object_names)
   # Added and removed objects are active from t_min: an added one is simulated,
   # a removed one parked, its ghost (stored path) still tested.
   asked = np.array([o in names or o in added or o in removed for o in object_names])
@@ -284,9 +288,9 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
 
   qpos0 = path.qpos[f0]
   qvel0 = np.where(vm[asked].any(axis=0), kinematic.central_velocity(model, path, f0, frame_time), path.qvel[f0])
-  params = params if not removed else params._replace(perturbable=jnp.asarray(
+  params = params if not (removed or gone) else params._replace(perturbable=jnp.asarray(
       np.asarray(params.perturbable) & ~np.isin(np.asarray(scene.body_names),
-                                                 [b for o in removed for b in scene.objects[o]])))
+                                                 [b for o in removed + gone for b in scene.objects[o]])))
   metrics0 = kinematic.prefix_metrics(
       path, f0, frame_time, model.opt.timestep, np.asarray(model.opt.gravity), cfg.rest.linear_speed,
       cfg.rest.angular_speed, cfg.perturb.linear_threshold,
