@@ -178,16 +178,22 @@ def main() -> None:
   out.parent.mkdir(parents=True, exist_ok=True)
   parts = args.parts.split(",")
   result = json.loads(out.read_text()) if out.exists() else {}
+  for key in ("siggraph", "staircase", "guided"):  # parts kept from an earlier run keep its machine line
+    if key in result and "machine" not in result[key] and "machine" in result:
+      result[key]["machine"] = result["machine"]
   result["machine"] = _machine()
   if "siggraph" in parts:
     result["siggraph"] = solve_scene("siggraph", args.worlds, args.budget_s, args.samples, out)
+    result["siggraph"]["machine"] = result["machine"]
     out.write_text(json.dumps(result, indent=1))
   if "staircase" in parts:
     result["staircase"] = solve_scene("spiral_staircase", args.worlds, args.staircase_budget_s, args.samples, out)
+    result["staircase"]["machine"] = result["machine"]
     out.write_text(json.dumps(result, indent=1))
   if "guided" in parts:
     result["guided"] = {case: guided_vs_plain(case, args.rounds, args.batch, [int(x) for x in args.seeds.split(",")])
                         for case in args.guided_cases.split(",")}
+    result["guided"]["machine"] = result["machine"]
   result["machine"]["load_average_after"] = os.getloadavg()[0]
   out.write_text(json.dumps(result, indent=1))
 
@@ -197,7 +203,7 @@ def main() -> None:
     if key in result:
       r = result[key]
       print(f"{r['scene']:<17} {r['message']}; plain-sampling estimate {r['independent_estimate']:.1e} per world")
-  for g in result.get("guided", {}).values():
+  for g in (v for k, v in result.get("guided", {}).items() if k != "machine"):
     print(f"guided {g['case']:<10} {g['guided']['matches']} of {g['guided']['worlds']} worlds match"
           f" ({g['guided']['per_million_steps']:.1f} per million world-steps; last half"
           f" {g['guided']['late_per_million_steps']:.1f}) vs plain {g['plain']['matches']} of"

@@ -208,6 +208,14 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
            f"load average {m['load_average']:.1f} at the start.", ""]
   head = []
   rows = [d[k] for k in ("siggraph", "staircase") if k in d]
+  part_commits = [f"{r['scene']} at {r['machine']['commit']} (load {r['machine']['load_average']:.1f})"
+                  for r in rows if "machine" in r]
+  if isinstance(d.get("guided"), dict) and "machine" in d["guided"]:
+    g = d["guided"]["machine"]
+    part_commits.append(f"guided at {g['commit']} (load {g['load_average']:.1f})")
+  if part_commits:
+    lines[-2] = lines[-2].split(" Machine:")[0] + (f" Machine: {m['cpus']}-core {m['machine']} CPU, no GPU "
+                                                  f"({m['backend']}); measured " + ", ".join(part_commits) + ".")
   if rows:
     lines += ["| scene | sampled | valid | best sampled | plain-sampling estimate | budget | result | "
               "refinements | world-steps | wall (sample + solve) |",
@@ -231,9 +239,13 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
                   f"{s['budget_seconds'] / 60:.0f} min (plain sampling: ~{s['independent_estimate']:.0e} per world)"
                   if not s["solved"] else
                   f"spelling SIGGRAPH solved unattended in {reached / 60:.1f} min")
-  guided = d.get("guided") or {}
+    t = d.get("staircase")
+    if t and t["solved"]:
+      head.append(f"the spiral staircase in {t['solve_seconds']:.0f} s ({t['refinements']} refinements)")
+  guided = dict(d.get("guided") or {})
   if "guided" in guided:  # one case, as written before there were several
     guided = {"quickstart": guided}
+  guided.pop("machine", None)  # named in the section's machine line
   if guided:
     lines += ["**Guided vs plain sampling**: per seed, R rounds of M guided worlds (default optimiser) against "
               "plain sampling of at least as many world-steps, pooled over the seeds. The repeat rate is the "
@@ -255,7 +267,8 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
                                                     f"({r['guided_matches']} vs {r['plain_matches']} matches)"
                                                     for r in g["seeds"]))
     lines.append("")
-    head.append("guided sampling finds " + ", ".join(f"{g['ratio']:.1f}× ({g['query']})" for g in guided.values())
+    head.append("guided sampling finds " + " and ".join(f"{g['ratio']:.1f}× (`{g['query']}`)"
+                                                      for g in guided.values())
                 + " as many matching worlds per world-step as plain sampling")
   return lines, ([f"**solve**: {'; '.join(head)}"] if head else [])
 
