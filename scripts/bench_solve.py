@@ -20,7 +20,9 @@ Three parts, each against a baseline measured here:
              guided matches whose initial state matches again under fresh
              perturbations (what a proposal over initial states can control).
 
-  .venv/bin/python scripts/bench_solve.py [--parts siggraph,staircase,guided] [--budget-s 600]
+  robustness siggraph and staircase again with other seeds (--robustness-seeds 1,2).
+
+  .venv/bin/python scripts/bench_solve.py [--parts siggraph,staircase,guided,robustness] [--budget-s 600]
 
 Writes out/bench/solve.json (and solve_<scene>.png progress plots) and prints a table.
 """
@@ -59,24 +61,27 @@ def _machine() -> dict:
           "commit": commit, "load_average": os.getloadavg()[0]}
 
 
-def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: pathlib.Path) -> dict:
+def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: pathlib.Path, seed: int = 0) -> dict:
+  """Samples ``worlds`` worlds of the scene and solves its query file; ``seed``
+  keys both the sampling and the search."""
   config = mwbx.load_config(REPO / "configs" / f"{name}.yaml")
   start = time.perf_counter()
   with reporter(f"{name}: sample") as update:
-    bank = mwbx.sample(config, worlds, jax.random.key(0), backend="native", progress=update)
+    bank = mwbx.sample(config, worlds, jax.random.key(seed), backend="native", progress=update)
   sample_s = time.perf_counter() - start
   queries = mwbx.load_queries(REPO / "configs" / "queries" / f"{name}.yaml", bank=bank)
   each = mwbx.evaluate_each(bank, queries)
   rates = each[bank.valid].mean(axis=0)
   with reporter(f"{name}: solve") as update:
-    result = mwbx.solve(bank, queries, budget=mwbx.search.Budget(seconds=budget_s), key=jax.random.key(0),
+    result = mwbx.solve(bank, queries, budget=mwbx.search.Budget(seconds=budget_s), key=jax.random.key(seed),
                         samples=samples, backend="native", progress=update)
   wall = time.perf_counter() - start
   refined = [s for s in result.steps if s.refined >= 0]
-  plot = mwbx.search.progress_plot(result.steps, out.parent / f"solve_{name}.png",
+  plot = mwbx.search.progress_plot(result.steps, out.parent / (f"solve_{name}.png" if seed == 0 else
+                                                             f"solve_{name}_seed{seed}.png"),
                                    title=f"{name}: queries met by the best world")
   return {
-      "scene": name, "worlds_sampled": worlds, "sample_seconds": sample_s,
+      "scene": name, "seed": seed, "worlds_sampled": worlds, "sample_seconds": sample_s,
       "valid": int(bank.valid.sum()), "unstable": int((~bank.valid).sum()),
       "queries": [q.name for q in queries.queries], "per_query_rate": rates.tolist(),
       "sampled_best_met": int(each.sum(axis=1).max()), "sampled_all_met": int(each.all(axis=1).sum()),
@@ -172,6 +177,8 @@ def main() -> None:
   parser.add_argument("--batch", type=int, default=64)
   parser.add_argument("--seeds", default="1,2,3", help="guided vs plain: one run per seed, pooled")
   parser.add_argument("--guided-cases", default="toss,quickstart", help=f"of {', '.join(GUIDED_CASES)}")
+  parser.add_argument("--robustness-seeds", default="",
+                      help="part 'robustness': siggraph and staircase again with these seeds, e.g. 1,2")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "solve.json"))
   args = parser.parse_args()
   out = pathlib.Path(args.out)
@@ -189,6 +196,16 @@ def main() -> None:
   if "staircase" in parts:
     result["staircase"] = solve_scene("spiral_staircase", args.worlds, args.staircase_budget_s, args.samples, out)
     result["staircase"]["machine"] = result["machine"]
+    out.write_text(json.dumps(result, indent=1))
+  if "robustness" in parts and args.robustness_seeds:
+    runs = []
+    for seed in (int(x) for x in args.robustness_seeds.split(",")):
+      for name, budget in (("siggraph", args.budget_s), ("spiral_staircase", args.staircase_budget_s)):
+        r = solve_scene(name, args.worlds, budget, args.samples, out, seed)
+        runs.append({k: r[k] for k in ("scene", "seed", "solved", "satisfied", "n_queries", "refinements",
+                                       "world_steps", "solve_seconds", "message")})
+        print(f"{name} seed {seed}: {r['message']}", flush=True)
+    result["robustness"] = {"runs": runs, "machine": result["machine"]}
     out.write_text(json.dumps(result, indent=1))
   if "guided" in parts:
     result["guided"] = {case: guided_vs_plain(case, args.rounds, args.batch, [int(x) for x in args.seeds.split(",")])
