@@ -179,6 +179,7 @@ def main() -> None:
   parser.add_argument("--guided-cases", default="toss,quickstart", help=f"of {', '.join(GUIDED_CASES)}")
   parser.add_argument("--robustness-seeds", default="",
                       help="part 'robustness': siggraph and staircase again with these seeds, e.g. 1,2")
+  parser.add_argument("--robustness-scenes", default="siggraph,spiral_staircase")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "solve.json"))
   args = parser.parse_args()
   out = pathlib.Path(args.out)
@@ -198,15 +199,17 @@ def main() -> None:
     result["staircase"]["machine"] = result["machine"]
     out.write_text(json.dumps(result, indent=1))
   if "robustness" in parts and args.robustness_seeds:
-    runs = []
+    runs = list(result.get("robustness", {}).get("runs", []))
     for seed in (int(x) for x in args.robustness_seeds.split(",")):
-      for name, budget in (("siggraph", args.budget_s), ("spiral_staircase", args.staircase_budget_s)):
+      for name in args.robustness_scenes.split(","):
+        budget = args.budget_s if name == "siggraph" else args.staircase_budget_s
         r = solve_scene(name, args.worlds, budget, args.samples, out, seed)
+        runs = [x for x in runs if (x["scene"], x["seed"]) != (name, seed)]
         runs.append({k: r[k] for k in ("scene", "seed", "solved", "satisfied", "n_queries", "refinements",
-                                       "world_steps", "solve_seconds", "message")})
+                                       "world_steps", "solve_seconds", "message")} | {"commit": result["machine"]["commit"]})
         print(f"{name} seed {seed}: {r['message']}", flush=True)
-    result["robustness"] = {"runs": runs, "machine": result["machine"]}
-    out.write_text(json.dumps(result, indent=1))
+        result["robustness"] = {"runs": sorted(runs, key=lambda x: (x["scene"], x["seed"]))}
+        out.write_text(json.dumps(result, indent=1))
   if "guided" in parts:
     result["guided"] = {case: guided_vs_plain(case, args.rounds, args.batch, [int(x) for x in args.seeds.split(",")])
                         for case in args.guided_cases.split(",")}

@@ -244,12 +244,13 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
       head.append(f"the spiral staircase in {t['solve_seconds']:.0f} s ({t['refinements']} refinements)")
   robust = d.get("robustness")
   if robust:
-    lines += [f"Other seeds (sampling and search keyed by the seed; {robust['machine']['commit']}):", "",
-              "| scene | seed | result | refinements | world-steps | solve time |", "|---|---:|---|---:|---:|---:|"]
+    lines += ["Other seeds (sampling and search keyed by the seed; same budgets):", "",
+              "| scene | seed | result | refinements | world-steps | solve time | commit |",
+              "|---|---:|---|---:|---:|---:|---|"]
     for r in robust["runs"]:
       result = "all met" if r["solved"] else f"{r['satisfied']} of {r['n_queries']} met"
       lines.append(f"| {r['scene']} | {r['seed']} | {result} | {r['refinements']} | {r['world_steps']:,} | "
-                   f"{r['solve_seconds']:.0f} s |")
+                   f"{r['solve_seconds']:.0f} s | {r['commit']} |")
     lines.append("")
   guided = dict(d.get("guided") or {})
   if "guided" in guided:  # one case, as written before there were several

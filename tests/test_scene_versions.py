@@ -44,9 +44,11 @@ def _activated_frame(bank, child, obj):
 def test_adding_a_block_stops_the_marble_and_keeps_untouched_objects_exactly(toy_bank):
   parent = int(toy_bank.world_ids[0])
   before = toy_bank.qpos_frames(parent)
+  phases = []
   bank = mwbx.refine(toy_bank, parent, scene=TOY_BLOCK, add="block", t_min=0.0, n_samples=4,
-                     key=jax.random.key(1), backend="native")
+                     key=jax.random.key(1), backend="native", progress=lambda p: phases.append(p.phase))
   assert len(bank.versions) == 1 and "block" in bank.objects
+  assert phases[0] == "re-laying" and "refining" in phases
   # Every world kept; the old ones decode exactly as before, the block parked in them.
   after = bank.qpos_frames(parent)
   np.testing.assert_array_equal(after[:, :before.shape[1]], before)

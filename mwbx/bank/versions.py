@@ -69,9 +69,10 @@ def parked_qpos(model: mujoco.MjModel, objects) -> np.ndarray:
     objects: names of the objects (root bodies) to park.
   """
   qpos = np.array(model.qpos0, np.float64)
+  columns = parked_columns(model, objects)
   for j in range(model.njnt):
-    if model.jnt_type[j] == JNT_FREE and parked_columns(model, objects)[model.jnt_qposadr[j]]:
-      a = int(model.jnt_qposadr[j])
+    a = int(model.jnt_qposadr[j])
+    if model.jnt_type[j] == JNT_FREE and columns[a]:
       qpos[a:a + 7] = (*PARKED_POSITION, 1.0, 0.0, 0.0, 0.0)
   return qpos
 
@@ -138,7 +139,7 @@ def upgrade(bank, scene, progress=None):
   model = scene.model
   fill = parked_qpos(model, added).astype(np.float32)
   if progress is not None:
-    progress(Progress("re-laying", 0, bank.n_worlds))
+    progress(Progress("re-laying", 0, bank.n_worlds, 0))
   target = compressed_store(scene) if bank.qpos_store.kind == "codec" else RawQposStore(model.nq)
   store = bank.qpos_store.relaid(target, fill)
   # The added bodies' COM where they are parked, for every point of every old world.
@@ -154,7 +155,7 @@ def upgrade(bank, scene, progress=None):
   metrics = np.concatenate([bank.metrics, np.zeros((w, len(new_bodies), bank.metrics.shape[2]), np.float32)],
                            axis=1)
   if progress is not None:
-    progress(Progress("re-laying", bank.n_worlds, bank.n_worlds))
+    progress(Progress("re-laying", bank.n_worlds, bank.n_worlds, 0))
   return dataclasses.replace(
       bank, com=com, metrics=metrics, qpos_store=store, body_names=tuple(scene.body_names),
       body_ids=np.asarray(scene.body_ids), objects=dict(scene.objects), groups=dict(scene.groups),

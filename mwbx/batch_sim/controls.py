@@ -17,6 +17,8 @@ Example::
 
 from __future__ import annotations
 
+import copy
+
 import mujoco
 import numpy as np
 
@@ -88,7 +90,9 @@ def activation_at(model: mujoco.MjModel, ctrl: np.ndarray, n_steps: int) -> np.n
   controls and the activation alone, not on the pose, so every world of a
   scene has the same ``act`` at a given step; refinement restarts from it.
   MuJoCo integrates it here exactly as while sampling (``mj_step`` with the
-  same control rows), the pose held at ``qpos0`` at rest.
+  same control rows), the pose held at ``qpos0`` at rest in a copy of the
+  model without contacts, constraints or gravity (nothing there can go
+  unstable and reset the data).
 
   Args:
     model: the scene model.
@@ -98,6 +102,9 @@ def activation_at(model: mujoco.MjModel, ctrl: np.ndarray, n_steps: int) -> np.n
   data = mujoco.MjData(model)
   if model.na == 0 or n_steps == 0:
     return np.array(data.act, np.float64)
+  model = copy.copy(model)  # mj_copyModel
+  model.opt.disableflags |= (mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+                             | mujoco.mjtDisableBit.mjDSBL_GRAVITY)
   for k in range(n_steps):
     data.qpos[:] = model.qpos0
     data.qvel[:] = 0.0

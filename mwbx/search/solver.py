@@ -327,6 +327,9 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     attempt = tries.get(world, 0)
     tries[world] = attempt + 1
     unmet = [q for q in np.argsort(-gaps[row] / scale, kind="stable") if not met[row, q]]
+    if not unmet:  # a world guided reseeding just added meets every query
+      note()
+      continue
     chosen = [unmet[attempt % len(unmet)]]
     if attempt >= 1 and len(unmet) >= 2:  # pairs, from the second try on
       chosen.append(unmet[(attempt + 1) % len(unmet)])
