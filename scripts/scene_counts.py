@@ -62,9 +62,10 @@ def main() -> None:
               f" {r['sim_errors']} MuJoCo errors; all queries met by {r['all_met']}; {r['per_query']}", flush=True)
   out = pathlib.Path(args.out)
   out.parent.mkdir(parents=True, exist_ok=True)
-  # Rows of scenes not run now stay as they were measured (each names its commit).
-  done = {r["scene"] for r in rows}
-  kept = [r for r in json.loads(out.read_text())["rows"] if r["scene"] not in done] if out.exists() else []
+  # Rows not run now (scene and backend) stay as they were measured (each names its commit).
+  done = {(r["scene"], r["backend"]) for r in rows}
+  kept = ([r for r in json.loads(out.read_text())["rows"] if (r["scene"], r["backend"]) not in done]
+          if out.exists() else [])
   order = {name: i for i, name in enumerate(SCENES)}
   rows = sorted(kept + rows, key=lambda r: (order.get(r["scene"], len(order)), r["backend"] != "native"))
   previous_note = json.loads(out.read_text()).get("mjx_note") if out.exists() else None
