@@ -138,11 +138,8 @@ class CompressedQposStore:
     if not keep_qpos.any():
       return out
     parent_stream = self.stream(parent)
-    streams = [splice_stream(out.stream(w), parent_stream, parent_frames, keep_qpos[w])
-               if keep_qpos[w].any() else out.stream(w).tobytes() for w in range(out.n_worlds)]
-    sizes = np.array([len(s) for s in streams], np.int64)
-    out.data = np.frombuffer(b"".join(streams), np.uint8).copy()
-    out.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    out._set_streams([splice_stream(out.stream(w), parent_stream, parent_frames, keep_qpos[w])
+                      if keep_qpos[w].any() else out.stream(w).tobytes() for w in range(out.n_worlds)])
     out.max_error = np.maximum(out.max_error, self.max_error[parent][None, :])
     return out
 
@@ -168,20 +165,23 @@ class CompressedQposStore:
     for lo in range(0, self.n_worlds, chunk):
       rows = np.arange(lo, min(self.n_worlds, lo + chunk))
       counts = self.frame_count[rows]
-      frames = np.broadcast_to(fill, (len(rows), int(counts.max()), len(fill))).copy()
-      decoded = self.frames_batch(rows)
-      for i, f in enumerate(decoded):
-        frames[i, :len(f), :self.layout.nq] = f
+      held = np.broadcast_to(fill, (len(rows), int(counts.max()), len(fill)))
       part = target.empty()
-      part.append(frames, counts)
-      streams = [splice_stream(part.stream(i), self.stream(int(r)), frames[i, :counts[i]], keep, mapping)
-                 for i, r in enumerate(rows)]
-      sizes = np.array([len(s) for s in streams], np.int64)
-      part.data = np.frombuffer(b"".join(streams), np.uint8).copy()
-      part.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+      part.append(held, counts)  # the old channels are replaced below: code them held too
+      frames = held.copy()  # the decoded frames, for channels the splice copies raw
+      for i, f in enumerate(self.frames_batch(rows)):
+        frames[i, :len(f), :self.layout.nq] = f
+      part._set_streams([splice_stream(part.stream(i), self.stream(int(r)), frames[i, :counts[i]], keep, mapping)
+                         for i, r in enumerate(rows)])
       part.max_error = np.maximum(part.max_error, self.max_error[rows])
       out.extend(part)
     return out
+
+  def _set_streams(self, streams: list[bytes]) -> None:
+    """Replaces every world's stream (same worlds, same order) by ``streams``."""
+    sizes = np.array([len(s) for s in streams], np.int64)
+    self.data = np.frombuffer(b"".join(streams), np.uint8).copy()
+    self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
 
   def stream(self, world: int) -> np.ndarray:
     """u8[n] the stored stream of one world."""

@@ -85,28 +85,28 @@ def resolve_objects(bank, objects: str | Sequence[str], field: str = "objects",
   return tuple(out)
 
 
-def _resolve_changes(bank, world: int, names, add, remove, t_min: float):
-  """(added, removed) object names, checked against world ``world`` at t_min."""
-  added = resolve_objects(bank, add, "add", required=False)
-  removed = resolve_objects(bank, remove, "remove", required=False)
+def _resolve_changes(bank, world: int, names, added, removed, t_min: float):
+  """The objects already gone from world ``world`` at t_min (removed by an
+  ancestor, or of a later scene version) and not added back; MwbxError if an
+  object to add is there, or one to refine or remove is not."""
   if not (names or added or removed):
     raise MwbxError("refine: name objects to refine, add or remove")
-  gone = bank.absent(world)
-  there = lambda o: not (o in gone and gone[o][0] <= t_min + 1e-9 < gone[o][1])
+  absent = bank.absent(world)
+  gone = {o for o, (since, until) in absent.items() if since <= t_min + 1e-9 < until}
   for o in added:
-    if there(o):
+    if o not in gone:
       raise MwbxError(f"refine: add: object {o!r} is already in world {world} at {t_min:g} s"
-                      + ("" if o in gone else " (to add an object, refine with a scene version that has it:"
+                      + ("" if o in absent else " (to add an object, refine with a scene version that has it:"
                          " scene=/--scene)"))
   for o in removed + names:
-    if not there(o):
+    if o in gone:
       raise MwbxError(f"refine: {'remove' if o in removed else 'objects'}: object {o!r} is not in world "
                       f"{world} at {t_min:g} s")
   for a, b, what in ((names, added, "add"), (names, removed, "remove"), (added, removed, "remove")):
     both = [o for o in a if o in b]
     if both:
       raise MwbxError(f"refine: {what}: {', '.join(both)} also named elsewhere; name each object once")
-  return added, removed
+  return tuple(o for o in bank.objects if o in gone and o not in added)
 
 
 def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_min: float | None = None) -> float:
@@ -187,14 +187,14 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
     raise MwbxError("refine: loop='compiled' needs MuJoCo's C library bound for numba; use 'lockstep'")
   compiled_loop = loop == "compiled" or (loop == "auto" and mujoco_c.available())
   names = resolve_objects(bank, objects, required=not (add or remove))
-  t_min = resolve_t_min(bank, world, names or resolve_objects(bank, add or remove, required=False), frustum,
-                        t_min)
-  added, removed = _resolve_changes(bank, world, names, add, remove, t_min)
+  added = resolve_objects(bank, add, "add", required=False)
+  removed = resolve_objects(bank, remove, "remove", required=False)
+  t_min = resolve_t_min(bank, world, names or added or removed, frustum, t_min)
+  # Objects already gone at t_min stay out: colliding with nothing even if
+  # something activates them.
+  gone = _resolve_changes(bank, world, names, added, removed, t_min)
   sampler = sampler_for(bank, backend)
   chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
-  # Objects already gone at t_min (removed by an ancestor, or of a later scene
-  # version) stay out: colliding with nothing even if something activates them.
-  gone = tuple(o for o, (a, b) in bank.absent(world).items() if a <= t_min + 1e-9 < b and o not in added)
   if sampler.backend_name == "mjx" and (removed or any(not parked_columns(sampler.scene.model, [o]).any()
                                                          for o in gone)):
     raise MwbxError("refine: the MJX backend cannot keep removed objects out of contact yet; use backend='native'")
@@ -481,9 +481,9 @@ def refine(bank, world: int, objects=(), *, frustum=None, t_min: float | None = 
       later version of the bank's.
 
   Example:
-    >>> bank = mwbx.refine(bank, 12, scene="configs/fridge_v2.yaml", add="blocker", t_min=0.8,
-    ...                    n_samples=32)
-    >>> bank = mwbx.refine(bank, 12, remove="bucket_left", t_min=1.5, n_samples=32)
+    >>> bank = mwbx.refine(bank, 4, scene="configs/refrigerator_toy_block.yaml", add="block", t_min=0.0,
+    ...                    n_samples=16)
+    >>> bank = mwbx.refine(bank, 4, remove="bucket_top", t_min=1.0, n_samples=16)
   """
   if scene is not None:
     bank = bank.with_scene(as_scene(scene), progress)
