@@ -169,3 +169,11 @@ def test_body_and_object_spellings_when_an_object_shares_its_root_bodys_name():
     scene.select_bodies("group:root")
   with pytest.raises(mwbx.MwbxError, match="bodies are not objects"):
     scene.objects_of("body:link1", "randomize.body:link1")
+
+
+@pytest.mark.parametrize("name", ["quickstart.yaml", "pachinko.yaml"])
+def test_configs_copies_match_the_packaged_assets(name):
+  """configs/quickstart.yaml and configs/pachinko.yaml are the packaged configs,
+  shown where users look first; an edit to one must be made to the other."""
+  repo = pathlib.Path(__file__).parent.parent
+  assert (repo / "configs" / name).read_bytes() == (repo / "mwbx" / "assets" / name).read_bytes()
