@@ -40,16 +40,36 @@ from mwbx.queries import first_entry
 from mwbx.queries import load_queries
 from mwbx.queries import rank
 from mwbx.scene import Scene
-from mwbx.browser import browse
-from mwbx import search
-from mwbx.search import solve
-from mwbx.viewer import export_html
-from mwbx.viewer import view
 from mwbx.qpos_store import QposStore
 from mwbx.qpos_store import RawQposStore
 from mwbx.refinement import RefineStats
 
 __version__ = "0.1.0"
+
+# The viewer (meshcat), the page (viser) and search (optax) load on first use:
+# `import mwbx` and every CLI command that needs none of them stay fast.
+_LAZY = {
+    "browse": ("mwbx.browser", "browse"),
+    "export_html": ("mwbx.viewer", "export_html"),
+    "search": ("mwbx.search", None),
+    "solve": ("mwbx.search", "solve"),
+    "view": ("mwbx.viewer", "view"),
+}
+
+
+def __getattr__(name: str):
+  if name not in _LAZY:
+    raise AttributeError(f"module 'mwbx' has no attribute {name!r}")
+  import importlib  # pylint: disable=g-import-not-at-top
+  module_name, attribute = _LAZY[name]
+  module = importlib.import_module(module_name)
+  value = module if attribute is None else getattr(module, attribute)
+  globals()[name] = value
+  return value
+
+
+def __dir__() -> list[str]:
+  return sorted(set(globals()) | set(_LAZY))
 
 __all__ = [
     "Bank",
