@@ -26,6 +26,7 @@ from mwbx import queries as mq
 from mwbx.browser.session import REDUCTIONS, Session
 from mwbx.errors import MwbxError
 from mwbx.viewer import geometry as vgeom
+from mwbx.viewer import triangles
 from mwbx.viewer.kinematics import body_trajectories
 
 # Each group of paths (faint, matching, excluded) draws at most this many
@@ -51,23 +52,10 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 def _mesh(geometry) -> tuple[np.ndarray, np.ndarray]:
   """(f32[V, 3], i32[F, 3]) triangles of a meshcat geometry, in its own frame."""
-  import trimesh
-  import meshcat.geometry as mg
-  if isinstance(geometry, mg.Box):
-    m = trimesh.creation.box(extents=geometry.lengths)
-  elif isinstance(geometry, mg.Sphere):
-    m = trimesh.creation.icosphere(2, geometry.radius)
-  elif isinstance(geometry, mg.Ellipsoid):
-    m = trimesh.creation.icosphere(2, 1.0)
-    m.apply_scale(np.asarray(geometry.radii, np.float64))
-  elif isinstance(geometry, mg.Cylinder):  # meshcat cylinders run along y
-    m = trimesh.creation.cylinder(radius=geometry.radius, height=geometry.height, sections=24)
-    m.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
-  elif isinstance(geometry, mg.TriangularMeshGeometry):
-    return np.asarray(geometry.vertices, np.float32), np.asarray(geometry.faces, np.int32)
-  else:
-    raise MwbxError(f"browse: cannot draw geometry {type(geometry).__name__}")
-  return np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32)
+  try:
+    return triangles.triangles(geometry)
+  except triangles.UnknownGeometry as err:
+    raise MwbxError(f"browse: {err}") from None
 
 
 def _pose(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
