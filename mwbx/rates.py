@@ -55,13 +55,13 @@ class Rates(NamedTuple):
 
   def describe(self) -> str:
     """One line: the step, the frame and query rates, and which were chosen."""
-    how = lambda field: "chosen from the timestep" if field in self.chosen else "as set"
     every = {1: "every frame", 2: "every 2nd frame", 3: "every 3rd frame"}.get(
         self.query_stride, f"every {self.query_stride}th frame")
     steps = "1 step" if self.steps_per_frame == 1 else f"{self.steps_per_frame} steps"
-    return (f"rates: physics step {self.timestep:g} s ({self.timestep_from}), {steps} a frame;"
-            f" record {self.record_fps:.6g} fps ({how('sim.record_fps')});"
-            f" query {self.query_fps:.6g} fps, {every} ({how('sim.query_fps')})")
+    source = "sim.timestep" if self.timestep_from == "sim.timestep" else "MJCF"
+    chosen = f"chosen from the step: {', '.join(self.chosen)}" if self.chosen else "as the config sets them"
+    return (f"rates: physics step {self.timestep:g} s ({source}), {steps} a frame: record"
+            f" {self.record_fps:.6g} fps, query {self.query_fps:.6g} fps ({every}); {chosen}")
 
 
 def _whole(x: float) -> int | None:

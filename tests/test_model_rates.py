@@ -177,8 +177,9 @@ def test_cli_prints_the_rates_on_one_line(tmp_path):
   assert result.returncode == 0, result.stderr
   lines = [line for line in result.stderr.splitlines() if "rates:" in line]
   assert len(lines) == 1
-  assert "0.005 s" in lines[0] and "2 steps a frame" in lines[0] and "record 100 fps" in lines[0]
-  assert "query 33.3333 fps, every 3rd frame" in lines[0]
+  assert "physics step 0.005 s (MJCF), 2 steps a frame: record 100 fps, query 33.3333 fps (every 3rd frame)" \
+      in lines[0]
+  assert lines[0].endswith("chosen from the step: sim.record_fps, sim.query_fps")
   bank = mwbx.Bank.load(out)
   assert (bank.record_fps, bank.timestep) == (100.0, 0.005)
   assert math.isclose(bank.query_fps, 100 / 3)
