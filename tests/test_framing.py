@@ -134,3 +134,14 @@ def test_viewer_first_view_of_a_lying_figure_is_from_outside_its_paths(bank):
   spec = framing.view_spec(model)
   centre, eye = framing.frame_box(box_lo, box_hi, spec)
   assert_frames_from_outside(lo, hi, eye, centre, spec.fovy)
+
+
+def test_a_large_height_field_ground_does_not_push_the_view_away(bank):
+  # The same figure on a 100 m x 100 m terrain: the view frames the figure's paths.
+  terrain = HUMANOID.replace(
+      "<worldbody>", '<asset><hfield name="terrain" nrow="3" ncol="3" size="50 50 1 0.1"/></asset>\n'
+      '  <worldbody>\n    <geom type="hfield" hfield="terrain" pos="0 0 -0.1"/>')
+  model = mujoco.MjModel.from_xml_string(terrain)
+  rows = np.flatnonzero(np.asarray(bank.valid, bool))
+  lo, hi = framing.scene_bounds(bank, model, rows, None, None)
+  assert np.all(hi - lo < 5.0)

@@ -27,7 +27,8 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
                  visible_groups: tuple[int, ...] = DEFAULT_VISIBLE_GROUPS) -> tuple[np.ndarray, np.ndarray]:
   """(lo f64[3], hi f64[3]) box around what is shown: the COM paths of the
   played-back worlds (all bodies, widened by the largest moving geom) and of
-  the drawn paths, and the boxes of the visible static geoms other than planes."""
+  the drawn paths, and the boxes of the visible static geoms other than planes
+  and height fields."""
   com = np.asarray(bank.com)
   pts = [_finite_extent(com, worlds, np.arange(com.shape[2]))]
   visible = np.isin(model.geom_group, visible_groups) & (model.geom_rgba[:, 3] > 0)
@@ -39,8 +40,9 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
     pts.append(_finite_extent(com, np.concatenate(list(path_classes)), bodies))
   data = mujoco.MjData(model)
   mujoco.mj_kinematics(model, data)
-  static = np.flatnonzero(visible & (model.body_weldid[model.geom_bodyid] == 0)
-                          & (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE))
+  # Grounds (planes, height fields) can be far larger than where anything goes.
+  ground = np.isin(model.geom_type, [int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD)])
+  static = np.flatnonzero(visible & (model.body_weldid[model.geom_bodyid] == 0) & ~ground)
   signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
   for g in static:
     centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
