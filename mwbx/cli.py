@@ -63,6 +63,7 @@ def _cmd_sample(args) -> int:
     with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
       print(f"mwbx: sampling {mine.size} worlds of {args.config} on {sampler.backend_label}"
             f" (worlds {mine[0]}..{mine[-1]}, seed {seed}){who} into {out}", file=sys.stderr)
+      print(f"mwbx: {scene.rates.describe()}", file=sys.stderr)
       record["chunk_size"], record["backend"] = sampler.chunk_size, sampler.backend_label
       try:
         with reporter("sample") as update:
@@ -83,7 +84,7 @@ def _cmd_sample(args) -> int:
     summary.stats = stats
   if directory.manifest is not None:
     directory.finish_run(record["id"])
-    (out / "config.resolved.json").write_text(json.dumps(config.resolved(), indent=2))
+    (out / "config.resolved.json").write_text(json.dumps(scene.config.resolved(), indent=2))
     (out / "scene.xml").write_text(scene.mjcf_text)
   summary.print(out, len(directory.stored_ids()))
   return 0

@@ -95,11 +95,15 @@ class SimSection(_Strict):
   """Time stepping, recording and batching.
 
   Attributes:
-    timestep: physics step, seconds; must divide ``1/record_fps``. Default: the
-      MJCF's own ``<option timestep>``.
+    timestep: physics step, seconds. Default: the MJCF's own
+      ``<option timestep>`` (the physics as its author wrote it).
     end_time: a world stops recording at this time if not at rest, seconds.
-    record_fps: rate of the stored ``qpos`` frames, Hz.
-    query_fps: rate of the COM polylines used by queries; divides record_fps.
+    record_fps: rate of the stored ``qpos`` frames, Hz; a frame is a whole
+      number of physics steps. Unset: chosen from the timestep, nearest to
+      120 (:mod:`mwbx.rates`; the 120 here is what a timestep dividing 1/120 s
+      gets).
+    query_fps: rate of the COM polylines used by queries; a whole number of
+      frames apart. Unset: chosen nearest to 30.
     backend: ``auto`` (mjx on GPU/TPU, native on CPU), ``mjx`` or ``native``.
     mjx_impl: ``jax``, ``warp`` or ``auto`` (warp when importable on a GPU).
     chunk_size: worlds simulated per batch, then compressed together and

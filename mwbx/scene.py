@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mwbx import rates as rates_lib
 from mwbx import rotations
 from mwbx.config import Config, Distribution
 from mwbx.errors import MwbxError
@@ -158,7 +159,9 @@ class Scene:
   """A loaded scene: model, objects, tracked bodies, groups, randomization.
 
   Attributes:
-    config: the validated config.
+    config: the validated config, its ``sim.record_fps``/``sim.query_fps``
+      resolved (:mod:`mwbx.rates`).
+    rates: the :class:`~mwbx.rates.Rates` it samples at.
     mjcf_text: the MJCF file's text, stored in every bank.
     mjcf_includes: file name -> text of every MJCF file it includes.
     mjcf_dir: where its meshes and textures are found.
@@ -188,11 +191,16 @@ class Scene:
       self.mjcf_dir = mjcf_dir  # where its relative file names resolve, if given
     self.mjcf_text = mjcf_text
     self.mjcf_includes = dict(mjcf_includes or {})
-    self.digest = config.digest(mjcf_text, self.mjcf_includes)
     try:
       plain_model = parse_mjcf(mjcf_text, self.mjcf_dir, self.mjcf_includes).compile()
     except Exception as err:  # MuJoCo raises ValueError with the parser's text.
       raise MwbxError(f"{source}: scene.mjcf: MJCF failed to load: {err}") from None
+    # The rates follow the physics step (never the reverse): the config from
+    # here on states them, and so does its digest.
+    timestep = config.sim.timestep if config.sim.timestep is not None else float(plain_model.opt.timestep)
+    self.rates = rates_lib.resolve(config, timestep)
+    self.config = config = rates_lib.with_rates(config, self.rates)
+    self.digest = config.digest(mjcf_text, self.mjcf_includes)
 
     body_name = lambda i: mujoco.mj_id2name(plain_model, mujoco.mjtObj.mjOBJ_BODY, i)
     roots = [

@@ -116,7 +116,7 @@ def test_missing_mjcf(tmp_path):
 
 def test_timestep_must_divide_frame_time(tmp_path):
   (tmp_path / "tiny.xml").write_text((SCENES / "tiny.xml").read_text())
-  path = write(tmp_path, "scene: {mjcf: tiny.xml}\nsim: {timestep: 0.003}\n")
+  path = write(tmp_path, "scene: {mjcf: tiny.xml}\nsim: {timestep: 0.003, record_fps: 120}\n")
   with pytest.raises(mwbx.MwbxError, match="sim.timestep"):
     mwbx.Sampler(mwbx.load_config(path), backend="native")
 

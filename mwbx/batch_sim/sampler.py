@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mwbx import bank as bank_lib
+from mwbx import rates as rates_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
 from mwbx.codec import CodecBounds, CompressedQposStore, polyline
@@ -57,21 +58,15 @@ class SampleStats:
 
 
 def frame_rates(config: Config, timestep: float) -> tuple[int, int, int]:
-  """(steps per frame, frames per query point, last frame index), validated."""
-  source = config.source or "<config>"
-  sim = config.sim
-  steps_per_frame = 1.0 / (sim.record_fps * timestep)
-  if abs(steps_per_frame - round(steps_per_frame)) > 1e-6 * steps_per_frame:
-    given = "sim.timestep" if sim.timestep is not None else "the MJCF's <option timestep> (sim.timestep unset)"
-    raise MwbxError(
-        f"{source}: sim.timestep: {given} = {timestep} s does not divide the frame time"
-        f" 1/sim.record_fps = 1/{sim.record_fps:g} = {1 / sim.record_fps} s"
-        f" (try sim.timestep: {1 / (sim.record_fps * max(1, round(steps_per_frame)))})")
-  stride = sim.record_fps / sim.query_fps
-  if abs(stride - round(stride)) > 1e-6 * stride:
-    raise MwbxError(f"{source}: sim.query_fps: {sim.query_fps} must divide record_fps = {sim.record_fps}")
-  end_frame = int(round(sim.end_time * sim.record_fps))
-  return int(round(steps_per_frame)), int(round(stride)), end_frame
+  """(steps per frame, frames per query point, last frame index), validated.
+
+  The rates the config leaves unset are chosen from ``timestep``
+  (:func:`mwbx.rates.resolve`); values it sets that contradict each other
+  are an error naming both.
+  """
+  chosen = rates_lib.resolve(config, timestep)
+  end_frame = int(round(config.sim.end_time * chosen.record_fps))
+  return chosen.steps_per_frame, chosen.query_stride, end_frame
 
 
 def world_keys(key: jax.Array, world_ids: np.ndarray) -> tuple[jax.Array, jax.Array, jax.Array]:

@@ -26,6 +26,7 @@ from mwbx import queries as mq
 from mwbx.browser.session import REDUCTIONS, Session
 from mwbx.errors import MwbxError
 from mwbx.viewer import geometry as vgeom
+from mwbx.viewer import triangles
 from mwbx.viewer.kinematics import body_trajectories
 
 # Each group of paths (faint, matching, excluded) draws at most this many
@@ -51,23 +52,10 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 def _mesh(geometry) -> tuple[np.ndarray, np.ndarray]:
   """(f32[V, 3], i32[F, 3]) triangles of a meshcat geometry, in its own frame."""
-  import trimesh
-  import meshcat.geometry as mg
-  if isinstance(geometry, mg.Box):
-    m = trimesh.creation.box(extents=geometry.lengths)
-  elif isinstance(geometry, mg.Sphere):
-    m = trimesh.creation.icosphere(2, geometry.radius)
-  elif isinstance(geometry, mg.Ellipsoid):
-    m = trimesh.creation.icosphere(2, 1.0)
-    m.apply_scale(np.asarray(geometry.radii, np.float64))
-  elif isinstance(geometry, mg.Cylinder):  # meshcat cylinders run along y
-    m = trimesh.creation.cylinder(radius=geometry.radius, height=geometry.height, sections=24)
-    m.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
-  elif isinstance(geometry, mg.TriangularMeshGeometry):
-    return np.asarray(geometry.vertices, np.float32), np.asarray(geometry.faces, np.int32)
-  else:
-    raise MwbxError(f"browse: cannot draw geometry {type(geometry).__name__}")
-  return np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32)
+  try:
+    return triangles.triangles(geometry)
+  except triangles.UnknownGeometry as err:
+    raise MwbxError(f"browse: {err}") from None
 
 
 def _pose(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -144,20 +132,20 @@ class Browser:
     self.body_rgb = np.array([colour.get(int(b), (60, 160, 60)) for b in bank.body_ids], np.uint8)
 
   def _frame_view(self) -> None:
-    """Initial camera: along the model's first camera (else from the front,
-    above), far enough back to see where the bodies go."""
-    from mwbx.viewer.framing import view_spec
+    """Initial camera: from outside every body's paths in the valid worlds
+    (widened by the largest moving geom), along the model's first fixed scene
+    camera (never one riding on or tracking a body), else from the front right."""
+    from mwbx.viewer import framing
     bank = self.session.bank
-    com = np.asarray(bank.com)[np.asarray(bank.valid, bool)].reshape(-1, 3)
-    if not com.size:
+    rows = np.flatnonzero(np.asarray(bank.valid, bool))
+    if not rows.size:
       return
-    lo, hi = np.percentile(com, 1, axis=0), np.percentile(com, 99, axis=0)
-    centre = (lo + hi) / 2
-    radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
-    direction = np.asarray(view_spec(self.model, None, None).direction, np.float64)
-    fov = self.server.initial_camera.fov
+    lo, hi = framing.scene_bounds(bank, self.model, rows, None, None)
+    spec = framing.view_spec(self.model, None, None)
+    fov = float(self.server.initial_camera.fov)  # radians
+    centre, eye = framing.frame_box(lo, hi, spec._replace(fovy=float(np.degrees(fov))))
     self.server.initial_camera.look_at = centre
-    self.server.initial_camera.position = centre + direction * 1.3 * radius / np.tan(fov / 2)
+    self.server.initial_camera.position = eye
 
   def _paths(self, bodies: np.ndarray, match: np.ndarray, exclude: np.ndarray) -> dict:
     """Draws the selected bodies' paths: faint, per-body colour where all queries

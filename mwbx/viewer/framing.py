@@ -27,7 +27,8 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
                  visible_groups: tuple[int, ...] = DEFAULT_VISIBLE_GROUPS) -> tuple[np.ndarray, np.ndarray]:
   """(lo f64[3], hi f64[3]) box around what is shown: the COM paths of the
   played-back worlds (all bodies, widened by the largest moving geom) and of
-  the drawn paths, and the boxes of the visible static geoms other than planes."""
+  the drawn paths, and the boxes of the visible static geoms other than planes
+  and height fields."""
   com = np.asarray(bank.com)
   pts = [_finite_extent(com, worlds, np.arange(com.shape[2]))]
   visible = np.isin(model.geom_group, visible_groups) & (model.geom_rgba[:, 3] > 0)
@@ -39,8 +40,9 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
     pts.append(_finite_extent(com, np.concatenate(list(path_classes)), bodies))
   data = mujoco.MjData(model)
   mujoco.mj_kinematics(model, data)
-  static = np.flatnonzero(visible & (model.body_weldid[model.geom_bodyid] == 0)
-                          & (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE))
+  # Grounds (planes, height fields) can be far larger than where anything goes.
+  ground = np.isin(model.geom_type, [int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD)])
+  static = np.flatnonzero(visible & (model.body_weldid[model.geom_bodyid] == 0) & ~ground)
   signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
   for g in static:
     centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
@@ -124,11 +126,27 @@ class ViewSpec(NamedTuple):
   eye: np.ndarray | None
 
 
+def scene_camera(model: mujoco.MjModel) -> int:
+  """Id of the model's first camera that looks at the scene from a fixed place
+  (mode ``fixed``, on the world or a body welded to it), or -1.
+
+  A camera riding on a moving body (an egocentric head camera) or tracking one
+  (``track``, ``trackcom``, ``targetbody*``) says where a body is seen from,
+  not where the scene is: its direction at the reference pose is arbitrary.
+  """
+  for cam in range(model.ncam):
+    fixed = int(model.cam_mode[cam]) == int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)
+    if fixed and int(model.body_weldid[model.cam_bodyid[cam]]) == 0:
+      return cam
+  return -1
+
+
 def view_spec(model: mujoco.MjModel, camera: str | None = None,
               view_dir: Sequence[float] | None = None) -> ViewSpec:
   """camera: an MJCF camera name to view exactly from; None fits the scene
   into view, looking along `view_dir` (f[3], scene towards eye), else along
-  the model's first camera, else obliquely from the front right."""
+  the model's first fixed scene camera (:func:`scene_camera`), else
+  obliquely from the front right."""
   if camera is not None:
     cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
     if cam_id < 0:
@@ -136,33 +154,44 @@ def view_spec(model: mujoco.MjModel, camera: str | None = None,
       raise ViewerError(f"camera: no MJCF camera named {camera!r} (cameras: {names})")
     eye, forward, fovy = mjcf_camera(model, cam_id)
     return ViewSpec(-forward, fovy, eye)
-  fovy = float(model.cam_fovy[0]) if model.ncam > 0 else DEFAULT_FOVY
+  cam = scene_camera(model)
+  fovy = float(model.cam_fovy[cam]) if cam >= 0 else DEFAULT_FOVY
   if view_dir is not None:
     direction = np.asarray(view_dir, np.float64).reshape(-1)
     if direction.shape != (3,) or not np.all(np.isfinite(direction)) or not np.any(direction):
       raise ViewerError(f"view_dir: must be a finite nonzero 3-vector, got {direction.tolist()}")
-  elif model.ncam > 0:
-    direction = -mjcf_camera(model, 0)[1]
+  elif cam >= 0:
+    direction = -mjcf_camera(model, cam)[1]
   else:
     direction = DEFAULT_VIEW_DIR
   return ViewSpec(direction / np.linalg.norm(direction), fovy, None)
 
 
-def place_camera(vis, lo: np.ndarray, hi: np.ndarray, spec: ViewSpec) -> tuple[np.ndarray, np.ndarray]:
-  """Aims meshcat's camera at the box [lo, hi]. Returns (centre f64[3],
-  eye f64[3]) in world coordinates; the caller shifts the scene by -centre."""
+def frame_box(lo: np.ndarray, hi: np.ndarray, spec: ViewSpec,
+              aspect: float = 4 / 3) -> tuple[np.ndarray, np.ndarray]:
+  """(centre f64[3], eye f64[3]): where a first view of the box [lo, hi]
+  orbits about and looks from, metres.
+
+  Without an exact eye the eye is along ``spec.direction`` from the box's
+  centre, as near as lets every corner of the box be seen in front of it: it
+  is outside the box, whatever the direction.
+  """
   box_centre = (lo + hi) / 2
-  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
   if spec.eye is not None:
     # Orbit about the point on the camera's axis nearest the scene, so the
     # first view looks exactly where the MJCF camera does.
     forward = -spec.direction
     depth = max(float(np.dot(box_centre - spec.eye, forward)), 0.1)
-    eye = spec.eye
-    centre = eye + depth * forward
-  else:
-    centre = box_centre
-    eye = centre + spec.direction * fit_distance(lo, hi, centre, spec.direction, spec.fovy)
+    return spec.eye + depth * forward, np.asarray(spec.eye, np.float64)
+  eye = box_centre + spec.direction * fit_distance(lo, hi, box_centre, spec.direction, spec.fovy, aspect)
+  return box_centre, eye
+
+
+def place_camera(vis, lo: np.ndarray, hi: np.ndarray, spec: ViewSpec) -> tuple[np.ndarray, np.ndarray]:
+  """Aims meshcat's camera at the box [lo, hi]. Returns (centre f64[3],
+  eye f64[3]) in world coordinates; the caller shifts the scene by -centre."""
+  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
+  centre, eye = frame_box(lo, hi, spec)
   d = eye - centre
   cam = vis["/Cameras/default/rotated/<object>"]
   # The camera's parent is rotated +90 deg about x (three.js is y-up):

@@ -21,6 +21,9 @@ from mwbx.viewer.errors import ViewerError
 DEFAULT_VISIBLE_GROUPS = (0, 1, 2)
 # Thickness of the slab drawn for a plane (planes are infinite half-spaces).
 PLANE_THICKNESS = 0.01
+# Vertices a height field is drawn with at most (larger grids: every k-th row
+# and column).
+HFIELD_MAX_VERTICES = 128 * 128
 # MuJoCo's default geom rgba: a geom with a material and this rgba takes the
 # material's colour (as in mjv_updateScene).
 _DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], np.float32)
@@ -128,7 +131,7 @@ def geom_shape(model: mujoco.MjModel, geom_id: int,
                plane_extent: float) -> tuple[mg.Geometry, np.ndarray] | None:
   """The meshcat geometry of one geom and a f64[4, 4] correction from the
   meshcat primitive's frame to the MuJoCo geom frame; None for geom types
-  without a surface to draw (hfield, sdf and decor types are skipped).
+  without a surface to draw (an sdf without a mesh, decor types).
 
   plane_extent: half-size in metres used for planes declared infinite (size 0).
   """
@@ -154,14 +157,66 @@ def geom_shape(model: mujoco.MjModel, geom_id: int,
   if gtype == T.mjGEOM_CAPSULE:
     verts, faces = capsule_mesh(float(size[0]), float(size[1]))
     return mg.TriangularMeshGeometry(verts, faces), fix
-  if gtype == T.mjGEOM_MESH:
+  if gtype == T.mjGEOM_MESH or (gtype == T.mjGEOM_SDF and int(model.geom_dataid[geom_id]) >= 0):
+    # An sdf geom draws the mesh its plugin made (MuJoCo's viewer does too).
     mesh = int(model.geom_dataid[geom_id])
     v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
     f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
     verts = np.asarray(model.mesh_vert[v0:v0 + nv], np.float32)
     faces = np.asarray(model.mesh_face[f0:f0 + nf], np.uint32)
     return mg.TriangularMeshGeometry(verts, faces), fix
+  if gtype == T.mjGEOM_HFIELD:
+    return mg.TriangularMeshGeometry(*hfield_mesh(model, int(model.geom_dataid[geom_id]))), fix
   return None
+
+
+def hfield_mesh(model: mujoco.MjModel, hfield_id: int,
+                max_vertices: int = HFIELD_MAX_VERTICES) -> tuple[np.ndarray, np.ndarray]:
+  """Triangles of a height field in its geom's frame, as MuJoCo places it.
+
+  Row r, column c of the ``nrow x ncol`` elevation grid (normalized to [0, 1])
+  is at ``x = sx·(2c/(ncol-1) - 1)``, ``y = sy·(2r/(nrow-1) - 1)``,
+  ``z = sz·elevation`` for ``hfield_size = (sx, sy, sz, base)``; the solid
+  below reaches down to ``z = -base``. A grid over ``max_vertices`` is drawn
+  every k-th row and column (edges kept).
+
+  Returns:
+    (vertices f32[V, 3] metres, faces u32[F, 3] counter-clockwise from outside):
+    the top surface, four side walls and the bottom.
+  """
+  nrow, ncol = int(model.hfield_nrow[hfield_id]), int(model.hfield_ncol[hfield_id])
+  sx, sy, sz, base = (float(v) for v in model.hfield_size[hfield_id])
+  adr = int(model.hfield_adr[hfield_id])
+  height = np.asarray(model.hfield_data[adr:adr + nrow * ncol], np.float64).reshape(nrow, ncol) * sz
+  k = max(1, int(np.ceil(np.sqrt(nrow * ncol / max_vertices))))
+  rows = np.unique(np.append(np.arange(0, nrow, k), nrow - 1))
+  cols = np.unique(np.append(np.arange(0, ncol, k), ncol - 1))
+  height = height[np.ix_(rows, cols)]
+  x = sx * (2.0 * cols / max(ncol - 1, 1) - 1.0)
+  y = sy * (2.0 * rows / max(nrow - 1, 1) - 1.0)
+  # A closed grid: the top surface, and the same grid at z = -base below it.
+  nr, nc = rows.size, cols.size
+  xx, yy = np.meshgrid(x, y)  # [nr, nc]
+  top = np.stack([xx, yy, height], axis=-1).reshape(-1, 3)
+  bottom = np.stack([xx, yy, np.full_like(height, -base)], axis=-1).reshape(-1, 3)
+  verts = np.concatenate([top, bottom])
+  at = lambda r, c, lower=0: lower * nr * nc + r * nc + c  # noqa: E731
+  r, c = np.meshgrid(np.arange(nr - 1), np.arange(nc - 1), indexing="ij")
+  r, c = r.reshape(-1), c.reshape(-1)
+  quads = [np.stack([at(r, c), at(r, c + 1), at(r + 1, c + 1)], -1),  # top, facing +z
+           np.stack([at(r, c), at(r + 1, c + 1), at(r + 1, c)], -1),
+           np.stack([at(r, c, 1), at(r + 1, c + 1, 1), at(r, c + 1, 1)], -1),  # bottom, facing -z
+           np.stack([at(r, c, 1), at(r + 1, c, 1), at(r + 1, c + 1, 1)], -1)]
+  walls = []
+  # Each wall: an edge of the grid walked so that the outside is on its right
+  # seen from above, joined to the bottom copy of the same edge.
+  for edge in ([at(0, j) for j in range(nc)], [at(i, nc - 1) for i in range(nr)],
+               [at(nr - 1, j) for j in range(nc - 1, -1, -1)], [at(i, 0) for i in range(nr - 1, -1, -1)]):
+    e = np.asarray(edge)
+    a, b = e[:-1], e[1:]
+    walls += [np.stack([a, a + nr * nc, b + nr * nc], -1), np.stack([a, b + nr * nc, b], -1)]
+  faces = np.concatenate(quads + walls).astype(np.uint32)
+  return verts.astype(np.float32), faces
 
 
 def _node_name(prefix: str, name: str, idx: int) -> str:
