@@ -7,8 +7,9 @@ lock and on the manifest as it is at that moment:
 - writes the worlds it added (one new shard) and records as dropped only the
   ids it dropped itself; worlds other processes appended since it was loaded
   stay, and so do the worlds of corrupt shards it was loaded without;
-- gives its new worlds fresh ids if another writer took theirs meanwhile
-  (parents and lineage follow), so two processes refining one bank both
+- gives its new worlds fresh ids if another writer took one of theirs
+  meanwhile (stored, dropped, or reserved by a sampling run; parents and
+  lineage follow), so two processes refining one bank both
   keep their worlds; the bank's ids are updated to those saved;
 - a bank moved to a later scene version is written whole beside the
   directory and swapped in with one atomic exchange (``renameat2``), so the
@@ -90,14 +91,17 @@ def _origin_in(bank, path: pathlib.Path):
 
 
 def _fresh_ids(directory, ids: np.ndarray) -> dict[int, int]:
-  """old id -> new id for new worlds whose ids are taken in the directory
-  (stored, dropped, or given out: below its ``next_id``); empty if none is."""
+  """old id -> new id (from the directory's ``next_id`` on) for new worlds if
+  any of their ids is taken there: stored, dropped, or reserved by an
+  unfinished sampling run; empty if none is."""
   if not ids.size:
     return {}
-  first = int(directory.manifest["next_id"])
   taken = directory.stored_ids(with_dropped=True)
-  if int(ids.min()) >= first and not taken.intersection(ids.tolist()):
+  for record in directory.unfinished_runs():
+    taken |= runs.ranges_ids(record.get("group_ranges", record["id_ranges"]))
+  if not taken.intersection(ids.tolist()):
     return {}
+  first = int(directory.manifest["next_id"])
   return {int(old): first + k for k, old in enumerate(ids.tolist())}
 
 
