@@ -54,15 +54,14 @@ def save(bank, path: str | os.PathLike) -> pathlib.Path:
       return _rewrite(bank, path)
   directory = shards.BankDirectory(path)
   origin = _origin_in(bank, path)
-  ids = bank.world_ids.tolist()
   with directory._locked():
     directory._check_scene(bank)
-    stored = directory.stored_ids()
     if origin is not None:
-      rows = np.flatnonzero([i not in origin.ids for i in ids])
-      gone = (origin.ids - set(ids)) & stored
-    else:
-      rows = np.flatnonzero([i not in stored for i in ids])
+      rows = np.flatnonzero(~np.isin(bank.world_ids, origin.ids))
+      gone = set(directory.taken(np.setdiff1d(origin.ids, bank.world_ids)).tolist())
+    else:  # worlds with ids stored there are taken to be the same worlds
+      stored = np.asarray(sorted(directory.stored_ids()), np.int64)
+      rows = np.flatnonzero(~np.isin(bank.world_ids, stored))
       gone = set()
     mapping = _fresh_ids(directory, bank.world_ids[rows])
     out = renumbered(bank, mapping)
@@ -75,7 +74,7 @@ def save(bank, path: str | os.PathLike) -> pathlib.Path:
   if mapping:  # the bank says what is on disk
     bank.world_ids, bank.parent_world, bank.lineage = out.world_ids, out.parent_world, out.lineage
   bank.next_id = max(bank.next_world_id, next_id)
-  bank.origin = shards.Origin(str(path), frozenset(bank.world_ids.tolist()))
+  bank.origin = shards.Origin(str(path), np.sort(bank.world_ids))
   return path
 
 
@@ -94,12 +93,7 @@ def _fresh_ids(directory, ids: np.ndarray) -> dict[int, int]:
   """old id -> new id (from the directory's ``next_id`` on) for new worlds if
   any of their ids is taken there: stored, dropped, or reserved by an
   unfinished sampling run; empty if none is."""
-  if not ids.size:
-    return {}
-  taken = directory.stored_ids(with_dropped=True)
-  for record in directory.unfinished_runs():
-    taken |= runs.ranges_ids(record.get("group_ranges", record["id_ranges"]))
-  if not taken.intersection(ids.tolist()):
+  if not directory.taken(ids, runs_too=True).size:
     return {}
   first = int(directory.manifest["next_id"])
   return {int(old): first + k for k, old in enumerate(ids.tolist())}
@@ -139,7 +133,7 @@ def _rewrite(bank, path: pathlib.Path) -> pathlib.Path:
       raise MwbxError(f"{path}: a sampling run is writing into this bank (run {live[0]}); save the new scene"
                       f" version when it has finished (nothing was written)")
     stored = directory.stored_ids()
-    loaded = origin.ids if origin is not None else ids
+    loaded = set(origin.ids.tolist()) if origin is not None else ids
     others = stored - loaded
     if others:
       raise MwbxError(f"{path}: worlds {shards._some(others)} were added by another process since this bank"
@@ -159,7 +153,7 @@ def _rewrite(bank, path: pathlib.Path) -> pathlib.Path:
       files.remove_quietly(fresh)
       raise
   shutil.rmtree(fresh, ignore_errors=True)
-  bank.origin = shards.Origin(str(path), frozenset(ids))
+  bank.origin = shards.Origin(str(path), np.sort(bank.world_ids))
   return path
 
 

@@ -68,7 +68,7 @@ class Origin(typing.NamedTuple):
   """
 
   path: str
-  ids: frozenset
+  ids: np.ndarray  # i64[k], sorted
 
 
 def com_step(config: dict) -> float | None:
@@ -118,6 +118,20 @@ class BankDirectory:
     for entry in self.manifest["shards"]:
       ids.update(i for lo, hi in entry["id_ranges"] for i in range(lo, hi + 1))
     return ids if with_dropped else ids - set(int(i) for i in self.manifest["dropped"])
+
+  def taken(self, ids, runs_too: bool = False) -> np.ndarray:
+    """i64[k] those of ``ids`` given to a world here (stored or dropped), or,
+    with ``runs_too``, reserved by an unfinished sampling run."""
+    ids = np.unique(np.asarray(ids, np.int64))
+    if self.manifest is None or not ids.size:
+      return ids[:0]
+    ranges = [r for e in self.manifest["shards"] for r in e["id_ranges"]]
+    if runs_too:
+      ranges += [r for rec in self.unfinished_runs() for r in rec.get("group_ranges", rec["id_ranges"])]
+    hit = np.isin(ids, np.asarray(self.manifest["dropped"], np.int64))
+    for lo, hi in ranges:
+      hit[np.searchsorted(ids, lo):np.searchsorted(ids, hi, side="right")] = True
+    return ids[hit]
 
   def unfinished_runs(self) -> list[dict]:
     """Run records not finished (of one or of several processes)."""
@@ -172,8 +186,8 @@ class BankDirectory:
     rows = np.arange(bank.n_worlds) if rows is None else np.asarray(rows, np.int64)
     with self._locked():
       self._check_scene(bank)
-      taken = self.stored_ids(with_dropped=True) & set(bank.world_ids[rows].tolist())
-      if taken:
+      taken = self.taken(bank.world_ids[rows])
+      if taken.size:
         raise MwbxError(f"{self.path}: world ids {_some(taken)} are already in the bank; nothing was written")
       self._append_locked(bank, rows, run)
       self.commit()
@@ -435,7 +449,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   if dropped.size:
     keep = np.flatnonzero(~np.isin(bank.world_ids, dropped))
     bank = bank._take(keep, lineage={k: v for k, v in lineage.items() if int(k) not in set(dropped.tolist())})
-  bank.origin = Origin(str(path), frozenset(bank.world_ids.tolist()))
+  bank.origin = Origin(str(path), np.sort(bank.world_ids))
   return bank
 
 
