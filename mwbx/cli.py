@@ -37,26 +37,40 @@ def _cmd_sample(args) -> int:
   import numpy as np
   import mwbx
   from mwbx import distributed
-  from mwbx.bank import BankDirectory
+  from mwbx.bank import BankDirectory, runs
   from mwbx.bank.shards import id_ranges
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
   scene = mwbx.Scene(config)
   group = distributed.join(args.coordinator, args.num_processes, args.process_id, auto=args.distributed,
                            timeout=args.timeout)
-  plan = _plan_run(args, out, scene) if group.leader else None
-  plan = distributed.share_plan(group, plan, timeout=args.timeout)
-  seed, todo = plan["seed"], np.asarray(plan["todo"], np.int64)
-  if plan["resume"] and group.leader:
-    done, target = plan["resume"]
-    print(f"mwbx: resuming: {done} of {target} worlds done (seed {seed})", file=sys.stderr)
-  mine = distributed.my_share(todo, group)
-  directory = BankDirectory(out)
-  record = {"id": uuid.uuid4().hex, "seed": seed, "id_ranges": id_ranges(mine),
-            "group_ranges": id_ranges(todo), "process": group.process_id,
-            "processes": group.num_processes, "finished": False}
-  if directory.manifest is not None:  # recorded now: a process killed before its first shard is resumed too
-    directory.append_run(record)
+  plan, alive = _plan_run(args, out, scene, group) if group.leader else (None, None)
+  try:
+    plan = distributed.share_plan(group, plan, timeout=args.timeout)
+    seed, todo = plan["seed"], np.asarray(plan["todo"], np.int64)
+    if plan["resume"] and group.leader:
+      done, target = plan["resume"]
+      print(f"mwbx: resuming: {done} of {target} worlds done (seed {seed})", file=sys.stderr)
+    mine = distributed.my_share(todo, group)
+    directory = BankDirectory(out)
+    if group.leader:
+      record = plan["record"]
+    else:  # recorded now, live: a process killed before its first shard is resumed too
+      record = {"id": uuid.uuid4().hex, "seed": seed, "id_ranges": id_ranges(mine),
+                "group_ranges": id_ranges(todo), "finished": False}
+      alive = runs.Liveness(out, record["id"])
+      directory.append_run(record)
+    record.update(process=group.process_id, processes=group.num_processes)
+    return _sample_share(args, out, scene, config, directory, record, mine, seed, group)
+  finally:
+    if alive is not None:
+      alive.release()
+
+
+def _sample_share(args, out, scene, config, directory, record, mine, seed, group) -> int:
+  """Samples this process's ids of the run into the bank, a shard per chunk."""
+  import jax
+  import mwbx
   who = f" (process {group.process_id} of {group.num_processes})" if group.num_processes > 1 else ""
   summary = _RunSummary()
   if mine.size:
@@ -71,7 +85,11 @@ def _cmd_sample(args) -> int:
             part.run = {"seed": seed}
             # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the
             # chunk in flight, and the same command resumes it.
-            directory.append(part, run=record)
+            try:
+              directory.append(part, run=record)
+            except MwbxError as err:  # e.g. a full disk: the run stays resumable
+              raise MwbxError(f"{err}; {summary.worlds} worlds of this run are saved in {out}; run the same"
+                              f" command again to resume") from None
             summary.add(part)
             for world_id, message in stats.sim_errors[summary.errors_shown:]:
               print(f"mwbx: world {world_id}: MuJoCo error, world flagged and the run goes on: "
@@ -82,42 +100,33 @@ def _cmd_sample(args) -> int:
               f" run the same command again to resume", file=sys.stderr)
         return 130
     summary.stats = stats
-  if directory.manifest is not None:
-    directory.finish_run(record["id"])
-    (out / "config.resolved.json").write_text(json.dumps(scene.config.resolved(), indent=2))
-    (out / "scene.xml").write_text(scene.mjcf_text)
+  directory.finish_run(record["id"])
+  from mwbx.files import write_atomic
+  write_atomic(out / "config.resolved.json", json.dumps(scene.config.resolved(), indent=2), "resolved config")
+  write_atomic(out / "scene.xml", scene.mjcf_text, "scene MJCF")
   summary.print(out, len(directory.stored_ids()))
   return 0
 
 
-def _plan_run(args, out: pathlib.Path, scene) -> dict:
-  """What a sampling run does (decided by process 0 of a group): the seed, the
-  world ids to sample, and for a resumed run (worlds done, worlds in it)."""
+def _plan_run(args, out: pathlib.Path, scene, group):
+  """What a sampling run does (decided by process 0 of a group, under the
+  bank's lock): the seed, the world ids to sample (fresh ids reserved at
+  once, or those of a dead run), and for a resumed run (worlds done, worlds
+  in it); recorded in the manifest with this process's liveness lock held."""
+  import uuid
+
   import mwbx
-  from mwbx.bank import BankDirectory
+  from mwbx import distributed
+  from mwbx.bank import BankDirectory, runs
+  from mwbx.batch_sim.sampler import empty_bank
   directory = BankDirectory(out)
   if directory.manifest is None and (out / "checkpoints").is_dir():
     mwbx.Bank.load(out).save(out)  # a bank of the orbax format: its worlds become the first shard
     directory = BankDirectory(out)
-  manifest = directory.manifest
-  if manifest is not None and manifest["scene"]["digest"] != scene.digest:
+  if directory.manifest is not None and directory.manifest["scene"]["digest"] != scene.digest:
     raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
-  bank_seed = None if manifest is None else manifest.get("run", {}).get("seed")
-  if args.seed is not None and bank_seed is not None and args.seed != bank_seed:
-    raise MwbxError(f"--seed: {out} was sampled with seed {bank_seed}, not {args.seed}")
-  seed = args.seed if args.seed is not None else (0 if bank_seed is None else bank_seed)
-  unfinished = directory.unfinished_runs()
-  if unfinished:
-    target = {i for record in unfinished for lo, hi in record.get("group_ranges", record["id_ranges"])
-              for i in range(lo, hi + 1)}
-    done = directory.stored_ids() & target
-    directory.supersede_unfinished()  # this run takes over their ids
-    return {"seed": unfinished[-1]["seed"], "todo": sorted(target - done), "resume": [len(done), len(target)]}
-  n_worlds = 256 if args.worlds is None else args.worlds
-  if n_worlds < 1:
-    raise MwbxError(f"--worlds: must be at least 1, got {n_worlds}")
-  first = 0 if manifest is None else int(manifest["next_id"])
-  return {"seed": seed, "todo": list(range(first, first + n_worlds)), "resume": None}
+  return runs.plan(directory, empty_bank(scene), n_worlds=args.worlds, seed=args.seed,
+                   run_id=uuid.uuid4().hex, share=lambda ids: distributed.my_share(ids, group))
 
 
 class _RunSummary:
@@ -159,7 +168,7 @@ def _cmd_info(args) -> int:
     problems = shards.verify(args.bank) if shards.has_manifest(pathlib.Path(args.bank)) else []
     if problems:
       raise MwbxError("; ".join(problems))
-  bank = mwbx.Bank.load(args.bank)
+  bank = _load_bank(args)
   s = bank.summary()
   if args.json:
     print(json.dumps({**s, "world_ids": [int(bank.world_ids.min()), int(bank.world_ids.max())]
@@ -194,6 +203,18 @@ def _cmd_info(args) -> int:
   return 0
 
 
+def _load_bank(args):
+  """The bank of ``args.bank``; with ``--skip-corrupt`` without its corrupt
+  shards, naming them and their worlds."""
+  import mwbx
+  bank = mwbx.Bank.load(args.bank, skip_corrupt=args.skip_corrupt)
+  if bank.run.get("corrupt_shards"):
+    worlds = ", ".join(f"{lo}..{hi}" if hi > lo else f"{lo}" for lo, hi in bank.run["corrupt_worlds"])
+    print(f"mwbx: skipped corrupt shards {', '.join(bank.run['corrupt_shards'])} (worlds {worlds});"
+          f" `mwbx info {args.bank} --verify` says what is wrong", file=sys.stderr)
+  return bank
+
+
 def _id_span(bank) -> str:
   ids = bank.world_ids
   return f"{int(ids.min())}..{int(ids.max())} (next {bank.next_world_id})" if bank.n_worlds else "none"
@@ -215,7 +236,7 @@ def _cameras(bank) -> list[str]:
 def _cmd_view(args) -> int:
   import mwbx
   import mwbx.viewer
-  bank = mwbx.Bank.load(args.bank)
+  bank = _load_bank(args)
   queries = None
   if args.queries:
     from mwbx.queries import load_queries
@@ -245,7 +266,7 @@ def _cmd_view(args) -> int:
 def _cmd_query(args) -> int:
   import mwbx
   from mwbx.queries.report import run_query_file
-  bank = mwbx.Bank.load(args.bank)
+  bank = _load_bank(args)
   report = run_query_file(bank, args.queries, rank=args.rank, top=args.top, under=args.under)
   print(json.dumps(report.to_dict(), indent=2) if args.json else report.format())
   return 0
@@ -256,7 +277,7 @@ def _cmd_refine(args) -> int:
   import mwbx
   from mwbx.refinement import refine_run
   from mwbx.refinement.refine import as_scene
-  bank = mwbx.Bank.load(args.bank)
+  bank = _load_bank(args)
   if args.objects is None and args.add is None and args.remove is None:
     raise MwbxError("refine: name objects to refine (--objects), to add (--add) or to remove (--remove)")
   if args.scene is not None:
@@ -288,10 +309,11 @@ def _cmd_refine(args) -> int:
                             n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
                             progress=update, add=args.add or (), remove=args.remove or ())
   total = bank.append(new)
-  print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
-  total.save(out)
-  ids = f"{int(new.world_ids[0])}..{int(new.world_ids[-1])}"
   active = [len(new.lineage[str(int(i))]["active"]) for i in new.world_ids]
+  print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
+  total.save(out)  # may renumber the new worlds (another process took their ids meanwhile)
+  saved = total.world_ids[total.n_worlds - new.n_worlds:]
+  ids = f"{int(saved[0])}..{int(saved[-1])}"
   print(f"refined worlds      {new.n_worlds} of world {args.world} from t_min = {new.refine_time[0]:.4f} s"
         f" (ids {ids}, seed {seed}; {int(new.valid.sum())} valid)")
   print(f"active objects      {min(active)}..{max(active)} per world (asked: {args.objects or 'none'})")
@@ -309,7 +331,7 @@ def _cmd_solve(args) -> int:
   import jax
   import mwbx
   from mwbx.search import Budget, progress_plot, solve
-  bank = mwbx.Bank.load(args.bank)
+  bank = _load_bank(args)
   queries = mwbx.load_queries(args.queries, bank=bank)
   budget = Budget(refinements=args.budget, seconds=args.time_budget,
                   world_steps=None if args.step_budget is None else int(args.step_budget))
@@ -320,7 +342,9 @@ def _cmd_solve(args) -> int:
                    reseed_rounds=args.reseed_rounds, progress=update)
   out = pathlib.Path(args.out or args.bank)
   print(f"mwbx: saving {result.bank.n_worlds} worlds to {out}", file=sys.stderr)
-  result.bank.save(out)
+  row = result.bank.row_of(result.world)
+  result.bank.save(out)  # may renumber new worlds (another process took their ids meanwhile)
+  result = result._replace(world=int(result.bank.world_ids[row]))
   plot = pathlib.Path(args.plot) if args.plot else out.parent / f"{out.name}-solve.png"
   plot.parent.mkdir(parents=True, exist_ok=True)
   progress_plot(result.steps, plot, title=f"mwbx solve {pathlib.Path(args.queries).name}")
@@ -339,7 +363,7 @@ def _cmd_solve(args) -> int:
 def _cmd_drop(args) -> int:
   import mwbx
   from mwbx.viewer.select import parse_world_ids
-  bank = mwbx.Bank.load(args.bank)
+  bank = _load_bank(args)
   ids = parse_world_ids(args.ids, flag="IDS")
   kept = bank.drop(ids)
   out = pathlib.Path(args.out or args.bank)
@@ -352,7 +376,7 @@ def _cmd_drop(args) -> int:
 def _cmd_browse(args) -> int:
   import mwbx
   from mwbx.browser import browse
-  bank = mwbx.Bank.load(args.bank)
+  bank = _load_bank(args)
   browse(bank, path=args.bank, host=args.host, port=args.port, open_browser=not args.no_browser)
   return 0
 
@@ -386,6 +410,8 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--json", action="store_true")
   p.add_argument("--verify", action="store_true",
                  help="check every shard's checksums (opening reads only the small arrays)")
+  p.add_argument("--skip-corrupt", action="store_true",
+                 help="open the bank without its corrupt shards (named on stderr)")
   p.set_defaults(func=_cmd_info)
 
   p = sub.add_parser("query", help="find worlds of a bank with screen-box queries and rank them")
@@ -397,6 +423,8 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--under", type=int, default=None, metavar="ID",
                  help="only world ID and the worlds refined from it (directly or not)")
   p.add_argument("--json", action="store_true")
+  p.add_argument("--skip-corrupt", action="store_true",
+                 help="open the bank without its corrupt shards (named on stderr)")
   p.set_defaults(func=_cmd_query)
 
   p = sub.add_parser("view", help="show worlds, paths and queries in meshcat (or write HTML)")
@@ -411,6 +439,8 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--html", default=None, help="write one standalone HTML file instead of serving")
   p.add_argument("--zmq-url", default=None, help="draw into a running meshcat server")
   p.add_argument("--no-browser", action="store_true", help="only print the URL")
+  p.add_argument("--skip-corrupt", action="store_true",
+                 help="open the bank without its corrupt shards (named on stderr)")
   p.set_defaults(func=_cmd_view)
 
   p = sub.add_parser("refine", help="resample chosen objects of one world from a time or a screen box on")
@@ -428,6 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--seed", type=int, default=None, help="refinement seed (default: a new one, printed)")
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
+  p.add_argument("--skip-corrupt", action="store_true",
+                 help="open the bank without its corrupt shards (named on stderr)")
   p.set_defaults(func=_cmd_refine)
 
   p = sub.add_parser("solve", help="search refinements for a world that meets every query, unattended")
@@ -450,12 +482,16 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
   p.add_argument("--plot", default=None, help="progress plot PNG (default: BANK-solve.png next to the bank)")
+  p.add_argument("--skip-corrupt", action="store_true",
+                 help="open the bank without its corrupt shards (named on stderr)")
   p.set_defaults(func=_cmd_solve)
 
   p = sub.add_parser("drop", help="remove worlds from a bank (their ids are never reused)")
   p.add_argument("bank", help="bank directory")
   p.add_argument("ids", help="world ids, e.g. 260,261")
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
+  p.add_argument("--skip-corrupt", action="store_true",
+                 help="open the bank without its corrupt shards (named on stderr)")
   p.set_defaults(func=_cmd_drop)
 
   p = sub.add_parser("browse", help="browse a bank in the browser: draw boxes, sort, play, refine")
@@ -463,6 +499,8 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--port", type=int, default=None, help="port to serve on (default: a free one)")
   p.add_argument("--host", default="127.0.0.1", help="address to serve on")
   p.add_argument("--no-browser", action="store_true", help="only print the URL")
+  p.add_argument("--skip-corrupt", action="store_true",
+                 help="open the bank without its corrupt shards (named on stderr)")
   p.set_defaults(func=_cmd_browse)
   return parser
 
@@ -499,7 +537,9 @@ def main(argv: list[str] | None = None) -> int:
   try:
     return args.func(args)
   except MwbxError as err:
-    print(f"mwbx: error: {err}", file=sys.stderr)
+    hint = ("; --skip-corrupt opens the bank without the corrupt shard"
+            if "corrupt" in str(err) and getattr(args, "skip_corrupt", True) is False else "")
+    print(f"mwbx: error: {err}{hint}", file=sys.stderr)
     return 2
   except KeyboardInterrupt:
     print("mwbx: interrupted; nothing was written for the unfinished run", file=sys.stderr)

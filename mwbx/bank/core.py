@@ -97,6 +97,9 @@ class Bank:
   scene_version: np.ndarray | None = None
   versions: list = dataclasses.field(default_factory=list)
   _model: object = dataclasses.field(default=None, repr=False, compare=False)
+  # Where the bank was loaded from or last saved to, with the ids it held
+  # there (mwbx.bank.shards.Origin): what a save into that directory adds and drops.
+  origin: object = dataclasses.field(default=None, repr=False, compare=False)
 
   def __post_init__(self):
     if self.scene_version is None:  # banks of one scene version, and those saved before versions
@@ -245,6 +248,7 @@ class Bank:
     """The scene's ``MjModel`` (with the mwbx observation sensors)."""
     if self._model is None:
       from mwbx.scene import build_model
+      stored_includes_only(self.mjcf_text, self.mjcf_includes)
       try:
         self._model = build_model(self.mjcf_text, self.body_names, self.mjcf_dir(), self.mjcf_includes)
       except ValueError as err:
@@ -361,12 +365,15 @@ class Bank:
 
     Worlds already stored there (same scene) are not written again: a save
     after an append or a refinement writes one new shard with the new worlds,
-    and dropped worlds are recorded as such. Also writes
+    and worlds this bank dropped are recorded as such. Other processes may
+    write the same directory: worlds they added since this bank was loaded
+    stay, and new worlds whose ids they took meanwhile are given fresh ids
+    (this bank's ids are updated to those saved). Also writes
     ``path/config.resolved.json`` and ``path/scene.xml`` for people. See
-    :mod:`mwbx.bank.shards`.
+    :mod:`mwbx.bank.saving`.
     """
-    from mwbx.bank import shards
-    return shards.save(self, path)
+    from mwbx.bank import saving
+    return saving.save(self, path)
 
   @classmethod
   def load(cls, path: str | pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = True) -> "Bank":
@@ -414,6 +421,24 @@ class Bank:
       raise MwbxError(f"bank: qpos store has {self.qpos_store.n_worlds} worlds, expected {w}")
     if self.com.ndim != 4 or self.com.shape[2] != len(self.body_names):
       raise MwbxError(f"bank: com has shape {self.com.shape}, expected [W, P, {len(self.body_names)}, 3]")
+
+
+def stored_includes_only(mjcf_text: str, includes: dict[str, str]) -> None:
+  """MwbxError if the MJCF (or an included file) includes a file the bank does
+  not store: a bank's model is built only from the text stored in it, never
+  from a file a (crafted) manifest names on disk."""
+  import xml.etree.ElementTree as ElementTree
+  texts = [("the bank's MJCF", mjcf_text)] + [(repr(k), v) for k, v in includes.items()]
+  for where, text in texts:
+    try:
+      root = ElementTree.fromstring(text)
+    except ElementTree.ParseError:
+      continue  # MuJoCo names the syntax error
+    for node in root.iter("include"):
+      name = node.get("file")
+      if name not in includes:
+        raise MwbxError(f"bank: {where} includes {name!r}, which the bank does not store; a bank's model is"
+                        f" built only from the MJCF text stored in it")
 
 
 def rows_of(world_ids: np.ndarray, ids):

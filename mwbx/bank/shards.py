@@ -17,7 +17,15 @@ and the others stay readable (``Bank.load(path, skip_corrupt=True)``).
 
 Runs of ``mwbx sample`` are recorded in the manifest (seed, the ids they are
 to produce, finished or not), so a killed run can be resumed: its missing ids
-are sampled again, and a world depends only on the seed and its id.
+are sampled again, and a world depends only on the seed and its id
+(:mod:`mwbx.bank.runs`).
+
+Several processes may share a bank directory. Every manifest update happens
+under the directory's lock on the manifest as it is then, and a bank loaded
+from a directory remembers the ids it was loaded with (:class:`Origin`), so
+:func:`save` adds the worlds this bank added and drops only the ids it
+dropped itself: worlds other processes appended meanwhile stay. New worlds
+whose ids another writer took meanwhile are renumbered under the lock.
 """
 
 from __future__ import annotations
@@ -28,11 +36,16 @@ import fcntl
 import json
 import os
 import pathlib
+import re
+import shutil
+import typing
 import uuid
 
 import numpy as np
 
+from mwbx import files
 from mwbx.bank import checks
+from mwbx.bank import runs
 from mwbx.codec import polyline
 from mwbx.errors import MwbxError
 
@@ -40,6 +53,22 @@ FORMAT = 3
 MANIFEST = "manifest.json"
 LOCK = ".lock"  # flock()ed around every manifest update
 SHARDS = "shards"
+# Shard folder names and array names of a manifest: plain names, never a path
+# (a crafted manifest must not make loading read outside the bank).
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+
+
+class Origin(typing.NamedTuple):
+  """Where a bank was loaded from (or last saved to), and the ids it had then.
+
+  Attributes:
+    path: the bank directory (absolute).
+    ids: the world ids the bank held there; a save into ``path`` writes
+      worlds not among them and drops those of them the bank no longer holds.
+  """
+
+  path: str
+  ids: np.ndarray  # i64[k], sorted
 
 
 def com_step(config: dict) -> float | None:
@@ -51,19 +80,6 @@ def has_manifest(path: pathlib.Path) -> bool:
   return (pathlib.Path(path) / MANIFEST).is_file()
 
 
-def _fsync_write(path: pathlib.Path, data: bytes) -> None:
-  with open(path, "wb") as f:
-    f.write(data)
-    f.flush()
-    os.fsync(f.fileno())
-
-
-def _fsync_dir(path: pathlib.Path) -> None:
-  fd = os.open(path, os.O_RDONLY)
-  try:
-    os.fsync(fd)
-  finally:
-    os.close(fd)
 
 
 def scene_meta(bank) -> dict:
@@ -94,15 +110,28 @@ class BankDirectory:
 
   # -- reading the manifest ---------------------------------------------------------
 
-  def stored_ids(self, skip: tuple[str, ...] = ()) -> set[int]:
-    """Ids of the worlds in the shards (but those named in ``skip``), less the dropped ones."""
+  def stored_ids(self, with_dropped: bool = False) -> set[int]:
+    """Ids of the worlds in the shards, less the dropped ones (unless ``with_dropped``)."""
     if self.manifest is None:
       return set()
     ids = set()
     for entry in self.manifest["shards"]:
-      if entry["name"] not in skip:
-        ids.update(i for lo, hi in entry["id_ranges"] for i in range(lo, hi + 1))
-    return ids - set(int(i) for i in self.manifest["dropped"])
+      ids.update(i for lo, hi in entry["id_ranges"] for i in range(lo, hi + 1))
+    return ids if with_dropped else ids - set(int(i) for i in self.manifest["dropped"])
+
+  def taken(self, ids, runs_too: bool = False) -> np.ndarray:
+    """i64[k] those of ``ids`` given to a world here (stored or dropped), or,
+    with ``runs_too``, reserved by an unfinished sampling run."""
+    ids = np.unique(np.asarray(ids, np.int64))
+    if self.manifest is None or not ids.size:
+      return ids[:0]
+    ranges = [r for e in self.manifest["shards"] for r in e["id_ranges"]]
+    if runs_too:
+      ranges += [r for rec in self.unfinished_runs() for r in rec.get("group_ranges", rec["id_ranges"])]
+    hit = np.isin(ids, np.asarray(self.manifest["dropped"], np.int64))
+    for lo, hi in ranges:
+      hit[np.searchsorted(ids, lo):np.searchsorted(ids, hi, side="right")] = True
+    return ids[hit]
 
   def unfinished_runs(self) -> list[dict]:
     """Run records not finished (of one or of several processes)."""
@@ -116,9 +145,21 @@ class BankDirectory:
   def _locked(self):
     """Holds the directory's lock and re-reads the manifest: several processes
     (``mwbx sample --num-processes``) write shards into one bank."""
-    self.path.mkdir(parents=True, exist_ok=True)
-    with open(self.path / LOCK, "a+b") as lock:
+    while True:
+      self.path.mkdir(parents=True, exist_ok=True)
+      lock = open(self.path / LOCK, "a+b")
       fcntl.flock(lock, fcntl.LOCK_EX)
+      # A scene-version save swaps a new directory in while holding the old
+      # one's lock: a lock file no longer at the path locks nothing; retry.
+      try:
+        current = os.stat(self.path / LOCK)
+        mine = os.fstat(lock.fileno())
+        if (current.st_ino, current.st_dev) == (mine.st_ino, mine.st_dev):
+          break
+      except FileNotFoundError:
+        pass
+      lock.close()
+    with lock:
       try:
         if has_manifest(self.path):
           self.manifest = read_manifest(self.path)
@@ -145,18 +186,25 @@ class BankDirectory:
     rows = np.arange(bank.n_worlds) if rows is None else np.asarray(rows, np.int64)
     with self._locked():
       self._check_scene(bank)
-      history = self.manifest["scene"].get("versions", [])
-      if len(bank.versions) < len(history):  # sampled from the current scene, without the bank's history
-        bank = dataclasses.replace(bank, versions=list(history),
-                                   scene_version=np.full(bank.n_worlds, len(history), np.int16))
-      if rows.size:
-        self.manifest["shards"].append(_write_shard(self.path, bank, rows, self._next_shard_name()))
-      if run is not None:
-        self._put_run(run)
-      self.manifest["next_id"] = max(int(self.manifest["next_id"]), bank.next_world_id)
-      if bank.run:  # how the bank's worlds are drawn (the seed later runs continue with)
-        self.manifest["run"] = {k: v for k, v in bank.run.items() if k != "corrupt_shards"}
+      taken = self.taken(bank.world_ids[rows])
+      if taken.size:
+        raise MwbxError(f"{self.path}: world ids {_some(taken)} are already in the bank; nothing was written")
+      self._append_locked(bank, rows, run)
       self.commit()
+
+  def _append_locked(self, bank, rows: np.ndarray, run: dict | None = None) -> None:
+    """:meth:`append` with the lock held and the manifest not yet committed."""
+    history = self.manifest["scene"].get("versions", [])
+    if len(bank.versions) < len(history):  # sampled from the current scene, without the bank's history
+      bank = dataclasses.replace(bank, versions=list(history),
+                                 scene_version=np.full(bank.n_worlds, len(history), np.int16))
+    if rows.size:
+      self.manifest["shards"].append(_write_shard(self.path, bank, rows, self._next_shard_name()))
+    if run is not None:
+      self._put_run(run)
+    self.manifest["next_id"] = max(int(self.manifest["next_id"]), bank.next_world_id)
+    if bank.run:  # how the bank's worlds are drawn (the seed later runs continue with)
+      self.manifest["run"] = {k: v for k, v in bank.run.items() if not k.startswith("corrupt_")}
 
   def append_run(self, run: dict) -> None:
     """Adds (or replaces, by ``id``) a run record of a bank that exists."""
@@ -179,23 +227,9 @@ class BankDirectory:
           record["finished"] = True
       self.commit()
 
-  def supersede_unfinished(self) -> None:
-    """Marks every unfinished run finished (a resuming run has taken over its ids)."""
-    if self.manifest is None:
-      return
-    with self._locked():
-      for record in self.manifest["runs"]:
-        if not record["finished"]:
-          record.update(finished=True, superseded=True)
-      self.commit()
-
   def commit(self) -> None:
     """Replaces the manifest atomically."""
-    self.path.mkdir(parents=True, exist_ok=True)
-    tmp = self.path / f".{MANIFEST}.{uuid.uuid4().hex}"
-    _fsync_write(tmp, json.dumps(self.manifest, indent=1).encode())
-    os.replace(tmp, self.path / MANIFEST)
-    _fsync_dir(self.path)
+    files.write_atomic(self.path / MANIFEST, json.dumps(self.manifest, indent=1), "bank manifest")
 
   def _next_shard_name(self) -> str:
     taken = {e["name"] for e in self.manifest["shards"]}
@@ -231,16 +265,21 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   shards = path / SHARDS
   shards.mkdir(parents=True, exist_ok=True)
   tmp = shards / f".tmp-{uuid.uuid4().hex}"
-  tmp.mkdir()
-  for key, value in arrays.items():
-    with open(tmp / f"{key}.npy", "wb") as f:
-      np.save(f, value, allow_pickle=False)
-      f.flush()
-      os.fsync(f.fileno())
-  _fsync_write(tmp / "lineage.json", lineage_bytes)
-  _fsync_dir(tmp)
-  os.rename(tmp, shards / name)
-  _fsync_dir(shards)
+  try:
+    tmp.mkdir()
+    for key, value in arrays.items():
+      with open(tmp / f"{key}.npy", "wb") as f:
+        np.save(f, value, allow_pickle=False)
+        f.flush()
+        os.fsync(f.fileno())
+    files.write_fsynced(tmp / "lineage.json", lineage_bytes)
+    files.fsync_dir(tmp)
+    os.rename(tmp, shards / name)
+    files.fsync_dir(shards)
+  except OSError as err:  # e.g. a full disk: no half shard stays behind
+    files.remove_quietly(tmp)
+    raise MwbxError(f"{shards / name}: cannot write this shard of {int(part.n_worlds)} worlds ({files.why(err)});"
+                    f" nothing of it was kept, the worlds saved before stay") from None
   return {"name": name, "worlds": int(part.n_worlds), "id_ranges": id_ranges(part.world_ids),
           "com_row_shape": [int(x) for x in part.com.shape[1:]],
           "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
@@ -256,7 +295,21 @@ def read_manifest(path: pathlib.Path) -> dict:
   if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
     raise MwbxError(f"{file}: unsupported bank manifest (format {manifest.get('format')!r}, "
                     f"expected {FORMAT})" if isinstance(manifest, dict) else f"{file}: not a bank manifest")
+  for i, entry in enumerate(manifest.get("shards", [])):
+    name = entry.get("name") if isinstance(entry, dict) else None
+    if not isinstance(name, str) or not _PLAIN_NAME.fullmatch(name):
+      raise MwbxError(f"{file}: shards[{i}].name: {name!r} is not a shard name (letters, digits, - and _;"
+                      f" never a path)")
+    for key in list(entry.get("checksums", {})):
+      if not _PLAIN_NAME.fullmatch(key):
+        raise MwbxError(f"{file}: shards[{i}].checksums: {key!r} is not an array name (never a path)")
   return manifest
+
+
+def _some(ids) -> str:
+  """A few ids of a set, for a message."""
+  ids = sorted(int(i) for i in ids)
+  return ", ".join(map(str, ids[:10])) + (f" … ({len(ids)} in all)" if len(ids) > 10 else "")
 
 
 # Arrays of a shard read only when used (lazy banks): the COM polylines and the qpos streams.
@@ -332,7 +385,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   scene = manifest["scene"]
   store_meta = scene["qpos_store"]
   kind = store_class(store_meta["kind"])
-  entries, smalls, corrupt = [], [], []
+  entries, smalls, corrupt, corrupt_ids = [], [], [], []
   for entry in manifest["shards"]:
     try:
       small = _read_small(path, entry)
@@ -343,10 +396,13 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       if not skip_corrupt:
         raise
       corrupt.append(entry["name"])
+      corrupt_ids.extend(entry["id_ranges"])
       continue
     entries.append(entry)
     smalls.append(small)
   if not entries:
+    if not manifest["shards"]:
+      raise MwbxError(f"{path}: no worlds stored yet (a sampling run has started it)")
     raise MwbxError(f"{path}: no readable shard" + (f" (corrupt: {', '.join(corrupt)})" if corrupt else ""))
   counts = [int(e["worlds"]) for e in entries]
   eager = "com" in smalls[0][0]
@@ -368,7 +424,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
     lineage.update(shard_lineage)
   run = dict(manifest.get("run", {}))
   if corrupt:
-    run["corrupt_shards"] = corrupt
+    run["corrupt_shards"], run["corrupt_worlds"] = corrupt, corrupt_ids
   small_names = [n for n in cls._ARRAYS if n != "com"]
   for arrays, _ in smalls:  # shards written before scene versions: all of version 0
     arrays.setdefault("scene_version", np.zeros(len(arrays["world_ids"]), np.int16))
@@ -383,61 +439,17 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       mjcf_text=scene["mjcf_text"], mjcf_includes=scene.get("mjcf_includes", {}),
       digest=scene["digest"], lineage=lineage, run=run, next_id=int(manifest["next_id"]),
       versions=list(scene.get("versions", [])))
+  ids, counts = np.unique(bank.world_ids, return_counts=True)
+  if (counts > 1).any():
+    twice = ids[counts > 1]
+    where = [e["name"] for e in entries if runs.ranges_ids(e["id_ranges"]) & set(twice[:10].tolist())]
+    raise MwbxError(f"{path}: world ids {_some(twice)} are stored more than once (shards {', '.join(where)});"
+                    f" the bank is inconsistent")
   dropped = np.asarray(manifest["dropped"], np.int64)
   if dropped.size:
     keep = np.flatnonzero(~np.isin(bank.world_ids, dropped))
     bank = bank._take(keep, lineage={k: v for k, v in lineage.items() if int(k) not in set(dropped.tolist())})
+  bank.origin = Origin(str(path), np.sort(bank.world_ids))
   return bank
 
 
-def save(bank, path: str | pathlib.Path) -> pathlib.Path:
-  """Writes the worlds of ``bank`` not yet in ``path`` as one new shard, and
-  records worlds stored there but no longer in ``bank`` as dropped.
-
-  A bank moved to a later version of the scene stored there
-  (:meth:`mwbx.Bank.with_scene`) is rewritten whole, in the new layout, next
-  to it, and then takes the directory's place.
-  """
-  path = pathlib.Path(path).absolute()
-  if has_manifest(path):
-    stored = read_manifest(path)
-    if (stored["scene"]["digest"] != bank.digest
-        and stored["scene"]["digest"] in {v["digest"] for v in bank.versions}):
-      return _rewrite(bank, path, stored)
-  directory = BankDirectory(path)
-  with directory._locked():
-    directory._check_scene(bank)
-    stored = directory.stored_ids()
-    present = set(int(i) for i in bank.world_ids)
-    # Worlds of shards this bank was loaded without (corrupt) are not dropped.
-    unread = stored - directory.stored_ids(skip=tuple(bank.run.get("corrupt_shards", ())))
-    gone = sorted(stored - present - unread)
-    if gone:
-      directory.manifest["dropped"] = sorted(set(directory.manifest["dropped"]) | set(gone))
-      directory.commit()
-  rows = np.flatnonzero([int(i) not in stored for i in bank.world_ids])
-  directory.append(bank, rows)
-  (directory.path / "config.resolved.json").write_text(json.dumps(bank.config, indent=2))
-  (directory.path / "scene.xml").write_text(bank.mjcf_text)
-  return directory.path
-
-
-def _rewrite(bank, path: pathlib.Path, stored: dict) -> pathlib.Path:
-  """Writes ``bank`` whole beside ``path`` (keeping the stored manifest's runs
-  and dropped ids), then swaps it in; the old directory is removed last."""
-  import shutil
-  tag = uuid.uuid4().hex[:8]
-  fresh = path.parent / f".{path.name}.upgrade-{tag}"
-  save(bank, fresh)
-  directory = BankDirectory(fresh)
-  with directory._locked():
-    directory.manifest["runs"] = stored.get("runs", [])
-    directory.manifest["dropped"] = stored.get("dropped", [])
-    directory.manifest["next_id"] = max(int(directory.manifest["next_id"]), int(stored.get("next_id", 0)))
-    directory.commit()
-  old = path.parent / f".{path.name}.previous-{tag}"
-  os.rename(path, old)
-  os.rename(fresh, path)
-  _fsync_dir(path.parent)
-  shutil.rmtree(old)
-  return path

@@ -317,3 +317,22 @@ def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str
   with Sampler(scene, backend, chunk_size, store=store) as sampler:
     bank, _ = sampler.run(n_worlds, key, first_world=first_world, progress=progress)
   return bank
+
+
+def empty_bank(scene: Scene, store: QposStore | None = None) -> bank_lib.Bank:
+  """A bank of ``scene`` with no worlds (what a :class:`Sampler` of it would
+  write, e.g. to start a bank directory's manifest before its first shard)."""
+  cfg = scene.config
+  b, m = len(scene.body_names), len(world.METRIC_NAMES)
+  timestep = cfg.sim.timestep if cfg.sim.timestep is not None else scene.model.opt.timestep
+  empty = lambda dtype, *shape: np.zeros((0, *shape), dtype)
+  return bank_lib.Bank(
+      world_ids=empty(np.int64), keys=empty(np.uint32, 2), flags=empty(np.uint8),
+      frame_count=empty(np.int32), com=empty(np.float32, 1, b, 3), com_count=empty(np.int32),
+      metrics=empty(np.float32, b, m), perturbations=empty(np.int32), steps=empty(np.int32),
+      parent_world=empty(np.int64), refine_time=empty(np.float32),
+      qpos_store=(store if store is not None else compressed_store(scene)).empty(),
+      body_names=scene.body_names, body_ids=scene.body_ids, objects=dict(scene.objects),
+      groups=dict(scene.groups), metric_names=world.METRIC_NAMES, record_fps=cfg.sim.record_fps,
+      query_fps=cfg.sim.query_fps, timestep=float(timestep), config=cfg.resolved(),
+      mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes), digest=scene.digest)

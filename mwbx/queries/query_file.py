@@ -38,6 +38,7 @@ import pydantic
 import yaml
 
 from mwbx.errors import MwbxError
+from mwbx.files import write_atomic
 from mwbx.queries.camera import Camera
 from mwbx.queries.camera import ScreenBox
 from mwbx.queries.metrics import Term
@@ -144,13 +145,9 @@ class QuerySet(NamedTuple):
     """Writes the set as a query file that :func:`load_queries` (and ``mwbx
     query``) read back to the same queries; returns the path."""
     path = os.fspath(path)
-    try:
-      os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-      with open(path, "w") as f:
-        f.write("# mwbx query file (QuerySet.save)\n")
-        yaml.safe_dump(self.to_dict(), f, sort_keys=False, default_flow_style=None)
-    except OSError as err:
-      raise MwbxError(f"{path}: cannot write query file: {err.strerror}") from None
+    text = "# mwbx query file (QuerySet.save)\n" + yaml.safe_dump(self.to_dict(), sort_keys=False,
+                                                                  default_flow_style=None)
+    write_atomic(os.path.abspath(path), text, "query file")  # a reader never sees half a file
     return path
 
 
