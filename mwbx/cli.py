@@ -39,6 +39,7 @@ def _cmd_sample(args) -> int:
   from mwbx import distributed
   from mwbx.bank import BankDirectory
   from mwbx.bank.shards import id_ranges
+  _check_sample_args(args)
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
   scene = mwbx.Scene(config)
@@ -61,6 +62,7 @@ def _cmd_sample(args) -> int:
   summary = _RunSummary()
   if mine.size:
     with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
+      sampler.check_memory(mine.size)  # before anything is announced or allocated
       print(f"mwbx: sampling {mine.size} worlds of {args.config} on {sampler.backend_label}"
             f" (worlds {mine[0]}..{mine[-1]}, seed {seed}){who} into {out}", file=sys.stderr)
       record["chunk_size"], record["backend"] = sampler.chunk_size, sampler.backend_label
@@ -87,6 +89,22 @@ def _cmd_sample(args) -> int:
     (out / "scene.xml").write_text(scene.mjcf_text)
   summary.print(out, len(directory.stored_ids()))
   return 0
+
+
+# The most worlds one `mwbx sample` run may ask for (ids are 32-bit).
+MAX_WORLDS = 1 << 32
+# The most worlds one chunk may hold (its buffers are checked against memory too).
+MAX_CHUNK_SIZE = 1 << 24
+
+
+def _check_sample_args(args) -> None:
+  """Counts and seeds of ``mwbx sample`` in range, named in the message."""
+  counts = (("--worlds", args.worlds, MAX_WORLDS), ("--chunk-size", args.chunk_size, MAX_CHUNK_SIZE))
+  for flag, value, limit in counts:
+    if value is not None and not 1 <= value <= limit:
+      raise MwbxError(f"{flag}: must be a number of worlds from 1 to {limit:,}, got {value}")
+  if args.seed is not None and not -(1 << 63) <= args.seed < (1 << 63):
+    raise MwbxError(f"--seed: must fit in 64 bits (signed), got {args.seed}")
 
 
 def _plan_run(args, out: pathlib.Path, scene) -> dict:
@@ -116,6 +134,13 @@ def _plan_run(args, out: pathlib.Path, scene) -> dict:
   if n_worlds < 1:
     raise MwbxError(f"--worlds: must be at least 1, got {n_worlds}")
   first = 0 if manifest is None else int(manifest["next_id"])
+  from mwbx.batch_sim import memory
+  from mwbx.batch_sim.sampler import MAX_WORLD_ID
+  if first + n_worlds - 1 > MAX_WORLD_ID:
+    raise MwbxError(f"--worlds: {n_worlds:,} worlds from id {first:,} would pass the last world id"
+                    f" {MAX_WORLD_ID:,}")
+  memory.check(n_worlds * memory.PLAN_BYTES_PER_WORLD, f"--worlds {n_worlds:,}: the run's list of world ids",
+               "sample fewer worlds per run (the same --out continues the bank)")
   return {"seed": seed, "todo": list(range(first, first + n_worlds)), "resume": None}
 
 
@@ -219,7 +244,7 @@ def _cmd_view(args) -> int:
   if args.queries:
     from mwbx.queries import load_queries
     queries = load_queries(args.queries, bank=bank)
-  ids = mwbx.viewer.select.parse_world_ids(args.worlds) if args.worlds else None
+  ids = mwbx.viewer.select.parse_world_ids(args.worlds, known=bank.world_ids) if args.worlds else None
   ids, _ = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
   paths = None if args.paths == "none" else True if args.paths == "all" else args.paths.split(",")
   kwargs = dict(worlds=ids, paths=paths, layout=args.layout, camera=args.camera,
@@ -339,11 +364,13 @@ def _cmd_drop(args) -> int:
   import mwbx
   from mwbx.viewer.select import parse_world_ids
   bank = mwbx.Bank.load(args.bank)
-  ids = parse_world_ids(args.ids, flag="IDS")
+  from mwbx.bank.shards import id_ranges
+  ids = parse_world_ids(args.ids, flag="IDS", known=bank.world_ids)
   kept = bank.drop(ids)
   out = pathlib.Path(args.out or args.bank)
   kept.save(out)
-  print(f"dropped worlds      {', '.join(str(i) for i in ids)}")
+  dropped = ", ".join(f"{lo}..{hi}" if hi > lo else str(lo) for lo, hi in id_ranges(ids))
+  print(f"dropped worlds      {dropped}")
   print(f"bank                {out} ({kept.n_worlds} worlds, ids {_id_span(kept)})")
   return 0
 
