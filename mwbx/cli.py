@@ -101,8 +101,10 @@ def _check_sample_args(args) -> None:
   """Counts and seeds of ``mwbx sample`` in range, named in the message."""
   counts = (("--worlds", args.worlds, MAX_WORLDS), ("--chunk-size", args.chunk_size, MAX_CHUNK_SIZE))
   for flag, value, limit in counts:
-    if value is not None and not 1 <= value <= limit:
-      raise MwbxError(f"{flag}: must be a number of worlds from 1 to {limit:,}, got {value}")
+    if value is not None and value < 1:
+      raise MwbxError(f"{flag}: must be at least 1, got {value}")
+    if value is not None and value > limit:
+      raise MwbxError(f"{flag}: must be at most {limit:,} worlds, got {value}")
   if args.seed is not None and not -(1 << 63) <= args.seed < (1 << 63):
     raise MwbxError(f"--seed: must fit in 64 bits (signed), got {args.seed}")
 

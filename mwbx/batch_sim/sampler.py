@@ -140,8 +140,12 @@ class Sampler:
       from mwbx.batch_sim.native_backend import NativeBackend
       self.backend = NativeBackend(model, cfg.sim.threads)
       self.backend_label = "native"
-    self._init = jax.jit(jax.vmap(self.scene.initial_state))
-    self._init_from_noise = jax.jit(jax.vmap(self.scene.initial_state_from_noise))
+    # lax.map, not vmap: XLA vectorizes a vmapped batch and rounds the worlds
+    # of a partial SIMD vector differently (one world in 30 of a crate pile
+    # moved by an ulp with the batch size, and its metrics with it); a scan
+    # runs one world's program for every world, in any batch.
+    self._init = jax.jit(lambda keys: jax.lax.map(self.scene.initial_state, keys))
+    self._init_from_noise = jax.jit(lambda noise: jax.lax.map(self.scene.initial_state_from_noise, noise))
 
   def close(self) -> None:
     self.backend.close()
