@@ -141,7 +141,7 @@ def _plan_run(args, out: pathlib.Path, scene) -> dict:
   if first + n_worlds - 1 > MAX_WORLD_ID:
     raise MwbxError(f"--worlds: {n_worlds:,} worlds from id {first:,} would pass the last world id"
                     f" {MAX_WORLD_ID:,}")
-  memory.check(n_worlds * memory.PLAN_BYTES_PER_WORLD, f"--worlds {n_worlds:,}: the run's list of world ids",
+  memory.check(n_worlds * memory.PLAN_BYTES_PER_WORLD, f"--worlds {n_worlds}: the run's list of world ids",
                "sample fewer worlds per run (the same --out continues the bank)")
   return {"seed": seed, "todo": list(range(first, first + n_worlds)), "resume": None}
 
