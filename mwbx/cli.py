@@ -39,6 +39,7 @@ def _cmd_sample(args) -> int:
   from mwbx import distributed
   from mwbx.bank import BankDirectory, runs
   from mwbx.bank.shards import id_ranges
+  _check_sample_args(args)
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
   scene = mwbx.Scene(config)
@@ -75,6 +76,7 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
   summary = _RunSummary()
   if mine.size:
     with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
+      sampler.check_memory(mine.size)  # before anything is announced or allocated
       print(f"mwbx: sampling {mine.size} worlds of {args.config} on {sampler.backend_label}"
             f" (worlds {mine[0]}..{mine[-1]}, seed {seed}){who} into {out}", file=sys.stderr)
       print(f"mwbx: {scene.rates.describe()}", file=sys.stderr)
@@ -108,6 +110,24 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
   return 0
 
 
+# The most worlds one `mwbx sample` run may ask for (ids are 32-bit).
+MAX_WORLDS = 1 << 32
+# The most worlds one chunk may hold (its buffers are checked against memory too).
+MAX_CHUNK_SIZE = 1 << 24
+
+
+def _check_sample_args(args) -> None:
+  """Counts and seeds of ``mwbx sample`` in range, named in the message."""
+  counts = (("--worlds", args.worlds, MAX_WORLDS), ("--chunk-size", args.chunk_size, MAX_CHUNK_SIZE))
+  for flag, value, limit in counts:
+    if value is not None and value < 1:
+      raise MwbxError(f"{flag}: must be at least 1, got {value}")
+    if value is not None and value > limit:
+      raise MwbxError(f"{flag}: must be at most {limit:,} worlds, got {value}")
+  if args.seed is not None and not -(1 << 63) <= args.seed < (1 << 63):
+    raise MwbxError(f"--seed: must fit in 64 bits (signed), got {args.seed}")
+
+
 def _plan_run(args, out: pathlib.Path, scene, group):
   """What a sampling run does (decided by process 0 of a group, under the
   bank's lock): the seed, the world ids to sample (fresh ids reserved at
@@ -125,6 +145,15 @@ def _plan_run(args, out: pathlib.Path, scene, group):
     directory = BankDirectory(out)
   if directory.manifest is not None and directory.manifest["scene"]["digest"] != scene.digest:
     raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
+  if args.worlds is not None:  # before a list of the run's ids is made
+    from mwbx.batch_sim import memory
+    from mwbx.batch_sim.sampler import MAX_WORLD_ID
+    first = 0 if directory.manifest is None else int(directory.manifest["next_id"])
+    if first + args.worlds - 1 > MAX_WORLD_ID:
+      raise MwbxError(f"--worlds: {args.worlds:,} worlds from id {first:,} would pass the last world id"
+                      f" {MAX_WORLD_ID:,}")
+    memory.check(args.worlds * memory.PLAN_BYTES_PER_WORLD, f"--worlds {args.worlds}: the run's list of world ids",
+                 "sample fewer worlds per run (the same --out continues the bank)")
   return runs.plan(directory, empty_bank(scene), n_worlds=args.worlds, seed=args.seed,
                    run_id=uuid.uuid4().hex, share=lambda ids: distributed.my_share(ids, group))
 
@@ -241,7 +270,7 @@ def _cmd_view(args) -> int:
   if args.queries:
     from mwbx.queries import load_queries
     queries = load_queries(args.queries, bank=bank)
-  ids = mwbx.viewer.select.parse_world_ids(args.worlds) if args.worlds else None
+  ids = mwbx.viewer.select.parse_world_ids(args.worlds, known=bank.world_ids) if args.worlds else None
   ids, _ = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
   paths = None if args.paths == "none" else True if args.paths == "all" else args.paths.split(",")
   kwargs = dict(worlds=ids, paths=paths, layout=args.layout, camera=args.camera,
@@ -364,11 +393,12 @@ def _cmd_drop(args) -> int:
   import mwbx
   from mwbx.viewer.select import parse_world_ids
   bank = _load_bank(args)
-  ids = parse_world_ids(args.ids, flag="IDS")
+  ids = parse_world_ids(args.ids, flag="IDS", known=bank.world_ids)
   kept = bank.drop(ids)
   out = pathlib.Path(args.out or args.bank)
   kept.save(out)
-  print(f"dropped worlds      {', '.join(str(i) for i in ids)}")
+  dropped = ", ".join(f"{lo}..{hi}" if hi > lo else str(lo) for lo, hi in id_ranges(ids))
+  print(f"dropped worlds      {dropped}")
   print(f"bank                {out} ({kept.n_worlds} worlds, ids {_id_span(kept)})")
   return 0
 

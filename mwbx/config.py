@@ -25,8 +25,8 @@ import pathlib
 from typing import Literal
 
 import pydantic
-import yaml
 
+from mwbx import yaml_input
 from mwbx.errors import MwbxError
 
 ASSET_DIR = pathlib.Path(__file__).parent / "assets"
@@ -35,7 +35,9 @@ Vec3 = tuple[float, float, float]
 
 
 class _Strict(pydantic.BaseModel):
-  model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+  # NaN and infinities are refused in every float field (a scale of .nan made
+  # every world unstable; an end_time of .inf overflowed the frame count).
+  model_config = pydantic.ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Distribution(_Strict):
@@ -270,14 +272,22 @@ class Config(_Strict):
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
+# Validation errors a message lists at most (a long list of bad items would
+# otherwise make a message of a line per item).
+MAX_ERROR_LINES = 10
+
+
 def _format_error(source: str, err: pydantic.ValidationError) -> str:
   lines = []
-  for e in err.errors():
+  errors = err.errors()
+  for e in errors[:MAX_ERROR_LINES]:
     field = ".".join(str(p) for p in e["loc"]) or "<top>"
     if e["type"] == "extra_forbidden":
       lines.append(f"{source}: {field}: unknown key")
     else:
-      lines.append(f"{source}: {field}: {e['msg']} (got {e.get('input')!r})")
+      lines.append(f"{source}: {field}: {e['msg']} (got {yaml_input.short_repr(e.get('input'))})")
+  if len(errors) > MAX_ERROR_LINES:
+    lines.append(f"{source}: … and {len(errors) - MAX_ERROR_LINES} more errors")
   return "\n".join(lines)
 
 
@@ -312,8 +322,7 @@ def load_config(path: str | pathlib.Path) -> Config:
     text = path.read_text()
   except OSError as err:
     raise MwbxError(f"{path}: cannot read config: {err.strerror}") from None
-  try:
-    data = yaml.safe_load(text)
-  except yaml.YAMLError as err:
-    raise MwbxError(f"{path}: malformed YAML: {err}") from None
+  except UnicodeDecodeError as err:
+    raise MwbxError(f"{path}: cannot read config: not a text file ({err.reason})") from None
+  data = yaml_input.load(text, str(path))
   return config_from_dict(data if data is not None else {}, source=str(path))

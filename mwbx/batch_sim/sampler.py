@@ -13,11 +13,12 @@ import time
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
 from mwbx import bank as bank_lib
 from mwbx import rates as rates_lib
-from mwbx.batch_sim import world
+from mwbx.batch_sim import memory, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
 from mwbx.codec import CodecBounds, CompressedQposStore, polyline
 from mwbx.config import Config
@@ -57,6 +58,12 @@ class SampleStats:
     return self.world_steps / self.run_seconds if self.run_seconds > 0 else 0.0
 
 
+# World ids a sampled world may have: fold_in(run_key, id) reads 32 bits.
+MAX_WORLD_ID = (1 << 32) - 1
+# Physics steps a world may take (counted in int32 in the bank).
+MAX_STEPS = 1 << 31
+
+
 def frame_rates(config: Config, timestep: float) -> tuple[int, int, int]:
   """(steps per frame, frames per query point, last frame index), validated.
 
@@ -66,11 +73,25 @@ def frame_rates(config: Config, timestep: float) -> tuple[int, int, int]:
   """
   chosen = rates_lib.resolve(config, timestep)
   end_frame = int(round(config.sim.end_time * chosen.record_fps))
+  steps = end_frame * chosen.steps_per_frame
+  if steps >= MAX_STEPS:  # steps are counted in int32
+    raise MwbxError(f"{config.source or '<config>'}: sim.end_time: {config.sim.end_time:g} s is {steps:.3g}"
+                    f" physics steps; at most {MAX_STEPS - 1:,} (try a shorter end_time)")
   return chosen.steps_per_frame, chosen.query_stride, end_frame
 
 
 def world_keys(key: jax.Array, world_ids: np.ndarray) -> tuple[jax.Array, jax.Array, jax.Array]:
-  """(world keys, init keys, step key roots), each key[W], from the run key."""
+  """(world keys, init keys, step key roots), each key[W], from the run key.
+
+  Raises:
+    MwbxError: an id outside ``0 … MAX_WORLD_ID``: ``fold_in`` takes 32 bits,
+      so id 2³² would draw the key of id 0.
+  """
+  world_ids = np.asarray(world_ids)
+  if world_ids.size and (world_ids.min() < 0 or world_ids.max() > MAX_WORLD_ID):
+    bad = world_ids[(world_ids < 0) | (world_ids > MAX_WORLD_ID)][0]
+    raise MwbxError(f"world id {int(bad)}: sampled world ids must be in 0..{MAX_WORLD_ID:,} (a world's key"
+                    f" folds its id in as 32 bits)")
   if not jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
     key = jax.random.wrap_key_data(jnp.asarray(key, jnp.uint32))
   keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.asarray(world_ids, jnp.uint32))
@@ -98,6 +119,8 @@ class Sampler:
     cfg = self.scene.config
     self.backend_name = resolve_backend(backend or cfg.sim.backend)
     self.chunk_size = int(chunk_size or cfg.sim.chunk_size)
+    if self.chunk_size < 1:
+      raise MwbxError(f"chunk_size: must be a positive number of worlds, got {self.chunk_size}")
     model = self.scene.model
     if cfg.sim.timestep is not None:  # else the MJCF's own <option timestep>
       model.opt.timestep = cfg.sim.timestep
@@ -113,8 +136,12 @@ class Sampler:
       from mwbx.batch_sim.native_backend import NativeBackend
       self.backend = NativeBackend(model, cfg.sim.threads)
       self.backend_label = "native"
-    self._init = jax.jit(jax.vmap(self.scene.initial_state))
-    self._init_from_noise = jax.jit(jax.vmap(self.scene.initial_state_from_noise))
+    # lax.map, not vmap: XLA vectorizes a vmapped batch and rounds the worlds
+    # of a partial SIMD vector differently (one world in 30 of a crate pile
+    # moved by an ulp with the batch size, and its metrics with it); a scan
+    # runs one world's program for every world, in any batch.
+    self._init = jax.jit(lambda keys: jax.lax.map(self.scene.initial_state, keys))
+    self._init_from_noise = jax.jit(lambda noise: jax.lax.map(self.scene.initial_state_from_noise, noise))
 
   def close(self) -> None:
     self.backend.close()
@@ -147,6 +174,7 @@ class Sampler:
     Returns:
       (the bank of these worlds, timing stats).
     """
+    self.check_memory(n_worlds, in_memory=True)
     parts = []
     for part, stats in self.run_chunks(n_worlds, key, first_world=first_world, ids=ids, store=store,
                                        noise=noise, progress=progress):
@@ -194,6 +222,7 @@ class Sampler:
     keys, init_keys, step_keys = world_keys(key, ids)
     template = self.store if store is None else store
     c = self.batch_size(n_worlds)
+    self.check_memory(n_worlds)
     done_worlds = 0
     for lo in range(0, n_worlds, c):
       n = min(c, n_worlds - lo)
@@ -234,6 +263,35 @@ class Sampler:
       part = self._assemble(ids[lo:lo + n], keys[lo:lo + n], [result], store)
       stats.wall_seconds = time.perf_counter() - start_wall
       yield part, stats
+
+  def check_memory(self, n_worlds: int, in_memory: bool = False) -> None:
+    """Refuses a run of ``n_worlds`` whose estimated host memory (:mod:`memory`)
+    does not fit, with the figure.
+
+    Args:
+      n_worlds: worlds of the run.
+      in_memory: the run's worlds are kept in one bank in memory
+        (:meth:`run`), not written chunk by chunk (:meth:`run_chunks`).
+
+    Raises:
+      MwbxError: naming the chunk size, frames, sim.end_time and the figures.
+    """
+    n_worlds = max(int(n_worlds), 1)
+    c = self.batch_size(n_worlds)
+    m, sim = self.scene.model, self.scene.config.sim
+    needed = memory.chunk_bytes(
+        c, self.n_frames, m.nq, len(self.scene.body_names), self.query_stride, nbody=m.nbody,
+        nstate=mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS), nsensordata=m.nsensordata,
+        steps_per_frame=self.params.steps_per_frame)
+    what = (f"a chunk of {c:,} worlds of {self.n_frames:,} frames each (sim.end_time {sim.end_time:g} s at"
+            f" sim.record_fps {sim.record_fps:g})")
+    advice = "lower sim.end_time or the chunk size (sim.chunk_size, --chunk-size)"
+    if in_memory:
+      needed += n_worlds * memory.stored_bytes_per_world(self.n_frames, len(self.scene.body_names),
+                                                         self.query_stride, len(world.METRIC_NAMES))
+      what = f"a bank of {n_worlds:,} worlds in memory and {what}"
+      advice = f"sample fewer worlds per call, or {advice}"
+    memory.check(needed, what, advice)
 
   def _assemble(self, ids, keys, results: list[ChunkResult], store) -> bank_lib.Bank:
     scene = self.scene

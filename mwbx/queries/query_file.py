@@ -37,6 +37,7 @@ from typing import Literal, NamedTuple, Union
 import pydantic
 import yaml
 
+from mwbx import yaml_input
 from mwbx.errors import MwbxError
 from mwbx.files import write_atomic
 from mwbx.queries.camera import Camera
@@ -228,11 +229,12 @@ def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
   path = os.fspath(path)
   try:
     with open(path) as f:
-      raw = yaml.safe_load(f)
+      text = f.read()
   except OSError as err:
     raise MwbxError(f"{path}: cannot read query file ({err.strerror})") from None
-  except yaml.YAMLError as err:
-    raise MwbxError(f"{path}: not valid YAML ({err})") from None
+  except UnicodeDecodeError as err:
+    raise MwbxError(f"{path}: not a text file ({err.reason})") from None
+  raw = yaml_input.load(text, path, malformed="not valid YAML")
   if raw is None:
     raw = {}
   if not isinstance(raw, dict):
@@ -243,7 +245,7 @@ def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
     # With unions, the deepest error is the one about the intended member.
     first = max(err.errors(), key=lambda e: len(e["loc"]))
     raise MwbxError(f"{path}: {_location(first['loc'])}: {first['msg']}"
-                    f" (got {first.get('input')!r})") from None
+                    f" (got {yaml_input.short_repr(first.get('input'))})") from None
   if model is None and bank is not None:
     model = bank.model()
   default_camera = None if spec.camera is None else _camera(spec.camera, "camera", path, model)
