@@ -49,7 +49,7 @@ CURRENT_TIME = "current time"
 
 def free_port(host: str = "127.0.0.1") -> int:
   """A TCP port nothing listens on now (the OS picks it)."""
-  with socket.socket() as s:
+  with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
     s.bind((host, 0))
     return int(s.getsockname()[1])
 
@@ -478,8 +478,11 @@ class Browser:
     except MwbxError as err:
       self.status_md.content = f"error: {err}"
       return
-    n = self.samples.value
-    n = int(n) if float(n) == int(n) else n  # the limits are checked by the session, not the browser
+    n = self.samples.value  # any number a client sends: the session checks it
+    try:
+      n = int(n) if float(n) == int(n) else n
+    except (TypeError, ValueError, OverflowError):
+      pass
     try:
       job = self.session.refine(world, objects, t_min=t_min, n_samples=n)
     except MwbxError as err:

@@ -46,7 +46,6 @@ class Guard:
     # one host (cookies ignore ports) each find their own.
     self.cookie = "mwbx-" + hashlib.sha256(self.token.encode()).hexdigest()[:16]
     self.installed = False
-    self.refused = 0
 
   def _token_of(self, request) -> tuple[bool, bool]:
     """(authorised, by the URL's token) for a websockets Request."""
@@ -78,7 +77,6 @@ class Guard:
     def guarded(connection, request):
       why = self.refusal(request)
       if why is not None:
-        self.refused += 1
         return connection.respond(http.HTTPStatus.FORBIDDEN,
                                   f"403 Forbidden: {why}. Open the URL mwbx browse printed (with ?token=...).\n")
       response = None if process_request is None else process_request(connection, request)
