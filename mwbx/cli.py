@@ -8,7 +8,7 @@
   mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N [--seed S] [--out DIR]
               [--scene NEW.yaml --add NAMES] [--remove NAMES]
   mwbx drop BANK IDS [--out DIR]
-  mwbx browse BANK [--port P] [--host 127.0.0.1] [--no-browser]
+  mwbx browse BANK [--port P] [--host 127.0.0.1] [--workdir DIR] [--autosave] [--no-browser]
 
 Worlds are named by their ids everywhere (what `query` lists).
 
@@ -408,7 +408,8 @@ def _cmd_browse(args) -> int:
   import mwbx
   from mwbx.browser import browse
   bank = _load_bank(args)
-  browse(bank, path=args.bank, host=args.host, port=args.port, open_browser=not args.no_browser)
+  browse(bank, path=args.bank, host=args.host, port=args.port, open_browser=not args.no_browser,
+         workdir=args.workdir, autosave=args.autosave)
   return 0
 
 
@@ -528,7 +529,10 @@ def build_parser() -> argparse.ArgumentParser:
   p = sub.add_parser("browse", help="browse a bank in the browser: draw boxes, sort, play, refine")
   p.add_argument("bank", help="bank directory")
   p.add_argument("--port", type=int, default=None, help="port to serve on (default: a free one)")
-  p.add_argument("--host", default="127.0.0.1", help="address to serve on")
+  p.add_argument("--host", default="127.0.0.1", help="address to serve on (not loopback: a warning)")
+  p.add_argument("--workdir", default=None, help="directory the page reads and writes query files in"
+                 " (default: BANK)")
+  p.add_argument("--autosave", action="store_true", help="on Ctrl-C, save the worlds refined on the page")
   p.add_argument("--no-browser", action="store_true", help="only print the URL")
   p.add_argument("--skip-corrupt", action="store_true",
                  help="open the bank without its corrupt shards (named on stderr)")

@@ -103,7 +103,8 @@ def main() -> None:
       sort_s.append(time.perf_counter() - start)
     with tempfile.TemporaryDirectory() as tmp:
       bank_dir = bank.save(pathlib.Path(tmp) / "bank")
-      qfile = page.session.save_queries(pathlib.Path(tmp) / "q.yaml")
+      page.session.workdir = pathlib.Path(tmp)  # the page's query files stay under its directory
+      qfile = page.session.save_queries("q.yaml")
       cli_s = []
       for _ in range(3):
         start = time.perf_counter()

@@ -1,7 +1,9 @@
 """`mwbx browse` in a real browser (Playwright driving Debian's chromium):
-drawn boxes give the counts mwbx.queries gives for the same frustum, undo,
-saved query files, the sorter plays worlds, refinement from the page, and the
-server stops on SIGINT and SIGTERM."""
+the page needs its token, drawn boxes give the counts mwbx.queries gives for
+the same frustum, undo, saved query files (and none outside the bank
+directory), the sorter plays worlds, refinement from the page (one at a time,
+cancellable), and the server stops on SIGINT and SIGTERM, naming the
+refinements not saved."""
 
 from __future__ import annotations
 
@@ -31,14 +33,19 @@ QUERY_LINE = re.compile(r"mwbx browse: query (\d+) (\w+) box=(\[[^\]]*\]) bodies
 WAIT = 300  # seconds: a loaded machine is slow, never wrong
 
 
+def _default_sigint():  # the suite may run with SIGINT ignored (nohup, background jobs)
+  signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Server:
-  """`mwbx browse BANK` in a subprocess, its stdout lines in a queue."""
+  """`mwbx browse BANK` in a subprocess, its stdout lines in a queue; ``url``
+  the address it printed (with its token)."""
 
   def __init__(self, bank_dir, cwd):
     self.port = free_port()
     self.proc = subprocess.Popen([sys.executable, "-m", "mwbx.cli", "browse", str(bank_dir), "--no-browser",
                                   "--port", str(self.port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                 text=True, cwd=cwd)
+                                 text=True, cwd=cwd, preexec_fn=_default_sigint)
     self.lines: queue.Queue = queue.Queue()
     self.stderr: list = []
     threading.Thread(target=self._read, args=(self.proc.stdout, self.lines.put), daemon=True).start()
@@ -47,6 +54,8 @@ class Server:
     while not any("browsing" in line for line in self.stderr):
       assert self.proc.poll() is None and time.monotonic() < deadline, self.stderr
       time.sleep(0.1)
+    self.url = re.search(r"browsing \d+ worlds at (\S+)", "\n".join(self.stderr)).group(1)
+    assert self.url == f"http://127.0.0.1:{self.port}/?token={self.url.split('=', 1)[1]}"
 
   @staticmethod
   def _read(stream, put):
@@ -105,7 +114,8 @@ def test_browse_page_draw_undo_save_sort_refine(browser, tmp_path):
     with sync_playwright() as pw:
       chromium = pw.chromium.launch(executable_path=CHROMIUM_BINARY, args=list(WEBGL_ARGS))
       page = chromium.new_page(viewport={"width": 1200, "height": 800})
-      page.goto(f"http://127.0.0.1:{server.port}", timeout=WAIT * 1000)
+      assert page.goto(f"http://127.0.0.1:{server.port}/", timeout=WAIT * 1000).status == 403  # no token
+      page.goto(server.url, timeout=WAIT * 1000)
       page.get_by_text("Draw include box").wait_for(timeout=WAIT * 1000)
       # A first box tells the camera the page looks through; undone.
       _arm(page, "include")
@@ -148,12 +158,30 @@ def test_browse_page_draw_undo_save_sort_refine(browser, tmp_path):
       page.get_by_text("Save queries").click()
       server.expect(r"saved .*queries\.yaml")
       report = subprocess.run([sys.executable, "-m", "mwbx.cli", "query", str(bank_dir),
-                               str(tmp_path / "out" / "queries.yaml"), "--json"],
+                               str(bank_dir / "queries.yaml"), "--json"],
                               capture_output=True, text=True, timeout=WAIT)
       assert report.returncode == 0, report.stderr
       counts = json.loads(report.stdout)
       assert counts["count"] == want_both
       assert [q["matches"] for q in counts["queries"]] == [int(first.group(13)), int(second.group(13))]
+      # No query file outside the bank directory, and no file's content on the page.
+      secret = "c2VjcmV0LXRva2VuLTEyMzQ1"
+      (tmp_path / "creds.yaml").write_text(f'{{"auths": {{"registry.example": {{"auth": "{secret}"}}}}}}\n')
+      (bank_dir / "creds.yaml").write_text(f'{{"auths": {{"registry.example": {{"auth": "{secret}"}}}}}}\n')
+      for name, button, why in (("../escaped/dir/pwned.yaml", "Save queries", "outside"),
+                                (str(tmp_path / "pwned.yaml"), "Save queries", "outside"),
+                                (str(tmp_path / "creds.yaml"), "Open queries", "outside"),
+                                ("creds.yaml", "Open queries", "not a query file")):
+        # (viser's text input is not tied to its label: found through the label's row)
+        page.locator("xpath=//label[text()='Query file']/ancestor::div[contains(@class, 'mantine-Flex-root')][1]"
+                     "//input").fill(name)
+        time.sleep(0.5)
+        page.get_by_text(button).click()
+        line = server.expect(rf"error: query file .*{why}").group(0)
+        assert secret not in line
+        page.get_by_text(re.compile(rf"error: query file .*{why}")).wait_for(timeout=WAIT * 1000)
+      assert not (tmp_path / "escaped").exists() and not (tmp_path / "pwned.yaml").exists()
+      assert secret not in page.content()
       # A sorter row plays its world.
       row = page.get_by_text(re.compile(r"^world \d+ · ")).first
       world = int(re.match(r"world (\d+)", row.inner_text()).group(1))
@@ -178,10 +206,26 @@ def test_browse_page_draw_undo_save_sort_refine(browser, tmp_path):
       assert int(done.group(3)) - int(done.group(2)) == 3
       page.get_by_text("Save bank").click()
       server.expect(r"saved ")
+      # One refinement at a time, and a cancelled one adds nothing.
+      page.get_by_label("Samples").fill("4096")
+      time.sleep(0.5)
+      page.get_by_text("Refine playing world").click()
+      server.expect(rf"refining \S+ of world {world} from .* 4096 samples")
+      page.get_by_text("Refine playing world").click()
+      server.expect(rf"error: refine: world {world} is being refined \(4096 samples\)")
+      page.get_by_text("Cancel refinement").click()
+      server.expect(rf"refinement of world {world} cancelled; nothing added")
+      # A refinement not saved is named when the server stops.
+      page.get_by_label("Samples").fill("2")
+      time.sleep(0.5)
+      page.get_by_text("Refine playing world").click()
+      lost = server.expect(r"refined world (\d+): new worlds (\d+)\.\.(\d+)")
       chromium.close()
   finally:
     if server.proc.poll() is None:
       server.stop()
+  assert any(f"2 refined worlds (ids {lost.group(2)}..{lost.group(3)}) were not saved" in line
+             for line in server.stderr), server.stderr
   grown = mwbx.Bank.load(bank_dir)
   assert grown.n_worlds == bank.n_worlds + 4
   assert grown.children(world).tolist() == list(range(int(done.group(2)), int(done.group(3)) + 1))

@@ -70,8 +70,9 @@ def test_query_files_round_trip(session, tmp_path):
   bank = session.bank
   for q in _boxes(bank):
     session.add(q)
-  path = session.save_queries(tmp_path / "q.yaml")
-  other = Session(bank)
+  session.workdir = tmp_path
+  path = session.save_queries("q.yaml")
+  other = Session(bank, workdir=tmp_path)
   other.open_queries(path)
   assert other.counts() == session.counts()
   from mwbx.queries.report import run_query_file

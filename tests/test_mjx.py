@@ -184,7 +184,9 @@ def test_ctrl_c_stops_mjx_sampling_between_blocks_and_keeps_finished_chunks(tmp_
   tiny = pathlib.Path(__file__).parent / "scenes" / "tiny.yaml"
   proc = subprocess.Popen([sys.executable, "-m", "mwbx.cli", "sample", str(tiny), "--backend", "mjx",
                            "--worlds", "64", "--chunk-size", "8", "--out", str(out)],
-                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          # the suite may run with SIGINT ignored (nohup, background jobs)
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
   try:
     deadline = time.monotonic() + 900
     while time.monotonic() < deadline and proc.poll() is None:

@@ -578,7 +578,9 @@ def test_cli_view_server_goes_with_its_parent(bank_dir, how):
   import time
 
   proc = subprocess.Popen([sys.executable, "-m", "mwbx.cli", "view", str(bank_dir), "--worlds", "0",
-                           "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                           "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          # the suite may run with SIGINT ignored (nohup, background jobs)
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
   children = []
   try:
     lines = []

@@ -9,6 +9,10 @@ queries as a query file and the bank as a new shard.
 
 Every query the page adds is also printed on stdout with its screen box and
 camera, so what the page computed can be checked from outside.
+
+Only a client holding the URL's token gets the page (:mod:`mwbx.browser.guard`);
+query files stay under the session's directory; refinements are limited and
+run one at a time (:class:`~mwbx.browser.session.Session`).
 """
 
 from __future__ import annotations
@@ -23,7 +27,8 @@ import mujoco
 import numpy as np
 
 from mwbx import queries as mq
-from mwbx.browser.session import REDUCTIONS, Session
+from mwbx.browser.guard import Guard, resolve_host, serve_guarded
+from mwbx.browser.session import MAX_REFINE_SAMPLES, REDUCTIONS, Session
 from mwbx.errors import MwbxError
 from mwbx.viewer import geometry as vgeom
 from mwbx.viewer import triangles
@@ -45,7 +50,7 @@ CURRENT_TIME = "current time"
 
 def free_port(host: str = "127.0.0.1") -> int:
   """A TCP port nothing listens on now (the OS picks it)."""
-  with socket.socket() as s:
+  with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
     s.bind((host, 0))
     return int(s.getsockname()[1])
 
@@ -83,14 +88,23 @@ class Browser:
 
   Args:
     session: what is browsed.
-    host, port: where the page is served (port None: a free one).
+    host, port: where the page is served (port None: a free one; a busy one:
+      the next free one, see ``port`` and ``requested_port``).
+
+  Attributes:
+    url: the page's address with its token (what to open).
+    loopback: whether ``host`` is reachable from this machine only.
   """
 
   def __init__(self, session: Session, host: str = "127.0.0.1", port: int | None = None):
     import viser
     self.session = session
-    self.port = free_port(host) if port is None else int(port)
-    self.server = viser.ViserServer(host=host, port=self.port, label="mwbx", verbose=False)
+    self.loopback = resolve_host(host)
+    self.guard = Guard()
+    self.requested_port = free_port(host) if port is None else int(port)
+    self.server = serve_guarded(
+        lambda: viser.ViserServer(host=host, port=self.requested_port, label="mwbx", verbose=False), self.guard)
+    self.port = int(self.server.get_port())  # viser moves on to the next port when this one is busy
     self.host = host
     self.model = session.bank.model()
     self.visuals = vgeom.scene_visuals(self.model)
@@ -107,7 +121,8 @@ class Browser:
 
   @property
   def url(self) -> str:
-    return f"http://{self.host}:{self.port}"
+    host = f"[{self.host}]" if ":" in self.host else self.host
+    return f"http://{host}:{self.port}/?token={self.guard.token}"
 
   # -- scene ------------------------------------------------------------------------------
 
@@ -232,12 +247,13 @@ class Browser:
       redo = gui.add_button("Redo")
       undo.on_click(lambda _: self.session.undo() and self.refresh())
       redo.on_click(lambda _: self.session.redo() and self.refresh())
-      self.query_file = gui.add_text("Query file", "out/queries.yaml")
+      self.query_file = gui.add_text("Query file", "queries.yaml",
+                                     hint=f"a .yaml file under {self.session.query_dir}")
       save_q = gui.add_button("Save queries")
       open_q = gui.add_button("Open queries")
       save_q.on_click(lambda _: self._report(lambda: f"saved {self.session.save_queries(self.query_file.value)}"))
       open_q.on_click(lambda _: self._report(lambda: self.session.open_queries(self.query_file.value)
-                                             or f"opened {self.query_file.value}"))
+                                             or f"opened {self.query_file.value.strip()}"))
     with gui.add_folder("Sorter"):
       self.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS,),
                                      initial_value=bank.metric_names[0])
@@ -258,9 +274,12 @@ class Browser:
       self.objects = gui.add_dropdown("Objects", tuple(bank.objects) + tuple(bank.groups),
                                       initial_value=next(iter(bank.objects)))
       self.start = gui.add_dropdown("From", (CURRENT_TIME, FIRST_ENTRY), initial_value=CURRENT_TIME)
-      self.samples = gui.add_number("Samples", 16, min=1, max=4096, step=1)
+      self.samples = gui.add_number("Samples", 16, min=1, max=MAX_REFINE_SAMPLES, step=1,
+                                    hint=f"1 to {MAX_REFINE_SAMPLES}")
       refine = gui.add_button("Refine playing world")
       refine.on_click(lambda _: self._refine())
+      cancel = gui.add_button("Cancel refinement")
+      cancel.on_click(lambda _: self._cancel())
       self.progress = gui.add_progress_bar(0.0, visible=False)
       parent = gui.add_button("Go to parent")
       parent.on_click(lambda _: self._parent())
@@ -447,8 +466,16 @@ class Browser:
     except MwbxError as err:
       self.status_md.content = f"error: {err}"
       return
-    n = int(self.samples.value)
-    job = self.session.refine(world, objects, t_min=t_min, n_samples=n)
+    n = self.samples.value  # any number a client sends: the session checks it
+    try:
+      n = int(n) if float(n) == int(n) else n
+    except (TypeError, ValueError, OverflowError):
+      pass
+    try:
+      job = self.session.refine(world, objects, t_min=t_min, n_samples=n)
+    except MwbxError as err:
+      self._say(f"error: {err}")
+      return
     self.progress.visible = True
     print(f"mwbx browse: refining {objects} of world {world} from {t_min:.4f} s, {n} samples", flush=True)
 
@@ -457,7 +484,9 @@ class Browser:
         if job.progress is not None:
           self.progress.value = 100.0 * job.progress.done / max(1, job.progress.total)
       self.progress.visible = False
-      if job.error:
+      if job.cancelled:
+        message = f"refinement of world {world} cancelled; nothing added"
+      elif job.error:
         message = f"error: {job.error}"
       else:
         ids = job.new_ids
@@ -468,6 +497,14 @@ class Browser:
 
     threading.Thread(target=watch, daemon=True, name="mwbx-refine-watch").start()
 
+  def _cancel(self) -> None:
+    job = self.session.cancel()
+    self._say("no refinement is running" if job is None else f"cancelling the refinement of world {job.world}")
+
+  def _say(self, message: str) -> None:
+    self.status_md.content = message
+    print(f"mwbx browse: {message}", flush=True)
+
   def _parent(self) -> None:
     if self.playing_world is None:
       return
@@ -477,6 +514,29 @@ class Browser:
     else:
       self.play(parent)
 
+  def leave(self, autosave: bool = False) -> list[str]:
+    """What is left when the page goes away: a running refinement is
+    cancelled, refined worlds not saved are saved (``autosave``) or named.
+    Returns the lines to tell the user."""
+    lines = []
+    job = self.session.cancel()
+    if job is not None:
+      lines.append(f"the refinement of world {job.world} still running was cancelled")
+      job.done.wait(timeout=60)
+    unsaved = list(self.session.unsaved)
+    if not unsaved:
+      return lines
+    span = f"{len(unsaved)} refined world{'s' if len(unsaved) > 1 else ''} (ids {unsaved[0]}..{unsaved[-1]})"
+    if autosave and self.session.path is not None:
+      try:
+        lines.append(f"saved {span} to {self.session.save()}")
+      except MwbxError as err:
+        lines.append(f"could not save {span}: {err}")
+    else:
+      lines.append(f"{span} were not saved and are gone (Save bank on the page keeps them; --autosave saves"
+                   " them on exit)")
+    return lines
+
   def close(self) -> None:
     """Stops playback and the server."""
     self._stop.set()
@@ -484,8 +544,13 @@ class Browser:
 
 
 def browse(bank, *, path=None, host: str = "127.0.0.1", port: int | None = None,
-           open_browser: bool = False, block: bool = True) -> Browser:
+           open_browser: bool = False, block: bool = True, workdir=None, autosave: bool = False) -> Browser:
   """Serves the browsing page for ``bank`` (``path``: its directory, for saving).
+
+  Args:
+    workdir: where the page's query files live (default: ``path``).
+    autosave: on Ctrl-C, save the worlds refined on the page and not saved
+      (else they are named as lost).
 
   Returns the :class:`Browser`; with ``block`` it serves until Ctrl-C and stops.
 
@@ -493,7 +558,15 @@ def browse(bank, *, path=None, host: str = "127.0.0.1", port: int | None = None,
 
     mwbx.browse(mwbx.Bank.load("out/quickstart"), path="out/quickstart")
   """
-  page = Browser(Session(bank, None if path is None else pathlib.Path(path)), host=host, port=port)
+  path = None if path is None else pathlib.Path(path)
+  session = Session(bank, path, None if workdir is None else pathlib.Path(workdir))
+  page = Browser(session, host=host, port=port)
+  if not page.loopback:
+    print(f"mwbx: warning: --host {host} is not a loopback address: anyone who can reach port {page.port} there"
+          " and holds the token can use the page (it runs refinements and writes query files under"
+          f" {session.query_dir}); the token travels unencrypted", file=sys.stderr, flush=True)
+  if page.port != page.requested_port:
+    print(f"mwbx: port {page.requested_port} is busy; serving on port {page.port}", file=sys.stderr, flush=True)
   print(f"mwbx: browsing {bank.n_worlds} worlds at {page.url}", file=sys.stderr, flush=True)
   if open_browser:
     import webbrowser
@@ -505,5 +578,7 @@ def browse(bank, *, path=None, host: str = "127.0.0.1", port: int | None = None,
     except KeyboardInterrupt:
       pass
     finally:
+      for line in page.leave(autosave):
+        print(f"mwbx: {line}", file=sys.stderr, flush=True)
       page.close()
   return page

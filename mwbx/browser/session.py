@@ -22,6 +22,10 @@ from mwbx.progress import Progress
 REDUCTIONS = ("sum", "max")
 # The sorter lists at most this many worlds.
 SORTER_ROWS = 20
+# Refined worlds one refinement of a session may ask for (the page's limit,
+# checked here: a client can send any number).
+MAX_REFINE_SAMPLES = 4096
+QUERY_SUFFIXES = (".yaml", ".yml")
 
 
 class Entry(NamedTuple):
@@ -50,19 +54,57 @@ class SorterRow(NamedTuple):
   parent: int
 
 
+class RefineCancelled(Exception):
+  """Raised inside a refinement's progress callback to stop it."""
+
+
 class RefineJob:
   """A refinement running in a background thread (see :meth:`Session.refine`).
 
   Attributes:
+    world, n_samples: what it refines.
     progress: the last :class:`mwbx.progress.Progress` it reported (or None).
-    new_ids: the ids it added, once done. error: its MwbxError message, if any.
+    new_ids: the ids it added, once done. error: why it failed, if it did
+      (any exception, named, not only MwbxError). cancelled: it was stopped by
+      :meth:`cancel` and added nothing.
   """
 
-  def __init__(self):
+  def __init__(self, world: int, n_samples: int):
+    self.world, self.n_samples = int(world), int(n_samples)
     self.progress: Progress | None = None
     self.new_ids: np.ndarray | None = None
     self.error: str | None = None
+    self.cancelled = False
     self.done = threading.Event()
+    self._cancel = threading.Event()
+
+  def cancel(self) -> None:
+    """Stops the refinement at its next progress report (the worlds being
+    stepped finish first); nothing joins the bank."""
+    self._cancel.set()
+
+  def _report(self, progress: Progress) -> None:
+    if self._cancel.is_set():
+      raise RefineCancelled
+    self.progress = progress
+
+
+def query_file_path(workdir, name) -> pathlib.Path:
+  """The query file ``name`` (relative to ``workdir``, or absolute) as an
+  absolute path, refused unless it is a .yaml/.yml file under ``workdir``
+  (symbolic links followed)."""
+  if workdir is None:
+    raise MwbxError("query files: this session has no directory to keep them in (pass path= or workdir=)")
+  root = pathlib.Path(workdir).resolve()
+  raw = str(name).strip()
+  if not raw:
+    raise MwbxError("query file: give a file name, e.g. queries.yaml")
+  full = (root / raw).resolve()
+  if full == root or not full.is_relative_to(root):
+    raise MwbxError(f"query file {raw!r}: outside {root}; query files stay under that directory")
+  if full.suffix.lower() not in QUERY_SUFFIXES:
+    raise MwbxError(f"query file {raw!r}: the name must end in .yaml or .yml")
+  return full
 
 
 @dataclasses.dataclass
@@ -72,6 +114,8 @@ class Session:
   Args:
     bank: the bank (refinements append to it).
     path: where it is saved (``save()``), or None.
+    workdir: the directory query files are read from and written to, and
+      nowhere else (default: ``path``; neither: no query files).
 
   Example::
 
@@ -83,11 +127,14 @@ class Session:
 
   bank: object
   path: pathlib.Path | None = None
+  workdir: pathlib.Path | None = None
   entries: list = dataclasses.field(default_factory=list)
   _undo: list = dataclasses.field(default_factory=list)
   _redo: list = dataclasses.field(default_factory=list)
   _lock: threading.Lock = dataclasses.field(default_factory=threading.Lock)
   _cache: tuple | None = None
+  job: RefineJob | None = None
+  unsaved: list = dataclasses.field(default_factory=list)  # ids refined here and not saved yet
 
   # -- the query stack -----------------------------------------------------------------
 
@@ -191,12 +238,27 @@ class Session:
     """The enabled queries as a QuerySet (``.save(path)`` writes a query file)."""
     return mq.QuerySet(self.enabled)
 
-  def save_queries(self, path) -> str:
-    return self.query_set().save(path)
+  @property
+  def query_dir(self) -> pathlib.Path | None:
+    """Where query files are kept (``workdir``, else the bank directory)."""
+    return self.workdir if self.workdir is not None else self.path
 
-  def open_queries(self, path) -> None:
-    """Replaces the stack with a query file's queries (undo brings the old one back)."""
-    loaded = mq.load_queries(path, self.bank)
+  def save_queries(self, name) -> str:
+    """Writes the enabled queries to ``name`` under :attr:`query_dir`; returns its path."""
+    return self.query_set().save(query_file_path(self.query_dir, name))
+
+  def open_queries(self, name) -> None:
+    """Replaces the stack with the queries of file ``name`` under
+    :attr:`query_dir` (undo brings the old one back). Errors name the file,
+    never its content (the page shows them to every client)."""
+    full = query_file_path(self.query_dir, name)
+    if not full.is_file():
+      raise MwbxError(f"query file {str(name).strip()!r}: no such file under {self.query_dir}")
+    try:
+      loaded = mq.load_queries(full, self.bank)
+    except MwbxError:
+      raise MwbxError(f"query file {str(name).strip()!r}: not a query file for this bank (`mwbx query BANK"
+                      f" {full}` says why)") from None
     self._push()
     self.entries = [Entry(q) for q in loaded.queries]
 
@@ -205,7 +267,9 @@ class Session:
     if self.path is None:
       raise MwbxError("save: this session has no bank directory (pass path=)")
     with self._lock:
-      return self.bank.save(self.path)
+      out = self.bank.save(self.path)
+      self.unsaved.clear()
+      return out
 
   # -- refinement --------------------------------------------------------------------------
 
@@ -224,19 +288,39 @@ class Session:
   def refine(self, world: int, objects, *, t_min: float, n_samples: int, key=None,
              backend: str | None = None, wait: bool = False) -> RefineJob:
     """Refines ``objects`` of world ``world`` from ``t_min`` in a background
-    thread; the new worlds join the bank when it is done (``job.done``)."""
+    thread; the new worlds join the bank when it is done (``job.done``).
+
+    Raises:
+      MwbxError: ``n_samples`` outside 1..MAX_REFINE_SAMPLES, or another
+        refinement of this session still running (one at a time).
+    """
     from mwbx.refinement import refine_run
-    job = RefineJob()
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
+        or not 1 <= n_samples <= MAX_REFINE_SAMPLES:
+      raise MwbxError(f"refine: samples must be a whole number from 1 to {MAX_REFINE_SAMPLES}, got {n_samples!r}")
+    with self._lock:
+      running = self.job
+      if running is not None and not running.done.is_set():
+        raise MwbxError(f"refine: world {running.world} is being refined ({running.n_samples} samples);"
+                        " wait for it or cancel it")
+      job = self.job = RefineJob(world, n_samples)
 
     def work():
       try:
-        new, _ = refine_run(self.bank, world, objects, t_min=t_min, n_samples=n_samples, key=key,
-                            backend=backend, progress=lambda p: setattr(job, "progress", p))
+        new, _ = refine_run(self.bank, world, objects, t_min=t_min, n_samples=int(n_samples), key=key,
+                            backend=backend, progress=job._report)
+        if job._cancel.is_set():
+          raise RefineCancelled
         with self._lock:
           self.bank = self.bank.append(new)
+          self.unsaved.extend(int(i) for i in np.asarray(new.world_ids))
         job.new_ids = np.asarray(new.world_ids)
+      except RefineCancelled:
+        job.cancelled = True
       except MwbxError as err:
         job.error = str(err)
+      except Exception as err:  # noqa: BLE001 - e.g. MemoryError: reported on the page, not lost in a thread
+        job.error = f"{type(err).__name__}: {str(err) or 'out of memory'}"[:500]
       finally:
         job.done.set()
 
@@ -244,6 +328,14 @@ class Session:
     thread.start()
     if wait:
       job.done.wait()
+    return job
+
+  def cancel(self) -> RefineJob | None:
+    """Cancels the running refinement (None: none was running)."""
+    job = self.job
+    if job is None or job.done.is_set():
+      return None
+    job.cancel()
     return job
 
   def parent(self, world: int) -> int | None:

@@ -5,6 +5,11 @@ a signal (and keeps its port). Here the server is started the same way but
 asks the kernel (Linux ``PR_SET_PDEATHSIG``) to be sent SIGTERM when its
 parent dies, and :class:`LiveView` stops it on ``close()``, on exit from a
 ``with`` block, and at interpreter exit.
+
+meshcat's own server listens for browsers on every interface (while printing
+a 127.0.0.1 URL); this one serves on loopback only (``_SERVE``), and its URL
+is the one it really bound (meshcat moves on to the next port when 7000 is
+busy, and says so). Tornado refuses websockets from other origins.
 """
 
 from __future__ import annotations
@@ -22,6 +27,22 @@ from meshcat.servers.zmqserver import match_web_url, match_zmq_url
 from mwbx.viewer.errors import ViewerError
 
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+LOOPBACK = "127.0.0.1"
+# meshcat's server entry point with its web server bound to loopback (its
+# ZMQ socket already is): the app's listen() gets the address meshcat leaves out.
+_SERVE = f"""
+from meshcat.servers import zmqserver
+
+class LoopbackBridge(zmqserver.ZMQWebSocketBridge):
+  def make_app(self):
+    app = super().make_app()
+    listen = app.listen
+    app.listen = lambda port, **kwargs: listen(port, address={LOOPBACK!r}, **kwargs)
+    return app
+
+zmqserver.ZMQWebSocketBridge = LoopbackBridge
+zmqserver.main()
+"""
 
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
@@ -35,7 +56,7 @@ def start_server() -> tuple[subprocess.Popen, str, str]:
   """(process, zmq url, web url) of a new meshcat server that dies with this process."""
   env = dict(os.environ)
   env["PYTHONPATH"] = os.path.dirname(os.path.dirname(os.path.dirname(meshcat.__file__)))
-  proc = subprocess.Popen([sys.executable, "-u", "-m", "meshcat.servers.zmqserver"],
+  proc = subprocess.Popen([sys.executable, "-u", "-c", _SERVE],
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                           start_new_session=True, preexec_fn=_die_with_parent)
   line = ""
