@@ -139,6 +139,12 @@ def test_rates_chosen_for_each_timestep_are_whole_steps_nearest_120():
     assert (r.record_fps, r.query_fps) == (120.0, 30.0)
 
 
+def test_null_rates_are_chosen(tmp_path):
+  scene = mwbx.Scene(mwbx.load_config(only_mjcf(tmp_path, 0.02, ", record_fps: null, query_fps: null")))
+  assert (scene.rates.record_fps, scene.rates.query_fps) == (50.0, 25.0)
+  assert (scene.config.sim.record_fps, scene.config.sim.query_fps) == (50.0, 25.0)
+
+
 def test_rates_the_config_sets_are_kept(tmp_path):
   scene = mwbx.Scene(mwbx.load_config(only_mjcf(tmp_path, 0.002, ", record_fps: 100")))
   assert (scene.rates.steps_per_frame, scene.rates.record_fps) == (5, 100.0)
