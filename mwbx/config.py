@@ -101,11 +101,11 @@ class SimSection(_Strict):
       ``<option timestep>`` (the physics as its author wrote it).
     end_time: a world stops recording at this time if not at rest, seconds.
     record_fps: rate of the stored ``qpos`` frames, Hz; a frame is a whole
-      number of physics steps. Unset: chosen from the timestep, nearest to
-      120 (:mod:`mwbx.rates`; the 120 here is what a timestep dividing 1/120 s
-      gets).
+      number of physics steps. Unset (or null): chosen from the timestep,
+      nearest to 120 (:mod:`mwbx.rates`; the 120 here is what a timestep
+      dividing 1/120 s gets).
     query_fps: rate of the COM polylines used by queries; a whole number of
-      frames apart. Unset: chosen nearest to 30.
+      frames apart. Unset (or null): chosen nearest to 30.
     backend: ``auto`` (mjx on GPU/TPU, native on CPU), ``mjx`` or ``native``.
     mjx_impl: ``jax``, ``warp`` or ``auto`` (warp when importable on a GPU).
     chunk_size: worlds simulated per batch, then compressed together and
@@ -118,8 +118,8 @@ class SimSection(_Strict):
 
   timestep: float | None = pydantic.Field(None, gt=0)
   end_time: float = pydantic.Field(4.0, gt=0)
-  record_fps: float = pydantic.Field(120.0, gt=0)
-  query_fps: float = pydantic.Field(30.0, gt=0)
+  record_fps: float | None = pydantic.Field(120.0, gt=0)
+  query_fps: float | None = pydantic.Field(30.0, gt=0)
   backend: Literal["auto", "mjx", "native"] = "auto"
   mjx_impl: Literal["auto", "jax", "warp"] = "auto"
   chunk_size: int = pydantic.Field(256, gt=0)

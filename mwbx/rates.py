@@ -88,7 +88,8 @@ def resolve(config: Config, timestep: float) -> Rates:
 
   Args:
     config: the validated config; ``sim.record_fps`` and ``sim.query_fps``
-      count as set when its YAML (or a copy made with them) names them.
+      count as set when its YAML (or a copy made with them) names them with a
+      number (null: choose).
     timestep: the physics step the scene runs at, s (``sim.timestep`` if
       set, else the MJCF's ``<option timestep>``).
 
@@ -106,7 +107,8 @@ def resolve(config: Config, timestep: float) -> Rates:
   step_text = f"{step_name} = {timestep:g} s"
   if not (timestep > 0 and math.isfinite(timestep)):
     raise MwbxError(f"{source}: {step_text}: must be a positive number of seconds")
-  record_set, query_set = "record_fps" in given, "query_fps" in given
+  record_set = "record_fps" in given and sim.record_fps is not None
+  query_set = "query_fps" in given and sim.query_fps is not None
   if record_set:
     steps = _whole(1.0 / (sim.record_fps * timestep))
     if steps is None:

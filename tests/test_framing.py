@@ -1,8 +1,6 @@
 """The first view frames every body's paths from outside them, in the viewer
 and the page, and never takes its direction from a camera that follows a body."""
 
-import pathlib
-
 import jax
 import mujoco
 import numpy as np

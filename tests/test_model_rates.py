@@ -139,6 +139,12 @@ def test_rates_chosen_for_each_timestep_are_whole_steps_nearest_120():
     assert (r.record_fps, r.query_fps) == (120.0, 30.0)
 
 
+def test_null_rates_are_chosen(tmp_path):
+  scene = mwbx.Scene(mwbx.load_config(only_mjcf(tmp_path, 0.02, ", record_fps: null, query_fps: null")))
+  assert (scene.rates.record_fps, scene.rates.query_fps) == (50.0, 25.0)
+  assert (scene.config.sim.record_fps, scene.config.sim.query_fps) == (50.0, 25.0)
+
+
 def test_rates_the_config_sets_are_kept(tmp_path):
   scene = mwbx.Scene(mwbx.load_config(only_mjcf(tmp_path, 0.002, ", record_fps: 100")))
   assert (scene.rates.steps_per_frame, scene.rates.record_fps) == (5, 100.0)
@@ -183,3 +189,27 @@ def test_cli_prints_the_rates_on_one_line(tmp_path):
   bank = mwbx.Bank.load(out)
   assert (bank.record_fps, bank.timestep) == (100.0, 0.005)
   assert math.isclose(bank.query_fps, 100 / 3)
+
+
+def test_a_bank_at_chosen_rates_saves_loads_and_refines(tmp_path):
+  # 0.005 s: 2 steps a frame at 100 fps; the bank's own config states them.
+  scene = mwbx.Scene(mwbx.load_config(only_mjcf(tmp_path, 0.005)))
+  bank = mwbx.sample(scene, n_worlds=2, key=jax.random.key(1), backend="native")
+  bank.save(tmp_path / "bank")
+  loaded = mwbx.Bank.load(tmp_path / "bank")
+  assert (loaded.record_fps, loaded.timestep) == (100.0, 0.005)
+  parent = int(loaded.world_ids[0])
+  refined = mwbx.refine(loaded, parent, ["arm"], t_min=0.1, n_samples=2, key=jax.random.key(2),
+                        backend="native")
+  new = refined.world_ids[refined.parent_world == parent]
+  assert new.size == 2 and refined.record_fps == 100.0
+  f0 = 10  # 0.1 s at 100 fps
+  before = loaded.qpos_frames(parent)
+  for world in new:
+    after = refined.qpos_frames(int(world))
+    assert after.shape == before.shape
+    # Up to t_min every frame is the parent's; the free bodies never touch
+    # the arm, so they keep their stored paths to the end.
+    np.testing.assert_allclose(after[:f0 + 1], before[:f0 + 1], atol=2e-3)
+    free = scene.model.jnt_qposadr[scene.model.body_jntadr[scene.model.body("ball").id]]
+    np.testing.assert_allclose(after[:, free:free + 3], before[:, free:free + 3], atol=2e-3)
