@@ -33,7 +33,6 @@ from mwbx.progress import reporter
 def _cmd_sample(args) -> int:
   import uuid
 
-  import jax
   import numpy as np
   import mwbx
   from mwbx import distributed
@@ -191,7 +190,6 @@ class _RunSummary:
 
 
 def _cmd_info(args) -> int:
-  import mwbx
   if args.verify:  # read every array of every shard, not only what the summary needs
     from mwbx.bank import shards
     problems = shards.verify(args.bank) if shards.has_manifest(pathlib.Path(args.bank)) else []
@@ -293,7 +291,6 @@ def _cmd_view(args) -> int:
 
 
 def _cmd_query(args) -> int:
-  import mwbx
   from mwbx.queries.report import run_query_file
   bank = _load_bank(args)
   report = run_query_file(bank, args.queries, rank=args.rank, top=args.top, under=args.under)
@@ -303,7 +300,6 @@ def _cmd_query(args) -> int:
 
 def _cmd_refine(args) -> int:
   import jax
-  import mwbx
   from mwbx.refinement import refine_run
   from mwbx.refinement.refine import as_scene
   bank = _load_bank(args)
@@ -390,7 +386,6 @@ def _cmd_solve(args) -> int:
 
 
 def _cmd_drop(args) -> int:
-  import mwbx
   from mwbx.viewer.select import parse_world_ids
   bank = _load_bank(args)
   from mwbx.bank.shards import id_ranges
@@ -405,7 +400,6 @@ def _cmd_drop(args) -> int:
 
 
 def _cmd_browse(args) -> int:
-  import mwbx
   from mwbx.browser import browse
   bank = _load_bank(args)
   browse(bank, path=args.bank, host=args.host, port=args.port, open_browser=not args.no_browser,

@@ -8,10 +8,12 @@ processes (`python -m mwbx.cli ...`), started together."""
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import pathlib
 import shutil
+import signal
 import subprocess
 import sys
 import textwrap
@@ -124,14 +126,23 @@ def test_a_live_run_is_not_resumed_by_another(small_bank):
       if len(_manifest(small_bank)["shards"]) > 2:
         break
       time.sleep(0.01)
+    # Paused (alive, its worlds unfinished) for as long as the second run takes; never inside
+    # a manifest update (the bank's lock held here), which would hold the second run up.
+    with open(small_bank / ".lock", "a+b") as lock:
+      fcntl.flock(lock, fcntl.LOCK_EX)
+      os.kill(long.pid, signal.SIGSTOP)
+      fcntl.flock(lock, fcntl.LOCK_UN)
     assert long.poll() is None, "the long run finished before the second one started"
+    assert sum(e["worlds"] for e in _manifest(small_bank)["shards"]) < 44
     short = subprocess.run(_sample_argv(small_bank, 4), capture_output=True, text=True, timeout=1200)
     assert short.returncode == 0, short.stderr
     assert "resuming" not in short.stderr and "sampling 4 worlds" in short.stderr
+    os.kill(long.pid, signal.SIGCONT)
     rc, _, err = _finish(long, 1200)
     assert rc == 0, err
   finally:
     if long.poll() is None:
+      os.kill(long.pid, signal.SIGCONT)
       long.kill()
       long.wait()
   bank = mwbx.Bank.load(small_bank)

@@ -393,6 +393,11 @@ class Bank:
         banks larger than memory open at once and queries stream over their
         shards. ``lazy=False`` reads and checks everything now.
 
+    The bank remembers the ids it was loaded with (``bank.origin``): saving it
+    back adds its new worlds and drops only the ids it dropped, whatever other
+    processes wrote meanwhile. Shards holding one id twice, and shard names
+    that are paths, are errors naming them.
+
     Example:
       >>> bank = mwbx.Bank.load("out/pachinko")           # manifest + metrics only
       >>> hits = mwbx.evaluate(bank, queries)               # a shard at a time

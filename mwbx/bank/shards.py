@@ -37,7 +37,6 @@ import json
 import os
 import pathlib
 import re
-import shutil
 import typing
 import uuid
 
