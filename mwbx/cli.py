@@ -386,9 +386,9 @@ def _cmd_solve(args) -> int:
 
 
 def _cmd_drop(args) -> int:
+  from mwbx.bank.shards import id_ranges
   from mwbx.viewer.select import parse_world_ids
   bank = _load_bank(args)
-  from mwbx.bank.shards import id_ranges
   ids = parse_world_ids(args.ids, flag="IDS", known=bank.world_ids)
   kept = bank.drop(ids)
   out = pathlib.Path(args.out or args.bank)

@@ -99,6 +99,26 @@ def world_keys(key: jax.Array, world_ids: np.ndarray) -> tuple[jax.Array, jax.Ar
   return keys, split[:, 0], split[:, 1]
 
 
+def per_world(fn):
+  """``fn`` of one world, applied to a batch so that each world's result does
+  not depend on the batch: ``xs[W, ...] -> fn(xs[i])`` stacked.
+
+  lax.map, not vmap: XLA vectorizes a vmapped batch and rounds the worlds of
+  a partial SIMD vector differently (one world in 30 of a crate pile moved by
+  an ulp with the batch size, and its metrics with it); a scan runs one
+  world's program for every world. A batch of one runs as two: XLA inlines a
+  one-trip loop and compiles that differently again.
+  """
+  mapped = jax.jit(lambda xs: jax.lax.map(fn, xs))
+
+  def call(xs):
+    if len(xs) != 1:
+      return mapped(xs)
+    return jax.tree_util.tree_map(lambda x: x[:1], mapped(xs[np.zeros(2, np.int64)]))
+
+  return call
+
+
 class Sampler:
   """A scene bound to a backend, reusable across runs (compiled once).
 
@@ -136,12 +156,8 @@ class Sampler:
       from mwbx.batch_sim.native_backend import NativeBackend
       self.backend = NativeBackend(model, cfg.sim.threads)
       self.backend_label = "native"
-    # lax.map, not vmap: XLA vectorizes a vmapped batch and rounds the worlds
-    # of a partial SIMD vector differently (one world in 30 of a crate pile
-    # moved by an ulp with the batch size, and its metrics with it); a scan
-    # runs one world's program for every world, in any batch.
-    self._init = jax.jit(lambda keys: jax.lax.map(self.scene.initial_state, keys))
-    self._init_from_noise = jax.jit(lambda noise: jax.lax.map(self.scene.initial_state_from_noise, noise))
+    self._init = per_world(self.scene.initial_state)
+    self._init_from_noise = per_world(self.scene.initial_state_from_noise)
 
   def close(self) -> None:
     self.backend.close()
