@@ -90,6 +90,26 @@ def _per_world(tree, path) -> bool:
   return warp_types._BATCH_DIM["Data"].get(tree_path_to_attr_str(path), True)  # pylint: disable=protected-access
 
 
+def backend_for(scene, impl: str = "jax", budget: contact_budget.ContactBudget | None = None,
+                devices=None) -> "MjxBackend":
+  """The MJX backend of a scene under a contact budget (the entry point for
+  sampling and benchmarks: ``backend.make_data`` and ``backend.step`` are one
+  budgeted batched step, ``backend.overflow`` its flag).
+
+  Args:
+    scene: the :class:`mwbx.scene.Scene` (its model's timestep is used).
+    impl: ``jax`` or ``warp``.
+    budget: the budget (default: the config's ``sim.mjx`` values, the rest
+      from :func:`contact_budget.pilot`).
+    devices: as for :class:`MjxBackend`.
+  """
+  if budget is None:
+    budget = contact_budget.resolve(scene, scene.config.sim.mjx)
+  # impl jax reads its caps from the model's numerics; warp sizes its pools from the budget.
+  model = contact_budget.budgeted_model(scene, budget) if impl == "jax" else scene.model
+  return MjxBackend(model, impl, devices, budget=budget)
+
+
 class MjxBackend:
   """MJX model on the default device plus the compiled block function.
 

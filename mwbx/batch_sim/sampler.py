@@ -115,15 +115,13 @@ class Sampler:
     self.contact_budget = None
     if self.backend_name == "mjx":
       from mwbx.batch_sim import contact_budget as budget_lib
-      from mwbx.batch_sim.mjx_backend import MjxBackend
+      from mwbx.batch_sim.mjx_backend import backend_for
       impl = resolve_mjx_impl(cfg.sim.mjx_impl)
       budget = contact_budget
       if isinstance(budget, dict):
         budget = budget_lib.ContactBudget.from_dict(budget)
-      self.contact_budget = budget if budget is not None else budget_lib.resolve(self.scene, cfg.sim.mjx)
-      # impl jax reads its caps from the model's numerics; warp sizes its pools from the budget.
-      mjx_model = budget_lib.budgeted_model(self.scene, self.contact_budget) if impl == "jax" else model
-      self.backend = MjxBackend(mjx_model, impl, budget=self.contact_budget)
+      self.backend = backend_for(self.scene, impl, budget)
+      self.contact_budget = self.backend.budget
       self.backend_label = f"mjx:{impl}"
     else:
       from mwbx.batch_sim.native_backend import NativeBackend

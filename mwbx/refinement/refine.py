@@ -208,12 +208,13 @@ _SAMPLERS: dict = {}
 def sampler_for(bank, backend: str | None = None) -> Sampler:
   """A sampler for the bank's scene, kept for later refinements of that scene
   (its thread pool and compiled kernels are reused)."""
-  cache_key = (bank.digest, backend)
+  # MJX refines under the contact budget its bank was sampled with, if any.
+  budget = bank.run.get("contact_budget")
+  cache_key = (bank.digest, backend, None if budget is None else tuple(sorted(budget.items())))
   if cache_key not in _SAMPLERS:
     if len(_SAMPLERS) >= 4:
       _SAMPLERS.pop(next(iter(_SAMPLERS))).close()
-    # MJX refines under the contact budget its bank was sampled with, if any.
-    _SAMPLERS[cache_key] = Sampler(_scene_of(bank), backend, contact_budget=bank.run.get("contact_budget"))
+    _SAMPLERS[cache_key] = Sampler(_scene_of(bank), backend, contact_budget=budget)
   return _SAMPLERS[cache_key]
 
 
