@@ -182,3 +182,20 @@ def test_config_rejects_a_bad_budget(tmp_path):
   path.write_text(PILE.read_text().replace("sim: {", "sim: {mjx: {max_contact_points: 0}, "))
   with pytest.raises(mwbx.MwbxError, match=r"sim\.mjx\.max_contact_points"):
     mwbx.load_config(path)
+
+
+def test_info_prints_the_budget_and_counts_flagged_worlds(tiny_native_bank, tmp_path, capsys):
+  import dataclasses
+  from mwbx import cli
+  flags = tiny_native_bank.flags.copy()
+  flags[:3] |= mwbx.FLAG_CONTACT_OVERFLOW
+  budget = contact_budget.ContactBudget(12, 5, 13, 42, "pilot (8 worlds, 755 frames, headroom 1.5)")
+  bank = dataclasses.replace(tiny_native_bank, flags=flags,
+                             run={**tiny_native_bank.run, "contact_budget": budget._asdict()})
+  assert bank.summary()["contact_overflow"] == 3 and bank.summary()["unstable"] == 0
+  bank.save(tmp_path / "bank")
+  assert cli.main(["info", str(tmp_path / "bank")]) == 0
+  out = capsys.readouterr().out
+  assert f"({bank.n_worlds - 3} valid, 0 unstable, 3 over the contact budget)" in out
+  assert "contact budget      max_contact_points 12, max_geom_pairs 5 (jax); nconmax 13, njmax 42" in out
+  assert "from pilot (8 worlds, 755 frames, headroom 1.5)" in out
