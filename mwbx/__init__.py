@@ -13,6 +13,7 @@ Example::
 
 from mwbx.bank import Bank
 from mwbx.bank import FLAG_AT_REST
+from mwbx.bank import FLAG_CONTACT_OVERFLOW
 from mwbx.bank import FLAG_FINISHED
 from mwbx.bank import FLAG_SIM_ERROR
 from mwbx.bank import FLAG_UNSTABLE
@@ -78,6 +79,7 @@ __all__ = [
     "CodecError",
     "Config",
     "FLAG_AT_REST",
+    "FLAG_CONTACT_OVERFLOW",
     "FLAG_FINISHED",
     "FLAG_SIM_ERROR",
     "FLAG_UNSTABLE",

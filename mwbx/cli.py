@@ -80,10 +80,13 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
             f" (worlds {mine[0]}..{mine[-1]}, seed {seed}){who} into {out}", file=sys.stderr)
       print(f"mwbx: {scene.rates.describe()}", file=sys.stderr)
       record["chunk_size"], record["backend"] = sampler.chunk_size, sampler.backend_label
+      if sampler.contact_budget is not None:
+        print(f"mwbx: contact budget: {sampler.contact_budget.describe()}", file=sys.stderr)
+        record["contact_budget"] = sampler.contact_budget._asdict()
       try:
         with reporter("sample") as update:
           for part, stats in sampler.run_chunks(mine.size, jax.random.key(seed), ids=mine, progress=update):
-            part.run = {"seed": seed}
+            part.run = {**part.run, "seed": seed}
             # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the
             # chunk in flight, and the same command resumes it.
             try:
@@ -161,13 +164,16 @@ class _RunSummary:
   """Counts over the chunks of one sampling run (the chunks are not kept)."""
 
   def __init__(self):
-    self.worlds = self.valid = self.at_rest = self.perturbations = self.sim_errors = 0
+    self.worlds = self.valid = self.at_rest = self.perturbations = self.sim_errors = self.overflow = 0
     self.errors_shown = 0
     self.stats = None
+    self.budget = None  # the MJX contact budget record, if any
 
   def add(self, part) -> None:
-    from mwbx.bank import FLAG_SIM_ERROR
+    from mwbx.bank import FLAG_CONTACT_OVERFLOW, FLAG_SIM_ERROR
     self.worlds += part.n_worlds
+    self.overflow += int(((part.flags & FLAG_CONTACT_OVERFLOW) != 0).sum())
+    self.budget = part.run.get("contact_budget", self.budget)
     self.valid += int(part.valid.sum())
     self.at_rest += int(part.at_rest.sum())
     self.perturbations += int(part.perturbations.sum())
@@ -176,17 +182,26 @@ class _RunSummary:
   def print(self, out: pathlib.Path, total: int) -> None:
     n = max(1, self.worlds)
     errors = f", {self.sim_errors} of them stopped by MuJoCo errors" if self.sim_errors else ""
-    print(f"worlds sampled      {self.worlds} ({self.valid} valid, {self.worlds - self.valid} unstable"
-          f"{errors})")
+    unstable = self.worlds - self.valid - self.overflow
+    overflow = f", {self.overflow} over the contact budget" if self.overflow else ""
+    print(f"worlds sampled      {self.worlds} ({self.valid} valid, {unstable} unstable{errors}{overflow})")
     print(f"worlds at rest      {self.at_rest} ({self.at_rest / n:.0%})")
     print(f"perturbations       {self.perturbations} ({self.perturbations / n:.1f} per world)")
     if self.stats is not None:
       st = self.stats
+      if self.budget:
+        print(f"contact budget      {_budget_line(self.budget)}")
       print(f"world-steps/s       {st.world_steps_per_second:,.0f} ({st.backend};"
             f" {st.world_steps:,} steps in {st.run_seconds:.2f} s, compile {st.compile_seconds:.1f} s,"
             f" compression {st.codec_seconds:.1f} s)")
     size = sum(f.stat().st_size for f in (out / "shards").rglob("*") if f.is_file())
     print(f"bank                {out} ({total} worlds, {size / 1e6:.1f} MB on disk)")
+
+
+def _budget_line(record: dict) -> str:
+  """The MJX contact budget a bank's worlds were sampled under (its ``run`` record)."""
+  from mwbx.batch_sim.contact_budget import ContactBudget
+  return ContactBudget.from_dict(record).describe()
 
 
 def _cmd_info(args) -> int:
@@ -206,7 +221,10 @@ def _cmd_info(args) -> int:
     return 0
   print(f"bank                {args.bank}")
   errors = f", {s['sim_errors']} of them stopped by MuJoCo errors" if s["sim_errors"] else ""
-  print(f"worlds              {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable{errors})")
+  overflow = f", {s['contact_overflow']} over the contact budget" if s["contact_overflow"] else ""
+  print(f"worlds              {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable{errors}{overflow})")
+  if bank.run.get("contact_budget"):
+    print(f"contact budget      {_budget_line(bank.run['contact_budget'])}")
   print(f"at rest             {s['at_rest_fraction']:.1%}")
   print(f"mean collisions     {s['mean_collisions']:.2f} per world")
   print(f"perturbations       {s['perturbations']}")

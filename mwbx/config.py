@@ -93,6 +93,28 @@ class SceneSection(_Strict):
   groups: dict[str, tuple[str, ...]] = {}
 
 
+class MjxSection(_Strict):
+  """Contact budgets of the batched engines (``backend: mjx``); see
+  :mod:`mwbx.batch_sim.contact_budget`. A value left out is sized by a short
+  native pilot run: ``headroom`` × the most that any pilot frame needed.
+
+  Attributes:
+    max_contact_points: impl jax: contacts kept per condim group per world.
+    max_geom_pairs: impl jax: geom pairs kept per collision-function group.
+    nconmax: impl warp: contacts per world.
+    njmax: impl warp: constraint rows per world.
+    headroom: budget over the pilot's peak (at least 1).
+    pilot_worlds: worlds the pilot runs on the native backend.
+  """
+
+  max_contact_points: int | None = pydantic.Field(None, gt=0)
+  max_geom_pairs: int | None = pydantic.Field(None, gt=0)
+  nconmax: int | None = pydantic.Field(None, gt=0)
+  njmax: int | None = pydantic.Field(None, gt=0)
+  headroom: float = pydantic.Field(1.5, ge=1.0)
+  pilot_worlds: int = pydantic.Field(8, gt=0)
+
+
 class SimSection(_Strict):
   """Time stepping, recording and batching.
 
@@ -114,6 +136,7 @@ class SimSection(_Strict):
       8; a run needing fewer simulates fewer).
     threads: native backend threads (0: one per CPU core).
     max_speed: a body faster than this (m/s) marks its world unstable.
+    mjx: contact budgets of the MJX backend (:class:`MjxSection`).
   """
 
   timestep: float | None = pydantic.Field(None, gt=0)
@@ -125,6 +148,7 @@ class SimSection(_Strict):
   chunk_size: int = pydantic.Field(256, gt=0)
   threads: int = pydantic.Field(0, ge=0)
   max_speed: float = pydantic.Field(100.0, gt=0)
+  mjx: MjxSection = MjxSection()
 
 
 class RestSection(_Strict):
@@ -266,6 +290,8 @@ class Config(_Strict):
     files it includes."""
     resolved = self.resolved()
     resolved.pop("source", None)
+    if resolved["sim"].get("mjx") == MjxSection().model_dump(mode="json"):
+      resolved["sim"].pop("mjx")  # banks from before the section keep their digest
     blob = json.dumps(resolved, sort_keys=True) + "\0" + mjcf_text
     for name in sorted(includes or {}):
       blob += "\0" + name + "\0" + includes[name]

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 
 import jax
@@ -40,3 +41,16 @@ def test_mjx_refinement_runs_and_agrees_on_activation(bank):
       np.testing.assert_array_equal(q[:, 14:21], bank.qpos_frames(0)[:, 14:21])
   times = [[runs[b][0].lineage[str(base + w)]["activated_at"]["target"] for w in range(2)] for b in runs]
   np.testing.assert_allclose(times[0], times[1], atol=3 / bank.record_fps)
+
+
+def test_mjx_refinement_uses_the_banks_contact_budget_and_flags_overflow(bank):
+  """A bank sampled under a budget is refined under the same one: here one
+  too small for the spheres (one contact point), so every refined world is
+  flagged and leaves matches."""
+  small = dataclasses.replace(bank, run={**bank.run, "contact_budget": {
+      "max_contact_points": 1, "max_geom_pairs": 1, "nconmax": 2, "njmax": 8, "source": "test"}})
+  new, stats = refine_run(small, 0, ["striker"], t_min=0.05, n_samples=2, key=jax.random.key(3), backend="mjx")
+  from mwbx.refinement.refine import sampler_for
+  assert sampler_for(small, "mjx").contact_budget.max_contact_points == 1
+  assert np.all((new.flags & mwbx.FLAG_CONTACT_OVERFLOW) != 0)
+  assert not new.valid.any()

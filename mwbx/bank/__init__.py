@@ -1,6 +1,7 @@
 """The bank: every world of one scene, its ids and lineage, on disk as shards."""
 
 from mwbx.bank.core import FLAG_AT_REST
+from mwbx.bank.core import FLAG_CONTACT_OVERFLOW
 from mwbx.bank.core import FLAG_FINISHED
 from mwbx.bank.core import FLAG_SIM_ERROR
 from mwbx.bank.core import FLAG_UNSTABLE

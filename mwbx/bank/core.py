@@ -30,6 +30,10 @@ FLAG_FINISHED = 1
 FLAG_AT_REST = 2
 FLAG_UNSTABLE = 4
 FLAG_SIM_ERROR = 8  # MuJoCo raised an error while stepping it (stopped there)
+# A step may have needed more contacts than the batched engine's budget
+# (mwbx.batch_sim.contact_budget): kept, but out of matches like unstable worlds.
+FLAG_CONTACT_OVERFLOW = 16
+INVALID = FLAG_UNSTABLE | FLAG_SIM_ERROR | FLAG_CONTACT_OVERFLOW
 
 
 
@@ -41,7 +45,8 @@ class Bank:
     world_ids: i64[W] world ids, unique within the bank (a sampled world's id is
       also its index in its run, which determines its randomness).
     keys: u32[W, 2] raw key data of each world.
-    flags: u8[W] FLAG_FINISHED | FLAG_AT_REST | FLAG_UNSTABLE | FLAG_SIM_ERROR.
+    flags: u8[W] FLAG_FINISHED | FLAG_AT_REST | FLAG_UNSTABLE | FLAG_SIM_ERROR
+      | FLAG_CONTACT_OVERFLOW.
     frame_count: i32[W] recorded qpos frames per world (at ``record_fps``).
     com: f32[W, P, B, 3] tracked COM polylines at ``query_fps``, m; points
       past ``com_count`` repeat the last one.
@@ -113,9 +118,9 @@ class Bank:
 
   @property
   def valid(self) -> np.ndarray:
-    """bool[W]: worlds that did not go unstable or stop on a MuJoCo error (the
-    only ones queries see)."""
-    return (self.flags & (FLAG_UNSTABLE | FLAG_SIM_ERROR)) == 0
+    """bool[W]: worlds that did not go unstable, stop on a MuJoCo error or
+    overflow their contact budget (the only ones queries see)."""
+    return (self.flags & INVALID) == 0
 
   @property
   def at_rest(self) -> np.ndarray:
@@ -282,8 +287,9 @@ class Bank:
     return {
         "worlds": self.n_worlds,
         "valid": int(valid.sum()),
-        "unstable": int((~valid).sum()),
+        "unstable": int(((self.flags & (FLAG_UNSTABLE | FLAG_SIM_ERROR)) != 0).sum()),
         "sim_errors": int(((self.flags & FLAG_SIM_ERROR) != 0).sum()),
+        "contact_overflow": int(((self.flags & FLAG_CONTACT_OVERFLOW) != 0).sum()),
         "at_rest_fraction": float(self.at_rest.mean()) if self.n_worlds else 0.0,
         "mean_collisions": float(self.metric("collisions").sum(-1)[valid].mean()) if valid.any() else 0.0,
         "perturbations": int(self.perturbations.sum()),

@@ -10,6 +10,7 @@ core, :mod:`world_loop`); both return a :class:`ChunkResult`.
 
 from __future__ import annotations
 
+import importlib.util
 from typing import Callable, NamedTuple, Protocol, runtime_checkable
 
 import jax
@@ -36,6 +37,8 @@ class ChunkResult(NamedTuple):
       where physics and bookkeeping run fused, as on mjx), s.
     errors: (chunk row, MuJoCo's message) of each world stopped by a MuJoCo
       error (status ``world.SIM_ERROR``).
+    contact_overflow: bool[C] a step of the world may have needed more
+      contacts than the batched engine's budget (None: the backend has none).
   """
 
   qpos: np.ndarray
@@ -49,6 +52,7 @@ class ChunkResult(NamedTuple):
   run_seconds: float
   physics_seconds: float = float("nan")
   errors: tuple = ()
+  contact_overflow: np.ndarray | None = None
 
 
 @runtime_checkable
@@ -91,16 +95,15 @@ def resolve_backend(name: str) -> str:
 
 def resolve_mjx_impl(name: str) -> str:
   """``auto`` → ``warp`` when MuJoCo Warp imports and a GPU is present, else ``jax``."""
+  if name == "warp" and importlib.util.find_spec("warp") is None:
+    raise MwbxError("sim.mjx_impl: warp needs the warp-lang package (pip install -e '.[gpu]',"
+                    " or pip install warp-lang)")
   if name != "auto":
     return name
   if jax.default_backend() not in ("gpu", "cuda"):
     return "jax"
-  try:
-    import mujoco_warp  # noqa: F401
-    import warp  # noqa: F401
-  except ImportError:
-    return "jax"
-  return "warp"
+  # MuJoCo Warp ships inside mujoco-mjx; it needs the warp-lang package.
+  return "warp" if importlib.util.find_spec("warp") is not None else "jax"
 
 
 def fill_tail(frames: np.ndarray, frame_count: np.ndarray) -> np.ndarray:

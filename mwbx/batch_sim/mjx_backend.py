@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from mwbx.batch_sim import contact_budget
 from mwbx.batch_sim import controls
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
@@ -71,28 +72,77 @@ def scatter_wrench(xfrc_tracked: jax.Array, nbody: int, body_ids: jax.Array) -> 
 
 def hold_finished(running: jax.Array, new, old):
   """``new`` where a world is still running (bool[W]), else ``old``: finished
-  worlds keep their last state."""
-  return jax.tree.map(
-      lambda n, o: jnp.where(running.reshape((-1,) + (1,) * (n.ndim - 1)), n, o), new, old)
+  worlds keep their last state. MuJoCo Warp's per-batch fields (its contact
+  pool) are not per world: they are ``new``'s."""
+  def pick(path, n, o):
+    if not _per_world(new, path):
+      return n
+    return jnp.where(running.reshape((-1,) + (1,) * (n.ndim - 1)), n, o)
+  return jax.tree_util.tree_map_with_path(pick, new, old)
+
+
+def _per_world(tree, path) -> bool:
+  """Whether a leaf of a batched ``mjx.Data`` has a world axis (all do on impl jax)."""
+  if not isinstance(tree, mjx.Data) or tree.impl != mjx.Impl.WARP:
+    return True
+  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
+  from mujoco.mjx._src.types import tree_path_to_attr_str  # pylint: disable=g-import-not-at-top
+  return warp_types._BATCH_DIM["Data"].get(tree_path_to_attr_str(path), True)  # pylint: disable=protected-access
+
+
+def backend_for(scene, impl: str = "jax", budget: contact_budget.ContactBudget | None = None,
+                devices=None) -> "MjxBackend":
+  """The MJX backend of a scene under a contact budget (the entry point for
+  sampling and benchmarks: ``backend.make_data`` and ``backend.step`` are one
+  budgeted batched step, ``backend.overflow`` its flag).
+
+  Args:
+    scene: the :class:`mwbx.scene.Scene` (its model's timestep is used).
+    impl: ``jax`` or ``warp``.
+    budget: the budget (default: the config's ``sim.mjx`` values, the rest
+      from :func:`contact_budget.pilot`).
+    devices: as for :class:`MjxBackend`.
+  """
+  if budget is None:
+    budget = contact_budget.resolve(scene, scene.config.sim.mjx)
+  # impl jax reads its caps from the model's numerics; warp sizes its pools from the budget.
+  model = contact_budget.budgeted_model(scene, budget) if impl == "jax" else scene.model
+  return MjxBackend(model, impl, devices, budget=budget)
 
 
 class MjxBackend:
   """MJX model on the default device plus the compiled block function.
 
   Args:
-    model: the scene model (with mwbx sensors).
+    model: the scene model (with mwbx sensors); for a contact budget on impl
+      ``jax``, the budgeted model (:func:`contact_budget.budgeted_model`).
     impl: ``jax`` or ``warp``.
+    devices: the devices a batch is split over (default: this process's).
+    budget: the :class:`contact_budget.ContactBudget` (impl ``warp`` sizes its
+      contact and constraint pools from it; None: MuJoCo Warp's defaults).
   """
 
-  def __init__(self, model: mujoco.MjModel, impl: str = "jax", devices=None):
+  def __init__(self, model: mujoco.MjModel, impl: str = "jax", devices=None,
+               budget: contact_budget.ContactBudget | None = None):
     self.model = model
     self.impl = impl
+    self.budget = budget
     # This process's devices: a batch's worlds are split over them; under
     # jax.distributed every process runs its own worlds on its own devices.
     self.devices = list(devices) if devices is not None else jax.local_devices()
-    self.mx = mjx.put_model(model, device=self.devices[0], impl=impl)
+    if impl == "warp":
+      contact_budget.quiet_warp()
+    self.mx = self._put(model)
+    # impl jax: flags a step that may have dropped contacts (never misses one).
+    self.check = contact_budget.JaxOverflowCheck(model) if impl == "jax" else None
     self._quiet_mx = None
     self._blocks: dict = {}
+
+  def _put(self, model: mujoco.MjModel):
+    mx = mjx.put_model(model, device=self.devices[0], impl=self.impl)
+    if self.impl == "warp":  # overflows are read from its counters, not printed every step
+      mx = mx.tree_replace({"opt._impl.warn_overflow": 0})
+    return mx
 
   @property
   def lane(self) -> int:
@@ -103,8 +153,7 @@ class MjxBackend:
   def quiet_mx(self):
     """The MJX model with sensors disabled (put on the device when first needed)."""
     if self._quiet_mx is None:
-      self._quiet_mx = mjx.put_model(free_bodies_lib.quiet_copy(self.model), device=self.devices[0],
-                                     impl=self.impl)
+      self._quiet_mx = self._put(free_bodies_lib.quiet_copy(self.model))
     return self._quiet_mx
 
   def close(self) -> None:
@@ -113,7 +162,10 @@ class MjxBackend:
   def make_data(self, qpos: jax.Array, qvel: jax.Array, act: jax.Array | None = None) -> mjx.Data:
     """Batched ``mjx.Data`` at time 0 from qpos f32[W, nq], qvel f32[W, nv]
     and, optionally, actuator activations f32[W, na]."""
-    base = mjx.make_data(self.model, device=self.devices[0], impl=self.impl)
+    sizes = {}
+    if self.impl == "warp" and self.budget is not None:  # the contact pool is shared by the batch
+      sizes = {"naconmax": self.budget.nconmax * qpos.shape[0], "njmax": self.budget.njmax}
+    base = mjx.make_data(self.model, device=self.devices[0], impl=self.impl, **sizes)
     if act is not None:
       return jax.vmap(lambda q, v, a: base.replace(qpos=q, qvel=v, act=a.astype(base.act.dtype)))(qpos, qvel, act)
     return jax.vmap(lambda q, v: base.replace(qpos=q, qvel=v))(qpos, qvel)
@@ -121,6 +173,15 @@ class MjxBackend:
   def step(self, d: mjx.Data, xfrc: jax.Array) -> mjx.Data:
     """One physics step of a batch; ``xfrc``: f32[W, nbody, 6]. Sensors describe s_k."""
     return jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d.replace(xfrc_applied=xfrc))
+
+  def overflow(self, d_next: mjx.Data) -> jax.Array:
+    """bool[W]: the step that produced ``d_next`` may have dropped contacts
+    or constraints (over the contact budget)."""
+    if self.impl == "warp":
+      return contact_budget.warp_overflow(d_next)
+    if not self.check.can_overflow:
+      return jnp.zeros(d_next.qpos.shape[0], bool)
+    return jax.vmap(self.check)(d_next)
 
   def block(self, params: world.WorldParams, body_ids: np.ndarray, n_frames: int):
     """``run(state, ctrl_table, count)`` for up to ``n_frames`` sampled frames
@@ -141,7 +202,7 @@ class MjxBackend:
       if ctrl is not None:
         d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype))
       d_next = jax.vmap(mjx.step, in_axes=(None, 0))(mx, d)
-      return d_next, (d_next.sensordata if bodies is None else (d.qpos, d.qvel))
+      return d_next, (d_next.sensordata if bodies is None else (d.qpos, d.qvel), self.overflow(d_next))
 
     def observe(d_next, out):
       """f32[W, S, B * SENSOR_WIDTH] sensor block of the frame's steps."""
@@ -153,18 +214,19 @@ class MjxBackend:
           qpos, qvel, bodies, params.dt, params.gravity)
 
     def frame(ctrl_table, state):
-      d, carry, wrench, keys = state  # wrench: f32[W, S, B, 6]
+      d, carry, wrench, keys, overflow = state  # wrench: f32[W, S, B, 6]; overflow: bool[W]
       qpos = d.qpos  # s_k at the frame boundary, recorded if `record`.
       ctrl = None
       if ctrl_table is not None:  # f32[N, nu]: row k is step k's control
         rows = jnp.minimum(carry.step[:, None] + jnp.arange(params.steps_per_frame), ctrl_table.shape[0] - 1)
         ctrl = jnp.swapaxes(ctrl_table[rows], 0, 1)  # [S, W, nu]
-      d_next, out = jax.lax.scan(physics_step, d, (jnp.swapaxes(wrench, 0, 1), ctrl))
+      d_next, (out, step_overflow) = jax.lax.scan(physics_step, d, (jnp.swapaxes(wrench, 0, 1), ctrl))
+      overflow = overflow | (step_overflow.any(axis=0) & (carry.status == world.RUNNING))
       obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(
           observe(d_next, out))
       carry, out = world.frame_update(carry, obs, keys, params)
       d = hold_finished(out.running, d_next, d)
-      return (d, carry, out.wrench, keys), (out.record, qpos, obs.com_pos[:, 0])
+      return (d, carry, out.wrench, keys, overflow), (out.record, qpos, obs.com_pos[:, 0])
 
     fn = frame_block(frame, n_frames)
     self._blocks[cache_key] = (params, fn)
@@ -189,11 +251,14 @@ class MjxBackend:
       raise ValueError(f"a batch of {c} worlds does not split over {n_dev} devices")
     per = c // n_dev
 
-    d = self.make_data(jnp.asarray(qpos0), jnp.asarray(qvel0))
     carry = jax.vmap(world.init_carry, in_axes=(None, 0))(len(body_ids), jnp.asarray(active))
     wrench = jnp.zeros((c, params.steps_per_frame, len(body_ids), 6), jnp.float32)
-    state = (d, carry, wrench, step_keys)
-    states = [jax.device_put(jax.tree.map(lambda x, k=k: x[k * per:(k + 1) * per], state), device)
+    rest = (carry, wrench, step_keys, jnp.zeros(c, bool))
+    # Each device's Data is made for its share (MuJoCo Warp's contact pool is
+    # per batch, not per world, so it is not sliced).
+    states = [jax.device_put((self.make_data(jnp.asarray(qpos0[k * per:(k + 1) * per]),
+                                             jnp.asarray(qvel0[k * per:(k + 1) * per])),)
+                             + jax.tree.map(lambda x, k=k: x[k * per:(k + 1) * per], rest), device)
               for k, device in enumerate(self.devices)]
     table = controls.scene_table(scene, n_frames * params.steps_per_frame)
     tables = [None if table.shape[1] == 0 else jax.device_put(jnp.asarray(table, jnp.float32), device)
@@ -236,4 +301,5 @@ class MjxBackend:
         qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),
         frame_count=frame_count, status=np.asarray(carry.status),
         metrics=world.finalize_metrics(carry), perturbations=np.asarray(carry.perturbations),
-        steps=np.asarray(carry.step), compile_seconds=compile_seconds, run_seconds=run_seconds)
+        steps=np.asarray(carry.step), compile_seconds=compile_seconds, run_seconds=run_seconds,
+        contact_overflow=gather([s[4] for s in states]))

@@ -130,10 +130,13 @@ class Sampler:
     store: an empty :class:`~mwbx.qpos_store.QposStore` the runs' stores are made
       like (``store.empty()``); default: compressed under the config's ``codec``
       bounds. ``mwbx.qpos_store.RawQposStore(nq)`` keeps float32 frames.
+    contact_budget: MJX: the :class:`~mwbx.batch_sim.contact_budget.ContactBudget`
+      (or its dict, as a bank's ``run`` stores it) to use; default: the
+      config's ``sim.mjx`` values, the rest sized by a native pilot.
   """
 
   def __init__(self, scene: Scene | Config, backend: str | None = None, chunk_size: int | None = None,
-               store: QposStore | None = None):
+               store: QposStore | None = None, contact_budget=None):
     self.scene = scene if isinstance(scene, Scene) else Scene(scene)
     self.store = store if store is not None else compressed_store(self.scene)
     cfg = self.scene.config
@@ -147,10 +150,16 @@ class Sampler:
     spf, self.query_stride, end_frame = frame_rates(cfg, model.opt.timestep)
     self.n_frames = end_frame + 1
     self.params = world.world_params(self.scene, spf, end_frame)
+    self.contact_budget = None
     if self.backend_name == "mjx":
-      from mwbx.batch_sim.mjx_backend import MjxBackend
+      from mwbx.batch_sim import contact_budget as budget_lib
+      from mwbx.batch_sim.mjx_backend import backend_for
       impl = resolve_mjx_impl(cfg.sim.mjx_impl)
-      self.backend = MjxBackend(model, impl)
+      budget = contact_budget
+      if isinstance(budget, dict):
+        budget = budget_lib.ContactBudget.from_dict(budget)
+      self.backend = backend_for(self.scene, impl, budget)
+      self.contact_budget = self.backend.budget
       self.backend_label = f"mjx:{impl}"
     else:
       from mwbx.batch_sim.native_backend import NativeBackend
@@ -324,6 +333,9 @@ class Sampler:
     flags[status == world.AT_REST] |= bank_lib.FLAG_AT_REST
     flags[status == world.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
     flags[status == world.SIM_ERROR] |= bank_lib.FLAG_SIM_ERROR
+    overflow = [r.contact_overflow for r in results]
+    if all(o is not None for o in overflow):
+      flags[np.concatenate(overflow)] |= bank_lib.FLAG_CONTACT_OVERFLOW
     metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
     cfg = scene.config
     return bank_lib.Bank(
@@ -336,6 +348,7 @@ class Sampler:
         record_fps=cfg.sim.record_fps, query_fps=cfg.sim.query_fps, timestep=float(scene.model.opt.timestep),
         config=cfg.resolved(), mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes),
         digest=scene.digest,
+        run={} if self.contact_budget is None else {"contact_budget": self.contact_budget._asdict()},
     )
 
 

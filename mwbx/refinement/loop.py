@@ -98,6 +98,8 @@ class RefineOutput(NamedTuple):
     max_perturbation_ratio: f32[C] largest ‖perturbation‖ / (α‖Δv‖) applied.
     inactive_perturbations: i64[C] perturbations drawn for inactive bodies (0).
     compile_seconds, run_seconds: s.
+    contact_overflow: bool[C] a step may have needed more contacts than the
+      MJX backend's budget (None on native loops).
   """
 
   qpos: np.ndarray
@@ -113,6 +115,7 @@ class RefineOutput(NamedTuple):
   inactive_perturbations: np.ndarray
   compile_seconds: float
   run_seconds: float
+  contact_overflow: np.ndarray | None = None
 
 
 def _activate_batch(active, com_sim, speed_sim, com_now, com_next, inter):
@@ -375,7 +378,7 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
   active = start_active(inp)
   wrench = jnp.zeros((c, spf, len(inp.body_ids), 6), jnp.float32)
   state = (d, inp.carry0, wrench, inp.step_keys, active, jnp.asarray(~np.asarray(inp.active0)),
-           jnp.int32(f0))
+           jnp.int32(f0), jnp.zeros(c, bool))
   # Committed like the block's outputs, so later blocks reuse the first compile.
   state, consts = jax.device_put((state, consts), jax.devices()[0])
   state, first = run(state, consts, jnp.int32(min(block, n_out)))  # compiled on first use
@@ -409,8 +412,9 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
       break
   jax.block_until_ready(state)
   run_seconds = time.perf_counter() - t0
-  return _finish(inp, state[1], qpos_buf, com_buf, state[4], activated, compile_seconds, run_seconds,
-                 (audit_ratio, audit_stray))
+  out = _finish(inp, state[1], qpos_buf, com_buf, state[4], activated, compile_seconds, run_seconds,
+                (audit_ratio, audit_stray))
+  return out._replace(contact_overflow=np.asarray(state[7]))
 
 
 _BLOCKS: dict = {}
@@ -435,7 +439,7 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
 
   def frame_fn(consts, state):  # one refined frame: see mjx_backend.frame_block
     com_path, inter = consts[2], consts[5]
-    d, carry, wrench, keys, active, prev_inactive, frame = state
+    d, carry, wrench, keys, active, prev_inactive, frame, overflow = state
     d = put_on_path(d, prev_inactive, frame, 0, consts)
     qpos = d.qpos
 
@@ -447,9 +451,12 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
         row = jnp.minimum(frame * spf + j, ctrl_table.shape[0] - 1)
         d = d.replace(ctrl=jnp.broadcast_to(ctrl_table[row], d.ctrl.shape).astype(d.ctrl.dtype))
       d = backend.step(d, scatter_wrench(xfrc_tracked, nbody, ids))
-      return d, d.sensordata
+      return d, (d.sensordata, backend.overflow(d))
 
-    d_next, sensordata = jax.lax.scan(physics_step, d, (jnp.arange(spf), jnp.swapaxes(wrench, 0, 1)))
+    d_next, (sensordata, step_overflow) = jax.lax.scan(
+        physics_step, d, (jnp.arange(spf), jnp.swapaxes(wrench, 0, 1)))
+    # Over the contact budget in a step of a running world (mjx_backend.MjxBackend.overflow).
+    overflow = overflow | (step_overflow.any(axis=0) & (carry.status == world.RUNNING))
     sensordata = jnp.swapaxes(sensordata, 0, 1)[..., :n_sensor]
     obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(sensordata)
     obs = _with_stored_motion(obs, active, frame, consts[6], params, inter)
@@ -459,7 +466,8 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
     nxt = jnp.where(out.running[:, None], nxt, active)
     d = hold_finished(out.running, d_next, d)
     audit = _audit(obs, out, active, params, inter)
-    return (d, carry, out.wrench, keys, nxt, ~active, frame + 1), (out.record, qpos, obs.com_pos[:, 0], nxt, audit)
+    return ((d, carry, out.wrench, keys, nxt, ~active, frame + 1, overflow),
+            (out.record, qpos, obs.com_pos[:, 0], nxt, audit))
 
   fn = frame_block(frame_fn, block)
   _BLOCKS[cache_key] = (backend, params, fn)

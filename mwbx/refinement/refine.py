@@ -208,11 +208,13 @@ _SAMPLERS: dict = {}
 def sampler_for(bank, backend: str | None = None) -> Sampler:
   """A sampler for the bank's scene, kept for later refinements of that scene
   (its thread pool and compiled kernels are reused)."""
-  cache_key = (bank.digest, backend)
+  # MJX refines under the contact budget its bank was sampled with, if any.
+  budget = bank.run.get("contact_budget")
+  cache_key = (bank.digest, backend, None if budget is None else tuple(sorted(budget.items())))
   if cache_key not in _SAMPLERS:
     if len(_SAMPLERS) >= 4:
       _SAMPLERS.pop(next(iter(_SAMPLERS))).close()
-    _SAMPLERS[cache_key] = Sampler(_scene_of(bank), backend)
+    _SAMPLERS[cache_key] = Sampler(_scene_of(bank), backend, contact_budget=budget)
   return _SAMPLERS[cache_key]
 
 
@@ -401,6 +403,8 @@ def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, out
   flags[status == world_lib.AT_REST] |= bank_lib.FLAG_AT_REST
   flags[status == world_lib.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
   flags[status == world_lib.SIM_ERROR] |= bank_lib.FLAG_SIM_ERROR  # trapped by the compiled loop
+  if all(o.contact_overflow is not None for o in outputs):  # MJX: over its contact budget
+    flags[cat("contact_overflow")] |= bank_lib.FLAG_CONTACT_OVERFLOW
   first_id = bank.next_world_id
   t0 = f0 / bank.record_fps
   lineage = {}

@@ -1,0 +1,331 @@
+"""Contact budgets of the batched engines, sized by a short native pilot.
+
+MJX (impl ``jax``) allocates a contact slot for every candidate geom pair
+(6446 for the SIGGRAPH scene), and every step pays for all of them. Its MJCF
+numerics ``max_geom_pairs`` (pairs kept per collision-function group, the
+closest by bounding sphere) and ``max_contact_points`` (contacts kept per
+condim group, the most penetrating) bound that work. MuJoCo Warp (impl
+``warp``) has fixed contact and constraint pools, ``nconmax`` and ``njmax``
+per world. :func:`pilot` runs a few worlds of the config on the native backend
+(MuJoCo C), replays their recorded frames and counts what those caps must
+hold; :func:`budget_from_counts` adds headroom.
+
+A budget trades exactness for speed only where it can be seen: a world whose
+step may have needed more than the budget is flagged
+(``FLAG_CONTACT_OVERFLOW``). :class:`JaxOverflowCheck` decides it on impl
+``jax`` from what MJX kept (conservatively: it never misses a dropped active
+contact); :func:`warp_overflow` reads MuJoCo Warp's own overflow counters.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco.mjx._src import collision_driver
+
+# Slack added on top of headroom × measured: a pilot of a few worlds sees
+# fewer peaks than a run of thousands.
+MIN_SLACK_PAIRS = 4
+MIN_SLACK_CONTACTS = 8
+MIN_SLACK_ROWS = 16
+# A distance this close to a margin counts as within it (float32 rounding).
+DIST_TOLERANCE = 1e-5
+
+
+class ContactBudget(NamedTuple):
+  """Contact capacity of the batched engines for one scene.
+
+  Attributes:
+    max_contact_points: impl jax: contacts kept per condim group, per world.
+    max_geom_pairs: impl jax: geom pairs kept per collision-function group
+      (planes and height fields are never culled), per world.
+    nconmax: impl warp: contacts (and broadphase candidates) per world; the
+      pool of a batch of W worlds holds ``W * nconmax``.
+    njmax: impl warp: constraint rows per world.
+    source: where the numbers came from, e.g. ``pilot (8 worlds, headroom
+      1.5)``, ``config`` or ``config + pilot (...)``.
+  """
+
+  max_contact_points: int
+  max_geom_pairs: int
+  nconmax: int
+  njmax: int
+  source: str
+
+  def describe(self) -> str:
+    """One line for ``mwbx info`` and the run summary."""
+    return (f"max_contact_points {self.max_contact_points}, max_geom_pairs {self.max_geom_pairs}"
+            f" (jax); nconmax {self.nconmax}, njmax {self.njmax} per world (warp); from {self.source}")
+
+  @classmethod
+  def from_dict(cls, record: dict) -> "ContactBudget":
+    return cls(**{k: (str(record[k]) if k == "source" else int(record[k])) for k in cls._fields})
+
+
+class PilotCounts(NamedTuple):
+  """Most contacts any recorded frame of the pilot worlds needed.
+
+  Attributes:
+    geom_pairs: geom pairs whose bounding spheres came within their margin,
+      in one cullable collision-function group of MJX.
+    contact_points: active contacts (MuJoCo C) of one condim.
+    candidates: geom pairs within margin by bounding sphere in one world,
+      plane and height-field pairs included (MuJoCo Warp's broadphase).
+    contacts: active contacts in one world.
+    rows: constraint rows (``nefc``) in one world.
+    worlds: pilot worlds run; frames: frames replayed.
+  """
+
+  geom_pairs: int
+  contact_points: int
+  candidates: int
+  contacts: int
+  rows: int
+  worlds: int
+  frames: int
+
+
+class _PairGroup(NamedTuple):
+  """One collision-function group of MJX: geom1, geom2 i32[P], margin f32[P]."""
+
+  geom1: np.ndarray
+  geom2: np.ndarray
+  margin: np.ndarray
+  cullable: bool
+  ncon: int
+  condim: int
+
+
+def _pair_groups(m: mujoco.MjModel) -> list[_PairGroup]:
+  """MJX's collision-function groups of ``m`` (the grouping its collision driver uses)."""
+  out = []
+  for key, pairs in collision_driver._geom_groups(m).items():  # pylint: disable=protected-access
+    geom = np.asarray(pairs, np.int64).reshape(-1, 3)
+    g1, g2, ip = geom[:, 0], geom[:, 1], geom[:, 2]
+    margin = np.where(ip >= 0, m.pair_margin[np.maximum(ip, 0)] if m.npair else 0.0,
+                      m.geom_margin[g1] + m.geom_margin[g2])
+    cullable = not set(int(t) for t in key.types) & {int(t) for t in collision_driver._GEOM_NO_BROADPHASE}  # pylint: disable=protected-access
+    func = collision_driver._COLLISION_FUNC.get(key.types)  # pylint: disable=protected-access
+    ncon = func.ncon if func is not None else int(m.opt.sdf_initpoints)
+    out.append(_PairGroup(g1, g2, margin.astype(np.float64), cullable, int(ncon), int(key.condim)))
+  return out
+
+
+def _sphere_gap(xp, g1, g2, geom_xpos, rbound):
+  """f32[P] bounding-sphere distance of geom pairs, m (what MJX culls by)."""
+  return xp.linalg.norm(geom_xpos[g2] - geom_xpos[g1], axis=-1) - (rbound[g1] + rbound[g2])
+
+
+def _world_boxes(xp, geom_xpos, geom_xmat, geom_aabb):
+  """(centre f32[G, 3], half-size f32[G, 3]) of each geom's axis-aligned
+  bounding box in the world frame, from its box in its own frame, m."""
+  rot = geom_xmat.reshape(-1, 3, 3)
+  centre = geom_xpos + xp.einsum("gij,gj->gi", rot, geom_aabb[:, :3])
+  half = xp.einsum("gij,gj->gi", xp.abs(rot), geom_aabb[:, 3:])
+  return centre, half
+
+
+def _boxes_overlap(xp, g1, g2, centre, half, margin):
+  """bool[P]: the pairs' world boxes, grown by their margin, overlap (else they cannot touch)."""
+  reach = half[g1] + half[g2] + margin[:, None] + DIST_TOLERANCE
+  return xp.all(xp.abs(centre[g2] - centre[g1]) <= reach, axis=-1)
+
+
+def _pairs_needed(m: mujoco.MjModel, d: mujoco.MjData, g: _PairGroup) -> int:
+  """Pairs MJX must keep in group ``g`` so that every pair whose boxes overlap
+  is kept: the rank, by bounding-sphere distance, of the farthest such pair."""
+  gap = _sphere_gap(np, g.geom1, g.geom2, d.geom_xpos, m.geom_rbound)
+  centre, half = _world_boxes(np, d.geom_xpos, d.geom_xmat, m.geom_aabb)
+  near = _boxes_overlap(np, g.geom1, g.geom2, centre, half, g.margin)
+  return int((gap <= gap[near].max()).sum()) if near.any() else 0
+
+
+def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None) -> PilotCounts:
+  """Runs ``n_worlds`` worlds of the scene on the native backend and counts,
+  over every recorded frame, what MJX's and MuJoCo Warp's caps must hold.
+
+  Args:
+    scene: the :class:`mwbx.scene.Scene` (its config's perturbations,
+      controls and randomization apply).
+    n_worlds: pilot worlds (ids 0..n-1 of ``seed``).
+    seed: run key seed of the pilot.
+    end_time: stop the pilot worlds earlier than the config's end time, s.
+
+  Returns:
+    the :class:`PilotCounts`.
+  """
+  from mwbx.batch_sim.sampler import Sampler
+  from mwbx.qpos_store import RawQposStore
+  cfg = scene.config
+  if end_time is not None:
+    cfg = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"end_time": end_time})})
+  from mwbx.scene import Scene
+  pilot_scene = Scene(cfg) if end_time is not None else scene
+  with Sampler(pilot_scene, backend="native", chunk_size=n_worlds,
+               store=RawQposStore(scene.model.nq)) as sampler:
+    bank, _ = sampler.run(n_worlds, jax.random.key(seed))
+  m = scene.model
+  d = mujoco.MjData(m)
+  groups = _pair_groups(m)
+  counts = np.zeros(5, np.int64)  # geom_pairs, contact_points, candidates, contacts, rows
+  frames = 0
+  for world_id in bank.world_ids:
+    for qpos in bank.qpos_frames(int(world_id)):
+      d.qpos[:] = qpos
+      mujoco.mj_fwdPosition(m, d)
+      frames += 1
+      near = [_pairs_needed(m, d, g) for g in groups]
+      cullable = [n for n, g in zip(near, groups) if g.cullable]
+      dims = d.contact.dim[:d.ncon]
+      per_condim = np.bincount(dims, minlength=7).max() if d.ncon else 0
+      counts = np.maximum(counts, [max(cullable, default=0), per_condim, sum(near), d.ncon, d.nefc])
+  return PilotCounts(*(int(c) for c in counts), worlds=n_worlds, frames=frames)
+
+
+def budget_from_counts(counts: PilotCounts, headroom: float, overrides: dict | None = None,
+                       source: str | None = None) -> ContactBudget:
+  """A budget of ``headroom`` × the pilot's counts plus a fixed slack; values
+  in ``overrides`` (from the config) win."""
+  size = lambda n, slack: int(max(math.ceil(headroom * n), n + slack))
+  budget = {
+      "max_geom_pairs": size(counts.geom_pairs, MIN_SLACK_PAIRS),
+      "max_contact_points": size(counts.contact_points, MIN_SLACK_CONTACTS),
+      "nconmax": size(max(counts.candidates, counts.contacts), MIN_SLACK_CONTACTS),
+      "njmax": size(counts.rows, MIN_SLACK_ROWS),
+  }
+  given = {k: v for k, v in (overrides or {}).items() if v is not None and k in budget}
+  budget.update(given)
+  pilot_source = source or f"pilot ({counts.worlds} worlds, {counts.frames} frames, headroom {headroom:g})"
+  label = pilot_source if not given else f"config ({', '.join(sorted(given))}) + {pilot_source}"
+  return ContactBudget(source=label, **{k: int(v) for k, v in budget.items()})
+
+
+def resolve(scene, settings=None) -> ContactBudget:
+  """The scene's budget: the config's ``sim.mjx`` values, the rest from a pilot.
+
+  Args:
+    scene: the scene.
+    settings: the config's :class:`mwbx.config.MjxSection` (None: defaults).
+  """
+  from mwbx.config import MjxSection
+  settings = settings if settings is not None else MjxSection()
+  given = {k: getattr(settings, k) for k in ("max_contact_points", "max_geom_pairs", "nconmax", "njmax")}
+  if all(v is not None for v in given.values()):
+    return ContactBudget(source="config", **given)
+  counts = pilot(scene, settings.pilot_worlds)
+  return budget_from_counts(counts, settings.headroom, given)
+
+
+def budgeted_model(scene, budget: ContactBudget, timestep: float | None = None) -> mujoco.MjModel:
+  """The scene's model with MJX's ``max_geom_pairs`` and ``max_contact_points``
+  numerics (MJX reads them from the model; nothing else changes)."""
+  from mwbx import scene as scene_lib
+  spec = scene_lib.parse_mjcf(scene.mjcf_text, scene.mjcf_dir, scene.mjcf_includes)
+  for numeric in list(spec.numerics):
+    if numeric.name in ("max_geom_pairs", "max_contact_points"):
+      spec.delete(numeric)
+  spec.add_numeric(name="max_geom_pairs", data=[budget.max_geom_pairs])
+  spec.add_numeric(name="max_contact_points", data=[budget.max_contact_points])
+  for sensor in list(spec.sensors):
+    spec.delete(sensor)
+  for body in scene.body_names:
+    for name, sensor_type, _ in scene_lib.SENSORS:
+      spec.add_sensor(name=f"mwbx_{name}_{body}", type=sensor_type, objtype=mujoco.mjtObj.mjOBJ_BODY,
+                      objname=body)
+  m = spec.compile()
+  m.opt.timestep = scene.model.opt.timestep if timestep is None else timestep
+  return m
+
+
+class JaxOverflowCheck:
+  """Whether a step of MJX (impl ``jax``) under a budget may have dropped an
+  active contact, from the contacts it kept.
+
+  Two caps can drop contacts. Geom pairs: a cullable group of P > cap pairs
+  keeps the cap pairs with the smallest bounding-sphere distance (the same
+  ``top_k`` is recomputed here); a dropped pair can touch only if the geoms'
+  world bounding boxes, grown by the margin, overlap.
+  Contact points: a condim group keeps the ``cap`` most penetrating contacts;
+  a dropped active contact lies within the group's largest margin, and then
+  so does every kept one. Flagging when either count is reached never misses
+  a dropped contact (and may flag a world that lost none).
+
+  Args:
+    m: the budgeted model (with the numerics MJX reads).
+  """
+
+  def __init__(self, m: mujoco.MjModel):
+    numeric = lambda name: collision_driver._numeric(m, name)  # pylint: disable=protected-access
+    pair_cap, point_cap = numeric("max_geom_pairs"), numeric("max_contact_points")
+    self.pair_cap, self.point_cap = pair_cap, point_cap
+    groups = _pair_groups(m)
+    self.rbound = np.asarray(m.geom_rbound, np.float32)
+    self.aabb = np.asarray(m.geom_aabb, np.float32)
+    # Geom-pair groups the cap culls: their pairs and margins.
+    self.culled = [(g.geom1, g.geom2, g.margin.astype(np.float32))
+                   for g in groups if g.cullable and pair_cap > -1 and len(g.geom1) > pair_cap]
+    # Condim groups the contact cap truncates: their slice of MJX's contact array.
+    emitted: dict[int, int] = {}
+    margin: dict[int, float] = {}
+    for g in groups:
+      pairs = min(len(g.geom1), pair_cap) if g.cullable and pair_cap > -1 else len(g.geom1)
+      emitted[g.condim] = emitted.get(g.condim, 0) + g.ncon * pairs
+      margin[g.condim] = max(margin.get(g.condim, 0.0), float(g.margin.max()))
+    self.slices = []
+    start = 0
+    for condim in sorted(emitted):
+      kept = min(point_cap, emitted[condim]) if point_cap > -1 else emitted[condim]
+      if kept < emitted[condim]:
+        self.slices.append((start, start + kept, margin[condim]))
+      start += kept
+    self.ncon = start
+
+  @property
+  def can_overflow(self) -> bool:
+    return bool(self.culled or self.slices)
+
+  def __call__(self, d) -> jax.Array:
+    """bool[] for one world's ``mjx.Data`` after ``mjx.step`` (its contacts and
+    ``geom_xpos`` are those of the step's start state); vmap it for a batch."""
+    flag = jnp.bool_(False)
+    if self.culled:
+      centre, half = _world_boxes(jnp, d.geom_xpos, d.geom_xmat, jnp.asarray(self.aabb))
+    for g1, g2, margin in self.culled:
+      # As MJX's collision driver culls: the pair_cap smallest sphere distances.
+      pos1, pos2 = d.geom_xpos[g1], d.geom_xpos[g2]
+      gap = jax.vmap(jnp.linalg.norm)(pos2 - pos1) - jnp.asarray(self.rbound[g1] + self.rbound[g2])
+      _, kept = jax.lax.top_k(-gap, k=self.pair_cap)
+      dropped = jnp.ones(len(g1), bool).at[kept].set(False)
+      flag |= jnp.any(dropped & _boxes_overlap(jnp, g1, g2, centre, half, jnp.asarray(margin)))
+    if self.slices:
+      dist = d._impl.contact.dist  # pylint: disable=protected-access
+      for lo, hi, margin in self.slices:
+        flag |= jnp.sum(dist[lo:hi] < margin + DIST_TOLERANCE) >= hi - lo
+    return flag
+
+
+# MuJoCo Warp's OverflowType bits that mean contacts or constraints were
+# dropped: NEFC, NJMAX_NNZ, BROADPHASE, NARROWPHASE, CCD, HFIELD, NVMAX (not
+# the solver's iteration limits).
+WARP_DROPPED = 1 | 2 | 4 | 8 | 16 | 32 | 128
+
+
+def warp_overflow(d) -> jax.Array:
+  """bool[W] of a batched MuJoCo Warp ``mjx.Data``: an overflow counter was set
+  (constraint rows of that world; contact pool overflows set every world's,
+  since the pool is shared and which world lost a contact is not known)."""
+  return (d._impl.overflow & WARP_DROPPED) != 0  # pylint: disable=protected-access
+
+
+def quiet_warp() -> None:
+  """Silences Warp's module-load messages (MuJoCo Warp's overflow prints are
+  turned off per model: ``opt.warn_overflow = 0``)."""
+  import warp
+  warp.config.quiet = True
+  if hasattr(warp.config, "log_level") and hasattr(warp, "LOG_WARNING"):
+    warp.config.log_level = warp.LOG_WARNING

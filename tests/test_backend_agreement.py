@@ -1,0 +1,96 @@
+"""Perturbed sampling on MJX (impl jax, under the pilot's contact budget) and
+MuJoCo Warp answers queries like the native backend: per-query match rates
+agree within a two-proportion confidence interval, on pachinko and SIGGRAPH.
+
+The test: for each query, the two-proportion z-test of H0 "same match rate"
+(pooled variance, normal approximation), Bonferroni-corrected over the
+queries of a scene at a family-wise level of 1 %: |z| < z(1 - 0.005 / Q).
+The backends sample independent runs (different seeds), so a failure means
+a difference in distribution, not in a shared draw.
+
+Power: each query splits the native outcomes near their median (a threshold
+on a body's x at the end, measured once on a separate native run, seed 99),
+so p ~ 0.5. With n worlds per backend the test detects, with 80 % power, a
+difference of about (z_crit + 0.84) * sqrt(0.5 / n): 0.36 for n = 64 and
+8 queries (z_crit = 3.23). It catches a backend that drops or doubles
+contacts (letters that stop on pegs instead of passing, balls that stick),
+not subtle biases; tests/test_mjx.py compares distributions of tiny's
+metrics more finely.
+"""
+
+import pathlib
+
+import jax
+import numpy as np
+import pytest
+from scipy import stats
+
+import mwbx
+from mwbx.queries import Query
+from mwbx.queries.query import evaluate_each
+
+REPO = pathlib.Path(__file__).parent.parent
+
+# Per scene: simulated time (s), worlds per backend, and each body's median x
+# at the end time on the native backend (128 worlds of seed 99), m.
+SCENES = {
+    "pachinko": (1.0, 64, {"ball_0": -0.404, "ball_1": -0.404, "cube_2": -0.33, "ball_3": -0.248,
+                           "ball_4": -0.013, "cube_5": 0.088, "ball_6": 0.384, "ball_7": 0.106}),
+    "siggraph": (1.0, 48, {"letter_S": -0.434, "letter_I": -0.489, "letter_G1": -0.108, "letter_G2": -0.304,
+                           "letter_R": 0.209, "letter_A": 0.135, "letter_P": 0.426, "letter_H": 0.358}),
+}
+FAMILY_ALPHA = 0.01
+
+
+def _config(name: str, impl: str):
+  end_time, _, _ = SCENES[name]
+  config = mwbx.load_config(REPO / "configs" / f"{name}.yaml")
+  return config.model_copy(update={"sim": config.sim.model_copy(update={
+      "end_time": end_time, "mjx_impl": impl, "chunk_size": 64})})
+
+
+def _queries(name: str):
+  end_time, _, medians = SCENES[name]
+  return [Query.region((-10.0, -10.0, -10.0), (x, 10.0, 10.0), bodies=(body,), window=(end_time - 0.05, None),
+                       name=f"{body}_left_of_{x}") for body, x in medians.items()]
+
+
+def _rates(name: str, backend: str, impl: str, seed: int):
+  """(matches i64[Q], valid worlds) of a run."""
+  _, n, _ = SCENES[name]
+  bank = mwbx.sample(_config(name, impl), n, jax.random.key(seed), backend=backend)
+  answers = evaluate_each(bank, _queries(name))  # bool[W, Q], False for invalid worlds
+  return answers.sum(axis=0), int(bank.valid.sum()), bank
+
+
+def _assert_same_rates(a, b, name):
+  (ka, na), (kb, nb) = a, b
+  q = len(ka)
+  z_crit = stats.norm.ppf(1 - FAMILY_ALPHA / 2 / q)
+  pa, pb = ka / na, kb / nb
+  pooled = (ka + kb) / (na + nb)
+  se = np.sqrt(np.maximum(pooled * (1 - pooled), 1e-12) * (1 / na + 1 / nb))
+  z = (pa - pb) / se
+  assert (np.abs(z) < z_crit).all(), (name, pa.round(2), pb.round(2), z.round(2), z_crit)
+  # The queries are informative: native rates away from 0 and 1.
+  assert ((pa > 0.15) & (pa < 0.85)).mean() >= 0.5, (name, pa)
+
+
+@pytest.fixture(scope="module", params=list(SCENES))
+def native(request):
+  matches, valid, _ = _rates(request.param, "native", "jax", seed=1)
+  return request.param, matches, valid
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("impl", ["jax", "warp"])
+def test_mjx_match_rates_agree_with_native(native, impl):
+  if impl == "warp":
+    pytest.importorskip("warp")
+  name, native_matches, native_valid = native
+  matches, valid, bank = _rates(name, "mjx", impl, seed=2)
+  n = SCENES[name][1]
+  # Flagged worlds (over budget, unstable) are few: the pilot's budget holds.
+  assert valid >= 0.9 * n, (name, impl, bank.summary())
+  assert bank.run["contact_budget"]["source"].startswith("pilot")
+  _assert_same_rates((native_matches, native_valid), (matches, valid), f"{name} mjx:{impl}")
