@@ -79,7 +79,12 @@ class Server:
   def stop(self, sig=signal.SIGINT) -> float:
     start = time.monotonic()
     self.proc.send_signal(sig)
-    code = self.proc.wait(timeout=WAIT)
+    try:
+      code = self.proc.wait(timeout=WAIT)
+    finally:  # a server that did not stop is not left behind
+      if self.proc.poll() is None:
+        self.proc.kill()
+        self.proc.wait()
     assert code == 0, self.stderr
     return time.monotonic() - start
 
