@@ -145,8 +145,8 @@ class SimSection(_Strict):
   query_fps: float | None = pydantic.Field(30.0, gt=0)
   backend: Literal["auto", "mjx", "native"] = "auto"
   mjx_impl: Literal["auto", "jax", "warp"] = "auto"
-  chunk_size: int = pydantic.Field(256, gt=0)
-  threads: int = pydantic.Field(0, ge=0)
+  chunk_size: int = pydantic.Field(256, gt=0, le=1 << 24)
+  threads: int = pydantic.Field(0, ge=0, le=4096)
   max_speed: float = pydantic.Field(100.0, gt=0)
   mjx: MjxSection = MjxSection()
 

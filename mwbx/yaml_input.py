@@ -78,7 +78,10 @@ def load(text: str, source: str, malformed: str = "malformed YAML"):
     if node is None:
       return None
     _check_size(node, source)
-    return loader.construct_document(node)
+    try:
+      return loader.construct_document(node)
+    except (ValueError, OverflowError) as err:  # e.g. an int of more than 4300 digits
+      raise MwbxError(f"{source}: a value YAML cannot convert ({short_repr_text(str(err), 120)})") from None
   except yaml.YAMLError as err:
     raise MwbxError(f"{source}: {malformed}: {short_repr_text(str(err), 600)}") from None
   except RecursionError:  # PyYAML's composer recurses once per nesting level

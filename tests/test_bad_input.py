@@ -113,6 +113,19 @@ def test_non_finite_config_values_are_refused(tmp_path, value):
     mwbx.load_config(path)
 
 
+@pytest.mark.parametrize("sim, needle", [
+    ("end_time: 1" + "0" * 5000, "cannot convert"),  # past Python's 4300-digit int limit
+    ("chunk_size: 1" + "0" * 400, "sim.chunk_size"),
+    ("threads: 1" + "0" * 400, "sim.threads"),
+])
+def test_huge_numbers_are_one_short_error(tmp_path, sim, needle):
+  path = tmp_path / "c.yaml"
+  path.write_text(f"scene: {{mjcf: tiny.xml}}\nsim: {{{sim}}}\n")
+  with pytest.raises(mwbx.MwbxError, match=needle) as err:
+    mwbx.load_config(path)
+  assert len(str(err.value)) < 400
+
+
 @pytest.mark.parametrize("end_time, needle", [(".inf", "finite"), ("1e7", "physics steps")])
 def test_unbounded_end_time_is_one_line(tmp_path, end_time, needle):
   path = tmp_path / "c.yaml"
