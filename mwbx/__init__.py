@@ -30,6 +30,7 @@ from mwbx.errors import MwbxError
 from mwbx.queries import Camera
 from mwbx.queries import Frustum
 from mwbx.queries import JointQuery
+from mwbx.queries import OrientationQuery
 from mwbx.queries import Query
 from mwbx.queries import QuerySet
 from mwbx.queries import ScreenBox
@@ -38,6 +39,7 @@ from mwbx.queries import evaluate
 from mwbx.queries import evaluate_each
 from mwbx.queries import first_entry
 from mwbx.queries import load_queries
+from mwbx.queries import orientation_error
 from mwbx.queries import rank
 from mwbx.scene import Scene
 from mwbx.browser import browse
@@ -63,6 +65,7 @@ __all__ = [
     "FLAG_UNSTABLE",
     "Frustum",
     "JointQuery",
+    "OrientationQuery",
     "METRIC_NAMES",
     "MwbxError",
     "QposStore",
@@ -83,6 +86,7 @@ __all__ = [
     "first_entry",
     "load_config",
     "load_queries",
+    "orientation_error",
     "rank",
     "refine",
     "sample",

@@ -76,8 +76,7 @@ def shapes_bank(n_worlds: int = 12, n_frames: int = 41, seed: int = 0, spin: flo
   worlds shorter than others; qpos f32 stored raw (or in `store`)."""
   model = mujoco.MjModel.from_xml_string(SHAPES_XML)
   rng = np.random.default_rng(seed)
-  fps = 120.0
-  t = np.arange(n_frames) / fps
+  t = np.arange(n_frames) / 120.0
   qpos = np.zeros((n_worlds, n_frames, model.nq))
   for name in ("crate", "pill", "gem"):
     adr = model.jnt_qposadr[model.body(name).jntadr[0]]
@@ -92,9 +91,18 @@ def shapes_bank(n_worlds: int = 12, n_frames: int = 41, seed: int = 0, spin: flo
   qpos[:, :, ball:ball + 4] = _quat_exp(w[:, None] * t[None, :, None])
   hinge = model.jnt_qposadr[model.body("lower").jntadr[0]]
   qpos[:, :, hinge] = rng.uniform(-1, 1, (n_worlds, 1)) * np.sin(spin * t)[None]
-  qpos = qpos.astype(np.float32)
   counts = np.full(n_worlds, n_frames, np.int32)
   counts[::3] = max(1, n_frames - 9)  # some worlds end early (the last frame holds)
+  return bank_from_qpos(qpos, counts, store)
+
+
+def bank_from_qpos(qpos, counts=None, store=None, seed: int = 0) -> ShapesBank:
+  """A ShapesBank storing qpos f[W, T, nq] (frames past each world's count
+  are replaced by its last one), its COM paths at 30 fps from MuJoCo."""
+  model = mujoco.MjModel.from_xml_string(SHAPES_XML)
+  qpos = np.array(qpos, np.float32)
+  n_worlds, n_frames = qpos.shape[:2]
+  counts = np.full(n_worlds, n_frames, np.int32) if counts is None else np.asarray(counts, np.int32)
   for w_, c in enumerate(counts):
     qpos[w_, c:] = qpos[w_, c - 1]
   if store is None:
@@ -111,9 +119,10 @@ def shapes_bank(n_worlds: int = 12, n_frames: int = 41, seed: int = 0, spin: flo
       mujoco.mj_kinematics(model, data)
       com[w_, k] = data.xipos[ids]
   flags = np.full(n_worlds, FLAG_FINISHED, np.uint8)
+  rng = np.random.default_rng(seed)
   metrics = rng.uniform(0, 5, (n_worlds, len(BODIES), len(METRIC_NAMES))).astype(np.float32)
   return ShapesBank(com, flags, metrics, np.full(n_worlds, n_points, np.int32), query_fps=30.0,
-                    record_fps=fps, qpos_store=store, frames_stored=counts)
+                    record_fps=120.0, qpos_store=store, frames_stored=counts)
 
 
 # ---------------------------------------------------------------------------
