@@ -87,6 +87,36 @@ def clipped(frustum: Frustum, lo, hi) -> Polytope:
   return Polytope(normals[:-6], offsets[:-6], _dedupe(vertices), starts, dirs, unique, tol)
 
 
+def point_distances(points: np.ndarray, volume: Polytope) -> np.ndarray:
+  """Exact distance of points f64[..., 3] to the volume, metres: 0 inside,
+  else the nearest of their projections onto the volume's faces, edge lines
+  and vertices that lies in the volume (the closest point of a convex
+  polytope is one of these). inf for an empty volume."""
+  n = volume.normals
+  dist = points @ n.T - volume.offsets  # [..., F]
+  inside = np.all(dist <= volume.tol, axis=-1)
+  best = np.where(inside, 0.0, np.inf)
+  cos = n @ n.T
+  d = np.maximum(dist, 0.0)
+  # Faces: moving onto plane i changes distance j by -d_i cos_ij.
+  on_face = dist[..., None, :] - d[..., :, None] * cos  # [..., i, j]
+  ok = np.all(on_face <= volume.tol, axis=-1)
+  best = np.minimum(best, np.min(np.where(ok, d, np.inf), axis=-1))
+  # Edge lines: the nearest point q = p - a d_i n_i... solved for planes i, j.
+  for i, j in itertools.combinations(range(len(n)), 2):
+    g = np.array([[1.0, cos[i, j]], [cos[i, j], 1.0]])
+    if abs(np.linalg.det(g)) < 1e-9:
+      continue
+    coef = np.stack([dist[..., i], dist[..., j]], axis=-1) @ np.linalg.inv(g).T  # [..., 2]
+    q = points - coef[..., :1] * n[i] - coef[..., 1:] * n[j]
+    ok = np.all(q @ n.T - volume.offsets <= volume.tol, axis=-1)
+    best = np.minimum(best, np.where(ok, np.linalg.norm(points - q, axis=-1), np.inf))
+  if len(volume.vertices):
+    gap = np.linalg.norm(points[..., None, :] - volume.vertices, axis=-1).min(axis=-1)
+    best = np.minimum(best, gap)
+  return best
+
+
 def _dedupe(points: np.ndarray) -> np.ndarray:
   _, first = np.unique(np.round(points, 9), axis=0, return_index=True)
   return points[np.sort(first)]
@@ -138,31 +168,56 @@ def separated(points: np.ndarray, rotation: np.ndarray, normals: np.ndarray, dir
     return out
   for s in range(0, n, CHUNK):
     part = slice(s, min(n, s + CHUNK))
-    out[part] = _separated(points[part], rotation[part], normals, directions, edges, grow[part], volume)
+    # The face, edge-pair and vertex-pair axes first; the vertex-edge ones only
+    # for what they leave undecided.
+    found = _separated(points[part], rotation[part], normals, directions, edges, grow[part], volume, False)
+    rest = np.flatnonzero(~found)
+    if rest.size:
+      found[rest] = _separated(points[part][rest], rotation[part][rest], normals, directions, edges,
+                               grow[part][rest], volume, True)
+    out[part] = found
   return out
 
 
-def _separated(x, rot, normals, directions, edges, grow, volume) -> np.ndarray:
+def _separated(x, rot, normals, directions, edges, grow, volume, vertex_edge: bool) -> np.ndarray:
   n = len(x)
   pv = volume.vertices
   axes = [np.broadcast_to(volume.normals, (n,) + volume.normals.shape)]
+  if vertex_edge:
+    return _gap_exceeds(_vertex_edge_axes(x, edges, volume), x, pv, grow, volume.tol)
   if len(normals):
     axes.append(np.einsum("nij,kj->nki", rot, normals))
   if len(directions) and len(volume.directions):
     d = np.einsum("nij,kj->nki", rot, directions)  # [n, D, 3]
     axes.append(np.cross(d[:, :, None], volume.directions[None, None]).reshape(n, -1, 3))
   axes.append((x[:, :, None] - pv[None, None]).reshape(n, -1, 3))  # vertex-vertex
+  return _gap_exceeds(np.concatenate(axes, axis=1), x, pv, grow, volume.tol)
+
+
+def _vertex_edge_axes(x, edges, volume) -> np.ndarray:
+  """f64[n, A, 3] perpendiculars between core vertices and volume edges and
+  between volume vertices and core edges."""
+  n = len(x)
+  axes = [np.zeros((n, 0, 3))]
   if len(volume.edge_starts):  # core vertex - volume edge
     w = x[:, :, None] - volume.edge_starts[None, None]
     axes.append(_perpendicular(w, volume.edge_dirs[None, None]).reshape(n, -1, 3))
   if len(edges):  # volume vertex - core edge
     a = x[:, edges[:, 0]]
     e, _ = _unit(x[:, edges[:, 1]] - a)  # [n, E, 3]
-    w = pv[None, None] - a[:, :, None]  # [n, E, V, 3]
+    w = volume.vertices[None, None] - a[:, :, None]  # [n, E, V, 3]
     axes.append(_perpendicular(w, e[:, :, None]).reshape(n, -1, 3))
-  u, ok = _unit(np.concatenate(axes, axis=1))  # [n, A, 3]
+  return np.concatenate(axes, axis=1)
+
+
+def _gap_exceeds(axes, x, pv, grow, tol) -> np.ndarray:
+  """bool[n]: along some axis f64[n, A, 3], core x f64[n, V, 3] and volume
+  vertices pv f64[Vp, 3] lie apart by more than grow f64[n] (+ tol)."""
+  if axes.shape[1] == 0:
+    return np.zeros(len(x), bool)
+  u, ok = _unit(axes)  # [n, A, 3]
   core = np.einsum("nav,nkv->nak", u, x)  # [n, A, Vc]
   vol = np.einsum("nav,kv->nak", u, pv)  # [n, A, Vp]
   gap = np.maximum(core.min(axis=2) - vol.max(axis=2), vol.min(axis=2) - core.max(axis=2))
   gap = np.where(ok, gap, -np.inf)
-  return np.any(gap > grow[:, None] + volume.tol, axis=1)
+  return np.any(gap > grow[:, None] + tol, axis=1)

@@ -24,11 +24,11 @@ world a brute-force test finds (some point of some geom inside the volume at
 some stored frame in the window) is always found, and a reported hit has a
 geom point within the margin of the volume at a kept frame next to the window.
 
-Fast path, all conservative: chunks of kept frames carry the box of the
-body's bounding spheres grown by their margins; a query tests the chunk
-boxes, then each frame's bounding sphere, then each geom's extent along the
-volume's planes; only frames near an edge or corner of the volume reach the
-exact separating-axis test.
+Fast path, all conservative: one jitted pass tests every kept frame's
+bounding sphere (grown by its margin) against the volume's planes; then, for
+the frames left, each geom's extent along the planes and the exact distance
+of its nearest vertex decide; only frames near an edge or corner of the
+volume reach the separating-axis test.
 """
 
 from __future__ import annotations
@@ -36,14 +36,13 @@ from __future__ import annotations
 import dataclasses
 import weakref
 
+from jax import numpy as jp
 import numpy as np
 
 from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
-from mwbx.queries import convex
 from mwbx.queries import poses as poses_lib
 from mwbx.queries import shapes as shapes_lib
 
-CHUNK = 16  # kept frames per prefilter chunk
 BLOCK = 64  # worlds decoded at once while building
 
 
@@ -60,8 +59,8 @@ class GeometryIndex:
   reach: f64[B] farthest geom point from the COM, m.
   cores: per body, its geoms' cores (:mod:`.shapes`).
   ipos: f64[B, 3] COM in the body frame.
-  box_lo, box_hi: f32[B, W, NC, 3] per chunk, the box of the bounding spheres
-    grown by their margins.
+  repeat: bool[B, W, K] the pose equals the previous kept frame's (at rest):
+    testing it again with no larger margin cannot add a hit.
   lo, hi: f64[3] a box holding every grown shape (the volume is clipped to it).
   valid: bool[W].
   """
@@ -75,11 +74,18 @@ class GeometryIndex:
   reach: np.ndarray
   cores: list
   ipos: np.ndarray
-  box_lo: np.ndarray
-  box_hi: np.ndarray
+  repeat: np.ndarray
   lo: np.ndarray
   hi: np.ndarray
   valid: np.ndarray
+  _device: tuple | None = dataclasses.field(default=None, repr=False)
+
+  def device(self) -> tuple:
+    """(com f32[B, W, K, 3], sweep f32[B, W, K - 1], valid bool[W]) as device
+    arrays (made on first use, for the jitted first stage)."""
+    if self._device is None:
+      self._device = (jp.asarray(self.com), jp.asarray(self.sweep), jp.asarray(self.valid))
+    return self._device
 
 
 def codec_reach(model, body: int, reach: float, bounds) -> float:
@@ -186,36 +192,15 @@ def build(bank, valid: np.ndarray, stride: int | None = None) -> GeometryIndex:
   extent = float(np.max(np.abs(com[:, finite]), initial=0.0))
   tol = 1e-6 * (1.0 + extent)  # float32 storage of poses and margins
   sweep = np.where(np.isfinite(sweep), sweep + np.float32(tol), np.inf).astype(np.float32)
-  box_lo, box_hi = _chunk_boxes(com, _frame_margins(sweep), reach + codec)
   grow = float(np.max(reach + codec, initial=0.0)) + float(np.max(np.where(np.isfinite(sweep[:, finite]),
                                                                           sweep[:, finite], 0.0),
                                                                  initial=0.0))
   lo = np.full(3, -(extent + grow + 1.0))
+  repeat = np.zeros(com.shape[:3], bool)
+  repeat[:, :, 1:] = (np.all(com[:, :, 1:] == com[:, :, :-1], axis=-1)
+                      & np.all(quat[:, :, 1:] == quat[:, :, :-1], axis=-1))
   return GeometryIndex(frames, frames / float(bank.record_fps), com, quat, sweep, codec, reach, cores,
-                       ipos, box_lo, box_hi, lo, -lo, np.asarray(valid, bool))
-
-
-def _frame_margins(sweep: np.ndarray) -> np.ndarray:
-  """f32[B, W, K] the larger margin of the (one or two) intervals at each kept frame."""
-  pad = np.zeros(sweep.shape[:2] + (1,), sweep.dtype)
-  return np.maximum(np.concatenate([sweep, pad], axis=2), np.concatenate([pad, sweep], axis=2))
-
-
-def _chunk_boxes(com, margins, radius):
-  """f32[B, W, NC, 3] lo and hi of the grown bounding spheres per chunk of kept frames."""
-  b, w, k, _ = com.shape
-  n_chunks = -(-k // CHUNK)
-  r = (margins + radius[:, None, None].astype(np.float32))[..., None]
-  lo, hi = com - r, com + r
-  pad = n_chunks * CHUNK - k
-  if pad:
-    lo = np.concatenate([lo, np.repeat(lo[:, :, -1:], pad, axis=2)], axis=2)
-    hi = np.concatenate([hi, np.repeat(hi[:, :, -1:], pad, axis=2)], axis=2)
-  lo = lo.reshape(b, w, n_chunks, CHUNK, 3).min(axis=3)
-  hi = hi.reshape(b, w, n_chunks, CHUNK, 3).max(axis=3)
-  # An unstable world may hold NaN: its boxes cover everything (never culled).
-  bad = ~(np.isfinite(lo) & np.isfinite(hi)).all(axis=-1, keepdims=True)
-  return np.where(bad, -np.inf, lo).astype(np.float32), np.where(bad, np.inf, hi).astype(np.float32)
+                       ipos, repeat, lo, -lo, np.asarray(valid, bool))
 
 
 # ---------------------------------------------------------------------------

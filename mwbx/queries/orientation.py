@@ -213,8 +213,12 @@ def angle_errors(query: OrientationQuery, quats: np.ndarray) -> np.ndarray:
   orientations quats f32[W, T, 4]."""
   q = quats.astype(np.float64)
   if query.axis is not None:
-    a = poses_lib.quat_rotate(q, np.asarray(query.axis))
-    return np.arccos(np.clip(a @ np.asarray(query.up), -1.0, 1.0))
+    # up·(R a) for q = (w, u): up·a (1 - 2|u|²) + 2 w u·(a × up) + 2 (u·up)(u·a).
+    a, up = np.asarray(query.axis), np.asarray(query.up)
+    w, u = q[..., 0], q[..., 1:]
+    cos = (float(up @ a) * (1.0 - 2.0 * np.sum(u * u, axis=-1)) + 2.0 * w * (u @ np.cross(a, up))
+           + 2.0 * (u @ up) * (u @ a))
+    return np.arccos(np.clip(cos, -1.0, 1.0))
   target = q[:, :1] if query.target == "initial" else np.asarray(query.target)
   dot = np.abs(np.sum(q * target, axis=-1))
   return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
@@ -225,9 +229,23 @@ def body_errors(bank, query: OrientationQuery, mask: np.ndarray) -> np.ndarray:
   radians (NaN for unselected bodies)."""
   out = np.full((bank.n_worlds, len(mask)), np.nan)
   f0, f1 = frame_range(bank, query.window)
+  rows = np.arange(bank.n_worlds)
+  lo, hi = int(f0.min(initial=0)), int(f1.max(initial=0))
   for b in np.flatnonzero(mask):
-    err = angle_errors(query, body_quats(bank, int(b)))  # [W, T]
-    frames = np.arange(err.shape[1])[None]
+    quats = body_quats(bank, int(b))
+    if query.window is None:  # the last frames only
+      last = quats[rows, f1][:, None]
+      first = quats[:, :1]
+      err = angle_errors(query, np.concatenate([first, last], axis=1))[:, 1]
+      out[:, b] = err
+      continue
+    span = quats[:, lo:hi + 1]
+    if query.target == "initial" and lo > 0:
+      span = np.concatenate([quats[:, :1], span], axis=1)
+      err = angle_errors(query, span)[:, 1:]
+    else:
+      err = angle_errors(query, span)  # [W, hi - lo + 1]
+    frames = np.arange(lo, hi + 1)[None]
     inside = (frames >= f0[:, None]) & (frames <= f1[:, None])
     out[:, b] = np.max(np.where(inside, err, -np.inf), axis=1)
   return out
