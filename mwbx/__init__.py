@@ -31,6 +31,7 @@ from mwbx.errors import MwbxError
 from mwbx.queries import Camera
 from mwbx.queries import Frustum
 from mwbx.queries import JointQuery
+from mwbx.queries import OrientationQuery
 from mwbx.queries import Query
 from mwbx.queries import QuerySet
 from mwbx.queries import ScreenBox
@@ -39,6 +40,7 @@ from mwbx.queries import evaluate
 from mwbx.queries import evaluate_each
 from mwbx.queries import first_entry
 from mwbx.queries import load_queries
+from mwbx.queries import orientation_error
 from mwbx.queries import rank
 from mwbx.scene import Scene
 from mwbx.qpos_store import QposStore
@@ -85,6 +87,7 @@ __all__ = [
     "FLAG_UNSTABLE",
     "Frustum",
     "JointQuery",
+    "OrientationQuery",
     "METRIC_NAMES",
     "MwbxError",
     "QposStore",
@@ -105,6 +108,7 @@ __all__ = [
     "first_entry",
     "load_config",
     "load_queries",
+    "orientation_error",
     "rank",
     "refine",
     "sample",

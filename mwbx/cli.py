@@ -458,7 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
                  help="open the bank without its corrupt shards (named on stderr)")
   p.set_defaults(func=_cmd_info)
 
-  p = sub.add_parser("query", help="find worlds of a bank with screen-box queries and rank them")
+  p = sub.add_parser("query", help="find worlds of a bank with screen-box, whole-geometry, joint and "
+                                   "orientation queries (docs/queries.md) and rank them")
   p.add_argument("bank", help="bank directory")
   p.add_argument("queries", help="query YAML (e.g. configs/queries/quickstart.yaml)")
   p.add_argument("--rank", default=None, metavar="METRIC[:sum|max]",

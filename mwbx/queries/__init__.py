@@ -7,8 +7,10 @@ from mwbx.queries.gaps import query_gaps
 from mwbx.queries.joint import JointQuery
 from mwbx.queries.metrics import Term
 from mwbx.queries.metrics import metric
+from mwbx.queries.metrics import orientation_error
 from mwbx.queries.metrics import rank
 from mwbx.queries.metrics import score
+from mwbx.queries.orientation import OrientationQuery
 from mwbx.queries.query import Query
 from mwbx.queries.query import body_radii
 from mwbx.queries.query import constraints_satisfied

@@ -13,7 +13,12 @@ kernels judge them. Where not met:
 * an exclude query: how deep the offending bodies go inside (the deepest
   point; ``any``: the deepest body, ``all``: the shallowest), metres;
 * a joint query: how far the joint's turn lies outside its range, radians
-  or metres.
+  or metres;
+* a whole-geometry query: as an include or exclude query on the COM points
+  swept by each body's bounding sphere (``radius="auto"``): the geometry lies
+  in that sphere, so the measure points the same way;
+* an orientation query: how far the angle error exceeds the allowed angle
+  (include) or lies inside it (exclude), radians.
 
 A failed query whose measure is 0 (e.g. a segment crosses a corner between
 two stored points) gets :data:`MIN_GAP`. Unstable worlds get ``inf``.
@@ -24,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from mwbx.queries import joint as joint_lib
+from mwbx.queries import orientation as orientation_lib
 from mwbx.queries.query import Query, as_queries, body_radii, evaluate_each, selection_mask
 
 MIN_GAP = 1e-4  # m (or rad): the gap of a failed query the stored points cannot grade
@@ -50,7 +56,10 @@ def _frustum_gap(bank, query: Query, com: np.ndarray, radii: np.ndarray) -> np.n
   mask = selection_mask(bank, query.bodies)
   if not mask.any():
     return np.full(len(com), np.inf if query.include else 0.0)
-  radius = radii[mask] if query.radius == "auto" else np.full(int(mask.sum()), float(query.radius))
+  if query.radius == "auto" or query.shape == "geometry":
+    radius = radii[mask]
+  else:
+    radius = np.full(int(mask.sum()), float(query.radius))
   points = com[:, _window_points(bank, query.window)][:, :, mask]  # [W, P, b, 3]
   # Outside distance per point: the largest plane distance, sphere pushed out.
   d = query.frustum.distances(points).max(axis=-1) - radius[None, None, :]  # [W, P, b]
@@ -81,8 +90,8 @@ def query_gaps(bank, queries) -> np.ndarray:
     queries: a query, a list of them or a :class:`~mwbx.QuerySet`.
 
   Returns:
-    f64[W, Q] gaps, metres for volume queries and radians or metres for joint
-    queries: 0 where ``evaluate_each`` is True, at least :data:`MIN_GAP`
+    f64[W, Q] gaps, metres for volume queries, radians or metres for joint
+    queries and radians for orientation queries: 0 where ``evaluate_each`` is True, at least :data:`MIN_GAP`
     where it is False, ``inf`` for unstable worlds.
 
   Example::
@@ -102,6 +111,8 @@ def query_gaps(bank, queries) -> np.ndarray:
         com = np.asarray(bank.com[np.arange(bank.n_worlds)], np.float32)
         radii = body_radii(bank.model(), bank.body_ids)
       gaps[:, i] = _frustum_gap(bank, query, com, radii)
+    elif isinstance(query, orientation_lib.OrientationQuery):
+      gaps[:, i] = orientation_lib.orientation_gap(bank, query, selection_mask(bank, query.bodies))
     else:
       gaps[:, i] = _joint_gap(bank, query)
   gaps = np.where(met, 0.0, np.maximum(np.nan_to_num(gaps, nan=np.inf), MIN_GAP))

@@ -7,7 +7,10 @@ a selection of bodies/objects/groups and a reduction (sum or max over the
 selected bodies) and a weight; a score is the weighted sum of terms. The
 query-dependent "constraints_satisfied" metric counts how many of the given
 queries each world satisfies, so worlds that satisfy most of them surface
-when none satisfies all. Ranking is a top-k (partition, then a sort of the k best) over the scores of
+when none satisfies all. An orientation query's error (radians, see
+:func:`orientation_error`) ranks too: a Term with ``query`` set to an
+:class:`~mwbx.OrientationQuery` scores its error instead of a stored metric.
+Ranking is a top-k (partition, then a sort of the k best) over the scores of
 the eligible worlds; unstable worlds are never ranked.
 """
 
@@ -20,6 +23,7 @@ import jax
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.queries import orientation as orientation_lib
 from mwbx.queries import query as query_lib
 
 CONSTRAINTS = "constraints_satisfied"
@@ -33,12 +37,15 @@ class Term(NamedTuple):
   bodies: body/object/group names, or None for every tracked body.
   reduce: "sum" or "max" over the selected bodies.
   weight: factor in the score.
+  query: an OrientationQuery whose error (radians) is the metric (metric
+    "orientation_error"; bodies None: the query's own), or None.
   """
 
   metric: str
   bodies: tuple[str, ...] | None = None
   reduce: str = "sum"
   weight: float = 1.0
+  query: object = None
 
 
 def parse_term(spec: str) -> Term:
@@ -83,6 +90,28 @@ def metric(bank, name: str, bodies=None, reduce: str = "sum") -> np.ndarray:
   return np.max(column, axis=1, initial=-np.inf)
 
 
+def orientation_error(bank, query, bodies=None, reduce: str = "max") -> np.ndarray:
+  """An orientation query's error per world, radians: f64[W].
+
+  Per body, the angle to the goal at the world's last frame (no window) or
+  the largest over the window; combined over the query's bodies (or
+  `bodies`) by "max" or "sum". Rank ascending to list the most upright
+  worlds first.
+
+  Example::
+
+    q = mwbx.OrientationQuery(bodies="S", axis="z", within_deg=15)
+    ids, err = mwbx.rank(bank, mwbx.orientation_error(bank, q), descending=False)
+  """
+  if not isinstance(query, orientation_lib.OrientationQuery):
+    raise MwbxError(f"orientation_error: expected an OrientationQuery, got {type(query).__name__}")
+  if reduce not in REDUCTIONS:
+    raise MwbxError(f"orientation_error: reduce must be one of {REDUCTIONS}, got {reduce!r}")
+  mask = query_lib.selection_mask(bank, query.bodies if bodies is None else bodies)
+  err = orientation_lib.body_errors(bank, query, mask)[:, mask]
+  return np.sum(err, axis=1) if reduce == "sum" else np.max(err, axis=1, initial=-np.inf)
+
+
 def score(bank, terms, queries=()) -> np.ndarray:
   """Weighted sum of terms: f64[W].
 
@@ -100,6 +129,8 @@ def score(bank, terms, queries=()) -> np.ndarray:
       raise MwbxError(f"rank: weight of {t.metric!r} must be finite, got {t.weight!r}")
     if t.metric == CONSTRAINTS:
       value = query_lib.constraints_satisfied(bank, queries).astype(np.float64)
+    elif t.query is not None:
+      value = orientation_error(bank, t.query, t.bodies, t.reduce)
     else:
       value = metric(bank, t.metric, t.bodies, t.reduce)
     total = total + float(t.weight) * value

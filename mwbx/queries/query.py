@@ -4,8 +4,10 @@ A Query is a volume (usually a screen box seen through a camera), a sign
 (`include`: the path must pass through it; `exclude`: it must not), a
 selection of tracked bodies (body, object or group names) combined with
 `any` or `all`, an optional time window in seconds and an optional swept
-sphere radius. A list of queries is their conjunction. Unstable worlds never
-match anything.
+sphere radius; or, with ``shape="geometry"``, about any point of the bodies'
+geoms instead of their COM (:mod:`.geometry`). A list of queries is their
+conjunction (with joint and orientation queries mixed in). Unstable worlds
+never match anything.
 
 Per world, with `hit[b]` = "body b's path meets the volume in the window":
   include/any: some selected body hits;  include/all: every selected body hits
@@ -27,7 +29,10 @@ import mujoco
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.queries import geometry as geometry_lib
+from mwbx.queries import geometry_query
 from mwbx.queries import index as index_lib
+from mwbx.queries import orientation as orientation_lib
 from mwbx.queries.intervals import checked_interval
 from mwbx.queries import joint as joint_lib
 from mwbx.queries import segments
@@ -37,6 +42,7 @@ from mwbx.queries.frustum import Frustum
 
 SIGNS = ("include", "exclude")
 MODES = ("any", "all")
+SHAPES = ("com", "geometry")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -52,6 +58,8 @@ class Query:
     Times past the end of a path see its last point (the world is at rest).
   radius: swept-sphere radius in metres, or "auto" for each body's bounding
     radius (from its own geoms, about its centre of mass).
+  shape: "com" (the centre-of-mass path, swept by `radius`) or "geometry"
+    (any point of the body's geoms, :mod:`.geometry`; radius must be 0).
   name: label for output. camera, box, near, far (screen queries) or
     world_box ((lo, hi), region queries): where the frustum came from, so it
     can be saved.
@@ -69,6 +77,7 @@ class Query:
   near: float | None = None
   far: float | None = None
   world_box: tuple | None = None
+  shape: str = "com"
 
   def __post_init__(self):
     label = f"query {self.name!r}" if self.name else "query"
@@ -92,6 +101,11 @@ class Query:
       if not (math.isfinite(r) and r >= 0):
         raise MwbxError(f"{label}: radius must be a finite number >= 0 (metres), got {self.radius!r}")
       object.__setattr__(self, "radius", r)
+    if self.shape not in SHAPES:
+      raise MwbxError(f"{label}: shape must be one of {SHAPES}, got {self.shape!r}")
+    if self.shape == "geometry" and self.radius != 0.0:
+      raise MwbxError(f"{label}: a geometry query tests the geoms themselves: radius must be 0, "
+                      f"got {self.radius!r}")
 
   @property
   def include(self) -> bool:
@@ -112,15 +126,20 @@ class Query:
                **fields)
 
 
+QUERY_TYPES = (Query, joint_lib.JointQuery, orientation_lib.OrientationQuery)
+
+
 def as_queries(queries) -> tuple:
-  """A Query (or JointQuery), a sequence of them or an object with `.queries` -> tuple."""
-  if isinstance(queries, (Query, joint_lib.JointQuery)):
+  """A Query (JointQuery, OrientationQuery), a sequence of them or an object
+  with `.queries` -> tuple."""
+  if isinstance(queries, QUERY_TYPES):
     return (queries,)
   queries = getattr(queries, "queries", queries)
   out = tuple(queries)
   for i, q in enumerate(out):
-    if not isinstance(q, (Query, joint_lib.JointQuery)):
-      raise MwbxError(f"queries[{i}]: expected a Query or JointQuery, got {type(q).__name__}")
+    if not isinstance(q, QUERY_TYPES):
+      raise MwbxError(f"queries[{i}]: expected a Query, JointQuery or OrientationQuery, "
+                      f"got {type(q).__name__}")
   return out
 
 
@@ -277,10 +296,17 @@ def evaluate_each(bank, queries) -> np.ndarray:
   if bank.n_worlds == 0 or not queries:
     return out
   valid = np.asarray(bank.valid, bool)
-  paths = [i for i, q in enumerate(queries) if isinstance(q, Query)]
+  paths = [i for i, q in enumerate(queries) if isinstance(q, Query) and q.shape == "com"]
   for i, query in enumerate(queries):
-    if not isinstance(query, Query):
+    if isinstance(query, joint_lib.JointQuery):
       out[:, i] = joint_lib.evaluate_joint(bank, query)
+    elif isinstance(query, orientation_lib.OrientationQuery):
+      out[:, i] = orientation_lib.evaluate_orientation(bank, query, selection_mask(bank, query.bodies))
+    elif query.shape == "geometry":
+      mask = selection_mask(bank, query.bodies)
+      hits = geometry_query.geometry_hits(geometry_lib.geometry_index(bank), query.frustum, mask,
+                                          query.window)
+      out[:, i] = combine(hits, mask, query) & valid
   if not paths:
     return out
   blocks = _blocks(bank, valid) if streams(bank) else [(slice(None), _state(bank))]

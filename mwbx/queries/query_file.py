@@ -14,6 +14,7 @@ queries:
     mode: any                      # any | all
     window: [2.0, null]            # seconds, null = open end (default: whole path)
     radius: auto                   # metres or auto (default 0: the COM point)
+    shape: com                     # com | geometry (any point of the bodies' geoms; radius 0)
   - name: never_on_ramp
     region: {min: [-1, -0.3, 0.9], max: [0, 0.3, 1.3]}   # a world box instead
     sign: exclude
@@ -22,8 +23,19 @@ queries:
     turn: [0.5, null]              # radians (metres): at least +0.5 (null: open)
     of: max                        # change (t1 vs t0, default) | max | min over the window
     window: [0.0, null]
+  - name: ball_ends_upright
+    bodies: [ball]
+    upright: z                     # a body axis that points up (world +z), or
+    #   {axis: z, up: [0, 0, 1]} (axis and up: x, y, z, -x, ... or [x, y, z])
+    within_deg: 15                 # degrees
+    window: [4.0, null]            # optional: at every frame in it (default: the last frame)
+  - name: ball_as_placed
+    bodies: [ball]
+    orientation: initial           # or a quaternion [w, x, y, z]
+    within_deg: 10
 rank:                              # optional default ranking
   - {metric: angular_travel, bodies: [ball], reduce: sum, weight: 1.0}
+  - {metric: orientation_error, query: ball_ends_upright}   # an orientation query's error
 order: desc                        # desc | asc
 top: 10
 ```
@@ -46,6 +58,7 @@ from mwbx.queries.metrics import Term
 from mwbx.queries.metrics import parse_term
 from mwbx.queries.joint import JointQuery
 from mwbx.queries.joint import joint_column
+from mwbx.queries.orientation import OrientationQuery
 from mwbx.queries.query import Query
 
 _STRICT = pydantic.ConfigDict(extra="forbid")
@@ -77,6 +90,12 @@ class _Region(pydantic.BaseModel):
   hi: Vec3 = pydantic.Field(alias="max")
 
 
+class _Upright(pydantic.BaseModel):
+  model_config = _STRICT
+  axis: str | Vec3
+  up: str | Vec3 = "z"
+
+
 class _QuerySpec(pydantic.BaseModel):
   model_config = _STRICT
   name: str = ""
@@ -93,6 +112,10 @@ class _QuerySpec(pydantic.BaseModel):
   joint: str | None = None
   turn: tuple[float | None, float | None] | None = None
   of: Literal["change", "max", "min"] | None = None
+  shape: Literal["com", "geometry"] = "com"
+  upright: str | Vec3 | _Upright | None = None
+  orientation: Literal["initial"] | tuple[float, float, float, float] | None = None
+  within_deg: float | None = None
 
 
 class _TermSpec(pydantic.BaseModel):
@@ -101,6 +124,7 @@ class _TermSpec(pydantic.BaseModel):
   bodies: str | list[str] | None = None
   reduce: Literal["sum", "max"] = "sum"
   weight: float = 1.0
+  query: str | None = None
 
 
 class _FileSpec(pydantic.BaseModel):
@@ -136,7 +160,8 @@ class QuerySet(NamedTuple):
     out: dict = {"queries": [_query_dict(q, i) for i, q in enumerate(self.queries)]}
     if self.rank:
       out["rank"] = [{"metric": t.metric, "bodies": None if t.bodies is None else list(t.bodies),
-                      "reduce": t.reduce, "weight": float(t.weight)} for t in self.rank]
+                      "reduce": t.reduce, "weight": float(t.weight)}
+                     | ({} if t.query is None else {"query": t.query.name}) for t in self.rank]
     out["order"] = "desc" if self.descending else "asc"
     if self.top is not None:
       out["top"] = int(self.top)
@@ -163,6 +188,8 @@ def _camera_dict(camera: Camera) -> dict:
 
 def _query_dict(q: Query, index: int) -> dict:
   out: dict = {"name": q.name or f"q{index}"}  # the name load_queries gives an unnamed one
+  if isinstance(q, OrientationQuery):
+    return q.to_dict() | out
   if isinstance(q, JointQuery):
     out.update(joint=q.joint, turn=list(q.turn), of=q.of)
     if q.window is not None:
@@ -187,6 +214,8 @@ def _query_dict(q: Query, index: int) -> dict:
   if q.window is not None:
     out["window"] = list(q.window)
   out["radius"] = q.radius
+  if q.shape != "com":
+    out["shape"] = q.shape
   return out
 
 
@@ -195,7 +224,7 @@ def _location(loc) -> str:
   for part in loc:
     if isinstance(part, int):
       out += f"[{part}]"
-    elif part in ("_MjcfCamera", "_LookAtCamera", "_TermSpec", "str") or "[" in str(part):
+    elif part in ("_MjcfCamera", "_LookAtCamera", "_TermSpec", "_Upright", "str") or "[" in str(part):
       continue  # pydantic's union-member labels
     else:
       out += f".{part}" if out else str(part)
@@ -252,7 +281,7 @@ def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
   queries = []
   for i, q in enumerate(spec.queries):
     queries.append(_query(q, i, path, default_camera, model, bank))
-  terms = _terms(spec.rank, path, bank)
+  terms = _terms(spec.rank, path, bank, queries)
   return QuerySet(tuple(queries), terms, spec.order == "desc", spec.top, path)
 
 
@@ -260,10 +289,12 @@ def _query(q: _QuerySpec, i: int, path: str, default_camera, model, bank) -> Que
   where = f"queries[{i}]"
   if q.joint is not None or q.turn is not None or q.of is not None:
     return _joint_query(q, where, path, model)
+  if q.upright is not None or q.orientation is not None or q.within_deg is not None:
+    return _orientation_query(q, where, path, bank)
   if (q.box is None) == (q.region is None):
     raise MwbxError(f"{path}: {where}: give exactly one of 'box' (screen) or 'region' (world)")
   fields = dict(bodies=q.bodies, sign=q.sign, mode=q.mode, window=q.window,
-                radius=q.radius, name=q.name or f"q{i}")
+                radius=q.radius, name=q.name or f"q{i}", shape=q.shape)
   try:
     if q.box is not None:
       camera = default_camera if q.camera is None else _camera(q.camera, f"{where}.camera",
@@ -305,7 +336,33 @@ def _joint_query(q: _QuerySpec, where: str, path: str, model) -> JointQuery:
   return query
 
 
-def _terms(rank, path: str, bank) -> tuple[Term, ...]:
+def _orientation_query(q: _QuerySpec, where: str, path: str, bank) -> OrientationQuery:
+  spatial = [name for name in ("box", "region", "camera", "near", "far") if getattr(q, name) is not None]
+  if spatial or q.radius != 0.0 or q.shape != "com":
+    extra = spatial + [n for n, bad in (("radius", q.radius != 0.0), ("shape", q.shape != "com")) if bad]
+    raise MwbxError(f"{path}: {where}: an orientation query takes bodies, upright or orientation, "
+                    f"within_deg, window, sign, mode and name, not {', '.join(extra)}")
+  if (q.upright is None) == (q.orientation is None):
+    raise MwbxError(f"{path}: {where}: an orientation query needs exactly one of 'upright' "
+                    f"(a body axis) or 'orientation' (a quaternion or 'initial')")
+  if q.within_deg is None:
+    raise MwbxError(f"{path}: {where}: an orientation query needs 'within_deg' (degrees)")
+  upright = _Upright(axis=q.upright) if isinstance(q.upright, (str, tuple)) else q.upright
+  fields = dict(bodies=q.bodies, within_deg=q.within_deg, window=q.window, sign=q.sign, mode=q.mode,
+                name=q.name or where)
+  try:
+    if upright is not None:
+      query = OrientationQuery(axis=upright.axis, up=upright.up, **fields)
+    else:
+      query = OrientationQuery(target=q.orientation, **fields)
+    if bank is not None and query.bodies:
+      bank.select_bodies(list(query.bodies))
+  except MwbxError as err:
+    raise MwbxError(f"{path}: {where}: {err}") from None
+  return query
+
+
+def _terms(rank, path: str, bank, queries=()) -> tuple[Term, ...]:
   if rank is None:
     return ()
   if isinstance(rank, str):
@@ -317,8 +374,9 @@ def _terms(rank, path: str, bank) -> tuple[Term, ...]:
         term = parse_term(t)
       else:
         bodies = (t.bodies,) if isinstance(t.bodies, str) else t.bodies
-        term = Term(t.metric, None if bodies is None else tuple(bodies), t.reduce, t.weight)
-      if bank is not None:
+        term = Term(t.metric, None if bodies is None else tuple(bodies), t.reduce, t.weight,
+                    _named_orientation(t, queries))
+      if bank is not None and term.query is None:
         known = tuple(bank.metric_names) + ("constraints_satisfied",)
         if term.metric not in known:
           raise MwbxError(f"unknown metric {term.metric!r} (known: {', '.join(known)})")
@@ -328,3 +386,17 @@ def _terms(rank, path: str, bank) -> tuple[Term, ...]:
       raise MwbxError(f"{path}: rank[{i}]: {err}") from None
     terms.append(term)
   return tuple(terms)
+
+
+def _named_orientation(term: _TermSpec, queries) -> OrientationQuery | None:
+  """The orientation query a rank term names (its error is the metric), or None."""
+  if term.query is None:
+    return None
+  if term.metric != "orientation_error":
+    raise MwbxError(f"'query' names an orientation query for metric orientation_error, not {term.metric!r}")
+  named = [q for q in queries if isinstance(q, OrientationQuery) and q.name == term.query]
+  if not named:
+    known = [q.name for q in queries if isinstance(q, OrientationQuery)]
+    raise MwbxError(f"no orientation query named {term.query!r} (orientation queries: "
+                    f"{', '.join(known) or 'none'})")
+  return named[0]

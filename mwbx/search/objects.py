@@ -15,7 +15,8 @@ def involved_objects(owner, query) -> list[str]:
   Args:
     owner: a :class:`~mwbx.Bank` or a :class:`~mwbx.Scene` (its tracked
       bodies, objects, groups and model).
-    query: a :class:`~mwbx.Query` or :class:`~mwbx.JointQuery`.
+    query: a :class:`~mwbx.Query`, :class:`~mwbx.OrientationQuery` (by their bodies) or
+      :class:`~mwbx.JointQuery`.
   """
   if isinstance(query, JointQuery):
     model = owner.model() if callable(owner.model) else owner.model

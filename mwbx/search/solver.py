@@ -47,7 +47,7 @@ import numpy as np
 from mwbx.bank import Bank
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
-from mwbx.queries import JointQuery, first_entry, metric, query_gaps
+from mwbx.queries import JointQuery, OrientationQuery, first_entry, metric, query_gaps
 from mwbx.queries.query import as_queries, body_radii, selection_mask
 from mwbx.refinement import refine_run, sampler_for
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
@@ -145,13 +145,15 @@ class SolveResult(NamedTuple):
 def deadline(bank, world: int, query) -> float:
   """Seconds by which a query's objects must be right, in one world: an
   include query's window start (else the world's end), an exclude query's
-  first entry, a joint query's window start (else its end)."""
+  first entry (a whole-geometry one's: its bounding sphere's, no later), a
+  joint or orientation query's window start (else its end)."""
   end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
-  if isinstance(query, JointQuery) or query.include:
+  if isinstance(query, (JointQuery, OrientationQuery)) or query.include:
     window = query.window or (None, None)
     t = window[0] if window[0] is not None else window[1]
     return min(end, t) if t is not None else end
-  t = first_entry(bank, world, query.bodies, query.frustum, window=query.window, radius=query.radius)
+  radius = "auto" if query.shape == "geometry" else query.radius
+  t = first_entry(bank, world, query.bodies, query.frustum, window=query.window, radius=radius)
   return end if t is None else t
 
 

@@ -1,0 +1,233 @@
+"""Whole-geometry queries: does any point of a body's geoms enter a volume?
+
+A COM path can miss a box that a body's corner passes through. With
+``Query(shape="geometry")`` a body hits the volume if some point of its
+geoms (their true shapes, see :mod:`.shapes`) enters it during the window.
+
+What is tested, and the bound: the stored qpos frames (decoded, at
+``record_fps``) give each body's pose by forward kinematics. Poses are kept
+every ``stride`` frames (the query rate); for each interval between two kept
+frames a sweep margin ``m`` bounds how far any point of the body gets from
+its place at the nearer kept frame, over every stored frame in between and
+the motion between consecutive stored frames (linear in position, shortest
+rotation):  with c the centre of mass, theta the rotation between two poses
+and `reach` the body's farthest geom point from c,
+
+  m = max_j min(|c_j - c_A| + 2 sin(theta_jA / 2) reach, same to B)
+      + max_j (|c_j+1 - c_j| / 2 + 2 sin(theta_j,j+1 / 4) reach).
+
+The codec's bound adds a constant per body (its joints' position, rotation
+and scalar bounds times their lever arms), and a float tolerance. A body hits
+when, at a kept frame whose interval overlaps the window, its exact geom
+shapes come within that frame's margin of the volume (:mod:`.convex`). So a
+world a brute-force test finds (some point of some geom inside the volume at
+some stored frame in the window) is always found, and a reported hit has a
+geom point within the margin of the volume at a kept frame next to the window.
+
+Fast path, all conservative: one jitted pass tests every kept frame's
+bounding sphere (grown by its margin) against the volume's planes; then, for
+the frames left, each geom's extent along the planes and the exact distance
+of its nearest vertex decide; only frames near an edge or corner of the
+volume reach the separating-axis test.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import weakref
+
+from jax import numpy as jp
+import numpy as np
+
+from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
+from mwbx.queries import poses as poses_lib
+from mwbx.queries import shapes as shapes_lib
+
+BLOCK = 64  # worlds decoded at once while building
+
+
+@dataclasses.dataclass
+class GeometryIndex:
+  """Kept poses, sweep margins and prefilter boxes of a bank's tracked bodies.
+
+  frames: i64[K] kept record frames (the last holds each world's rest).
+  times: f64[K] their times, seconds.
+  com: f32[B, W, K, 3] centres of mass, metres.
+  quat: f32[B, W, K, 4] orientations (w, x, y, z).
+  sweep: f32[B, W, K - 1] margin of each interval between kept frames, m.
+  codec: f64[B] the codec bound's reach per body, m (0 for raw qpos).
+  reach: f64[B] farthest geom point from the COM, m.
+  cores: per body, its geoms' cores (:mod:`.shapes`).
+  ipos: f64[B, 3] COM in the body frame.
+  repeat: bool[B, W, K] the pose equals the previous kept frame's (at rest):
+    testing it again with no larger margin cannot add a hit.
+  lo, hi: f64[3] a box holding every grown shape (the volume is clipped to it).
+  valid: bool[W].
+  """
+
+  frames: np.ndarray
+  times: np.ndarray
+  com: np.ndarray
+  quat: np.ndarray
+  sweep: np.ndarray
+  codec: np.ndarray
+  reach: np.ndarray
+  cores: list
+  ipos: np.ndarray
+  repeat: np.ndarray
+  lo: np.ndarray
+  hi: np.ndarray
+  valid: np.ndarray
+  _device: tuple | None = dataclasses.field(default=None, repr=False)
+
+  def device(self) -> tuple:
+    """(com f32[B, 3, W, K] (coordinates first), sweep f32[B, W, K - 1],
+    valid bool[W]) as device arrays (made on first use, for the jitted first
+    stage)."""
+    if self._device is None:
+      self._device = (jp.asarray(np.ascontiguousarray(np.moveaxis(self.com, 3, 1))), jp.asarray(self.sweep),
+                      jp.asarray(self.valid))
+    return self._device
+
+
+def codec_reach(model, body: int, reach: float, bounds) -> float:
+  """Metres the codec's error can move a point of a body: per joint placing
+  it, the joint's bound times its lever (free: sqrt(3) e_pos + e_rot lever;
+  ball: e_rot lever; hinge: e_scalar lever; slide: e_scalar).
+
+  The lever is bounded by the chain's lengths from the joint to the body's
+  farthest geom point, whatever the configuration.
+  """
+  if bounds is None:
+    return 0.0
+  total = 0.0
+  below = float(np.linalg.norm(model.body_ipos[body])) + reach  # from the body's origin
+  b = int(body)
+  while b > 0:
+    for j in range(int(model.body_jntadr[b]), int(model.body_jntadr[b] + model.body_jntnum[b])):
+      kind = int(model.jnt_type[j])
+      lever = below + float(np.linalg.norm(model.jnt_pos[j]))
+      if kind == JNT_FREE:
+        total += np.sqrt(3.0) * bounds.e_pos + bounds.e_rot * lever
+      elif kind == JNT_BALL:
+        total += bounds.e_rot * lever
+      elif kind == JNT_HINGE:
+        total += bounds.e_scalar * lever
+      elif kind == JNT_SLIDE:
+        total += bounds.e_scalar
+    below += float(np.linalg.norm(model.body_pos[b]))
+    b = int(model.body_parentid[b])
+  return total
+
+
+def _chord(dot: np.ndarray) -> np.ndarray:
+  """2 sin(theta / 2) of rotations with |q1·q2| = cos(theta / 2)."""
+  return 2.0 * np.sqrt(np.clip(1.0 - dot * dot, 0.0, 1.0))
+
+
+def _quarter_chord(dot: np.ndarray) -> np.ndarray:
+  """2 sin(theta / 4) of rotations with |q1·q2| = cos(theta / 2)."""
+  return 2.0 * np.sqrt(np.clip((1.0 - np.abs(dot)) / 2.0, 0.0, 1.0))
+
+
+def sweep_margins(com: np.ndarray, quat: np.ndarray, reach: np.ndarray, stride: int) -> np.ndarray:
+  """The margin of each interval between kept frames (module docstring).
+
+  Args:
+    com: f64[..., T, B, 3] centres of mass at every stored frame, T = 1 + k stride.
+    quat: f64[..., T, B, 4] unit orientations.
+    reach: f64[B] metres.
+    stride: stored frames per interval.
+
+  Returns:
+    f64[..., k, B] metres.
+  """
+  t = com.shape[-3]
+  n_int = (t - 1) // stride
+  start = np.arange(n_int) * stride
+  steps = start[:, None] + np.arange(stride + 1)[None]  # [k, s+1] frames of each interval
+  c, q = com[..., steps, :, :], quat[..., steps, :, :]  # [..., k, s+1, B, *]
+
+  def apart(end: int) -> np.ndarray:
+    """How far any point gets from its place at one end of its interval."""
+    dc = np.linalg.norm(c - c[..., end:end + 1, :, :], axis=-1)
+    dot = np.abs(np.sum(q * q[..., end:end + 1, :, :], axis=-1))
+    return dc + _chord(dot) * reach
+
+  to_ends = np.minimum(apart(0), apart(stride)).max(axis=-2)  # [..., k, B]
+  step_c = np.linalg.norm(np.diff(c, axis=-3), axis=-1) / 2.0
+  step_q = _quarter_chord(np.sum(q[..., 1:, :, :] * q[..., :-1, :, :], axis=-1)) * reach
+  return to_ends + (step_c + step_q).max(axis=-2)
+
+
+def build(bank, valid: np.ndarray, stride: int | None = None) -> GeometryIndex:
+  """The geometry index of a bank's tracked bodies (decodes every world once)."""
+  model = bank.model()
+  body_ids = np.asarray(bank.body_ids, np.int64)
+  n_bodies, n_worlds = len(body_ids), bank.n_worlds
+  if stride is None:
+    stride = max(1, int(round(float(bank.record_fps) / float(bank.query_fps))))
+  counts = np.asarray(bank.frame_count, np.int64)
+  n_frames = max(int(counts.max(initial=1)), 1)
+  n_int = max(1, -(-(n_frames - 1) // stride))
+  t_pad = n_int * stride + 1
+  frames = np.arange(n_int + 1) * stride
+  cores = [shapes_lib.body_cores(model, int(b)) for b in body_ids]
+  reach = np.array([shapes_lib.reach(model, int(b), c) for b, c in zip(body_ids, cores)])
+  bounds = getattr(bank.qpos_store, "bounds", None)
+  codec = np.array([codec_reach(model, int(b), r, bounds) for b, r in zip(body_ids, reach)])
+  ipos = np.asarray(model.body_ipos[body_ids], np.float64)
+  com = np.zeros((n_bodies, n_worlds, n_int + 1, 3), np.float32)
+  quat = np.zeros((n_bodies, n_worlds, n_int + 1, 4), np.float32)
+  sweep = np.zeros((n_bodies, n_worlds, n_int), np.float32)
+  for s in range(0, n_worlds, BLOCK):
+    rows = np.arange(s, min(n_worlds, s + BLOCK))
+    qpos = poses_lib.padded(poses_lib.decoded_frames(bank, rows), t_pad)  # [w, T, nq]
+    w = len(rows)
+    xpos, xquat = poses_lib.body_poses(model, qpos.reshape(w * t_pad, -1), body_ids)
+    xquat = xquat.reshape(w, t_pad, n_bodies, 4)
+    c = (xpos + poses_lib.quat_rotate(xquat.reshape(-1, n_bodies, 4), ipos)).reshape(w, t_pad, n_bodies, 3)
+    sweep[:, rows] = np.transpose(sweep_margins(c, xquat, reach, stride), (2, 0, 1))
+    com[:, rows] = np.transpose(c[:, frames], (2, 0, 1, 3))
+    quat[:, rows] = np.transpose(xquat[:, frames], (2, 0, 1, 3))
+  finite = np.isfinite(com).all(axis=(0, 2, 3)) & valid
+  extent = float(np.max(np.abs(com[:, finite]), initial=0.0))
+  tol = 1e-6 * (1.0 + extent)  # float32 storage of poses and margins
+  sweep = np.where(np.isfinite(sweep), sweep + np.float32(tol), np.inf).astype(np.float32)
+  grow = float(np.max(reach + codec, initial=0.0)) + float(np.max(np.where(np.isfinite(sweep[:, finite]),
+                                                                          sweep[:, finite], 0.0),
+                                                                 initial=0.0))
+  lo = np.full(3, -(extent + grow + 1.0))
+  repeat = np.zeros(com.shape[:3], bool)
+  repeat[:, :, 1:] = (np.all(com[:, :, 1:] == com[:, :, :-1], axis=-1)
+                      & np.all(quat[:, :, 1:] == quat[:, :, :-1], axis=-1))
+  return GeometryIndex(frames, frames / float(bank.record_fps), com, quat, sweep, codec, reach, cores,
+                       ipos, repeat, lo, -lo, np.asarray(valid, bool))
+
+
+# ---------------------------------------------------------------------------
+# Per-bank cache
+
+
+_CACHE: dict[int, tuple[object, tuple, GeometryIndex]] = {}
+
+
+def geometry_index(bank) -> GeometryIndex:
+  """The bank's geometry index (built on first use, then cached per bank)."""
+  valid = np.asarray(bank.valid, bool)
+  key = (bank.n_worlds, valid.tobytes(), id(bank.qpos_store))
+  entry = _CACHE.get(id(bank))
+  if entry is not None:
+    ref, old_key, index = entry
+    alive = ref() if isinstance(ref, weakref.ref) else ref
+    if alive is bank and old_key == key:
+      return index
+  index = build(bank, valid)
+  try:
+    ref = weakref.ref(bank, lambda _, k=id(bank): _CACHE.pop(k, None))
+  except TypeError:
+    ref = bank
+    for k in [k for k, (r, _, _) in _CACHE.items() if not isinstance(r, weakref.ref)]:
+      del _CACHE[k]
+  _CACHE[id(bank)] = (ref, key, index)
+  return index
