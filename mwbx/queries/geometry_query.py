@@ -17,8 +17,6 @@ keeps what provably hits):
 
 from __future__ import annotations
 
-from functools import partial
-
 import jax
 from jax import numpy as jp
 import numpy as np
