@@ -679,3 +679,20 @@ def test_grid_cells_never_overlap(n, size, yaw, pitch):
   # Extents below 0.2 m count as 0.2 m (tiny scenes still get usable cells).
   tall = max(size[2], 0.2) > max(np.ptp(corners @ np.cross([0, 0, 1.0], grid.col_axis)), 0.2)
   assert np.allclose(grid.row_axis, [0, 0, -1]) == tall
+
+
+def test_orientation_queries_colour_the_worlds_they_reject(real_bank):
+  """An exclude orientation query makes the worlds it rejects red, an include
+  one leaves only the worlds it holds in as matches (viewer colour classes)."""
+  from mwbx import queries as mq
+  from mwbx.viewer import query_adapter
+
+  upright = mq.OrientationQuery(bodies="box_a", axis=(0.0, 0.0, 1.0), within_deg=20.0)
+  tilted = mq.OrientationQuery(bodies="box_a", axis=(0.0, 0.0, 1.0), within_deg=20.0, sign="exclude")
+  held = np.asarray(mq.evaluate_each(real_bank, [upright]), bool)[:, 0]
+  valid = np.asarray(real_bank.valid, bool)
+  match, exclude = query_adapter.evaluate_classes(real_bank, [upright])
+  assert match.tolist() == (held & valid).tolist() and not exclude.any()
+  match, exclude = query_adapter.evaluate_classes(real_bank, [tilted])
+  assert exclude.tolist() == (held & valid).tolist()
+  assert match.tolist() == (~held & valid).tolist()

@@ -15,7 +15,14 @@ from mwbx import queries as mq
 
 
 def is_query(q: Any) -> bool:
-  return isinstance(q, (mq.Query, mq.JointQuery))
+  return isinstance(q, (mq.Query, mq.JointQuery, mq.OrientationQuery))
+
+
+def is_negative(q: Any) -> bool:
+  """An exclude query (frustum queries say ``include``, orientation queries ``sign``)."""
+  if isinstance(q, mq.OrientationQuery):
+    return q.sign == "exclude"
+  return not q.include
 
 
 def evaluate_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
@@ -25,6 +32,6 @@ def evaluate_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray, np.ndarr
   valid = np.asarray(bank.valid, bool)
   each = np.asarray(mq.evaluate_each(bank, real), bool)  # [W, Q]
   match = np.all(each, axis=1) & valid
-  negative = np.asarray([not q.include for q in real], bool)
+  negative = np.asarray([is_negative(q) for q in real], bool)
   exclude = np.any(~each[:, negative], axis=1) & valid if negative.any() else np.zeros_like(valid)
   return match, exclude
