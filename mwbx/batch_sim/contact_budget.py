@@ -136,12 +136,12 @@ def _boxes_overlap(xp, g1, g2, centre, half, margin):
   return xp.all(xp.abs(centre[g2] - centre[g1]) <= reach, axis=-1)
 
 
-def _pairs_needed(m: mujoco.MjModel, d: mujoco.MjData, g: _PairGroup) -> int:
+def _pairs_needed(m: mujoco.MjModel, d: mujoco.MjData, g: _PairGroup, boxes) -> int:
   """Pairs MJX must keep in group ``g`` so that every pair whose boxes overlap
-  is kept: the rank, by bounding-sphere distance, of the farthest such pair."""
+  is kept: the rank, by bounding-sphere distance, of the farthest such pair.
+  ``boxes``: :func:`_world_boxes` of the frame."""
   gap = _sphere_gap(np, g.geom1, g.geom2, d.geom_xpos, m.geom_rbound)
-  centre, half = _world_boxes(np, d.geom_xpos, d.geom_xmat, m.geom_aabb)
-  near = _boxes_overlap(np, g.geom1, g.geom2, centre, half, g.margin)
+  near = _boxes_overlap(np, g.geom1, g.geom2, *boxes, g.margin)
   return int((gap <= gap[near].max()).sum()) if near.any() else 0
 
 
@@ -179,7 +179,8 @@ def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None
       d.qpos[:] = qpos
       mujoco.mj_fwdPosition(m, d)
       frames += 1
-      near = [_pairs_needed(m, d, g) for g in groups]
+      boxes = _world_boxes(np, d.geom_xpos, d.geom_xmat, m.geom_aabb)
+      near = [_pairs_needed(m, d, g, boxes) for g in groups]
       cullable = [n for n, g in zip(near, groups) if g.cullable]
       dims = d.contact.dim[:d.ncon]
       per_condim = np.bincount(dims, minlength=7).max() if d.ncon else 0
