@@ -73,7 +73,9 @@ class PilotCounts(NamedTuple):
   Attributes:
     geom_pairs: geom pairs whose bounding spheres came within their margin,
       in one cullable collision-function group of MJX.
-    contact_points: active contacts (MuJoCo C) of one condim.
+    contact_points: contact points MJX may keep active in one condim group:
+      ``ncon`` of its collision function (the points it emits per pair, 2 to
+      4; duplicates included) for each geom pair MuJoCo C has in contact.
     candidates: geom pairs within margin by bounding sphere in one world,
       plane and height-field pairs included (MuJoCo Warp's broadphase).
     contacts: active contacts in one world.
@@ -172,6 +174,8 @@ def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None
   m = scene.model
   d = mujoco.MjData(m)
   groups = _pair_groups(m)
+  # Each geom pair's (points MJX emits for it, condim group).
+  emits = {(int(a), int(b)): (g.ncon, g.condim) for g in groups for a, b in zip(g.geom1, g.geom2)}
   counts = np.zeros(5, np.int64)  # geom_pairs, contact_points, candidates, contacts, rows
   frames = 0
   for world_id in bank.world_ids:
@@ -182,8 +186,11 @@ def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None
       boxes = _world_boxes(np, d.geom_xpos, d.geom_xmat, m.geom_aabb)
       near = [_pairs_needed(m, d, g, boxes) for g in groups]
       cullable = [n for n, g in zip(near, groups) if g.cullable]
-      dims = d.contact.dim[:d.ncon]
-      per_condim = np.bincount(dims, minlength=7).max() if d.ncon else 0
+      points = np.zeros(7, np.int64)
+      for a, b in {(int(min(p)), int(max(p))) for p in d.contact.geom[:d.ncon]}:
+        ncon, condim = emits.get((a, b), emits.get((b, a), (4, 3)))
+        points[condim] += ncon
+      per_condim = int(points.max())
       counts = np.maximum(counts, [max(cullable, default=0), per_condim, sum(near), d.ncon, d.nefc])
   return PilotCounts(*(int(c) for c in counts), worlds=n_worlds, frames=frames)
 
