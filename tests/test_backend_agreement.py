@@ -1,6 +1,11 @@
 """Perturbed sampling on MJX (impl jax, under the pilot's contact budget) and
 MuJoCo Warp answers queries like the native backend: per-query match rates
-agree within a two-proportion confidence interval, on pachinko and SIGGRAPH.
+agree within a two-proportion confidence interval, on pachinko and SIGGRAPH
+(SIGGRAPH: one query open, see _SIGGRAPH_OPEN).
+
+Cost: minutes of CPU (marked slow; it runs in ``make test``): on 2 cores
+shared with other work, pachinko took 6 min on mjx:jax and 2.5 min on
+mjx:warp, SIGGRAPH 12 and 3.5 min (mostly XLA compiling the block).
 
 The test: for each query, the two-proportion z-test of H0 "same match rate"
 (pooled variance, normal approximation), Bonferroni-corrected over the
