@@ -20,15 +20,14 @@ two give the same perturbations up to float rounding.
 from __future__ import annotations
 
 import math
-import numba
 import numpy as np
 
 from mwbx.batch_sim import host_loops, world
 from mwbx.batch_sim.world import (ANGULAR_TRAVEL, COLLISIONS, MAX_HEIGHT, ORIENTATION_ERROR, PATH_LENGTH,
                                    REST_TIME)
+from mwbx.host_jit import host_jit
 from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR_WIDTH
 
-_jit = numba.njit(cache=True, nogil=True)
 _MASK32 = np.uint64(0xFFFFFFFF)
 
 
@@ -67,12 +66,12 @@ def init_carry(n_bodies: int, active: np.ndarray) -> world.WorldCarry:
 
 # --- jax.random, bit for bit -------------------------------------------------
 
-@_jit
+@host_jit
 def _rotl32(x, r):
   return ((x << np.uint64(r)) | (x >> np.uint64(32 - r))) & _MASK32
 
 
-@_jit
+@host_jit
 def threefry2x32(key0, key1, x0, x1):
   """The Threefry-2x32 block (20 rounds) of ``jax.random``, on uint32 values held in uint64."""
   k0 = np.uint64(key0)
@@ -91,13 +90,13 @@ def threefry2x32(key0, key1, x0, x1):
   return a, b
 
 
-@_jit
+@host_jit
 def fold_in(key0, key1, data):
   """``jax.random.fold_in`` of a threefry key (two uint32 words) with a uint32."""
   return threefry2x32(key0, key1, np.uint64(0), np.uint64(data) & _MASK32)
 
 
-@_jit
+@host_jit
 def body_step_uniforms(key0, key1, step, body, out):
   """``mwbx.perturb.sparse.body_step_uniforms``: six float32 uniforms into ``out``."""
   k0, k1 = fold_in(key0, key1, step)
@@ -109,12 +108,12 @@ def body_step_uniforms(key0, key1, step, body, out):
 
 # --- one body at one step ----------------------------------------------------
 
-@_jit
+@host_jit
 def _norm3(x, y, z):
   return math.sqrt(x * x + y * y + z * z)
 
 
-@_jit
+@host_jit
 def _perturbation(u0, u1, u2, dx, dy, dz, alpha, exponent, out):
   """``perturb.perturbation_from_uniforms`` about ``(dx, dy, dz)`` into ``out`` (f64[3]).
 
@@ -150,7 +149,7 @@ def _perturbation(u0, u1, u2, dx, dy, dz, alpha, exponent, out):
   out[2] = scale * pz
 
 
-@_jit
+@host_jit
 def _impulse_wrench(dv, dw, mass, inertia, quat, dt, out):
   """``perturb.impulse_wrench`` into ``out`` (f64[6]): force, torque in the world frame."""
   norm = math.sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2] + quat[3] * quat[3])
@@ -167,7 +166,7 @@ def _impulse_wrench(dv, dw, mass, inertia, quat, dt, out):
   out[5] = (r20 * bx + r21 * by + r22 * bz) / dt
 
 
-@_jit
+@host_jit
 def _finite_step(sensors, n_bodies):
   """``world._finite`` of one step: COM, orientation and velocities of every body finite."""
   for b in range(n_bodies):
@@ -179,7 +178,7 @@ def _finite_step(sensors, n_bodies):
 
 # --- one frame of a batch ----------------------------------------------------
 
-@_jit
+@host_jit
 def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_start, frame,
                  qpos_buf, com_buf, wrench_full, running):
   """:func:`world.frame_update` for the worlds that ran a frame, and the recording.

@@ -11,15 +11,14 @@ is :mod:`host_bookkeeping`.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from mwbx.host_jit import host_jit
 from mwbx.scene import COM_POS, LIN_ACC, LIN_VEL, SENSOR_WIDTH
 
-_jit = numba.njit(cache=True, nogil=True)
 
 
-@_jit
+@host_jit
 def absorb_rows(rows, before, after, sensors, timestep, qvel_start, sensordata, warmstart,
                 states):
   """What one frame of ``NativeBackend.step`` output means, written in place.
@@ -51,7 +50,7 @@ def absorb_rows(rows, before, after, sensors, timestep, qvel_start, sensordata, 
       states[r, j] = after[i, n_steps - 1, j]
 
 
-@_jit
+@host_jit
 def rotation_matrix(w, x, y, z):
   """The 3x3 rotation matrix of the unit quaternion (w, x, y, z), row by row
   (numba twin of ``mwbx.rotations.quat_to_matrix``; tests/test_rotations.py)."""
@@ -60,7 +59,7 @@ def rotation_matrix(w, x, y, z):
           2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
 
-@_jit
+@host_jit
 def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel_start, qpos_adr,
                         dof_adr, ipos, iquat, sensordata):
   """:func:`mwbx.batch_sim.free_bodies.observe` for the worlds of a frame, compiled.

@@ -17,12 +17,11 @@ reset before every world.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c
+from mwbx.host_jit import host_jit
 
-_jit = numba.njit(cache=True, nogil=True)
 
 _step = mujoco_c.mj_step
 _reset = mujoco_c.mj_resetData
@@ -33,14 +32,14 @@ _CLOCK = mujoco_c.CLOCK_MONOTONIC
 _FULLPHYSICS = mujoco_c.STATE_FULLPHYSICS
 
 
-@_jit
+@host_jit
 def monotonic_seconds(ts):
   """Monotonic clock, s (``ts``: i64[2] scratch for the timespec)."""
   _clock(_CLOCK, ts.ctypes.data)
   return ts[0] + 1e-9 * ts[1]
 
 
-@_jit
+@host_jit
 def physics_step(model_adr, data_adr, xfrc_applied, wrench, data_ctrl, ctrl_table, k, state_out, free,
                  sensors_out, data_sensordata):
   """One ``mj_step`` of a world with the step's applied wrenches and control.
@@ -61,7 +60,7 @@ def physics_step(model_adr, data_adr, xfrc_applied, wrench, data_ctrl, ctrl_tabl
     sensors_out[:] = data_sensordata
 
 
-@_jit
+@host_jit
 def run_world(row, model_adr, data_adr, xfrc_applied, data_sensordata, data_ctrl, ctrl_table,
               initial_states, n_frames, timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
               states, key_data, p, carry, tracked, qpos_buf, com_buf, wrench_full, running):

@@ -8,20 +8,20 @@ import math
 
 import numpy as np
 
-from mwbx.codec.status import jit
+from mwbx.host_jit import host_jit
 
 
 # -- evaluation -----------------------------------------------------------------------
 
 
-@jit
+@host_jit
 def _channel_rows(c, n_per_world, columns, lo, hi, row_off):
   """(first column, frame range lo:hi, row of frame 0) of channel c's output."""
   w = c // n_per_world
   return columns[c % n_per_world], lo[w], hi[w], row_off[w] - lo[w]
 
 
-@jit
+@host_jit
 def eval_linear(out, initial, seg_count, lengths, vel, flags, step, quad, n_per_world, columns,
                 wanted, lo, hi, row_off):
   """Write decoded linear channels (translations when ``quad`` != 0) into ``out``.
@@ -79,7 +79,7 @@ def eval_linear(out, initial, seg_count, lengths, vel, flags, step, quad, n_per_
     s += n_seg
 
 
-@jit
+@host_jit
 def _quat_mul(a, b, out):
   out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
   out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
@@ -87,7 +87,7 @@ def _quat_mul(a, b, out):
   out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
 
 
-@jit
+@host_jit
 def eval_rotation(out, initial, seg_count, lengths, vel, step, n_per_world, columns, wanted, lo,
                   hi, row_off):
   """Write decoded rotation channels (unit quaternions w, x, y, z) into ``out``.
@@ -155,7 +155,7 @@ def eval_rotation(out, initial, seg_count, lengths, vel, step, n_per_world, colu
     s += n_seg
 
 
-@jit
+@host_jit
 def max_errors(decoded, row_off, qpos, frame_count, kinds, columns):
   """Largest error per world and channel of decoded frames against the originals.
 
@@ -213,7 +213,7 @@ def max_errors(decoded, row_off, qpos, frame_count, kinds, columns):
 # -- fit input ------------------------------------------------------------------------
 
 
-@jit
+@host_jit
 def finite_paths(qpos, frame_count, columns, width):
   """bool[W, C]: channel c of world w (qpos columns ``columns[c] + 0..width-1``) is
   finite over its ``frame_count[w]`` recorded frames. qpos: f32[W, T, nq]."""
@@ -228,7 +228,7 @@ def finite_paths(qpos, frame_count, columns, width):
   return out
 
 
-@jit
+@host_jit
 def gather_paths(qpos, rows, n_ch, columns, initial, relative, finite, out):
   """Fill ``out: f32[m, T', width]`` with paths ``rows`` (path p: world p // n_ch,
   channel p % n_ch at qpos columns ``columns[p % n_ch] + d``), frames 0..T'-1.

@@ -11,7 +11,8 @@ import numpy as np
 
 from mwbx.codec.status import (STATUS_BLOB_LENGTH, STATUS_COUNT, STATUS_OK, STATUS_TRUNCATED,
                                STATUS_UNARY_CODES, STATUS_UNARY_LENGTH, STATUS_UNARY_TOO_LONG,
-                               STATUS_VALUE_RANGE, jit)
+                               STATUS_VALUE_RANGE)
+from mwbx.host_jit import host_jit
 
 BLOCK = 32
 KMAX = 31
@@ -28,7 +29,7 @@ VALUE_CAP = 1 << 52
 # -- bits -----------------------------------------------------------------------------
 
 
-@jit
+@host_jit
 def read_varint(buf, pos, end):
   """(value, position after it), value -1 if truncated or longer than 8 groups."""
   value = np.int64(0)
@@ -46,7 +47,7 @@ def read_varint(buf, pos, end):
       return np.int64(-1), pos
 
 
-@jit
+@host_jit
 def _window(buf, bit):
   """The 40 bits from the byte holding bit offset ``bit``, big-endian (0 past the end)."""
   byte = bit >> 3
@@ -57,13 +58,13 @@ def _window(buf, bit):
   return value
 
 
-@jit
+@host_jit
 def _read_bits(buf, bit, width):
   """``width`` (<= 32) bits at bit offset ``bit``, most significant first."""
   return (_window(buf, bit) >> (40 - (bit & 7) - width)) & ((np.int64(1) << width) - 1)
 
 
-@jit
+@host_jit
 def _put(out, pos, acc, n_bits, value, width):
   """Bit writer: append the low ``width`` (<= 32) bits of ``value``, whole bytes go
   to ``out[pos...]``; returns the new (pos, acc, n_bits)."""
@@ -77,14 +78,14 @@ def _put(out, pos, acc, n_bits, value, width):
   return pos, acc, n_bits
 
 
-@jit
+@host_jit
 def _flush(out, pos, acc, n_bits):
   """Write a bit writer's last partial byte, zero-padded."""
   if n_bits > 0:
     out[pos] = np.uint8((acc << (8 - n_bits)) & 0xFF)
 
 
-@jit
+@host_jit
 def _varint_size(value):
   size = 1
   while value >= 0x80:
@@ -93,7 +94,7 @@ def _varint_size(value):
   return size
 
 
-@jit
+@host_jit
 def _write_varint(out, pos, value):
   while value >= 0x80:
     out[pos] = np.uint8((value & 0x7F) | 0x80)
@@ -103,12 +104,12 @@ def _write_varint(out, pos, value):
   return pos + 1
 
 
-@jit
+@host_jit
 def _zigzag(v):
   return (v << 1) ^ (v >> 63)
 
 
-@jit
+@host_jit
 def floor_log2(x):
   n = -1
   while x > 0:
@@ -120,13 +121,13 @@ def floor_log2(x):
 # -- Rice coding ----------------------------------------------------------------------
 
 
-@jit
+@host_jit
 def _exp_golomb_bits(x):
   """Length of the order-0 exp-Golomb code of x >= 0."""
   return 2 * floor_log2(x + 1) + 1
 
 
-@jit
+@host_jit
 def _value_bits(u, k, legacy):
   """Bits one value ``u`` costs with Rice parameter k (unary, remainder, escape)."""
   q = u >> k
@@ -135,7 +136,7 @@ def _value_bits(u, k, legacy):
   return QMAX + _exp_golomb_bits(q - QMAX) + k if q >= QMAX else q + 1 + k
 
 
-@jit
+@host_jit
 def _block_k(u, lo, hi, legacy):
   """Rice parameter of the values ``u[lo:hi]``: the shortest of k0 - 1, k0, k0 + 1."""
   total = np.int64(0)
@@ -153,7 +154,7 @@ def _block_k(u, lo, hi, legacy):
   return best_k
 
 
-@jit
+@host_jit
 def _put_wide(out, pos, acc, n_bits, value, width):
   """``_put`` for widths up to 62 bits."""
   if width > 31:
@@ -162,7 +163,7 @@ def _put_wide(out, pos, acc, n_bits, value, width):
   return _put(out, pos, acc, n_bits, value & ((np.int64(1) << width) - 1), width)
 
 
-@jit
+@host_jit
 def rice_encode_blobs(values, counts, legacy):
   """Rice-code W integer sequences given back to back (``counts[w]`` values each).
 
@@ -265,7 +266,7 @@ def rice_encode_blobs(values, counts, legacy):
   return out, offsets, STATUS_OK
 
 
-@jit
+@host_jit
 def _blob_header(buf, lo, end, max_count, legacy):
   """(status, n, k position, unary position, unary bits, position after the varints)."""
   n, pos = read_varint(buf, lo, end)
@@ -286,7 +287,7 @@ def _blob_header(buf, lo, end, max_count, legacy):
   return STATUS_OK, n, k_pos, pos, unary_len, pos
 
 
-@jit
+@host_jit
 def _refill(buf, end, pos, acc, n_bits):
   """Top up a bit reader to more than 48 bits (zeros past ``end``)."""
   while n_bits <= 48:
@@ -296,7 +297,7 @@ def _refill(buf, end, pos, acc, n_bits):
   return pos, acc, n_bits
 
 
-@jit
+@host_jit
 def _take(buf, end, pos, acc, n_bits, width):
   """Read ``width`` (<= 31) bits: (value, pos, acc, n_bits)."""
   if n_bits < width:
@@ -307,7 +308,7 @@ def _take(buf, end, pos, acc, n_bits, width):
   return value, pos, acc, n_bits
 
 
-@jit
+@host_jit
 def _decode_blob(buf, end, n, k_pos, u_pos, unary_len, out, exact_end, legacy):
   """Decode one blob's ``n`` values into ``out``; (status, position after the blob).
 
@@ -405,7 +406,7 @@ def _decode_blob(buf, end, n, k_pos, u_pos, unary_len, out, exact_end, legacy):
   return STATUS_OK, blob_end
 
 
-@jit
+@host_jit
 def rice_decode_blobs(buf, starts, ends, max_counts, legacy):
   """Decode W blobs, blob w occupying exactly ``buf[starts[w]:ends[w]]``.
 
@@ -436,7 +437,7 @@ def rice_decode_blobs(buf, starts, ends, max_counts, legacy):
   return values, counts, STATUS_OK, -1
 
 
-@jit
+@host_jit
 def rice_decode_one(buf, pos, end, max_count, legacy):
   """One blob at ``pos`` ending at or before ``end``: (values, position after it,
   status). Version 2 blobs are not self-delimiting: they must end at ``end``."""
@@ -450,7 +451,7 @@ def rice_decode_one(buf, pos, end, max_count, legacy):
   return values, blob_end, status
 
 
-@jit
+@host_jit
 def varint_rows(codes):
   """The varints of every row of ``codes: i64[W, n]`` (values >= 0), back to back:
   (u8[N], i64[W + 1] row offsets)."""

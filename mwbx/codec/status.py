@@ -8,8 +8,6 @@ status code and the caller turns it into a ``CodecError`` naming it.
 
 from __future__ import annotations
 
-import numba
-
 STATUS_OK = 0
 STATUS_TRUNCATED = 1
 STATUS_COUNT = 2
@@ -38,7 +36,3 @@ STATUS_TEXT = {
     STATUS_SEGMENT_LENGTH: "segment lengths do not add up to the frame count",
     STATUS_VELOCITY: "velocity out of range",
 }
-
-_jit = numba.njit(cache=True, nogil=True)
-
-jit = numba.njit(cache=True, nogil=True)

@@ -7,13 +7,14 @@ import numpy as np
 
 from mwbx.codec.rice_kernels import VALUE_CAP, floor_log2, read_varint
 from mwbx.codec.status import (STATUS_OK, STATUS_SEGMENT_COUNT, STATUS_SEGMENT_LENGTH, STATUS_SEGMENT_SIZE,
-                               STATUS_VELOCITY, jit)
+                               STATUS_VELOCITY)
+from mwbx.host_jit import host_jit
 
 
 # -- stream headers -------------------------------------------------------------------
 
 
-@jit
+@host_jit
 def scan_headers(buf, offsets, head, signature, widths, steps):
   """The per-world part of W stream headers that share ``head`` and ``signature``.
 
@@ -67,7 +68,7 @@ def scan_headers(buf, offsets, head, signature, widths, steps):
   return ok, n_frames, initial, blob_start
 
 
-@jit
+@host_jit
 def segments_from_values(values, starts, counts, n_kind, expect, g_fp, coarse):
   """Segments of W decoded Rice blobs (layout in ``stream.py``), kind by kind.
 

@@ -25,10 +25,10 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import mujoco
-import numba
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.host_jit import host_jit
 from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
 
 
@@ -213,7 +213,7 @@ def host_interaction(p: InteractionParams) -> tuple:
           float(p.margin), float(p.horizon), float(p.speed_factor), float(p.gravity))
 
 
-@numba.njit(cache=True, nogil=True)
+@host_jit
 def activate_host(active, com_sim, speed_sim, com_now, com_next, body_object, radius, ghost_slack, margin,
                   horizon, speed_factor, gravity, out):
   """:func:`activate` for ONE world, compiled for the host's per-world

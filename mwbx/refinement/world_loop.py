@@ -38,17 +38,16 @@ import time
 
 import jax
 import mujoco
-import numba
 import numpy as np
 
 from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops, mujoco_c, world
 from mwbx.batch_sim.backend import fill_tail
 from mwbx.batch_sim.world_loop import monotonic_seconds as _now
 from mwbx.batch_sim.world_loop import physics_step
+from mwbx.host_jit import host_jit
 from mwbx.refinement import interactions
 from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR_WIDTH
 
-_jit = numba.njit(cache=True, nogil=True)
 
 _get_state = mujoco_c.mj_getState
 _FULLPHYSICS = mujoco_c.STATE_FULLPHYSICS
@@ -58,7 +57,7 @@ FINISHED = 0
 ACTIVATED = 1  # the active set grew: call again with the new inactive set's model
 
 
-@_jit
+@host_jit
 def _put_on_path(data_qpos, data_qvel, inactive, qpos_object, dof_object, qpos_target, qvel_target):
   """Sets the coordinates of the ``inactive`` objects (bool[O]) to the targets."""
   for o in range(inactive.size):
@@ -72,7 +71,7 @@ def _put_on_path(data_qpos, data_qvel, inactive, qpos_object, dof_object, qpos_t
         data_qvel[a] = qvel_target[a]
 
 
-@_jit
+@host_jit
 def _stored_motion(sensordata_row, active, body_object, frame, path_com, path_quat, path_lin_vel, path_ang_vel):
   """Inactive bodies' sensor blocks (f32[S, B·W], in place) from the stored
   path: COM along the chord f → f + 1, the frame's orientation and chord
@@ -95,7 +94,7 @@ def _stored_motion(sensordata_row, active, body_object, frame, path_com, path_qu
         sensordata_row[s, o + QUAT + a] = path_quat[frame, b, a]
 
 
-@_jit
+@host_jit
 def _audit(sensordata_row, wrench_row, tracked, mass, inertia, perturbable, alpha, dt):
   """(largest ``‖dv‖ / (α‖Δv‖)`` or angular alike, perturbations on bodies
   not perturbable) of one frame's next wrenches (f64[S, nbody, 6])."""
@@ -130,7 +129,7 @@ def _audit(sensordata_row, wrench_row, tracked, mass, inertia, perturbable, alph
   return worst, stray
 
 
-@_jit
+@host_jit
 def run_refined_world(row, model_adr, data_adr, data_qpos, data_qvel, xfrc_applied, data_sensordata, data_ctrl,
                       ctrl_table, n_frames, first_frame, timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat,
                       path_qpos, path_qvel, step_targets, path_com, path_quat, path_lin_vel, path_ang_vel,
