@@ -468,8 +468,3 @@ def _scaled(dist: Distribution, unit: jax.Array, width: int) -> jax.Array:
   scale = jnp.broadcast_to(jnp.asarray(dist.scale, jnp.float32), (width,))
   mean = jnp.broadcast_to(jnp.asarray(dist.mean, jnp.float32), (width,))
   return mean + scale * unit
-
-
-def load_scene(config: Config) -> Scene:
-  """Loads the config's MJCF and checks every name the config uses."""
-  return Scene(config)
