@@ -49,9 +49,9 @@ SCENES = ("quickstart", "pachinko", "toss", "siggraph", "spiral_staircase", "ref
 GPU = {"name": "NVIDIA H200", "hbm_bytes_per_s": 4.8e12, "fp32_flops_per_s": 67e12}
 PUBLISHED = [
     {"what": "MJX, humanoid", "device": "NVIDIA A100", "steps_per_s": 950e3,
-     "source": "MuJoCo MJX documentation (batched humanoid, Brax training setup)"},
+     "source": "published figure, quoted for scale, not measured here"},
     {"what": "MuJoCo Warp (nightly), humanoid", "device": "NVIDIA RTX 6000 Ada", "steps_per_s": 5.7e6,
-     "source": "MuJoCo Warp README benchmarks"},
+     "source": "published figure, quoted for scale, not measured here"},
 ]
 
 

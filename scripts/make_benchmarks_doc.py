@@ -460,7 +460,7 @@ def backends(d: dict) -> tuple[list[str], list[str]]:
             "does not see into, so its cost is not counted. Published figures for scale:", ""]
   for p in d["published"]:
     lines.append(f"* {p['what']}: {p['steps_per_s']:,.0f} steps/s on an {p['device']} ({p['source']}).")
-  head = []
+  # No README headline: the README stays within 12 KB.
   sig = d["scenes"].get("siggraph")
   if sig and "mjx:jax" in {r["engine"] for r in sig["rows"]}:
     r = next(r for r in sig["rows"] if r["engine"] == "mjx:jax")
@@ -470,14 +470,11 @@ def backends(d: dict) -> tuple[list[str], list[str]]:
               f"{r['world_steps_per_s']:,.0f} at batch {r['batch']} ({goal} it)"
               + (f", {r['world_steps_per_s'] / bare['world_steps_per_s']:.0f}× bare MJX "
                  f"({bare['world_steps_per_s']:,.0f})." if bare else ".")]
-    head.append(f"**MJX contact budgets**: SIGGRAPH on mjx:jax {r['world_steps_per_s']:,.0f} world-steps/s at "
-                f"batch {r['batch']} on {m['cores']} CPU cores"
-                + (f" ({r['world_steps_per_s'] / bare['world_steps_per_s']:.0f}× bare MJX)" if bare else ""))
   timing = d.get("sample_timing")
   if timing:
     lines += ["", f"`{timing['command']}`: {timing['wall_s'] / 60:.1f} min wall ({timing['valid']} valid, "
               f"{timing['over_budget']} over the budget; load average {timing['load_average']:.1f}; goal ≤ 10 min)."]
-  return lines, head
+  return lines, []
 
 
 def gpu(d: dict) -> tuple[list[str], list[str]]:
