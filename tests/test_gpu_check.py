@@ -37,7 +37,10 @@ def test_gpu_check_rejects_an_unknown_argument():
   assert result.returncode == 1 and "unknown argument --wrlds" in result.stderr
 
 
+@pytest.mark.slow
 def test_gpu_check_dry_run_end_to_end(tmp_path):
+  # About a minute of CPU (compiling the jax and warp steps of the tiny scene): 69 s user time on a
+  # 2-core machine, though 12 min wall there under a load average of 15-20.
   pytest.importorskip("warp")
   out = tmp_path / "gpu.json"
   result = subprocess.run(
