@@ -402,11 +402,13 @@ def scenes(d: dict) -> tuple[list[str], list[str]]:
     lines.append(f"| {r['scene']} | {r['backend']} | {r['worlds']} | {r.get('end_time', '–')} | {r['valid']} | "
                  f"{r['unstable']} | {r.get('over_budget', '–')} | {r['sim_errors']} | {all_met} | {per} | "
                  f"{r.get('wall_seconds', 0):.0f} | {r.get('commit', '-')} |")
-  backends = sorted({r["backend"] for r in d["rows"]})
-  missing = [f"{s} on {b}" for s in dict.fromkeys(r["scene"] for r in d["rows"]) for b in backends
+  planned = d.get("planned") or {"scenes": list(dict.fromkeys(r["scene"] for r in d["rows"])),
+                                 "backends": sorted({r["backend"] for r in d["rows"]})}
+  missing = [f"{s} on {b}" for s in planned["scenes"] for b in planned["backends"]
              if not any(r["scene"] == s and r["backend"] == b for r in d["rows"])]
   if missing:
-    lines += ["", f"Not sampled: {', '.join(missing)}."]
+    lines += ["", f"Not sampled yet: {', '.join(missing)} (the run had not reached them when these "
+              "figures were committed; `scripts/scene_counts.py --scenes S --backends B` adds them)."]
   return lines + [""], []
 
 

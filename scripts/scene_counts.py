@@ -104,7 +104,8 @@ def main() -> None:
       rows = [x for x in rows if (x["scene"], x["backend"]) != (scene, backend)] + [r]
       rows.sort(key=lambda x: (order.get(x["scene"], len(order)), BACKENDS.index(x["backend"])))
       out.write_text(json.dumps({"machine": f"{machine['cores']}-core {platform.machine()}, JAX on "
-                                            f"{machine['jax_backend']}", "rows": rows}, indent=1))
+                                            f"{machine['jax_backend']}", "rows": rows,
+                                 "planned": {"scenes": SCENES, "backends": BACKENDS}}, indent=1))
   print(f"wrote {out}")
 
 

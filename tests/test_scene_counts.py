@@ -36,4 +36,8 @@ def test_doc_rows_name_counts_horizon_and_missing_runs():
   lines, _ = doc.scenes(d)
   assert "| siggraph | mjx:jax | 8 | 5.0 | 6 | 1 | 1 | 0 | 2 | a 3 | 12 | abc |" in lines
   assert any(line.startswith("| toss | native |") and "(no query file)" in line for line in lines)
-  assert any(line == "Not sampled: toss on mjx:jax." for line in lines)
+  assert any(line.startswith("Not sampled yet: toss on mjx:jax (") for line in lines)
+  d["planned"] = {"scenes": ["siggraph", "toss", "trebuchet_tower"], "backends": ["native", "mjx:jax"]}
+  lines, _ = doc.scenes(d)
+  assert any(line.startswith("Not sampled yet: toss on mjx:jax, trebuchet_tower on native, "
+                             "trebuchet_tower on mjx:jax (") for line in lines)
