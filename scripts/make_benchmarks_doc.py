@@ -447,6 +447,9 @@ def backends(d: dict) -> tuple[list[str], list[str]]:
            f"{m['mujoco']}; load average {m['load_average']:.1f} at the start (shared: absolute rates "
            f"drift, ratios in one run hold); commit {m['commit']}.", ""]
   lines += _engine_table(d)
+  lines += ["", "Load average at the start of each scene's run: " + ", ".join(
+      f"{scene} {s['machine']['load_average']:.1f} (commit {s['machine']['commit']})"
+      for scene, s in d["scenes"].items() if "machine" in s) + "."]
   lines += ["", "Contact budgets used (from the native pilot unless the config sets them):", ""]
   for scene, s in d["scenes"].items():
     b = s["budget"]
@@ -515,6 +518,10 @@ def main() -> None:
   headline = []
   for name, section in SECTIONS:
     data = _load(args.bench, name)
+    if data is None and name == "gpu":
+      doc += ["## Batched engines (GPU)", "", "Not measured: no GPU was available to these benchmarks. "
+              "`scripts/gpu_check.sh` measures it in one command on a GPU machine (see the README).", ""]
+      continue
     if data is None:
       doc += [f"## {name.capitalize()}", "", f"No `{name}.json` in {args.bench} yet.", ""]
       continue
