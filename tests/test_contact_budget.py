@@ -116,6 +116,25 @@ def test_mjx_warp_step_matches_mujoco_c(pile, pile_budget):
   _assert_agrees(m, np.asarray(qpos), reference)
 
 
+def test_mujoco_warp_overflow_flags_the_worlds_over_budget(pile):
+  """MuJoCo Warp with pools too small for the pile (4 contacts, 16 rows per
+  world): its overflow counters flag every world."""
+  pytest.importorskip("warp")
+  from mwbx.batch_sim.mjx_backend import MjxBackend
+  m = pile.model
+  backend = MjxBackend(m, "warp", budget=contact_budget.ContactBudget(4, 2, 4, 16, "test"))
+  d = backend.make_data(jnp.tile(jnp.asarray(m.qpos0, jnp.float32), (2, 1)), jnp.zeros((2, m.nv), jnp.float32))
+
+  def rollout(d):
+    def step(d, _):
+      d = backend.step(d, jnp.zeros((2, m.nbody, 6), jnp.float32))
+      return d, backend.overflow(d)
+    return jax.lax.scan(step, d, None, length=60)[1]
+
+  overflow = np.asarray(jax.jit(rollout)(d))  # bool[T, W]
+  assert overflow[-1].all()  # (under the pilot's budget none is: test_mjx_warp_step_matches_mujoco_c)
+
+
 def _pile_states(model, n: int, seed: int = 0) -> np.ndarray:
   """f64[n, nq] states of the pile: MuJoCo C runs from jittered starts, sampled every 7 steps."""
   rng = np.random.default_rng(seed)

@@ -54,3 +54,17 @@ def test_mjx_refinement_uses_the_banks_contact_budget_and_flags_overflow(bank):
   assert sampler_for(small, "mjx").contact_budget.max_contact_points == 1
   assert np.all((new.flags & mwbx.FLAG_CONTACT_OVERFLOW) != 0)
   assert not new.valid.any()
+
+
+def test_refinement_runs_on_mujoco_warp():
+  """A bank whose config asks for MuJoCo Warp is refined on it (on the CPU here):
+  the striker still activates the target, and no world is over the budget."""
+  pytest.importorskip("warp")
+  config = mwbx.load_config(SCENES / "tiny.yaml")
+  config = config.model_copy(update={"sim": config.sim.model_copy(update={"mjx_impl": "warp"})})
+  bank = mwbx.sample(config, 1, jax.random.key(0), backend="native")
+  new, stats = refine_run(bank, 0, ["striker"], t_min=0.05, n_samples=2, key=jax.random.key(3), backend="mjx")
+  assert stats.backend == "mjx:warp"
+  assert new.valid.all()
+  for w in range(new.n_worlds):
+    assert sorted(new.lineage[str(bank.n_worlds + w)]["active"]) == ["striker", "target"]

@@ -73,7 +73,9 @@ class PilotCounts(NamedTuple):
   Attributes:
     geom_pairs: geom pairs whose bounding spheres came within their margin,
       in one cullable collision-function group of MJX.
-    contact_points: active contacts (MuJoCo C) of one condim.
+    contact_points: contact points MJX may keep active in one condim group:
+      ``ncon`` of its collision function (the points it emits per pair, 2 to
+      4; duplicates included) for each geom pair MuJoCo C has in contact.
     candidates: geom pairs within margin by bounding sphere in one world,
       plane and height-field pairs included (MuJoCo Warp's broadphase).
     contacts: active contacts in one world.
@@ -136,12 +138,12 @@ def _boxes_overlap(xp, g1, g2, centre, half, margin):
   return xp.all(xp.abs(centre[g2] - centre[g1]) <= reach, axis=-1)
 
 
-def _pairs_needed(m: mujoco.MjModel, d: mujoco.MjData, g: _PairGroup) -> int:
+def _pairs_needed(m: mujoco.MjModel, d: mujoco.MjData, g: _PairGroup, boxes) -> int:
   """Pairs MJX must keep in group ``g`` so that every pair whose boxes overlap
-  is kept: the rank, by bounding-sphere distance, of the farthest such pair."""
+  is kept: the rank, by bounding-sphere distance, of the farthest such pair.
+  ``boxes``: :func:`_world_boxes` of the frame."""
   gap = _sphere_gap(np, g.geom1, g.geom2, d.geom_xpos, m.geom_rbound)
-  centre, half = _world_boxes(np, d.geom_xpos, d.geom_xmat, m.geom_aabb)
-  near = _boxes_overlap(np, g.geom1, g.geom2, centre, half, g.margin)
+  near = _boxes_overlap(np, g.geom1, g.geom2, *boxes, g.margin)
   return int((gap <= gap[near].max()).sum()) if near.any() else 0
 
 
@@ -172,6 +174,8 @@ def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None
   m = scene.model
   d = mujoco.MjData(m)
   groups = _pair_groups(m)
+  # Each geom pair's (points MJX emits for it, condim group).
+  emits = {(int(a), int(b)): (g.ncon, g.condim) for g in groups for a, b in zip(g.geom1, g.geom2)}
   counts = np.zeros(5, np.int64)  # geom_pairs, contact_points, candidates, contacts, rows
   frames = 0
   for world_id in bank.world_ids:
@@ -179,10 +183,14 @@ def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None
       d.qpos[:] = qpos
       mujoco.mj_fwdPosition(m, d)
       frames += 1
-      near = [_pairs_needed(m, d, g) for g in groups]
+      boxes = _world_boxes(np, d.geom_xpos, d.geom_xmat, m.geom_aabb)
+      near = [_pairs_needed(m, d, g, boxes) for g in groups]
       cullable = [n for n, g in zip(near, groups) if g.cullable]
-      dims = d.contact.dim[:d.ncon]
-      per_condim = np.bincount(dims, minlength=7).max() if d.ncon else 0
+      points = np.zeros(7, np.int64)
+      for a, b in {(int(min(p)), int(max(p))) for p in d.contact.geom[:d.ncon]}:
+        ncon, condim = emits.get((a, b), emits.get((b, a), (4, 3)))
+        points[condim] += ncon
+      per_condim = int(points.max())
       counts = np.maximum(counts, [max(cullable, default=0), per_condim, sum(near), d.ncon, d.nefc])
   return PilotCounts(*(int(c) for c in counts), worlds=n_worlds, frames=frames)
 
