@@ -414,23 +414,119 @@ def scale(d: dict) -> tuple[list[str], list[str]]:
 
 def scenes(d: dict) -> tuple[list[str], list[str]]:
   lines = ["## Paper scenes", "",
-           "`scripts/scene_counts.py`: each of the paper's §6 scenes sampled on both backends (seed 0; "
-           f"{d['machine']}): valid and unstable worlds, and how many meet each query of its query file.", "",
-           "| scene | backend | worlds | valid | unstable | MuJoCo errors | all queries met | per query | commit |",
-           "|---|---|---:|---:|---:|---:|---:|---|---|"]
+           "`scripts/scene_counts.py`: every shipped scene sampled on native, mjx:jax (contact budget) and "
+           f"mjx:warp (MuJoCo Warp), seed 0, {d['machine']}: valid, unstable and over-the-contact-budget "
+           "worlds, and how many meet each query of its query file. World counts and simulated seconds "
+           "are chosen per backend so every run finishes on 2 shared CPU cores (MJX on a CPU is slow); "
+           "the ones used are in each row. Counts of different world numbers are compared as rates.", "",
+           "| scene | backend | worlds | simulated s | valid | unstable | over budget | MuJoCo errors | "
+           "all queries met | per query | wall s | commit |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---|"]
   for r in d["rows"]:
-    per = ", ".join(f"{k} {v}" for k, v in r["per_query"].items())
-    lines.append(f"| {r['scene']} | {r['backend']} | {r['worlds']} | {r['valid']} | {r['unstable']} | "
-                 f"{r['sim_errors']} | {r['all_met']} | {per} | {r.get('commit', '-')} |")
-  sampled = {(r["scene"], r["backend"]) for r in d["rows"]}
-  missing = sorted({scene for scene, _ in sampled if (scene, "mjx") not in sampled})
+    per = ", ".join(f"{k} {v}" for k, v in r["per_query"].items()) or "(no query file)"
+    all_met = "–" if r.get("all_met") is None else r["all_met"]
+    lines.append(f"| {r['scene']} | {r['backend']} | {r['worlds']} | {r.get('end_time', '–')} | {r['valid']} | "
+                 f"{r['unstable']} | {r.get('over_budget', '–')} | {r['sim_errors']} | {all_met} | {per} | "
+                 f"{r.get('wall_seconds', 0):.0f} | {r.get('commit', '-')} |")
+  planned = d.get("planned") or {"scenes": list(dict.fromkeys(r["scene"] for r in d["rows"])),
+                                 "backends": sorted({r["backend"] for r in d["rows"]})}
+  missing = [f"{s} on {b}" for s in planned["scenes"] for b in planned["backends"]
+             if not any(r["scene"] == s and r["backend"] == b for r in d["rows"])]
   if missing:
-    lines += ["", f"Not sampled on MJX here: {', '.join(missing)} ({d.get('mjx_note', 'not run')})."]
+    lines += ["", f"Not sampled yet: {', '.join(missing)} (the run had not reached them when these "
+              "figures were committed; `scripts/scene_counts.py --scenes S --backends B` adds them)."]
   return lines + [""], []
 
 
+def _engine_table(d: dict) -> list[str]:
+  lines = ["| scene | engine | batch | steps | world-steps/s | vs native | compile s | worlds flagged | "
+           "flops / world-step | bytes / world-step | H200 roofline bound, world-steps/s |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+  for scene, s in d["scenes"].items():
+    for r in s["rows"]:
+      cost = r.get("cost") or {}
+      if r["engine"] == "mjx:warp":  # custom calls: XLA's figures would count only the glue around them
+        cost = {}
+      bound = cost.get("roofline_steps_per_s")
+      ratio = "1" if r["engine"] == "native" else f"{r['ratio_to_native']:.3g}"
+      compile_s = "–" if r["compile_s"] is None else f"{r['compile_s']:.0f}"
+      lines.append(f"| {scene} | {r['engine']} ({r['what']}) | {r['batch']} | {r['steps']} | "
+                   f"{r['world_steps_per_s']:,.0f} | {ratio} | "
+                   f"{compile_s} | "
+                   f"{r.get('flagged', '–')} | {_n(cost['flops']) if cost.get('flops') else '–'} | "
+                   f"{_n(cost['bytes_accessed']) if cost.get('bytes_accessed') else '–'} | "
+                   f"{f'{bound:,.0f}' if bound else '–'} |")
+  return lines
+
+
+def backends(d: dict) -> tuple[list[str], list[str]]:
+  m = d["machine"]
+  lines = ["## Batched engines (CPU)", "",
+           "`scripts/bench_backends.py`: per scene, in one run and from the same randomized initial "
+           "states (un-perturbed), bare `mujoco.rollout` on all cores (*native*), `jax.vmap(mjx.step)` "
+           "without a contact budget (*mjx:bare*, dense contacts: MJX as mwbx ran it before budgets), "
+           "MJX with the scene's contact budget (*mjx:jax*) and MuJoCo Warp through MJX with pools sized "
+           "from the same budget (*mjx:warp*). Rates exclude compile time; runs alternate and each keeps "
+           "its best. *worlds flagged*: worlds whose step may have dropped a contact (over the budget) "
+           "in the timed steps.", "",
+           f"Machine: {m['platform']}, {m['cores']} cores, JAX {m['jax']} on {m['jax_backend']}, MuJoCo "
+           f"{m['mujoco']}; load average {m['load_average']:.1f} at the start (shared: absolute rates "
+           f"drift, ratios in one run hold); commit {m['commit']}.", ""]
+  lines += _engine_table(d)
+  lines += ["", "Load average at the start of each scene's run: " + ", ".join(
+      f"{scene} {s['machine']['load_average']:.1f} (commit {s['machine']['commit']})"
+      for scene, s in d["scenes"].items() if "machine" in s) + "."]
+  lines += ["", "Contact budgets used (from the native pilot unless the config sets them):", ""]
+  for scene, s in d["scenes"].items():
+    b = s["budget"]
+    lines.append(f"* {scene}: max_contact_points {b['max_contact_points']}, max_geom_pairs "
+                 f"{b['max_geom_pairs']}; nconmax {b['nconmax']}, njmax {b['njmax']} ({b['source']}; "
+                 f"pilot {s['pilot_s']:.0f} s)")
+  gpu = d["gpu_roofline"]
+  lines += ["", "**On paper, for a GPU (estimates, not measurements).** *flops* and *bytes* per world-step "
+            "are XLA's own cost analysis of one compiled batched step (`jax.jit(step).lower(d).compile()"
+            ".cost_analysis()`, divided by the batch) as compiled for the device above; the roofline bound "
+            f"is 1 / max(flops / {gpu['fp32_flops_per_s'] / 1e12:.0f} TFLOP/s fp32, bytes / "
+            f"{gpu['hbm_bytes_per_s'] / 1e12:.1f} TB/s HBM) on an {gpu['name']}: a ceiling no kernel "
+            "reaches (XLA's CPU cost model is not the GPU's, every access is counted as HBM traffic, and "
+            "launch and synchronisation costs are ignored). MuJoCo Warp's kernels are custom calls XLA "
+            "does not see into, so its cost is not counted. Published figures for scale:", ""]
+  for p in d["published"]:
+    lines.append(f"* {p['what']}: {p['steps_per_s']:,.0f} steps/s on an {p['device']} ({p['source']}).")
+  # No README headline: the README stays within 12 KB.
+  sig = d["scenes"].get("siggraph")
+  if sig and "mjx:jax" in {r["engine"] for r in sig["rows"]}:
+    r = next(r for r in sig["rows"] if r["engine"] == "mjx:jax")
+    bare = next((x for x in sig["rows"] if x["engine"] == "mjx:bare"), None)
+    goal = "meets" if r["world_steps_per_s"] >= 1500 else "misses"
+    lines += ["", f"Goal: SIGGRAPH on mjx:jax ≥ 1500 world-steps/s at batch 64 on this CPU: "
+              f"{r['world_steps_per_s']:,.0f} at batch {r['batch']} ({goal} it)"
+              + (f", {r['world_steps_per_s'] / bare['world_steps_per_s']:.0f}× bare MJX "
+                 f"({bare['world_steps_per_s']:,.0f})." if bare else ".")]
+  timing = d.get("sample_timing")
+  if timing:
+    lines += ["", f"`{timing['command']}`: {timing['wall_s'] / 60:.1f} min wall ({timing['valid']} valid, "
+              f"{timing['over_budget']} over the budget; load average {timing['load_average']:.1f}; goal ≤ 10 min)."]
+  return lines, []
+
+
+def gpu(d: dict) -> tuple[list[str], list[str]]:
+  m = d["machine"]
+  lines = ["## Batched engines (GPU)", "",
+           "`scripts/gpu_check.sh` (`bench_backends.py` at a GPU batch, mjx:jax and mjx:warp against "
+           "native on the same machine's cores). Machine: "
+           f"{m.get('device', m['jax_backend'])}, {m['cores']} CPU cores, JAX {m['jax']}, MuJoCo {m['mujoco']}; "
+           f"commit {m['commit']}.", ""]
+  if m["jax_backend"] == "cpu":
+    lines = ["## Batched engines (GPU)", "", "Not measured: no GPU was available. `scripts/gpu_check.sh` "
+             "measures it on one (see the README)."]
+    return lines + [""], []
+  return lines + _engine_table(d) + [""], []
+
+
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
-            ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry), ("scale", scale), ("scenes", scenes),
+            ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry), ("scale", scale),
+            ("scenes", scenes), ("backends", backends), ("gpu", gpu),
             ("solve", solve))
 
 
@@ -448,6 +544,10 @@ def main() -> None:
   headline = []
   for name, section in SECTIONS:
     data = _load(args.bench, name)
+    if data is None and name == "gpu":
+      doc += ["## Batched engines (GPU)", "", "Not measured: no GPU was available to these benchmarks. "
+              "`scripts/gpu_check.sh` measures it in one command on a GPU machine (see the README).", ""]
+      continue
     if data is None:
       doc += [f"## {name.capitalize()}", "", f"No `{name}.json` in {args.bench} yet.", ""]
       continue

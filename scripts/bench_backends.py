@@ -1,0 +1,268 @@
+"""The batched engines against native MuJoCo, per scene, in one run.
+
+For each scene and the same randomized initial states (batch 64 by default):
+  native     bare ``mujoco.rollout``, a thread per core (the CPU reference)
+  mjx:bare   ``jax.vmap(mjx.step)``, impl jax, no contact budget (dense contacts)
+  mjx:jax    the same with the scene's contact budget (``mjx_backend.backend_for``)
+  mjx:warp   MuJoCo Warp through MJX, pools sized from the same budget
+each in world-steps/s (compile time apart, best of the repeats, which
+alternate since the machine is shared), with its ratio to native. All step the
+scene's model with mwbx's sensors, un-perturbed, from the same states.
+
+For a GPU, on paper: per world-step, XLA's own cost analysis of one compiled
+batched step (flops, bytes accessed) and the roofline bound it implies on a
+named GPU, next to published figures. These are estimates, not measurements:
+XLA's CPU cost model is not the GPU's, and MuJoCo Warp's kernels are custom
+calls XLA does not see into.
+
+  .venv/bin/python scripts/bench_backends.py [--scenes siggraph,trebuchet_tower] [--batch 64]
+
+Writes out/bench/backends.json (docs/benchmarks.md is generated from it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+from mujoco import rollout as mj_rollout
+
+import mwbx
+from mwbx.batch_sim import contact_budget, mjx_backend
+from mwbx.batch_sim.sampler import world_keys
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+SCENES = ("quickstart", "pachinko", "toss", "siggraph", "spiral_staircase", "refrigerator_toy", "trebuchet_tower")
+# A roofline for a GPU (vendor figures) and published throughputs, all for comparison only.
+GPU = {"name": "NVIDIA H200", "hbm_bytes_per_s": 4.8e12, "fp32_flops_per_s": 67e12}
+PUBLISHED = [
+    {"what": "MJX, humanoid", "device": "NVIDIA A100", "steps_per_s": 950e3,
+     "source": "published figure, quoted for scale, not measured here"},
+    {"what": "MuJoCo Warp (nightly), humanoid", "device": "NVIDIA RTX 6000 Ada", "steps_per_s": 5.7e6,
+     "source": "published figure, quoted for scale, not measured here"},
+]
+
+
+def machine() -> dict:
+  """Where this ran: platform, cores, JAX device, load average at the start."""
+  info = {"platform": platform.platform(), "machine": platform.machine(), "cores": os.cpu_count(),
+          "jax": jax.__version__, "jax_backend": jax.default_backend(), "mujoco": mujoco.__version__,
+          "load_average": os.getloadavg()[0],
+          "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                                   text=True).stdout.strip()}
+  if jax.default_backend() != "cpu":
+    info["device"] = jax.devices()[0].device_kind
+  return info
+
+
+def initial_states(sampler, n: int) -> tuple[np.ndarray, np.ndarray]:
+  """qpos f64[n, nq], qvel f64[n, nv]: the sampler's randomized initial states of worlds 0..n-1."""
+  _, init_keys, _ = world_keys(jax.random.key(0), np.arange(n))
+  qpos0, qvel0 = sampler._init(init_keys)  # pylint: disable=protected-access
+  return np.asarray(qpos0, np.float64), np.asarray(qvel0, np.float64)
+
+
+def native_rate(model: mujoco.MjModel, qpos0, qvel0, n_steps: int, threads: int) -> float:
+  """World-steps/s of bare ``mujoco.rollout`` over all worlds, ``threads`` threads."""
+  spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+  data = mujoco.MjData(model)
+  states = np.zeros((len(qpos0), mujoco.mj_stateSize(model, spec)))
+  for w in range(len(qpos0)):
+    mujoco.mj_resetData(model, data)
+    data.qpos[:], data.qvel[:] = qpos0[w], qvel0[w]
+    mujoco.mj_getState(model, data, states[w], spec)
+  datas = [mujoco.MjData(model) for _ in range(threads)]
+  with mj_rollout.Rollout(nthread=threads) as pool:
+    start = time.perf_counter()
+    pool.rollout(model, datas, states, nstep=n_steps)
+    seconds = time.perf_counter() - start
+  return len(qpos0) * n_steps / seconds
+
+
+def cost_per_world_step(step, d, batch: int) -> dict:
+  """XLA's cost analysis of one compiled batched step, divided by the batch."""
+  analysis = jax.jit(step).lower(d).compile().cost_analysis()
+  if isinstance(analysis, (list, tuple)):  # older JAX: one dict per device
+    analysis = analysis[0] if analysis else {}
+  analysis = analysis or {}
+  flops = float(analysis.get("flops", 0.0)) / batch
+  bytes_accessed = float(analysis.get("bytes accessed", 0.0)) / batch
+  bound = None
+  if flops > 0 or bytes_accessed > 0:
+    seconds = max(flops / GPU["fp32_flops_per_s"], bytes_accessed / GPU["hbm_bytes_per_s"])
+    bound = 1.0 / seconds
+  return {"flops": flops, "bytes_accessed": bytes_accessed, "roofline_steps_per_s": bound,
+          "bound_by": (None if bound is None else
+                       "memory" if bytes_accessed / GPU["hbm_bytes_per_s"] >= flops / GPU["fp32_flops_per_s"]
+                       else "compute")}
+
+
+def mjx_engine(backend_step, make_data, qpos0, qvel0, n_steps: int, overflow=None):
+  """(timed() -> world-steps/s, compile seconds, overflow count fn, data, one-step fn) of a
+  jitted scan of ``n_steps`` batched steps."""
+  d0 = make_data(jnp.asarray(qpos0, jnp.float32), jnp.asarray(qvel0, jnp.float32))
+  nbody = d0.xfrc_applied.shape[1]
+  xfrc = jnp.zeros((qpos0.shape[0], nbody, 6), jnp.float32)
+
+  def one(d):
+    return backend_step(d, xfrc)
+
+  def run(d):
+    def body(carry, _):
+      d, flagged = carry
+      d = one(d)
+      if overflow is not None:
+        flagged = flagged | overflow(d)
+      return (d, flagged), None
+    flagged = jnp.zeros(qpos0.shape[0], bool)
+    return jax.lax.scan(body, (d, flagged), None, length=n_steps)[0]
+
+  start = time.perf_counter()
+  compiled = jax.jit(run).lower(d0).compile()
+  compile_seconds = time.perf_counter() - start
+  last = {}
+
+  def timed() -> float:
+    start = time.perf_counter()
+    d, flagged = jax.block_until_ready(compiled(d0))
+    rate = qpos0.shape[0] * n_steps / (time.perf_counter() - start)
+    last["flagged"] = int(np.asarray(flagged).sum())
+    last["finite"] = bool(np.isfinite(np.asarray(d.qpos)).all())
+    return rate
+
+  return timed, compile_seconds, last, d0, one
+
+
+def bench_scene(name: str, args) -> dict:
+  path = pathlib.Path(name) if name.endswith(".yaml") else REPO / "configs" / f"{name}.yaml"
+  config = mwbx.load_config(path)
+  with mwbx.Sampler(config, backend="native", chunk_size=args.batch) as sampler:
+    scene = sampler.scene
+    qpos0, qvel0 = initial_states(sampler, args.batch)
+  model = scene.model
+  threads = os.cpu_count()
+  start = time.perf_counter()
+  budget = contact_budget.resolve(scene, config.sim.mjx)
+  pilot_seconds = time.perf_counter() - start
+  engines = {}
+  if "bare" in args.engines:
+    bare_mx = mjx.put_model(model, impl="jax")
+    bare_base = mjx.make_data(model, impl="jax")
+    engines["mjx:bare"] = mjx_engine(
+        lambda d, x: jax.vmap(mjx.step, in_axes=(None, 0))(bare_mx, d.replace(xfrc_applied=x)),
+        lambda q, v: jax.vmap(lambda q, v: bare_base.replace(qpos=q, qvel=v))(q, v),
+        qpos0, qvel0, args.bare_steps)
+  for impl in ("jax", "warp"):
+    if impl in args.engines:
+      backend = mjx_backend.backend_for(scene, impl, budget)
+      engines[f"mjx:{impl}"] = mjx_engine(backend.step, backend.make_data, qpos0, qvel0, args.steps,
+                                          backend.overflow)
+  rates = {"native": 0.0, **{k: 0.0 for k in engines}}
+  extra = {k: {} for k in engines}
+  for _ in range(args.repeats):  # alternate, keep each one's best: the machine is shared
+    rates["native"] = max(rates["native"], native_rate(model, qpos0, qvel0, args.native_steps, threads))
+    for key, (timed, _, last, _, _) in engines.items():
+      rates[key] = max(rates[key], timed())
+      extra[key] = dict(last)
+  rows = [{"engine": "native", "what": f"bare mujoco.rollout, {threads} threads", "batch": args.batch,
+           "steps": args.native_steps, "world_steps_per_s": rates["native"], "compile_s": None}]
+  for key, (_, compile_seconds, _, d0, one) in engines.items():
+    row = {"engine": key, "batch": args.batch, "steps": args.bare_steps if key == "mjx:bare" else args.steps,
+           "world_steps_per_s": rates[key], "compile_s": compile_seconds,
+           "ratio_to_native": rates[key] / rates["native"], **extra[key]}
+    row["what"] = {"mjx:bare": "jax.vmap(mjx.step), no budget", "mjx:jax": "MJX impl jax, contact budget",
+                   "mjx:warp": "MuJoCo Warp via MJX, pools from the budget"}[key]
+    if args.cost and key == "mjx:warp":  # its kernels are custom calls: XLA's cost analysis sees nothing
+      row["cost"] = {"error": "MuJoCo Warp's kernels are custom calls XLA's cost analysis does not see into"}
+    elif args.cost:
+      try:
+        row["cost"] = cost_per_world_step(one, d0, args.batch)
+      except Exception as err:  # pylint: disable=broad-except
+        row["cost"] = {"error": f"{type(err).__name__}: {err}"[:200]}
+    rows.append(row)
+  by = {r["engine"]: r for r in rows}
+  ratios = {k: r["world_steps_per_s"] / rates["native"] for k, r in by.items() if k != "native"}
+  if "mjx:bare" in by and "mjx:jax" in by:
+    ratios["jax_over_bare"] = by["mjx:jax"]["world_steps_per_s"] / by["mjx:bare"]["world_steps_per_s"]
+  return {"rows": rows, "ratios": ratios, "budget": budget._asdict(), "pilot_s": pilot_seconds,
+          "nbody": model.nbody, "ngeom": model.ngeom, "timestep": model.opt.timestep}
+
+
+def time_sample(worlds: int) -> dict:
+  """Times ``mwbx sample configs/siggraph.yaml --backend mjx --worlds N`` once, as a user runs it
+  (a fresh process: pilot and compile included)."""
+  with tempfile.TemporaryDirectory() as tmp:
+    command = ["mwbx", "sample", "configs/siggraph.yaml", "--backend", "mjx", "--worlds", str(worlds)]
+    load = os.getloadavg()[0]
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "mwbx.cli", *command[1:], "--out", f"{tmp}/bank"], cwd=REPO,
+                   check=True)
+    wall = time.perf_counter() - start
+    bank = mwbx.Bank.load(f"{tmp}/bank")
+    return {"command": " ".join(command), "wall_s": wall, "worlds": worlds, "valid": int(bank.valid.sum()),
+            "over_budget": int((bank.flags & mwbx.FLAG_CONTACT_OVERFLOW > 0).sum()), "load_average": load}
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--scenes", default=",".join(SCENES), help="shipped scene names or config paths")
+  parser.add_argument("--engines", default="bare,jax,warp", help="MJX engines to run besides native")
+  parser.add_argument("--batch", type=int, default=64, help="worlds per batch (every engine)")
+  parser.add_argument("--steps", type=int, default=50, help="steps per timed run of mjx:jax and mjx:warp")
+  parser.add_argument("--bare-steps", type=int, default=5, help="steps per timed run of bare MJX (slow)")
+  parser.add_argument("--native-steps", type=int, default=500, help="steps per timed run of native")
+  parser.add_argument("--repeats", type=int, default=2)
+  parser.add_argument("--no-cost", dest="cost", action="store_false", help="skip XLA's cost analysis")
+  parser.add_argument("--time-sample", type=int, default=0, metavar="N",
+                      help="also time `mwbx sample configs/siggraph.yaml --backend mjx --worlds N` once")
+  parser.add_argument("--out", default=str(REPO / "out" / "bench" / "backends.json"))
+  args = parser.parse_args()
+  args.engines = args.engines.split(",")
+  out = pathlib.Path(args.out)
+  result = {"machine": machine(), "batch": args.batch, "gpu_roofline": GPU, "published": PUBLISHED, "scenes": {}}
+  if out.exists():  # scenes not run now stay as they were measured (each names its machine)
+    old = json.loads(out.read_text())
+    result["scenes"] = old.get("scenes", {})
+    if "sample_timing" in old:
+      result["sample_timing"] = old["sample_timing"]
+  m = result["machine"]
+  print(f"machine: {m['platform']}, {m['cores']} cores, jax {m['jax']} on {m['jax_backend']}, "
+        f"load {m['load_average']:.1f}", flush=True)
+  if args.time_sample:
+    result["sample_timing"] = time_sample(args.time_sample)
+    print(f"{result['sample_timing']}", flush=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
+  for name in filter(None, args.scenes.split(",")):
+    s = bench_scene(name, args)
+    s["machine"] = m
+    result["scenes"][pathlib.Path(name).stem] = s
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
+    print(f"\n{name} (budget: {contact_budget.ContactBudget(**s['budget']).describe()})")
+    print(f"  {'engine':10}{'steps':>6}{'world-steps/s':>15}{'vs native':>11}{'compile s':>11}"
+          f"{'flagged':>9}{'flops/step':>12}{'bytes/step':>12}{'H200 bound':>12}")
+    for r in s["rows"]:
+      cost = r.get("cost") or {}
+      bound = cost.get("roofline_steps_per_s")
+      print(f"  {r['engine']:10}{r['steps']:>6}{r['world_steps_per_s']:>15,.0f}"
+            f"{r.get('ratio_to_native', 1.0):>10.3f}x{(r['compile_s'] or 0):>11.1f}"
+            f"{r.get('flagged', 0):>9}{cost.get('flops', 0):>12.3g}{cost.get('bytes_accessed', 0):>12.3g}"
+            f"{(f'{bound:,.0f}' if bound else '-'):>12}", flush=True)
+  print(f"\nwrote {out}")
+
+
+if __name__ == "__main__":
+  main()

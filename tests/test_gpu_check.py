@@ -1,0 +1,75 @@
+"""scripts/gpu_check.sh: its dry run (the GPU path on the CPU, tiny batch) end
+to end into the benchmarks doc, and its one-line failure without a GPU."""
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from conftest import REPO, TESTS
+
+SCRIPT = REPO / "scripts" / "gpu_check.sh"
+
+
+def _doc_module():
+  spec = importlib.util.spec_from_file_location("make_benchmarks_doc", REPO / "scripts" / "make_benchmarks_doc.py")
+  module = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(module)
+  return module
+
+
+def test_gpu_check_without_a_gpu_fails_with_one_line(tmp_path):
+  # A PATH without nvidia-smi: what a machine without an NVIDIA driver looks like.
+  env = {**os.environ, "PATH": str(tmp_path)}
+  result = subprocess.run(["/bin/bash", str(SCRIPT), "--out", str(tmp_path / "gpu.json")], env=env,
+                          capture_output=True, text=True, timeout=60)
+  assert result.returncode == 1
+  lines = result.stderr.strip().splitlines()
+  assert len(lines) == 1 and lines[0].startswith("gpu_check: no NVIDIA GPU"), result.stderr
+  assert not (tmp_path / "gpu.json").exists()
+
+
+def test_gpu_check_rejects_an_unknown_argument():
+  result = subprocess.run(["/bin/bash", str(SCRIPT), "--wrlds", "8"], capture_output=True, text=True, timeout=60)
+  assert result.returncode == 1 and "unknown argument --wrlds" in result.stderr
+
+
+@pytest.mark.slow
+def test_gpu_check_dry_run_end_to_end(tmp_path):
+  # About a minute of CPU (compiling the jax and warp steps of the tiny scene): 69 s user time on a
+  # 2-core machine, though 12 min wall there under a load average of 15-20.
+  pytest.importorskip("warp")
+  out = tmp_path / "gpu.json"
+  result = subprocess.run(
+      ["/bin/bash", str(SCRIPT), "--dry-run", "--python", sys.executable, "--scenes",
+       str(TESTS / "scenes" / "tiny.yaml"), "--out", str(out)],
+      capture_output=True, text=True, timeout=900, env={**os.environ, "PYTHONPATH": str(REPO)})
+  assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+  d = json.loads(out.read_text())
+  assert d["machine"]["jax_backend"] == "cpu" and d["batch"] == 8
+  rows = {r["engine"]: r for r in d["scenes"]["tiny"]["rows"]}
+  assert set(rows) == {"native", "mjx:jax", "mjx:warp"}
+  for engine, r in rows.items():
+    assert r["world_steps_per_s"] > 0, engine
+  for engine in ("mjx:jax", "mjx:warp"):
+    assert rows[engine]["finite"] and rows[engine]["compile_s"] > 0
+    assert rows[engine]["ratio_to_native"] == pytest.approx(
+        rows[engine]["world_steps_per_s"] / rows["native"]["world_steps_per_s"])
+  assert "error" in rows["mjx:warp"]["cost"]  # XLA does not see into its kernels
+  # XLA's cost analysis of the jax step sees real work; the roofline follows from it.
+  cost = rows["mjx:jax"]["cost"]
+  assert cost["flops"] > 0 and cost["bytes_accessed"] > 0
+  assert cost["roofline_steps_per_s"] == pytest.approx(
+      1 / max(cost["flops"] / 67e12, cost["bytes_accessed"] / 4.8e12))
+  # The doc generator turns it into rows: the CPU section, and the GPU one says it was not measured on a GPU.
+  doc = _doc_module()
+  lines, _ = doc.backends(d)
+  assert sum(line.startswith("| tiny |") for line in lines) == 3
+  gpu_lines, _ = doc.gpu(d)
+  assert any("Not measured: no GPU" in line for line in gpu_lines)
+  on_gpu = {**d, "machine": {**d["machine"], "jax_backend": "gpu", "device": "NVIDIA H200"}}
+  gpu_lines, _ = doc.gpu(on_gpu)
+  assert sum(line.startswith("| tiny |") for line in gpu_lines) == 3 and "NVIDIA H200" in gpu_lines[2]
