@@ -344,6 +344,32 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
   return lines, head
 
 
+def geometry(d: dict) -> tuple[list[str], list[str]]:
+  c, g = d["com_query_ms"], d["geometry_query_ms"]
+  inc, exc = d["include_matches"], d["exclude_matches"]
+  o = d.get("orientation", {})
+  lines = ["## Geometry", "",
+           "`scripts/bench_geometry.py`: the browse bench's bank (a real pachinko bank repeated to the size "
+           "below); for each of its drawn screen boxes (include and exclude in turn) the same query on the "
+           "bodies' whole geometry and, as the baseline measured in the same run, on their COM paths "
+           "(`mwbx.queries.evaluate_each`, after a warm-up that compiles and builds the indexes).", "",
+           f"Machine: {d['machine']}; commit {d.get('commit', '?')}; load average "
+           f"{d.get('load_average', float('nan')):.1f} when it ended.", "",
+           "| worlds | bodies | boxes | COM query median / p95 (ms) | geometry query median / p95 (ms) | "
+           "geometry / COM | geometry index build (s) | include matches COM → geometry | "
+           "exclude matches COM → geometry |",
+           "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+           f"| {d['worlds']} | {d['bodies']} | {d['boxes']} | {c['median']:.0f} / {c['p95']:.0f} | "
+           f"{g['median']:.0f} / {g['p95']:.0f} | {d['geometry_over_com']:.1f}× | "
+           f"{d['geometry_index_build_s']:.0f} | {inc['com']} → {inc['geometry']} | {exc['com']} → {exc['geometry']} |"]
+  if o:
+    lines += ["", "Orientation queries on the same bank (cached orientations): " + "; ".join(
+        f"{k.replace('_', ' ')} {v['ms']:.0f} ms ({v['worlds']} worlds)" for k, v in o.items()) + "."]
+  head = [f"**geometry**: a whole-geometry query on {d['worlds']} worlds in {g['median']:.0f} ms (median), "
+          f"{d['geometry_over_com']:.1f}× the COM query"]
+  return lines, head
+
+
 def scale(d: dict) -> tuple[list[str], list[str]]:
   lines = ["## Scale", "",
            "`scripts/bench_scale.py`: the paper's trebuchet and 192-block tower "
@@ -418,7 +444,7 @@ def scenes(d: dict) -> tuple[list[str], list[str]]:
 
 
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
-            ("refine", refinement), ("bank", bank), ("browse", browse), ("scale", scale), ("scenes", scenes),
+            ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry), ("scale", scale), ("scenes", scenes),
             ("solve", solve))
 
 

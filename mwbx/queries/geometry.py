@@ -81,10 +81,12 @@ class GeometryIndex:
   _device: tuple | None = dataclasses.field(default=None, repr=False)
 
   def device(self) -> tuple:
-    """(com f32[B, W, K, 3], sweep f32[B, W, K - 1], valid bool[W]) as device
-    arrays (made on first use, for the jitted first stage)."""
+    """(com f32[B, 3, W, K] (coordinates first), sweep f32[B, W, K - 1],
+    valid bool[W]) as device arrays (made on first use, for the jitted first
+    stage)."""
     if self._device is None:
-      self._device = (jp.asarray(self.com), jp.asarray(self.sweep), jp.asarray(self.valid))
+      self._device = (jp.asarray(np.ascontiguousarray(np.moveaxis(self.com, 3, 1))), jp.asarray(self.sweep),
+                      jp.asarray(self.valid))
     return self._device
 
 

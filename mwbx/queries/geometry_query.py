@@ -84,7 +84,7 @@ def _sphere_stage(com, sweep, overlap, relevant, valid, body_mask, normals, offs
   """Stage 1 for every body at once: (hit bool[B, W] a relevant frame's
   geometry is wholly inside, candidates bool[B, W, K]).
 
-  com f32[B, W, K, 3]; sweep f32[B, W, K - 1]; overlap bool[K - 1]; relevant
+  com f32[B, 3, W, K]; sweep f32[B, W, K - 1]; overlap bool[K - 1]; relevant
   bool[K]; valid bool[W]; body_mask bool[B] (bodies with geoms, selected);
   normals f32[F, 3]; offsets f32[F]; grow f32[B]: reach + codec bound; reach
   f32[B]; tol: metres.
@@ -93,15 +93,18 @@ def _sphere_stage(com, sweep, overlap, relevant, valid, body_mask, normals, offs
     m = jp.where(overlap[None], sweep, 0.0)
     zero = jp.zeros_like(m[:, :1])
     margin = jp.maximum(jp.concatenate([m, zero], axis=1), jp.concatenate([zero, m], axis=1))
-    d = jp.einsum("wkc,fc->wkf", com, normals) - offsets  # [W, K, F]
-    apart = jp.any(d > (grow + margin + tol)[..., None], axis=-1)
-    inside = jp.all(d < -(reach + tol), axis=-1)
+    apart = jp.zeros(margin.shape, bool)
+    inside = jp.ones(margin.shape, bool)
+    for f in range(normals.shape[0]):  # F <= 6, unrolled
+      d = (com[0] * normals[f, 0] + com[1] * normals[f, 1]) + com[2] * normals[f, 2] - offsets[f]
+      apart |= d > grow + margin + tol
+      inside &= d < -(reach + tol)
     ok = relevant[None] & valid[:, None] & selected
     hit = jp.any(inside & ok, axis=1)
     return hit, ok & ~apart & ~hit[:, None]
 
   def skipped(*_):
-    return jp.zeros(com.shape[1], bool), jp.zeros(com.shape[1:3], bool)
+    return jp.zeros(com.shape[2], bool), jp.zeros(com.shape[2:4], bool)
 
   def per_body(i):  # a real branch: unselected bodies cost nothing
     return jax.lax.cond(body_mask[i], one, skipped, com[i], sweep[i], body_mask[i], grow[i], reach[i])

@@ -162,26 +162,40 @@ def body_quats(bank, body: int) -> np.ndarray:
   Args:
     bank: the bank. body: index into the tracked bodies.
   """
-  key = (id(bank), int(body))
-  entry = _CACHE.get(key)
-  if entry is not None and entry[0]() is bank and entry[1] == (bank.n_worlds, id(bank.qpos_store)):
-    return entry[2]
+  return all_quats(bank, [int(body)])[int(body)]
+
+
+def all_quats(bank, bodies) -> dict:
+  """{body index: f32[W, T, 4]} for tracked bodies (as :func:`body_quats`);
+  the ones not cached yet are decoded together, in one pass over the worlds."""
+  state = (bank.n_worlds, id(bank.qpos_store))
+  out, missing = {}, []
+  for body in bodies:
+    entry = _CACHE.get((id(bank), int(body)))
+    if entry is not None and entry[0]() is bank and entry[1] == state:
+      out[int(body)] = entry[2]
+    else:
+      missing.append(int(body))
+  if not missing:
+    return out
   model = bank.model()
-  body_id = int(np.asarray(bank.body_ids)[body])
-  columns = _chain_columns(model, body_id)
+  body_ids = [int(np.asarray(bank.body_ids)[b]) for b in missing]
+  columns = np.unique(np.concatenate([_chain_columns(model, b) for b in body_ids]))
   counts = np.asarray(bank.frame_count, np.int64)
   n_frames = max(int(counts.max(initial=1)), 1)
-  out = np.zeros((bank.n_worlds, n_frames, 4), np.float32)
+  fresh = np.zeros((len(missing), bank.n_worlds, n_frames, 4), np.float32)
   for s in range(0, bank.n_worlds, BLOCK):
     rows = np.arange(s, min(bank.n_worlds, s + BLOCK))
     qpos = poses_lib.padded(poses_lib.decoded_frames(bank, rows, columns), n_frames)
-    _, quat = poses_lib.body_poses(model, qpos.reshape(len(rows) * n_frames, -1), [body_id])
-    out[rows] = quat.reshape(len(rows), n_frames, 4)
-  try:
-    _CACHE[key] = (weakref.ref(bank, lambda _, k=key: _CACHE.pop(k, None)),
-                   (bank.n_worlds, id(bank.qpos_store)), out)
-  except TypeError:
-    pass
+    _, quat = poses_lib.body_poses(model, qpos.reshape(len(rows) * n_frames, -1), body_ids)
+    fresh[:, rows] = np.moveaxis(quat.reshape(len(rows), n_frames, len(body_ids), 4), 2, 0)
+  for i, body in enumerate(missing):
+    key = (id(bank), body)
+    out[body] = fresh[i]
+    try:
+      _CACHE[key] = (weakref.ref(bank, lambda _, k=key: _CACHE.pop(k, None)), state, fresh[i])
+    except TypeError:
+      pass
   return out
 
 
@@ -211,17 +225,32 @@ def frame_range(bank, window) -> tuple[np.ndarray, np.ndarray]:
 def angle_errors(query: OrientationQuery, quats: np.ndarray) -> np.ndarray:
   """f64[W, T] the query's error, radians, at every frame of one body's
   orientations quats f32[W, T, 4]."""
-  q = quats.astype(np.float64)
+  return _angle(query, _closeness(query, quats))
+
+
+def _angle(query: OrientationQuery, c: np.ndarray) -> np.ndarray:
+  """The error, radians, from :func:`_closeness` (a decreasing function)."""
+  if query.axis is not None:
+    return np.arccos(np.clip(c, -1.0, 1.0))
+  return 2.0 * np.arccos(np.clip(c, 0.0, 1.0))
+
+
+def _closeness(query: OrientationQuery, quats: np.ndarray) -> np.ndarray:
+  """f64[W, T] the cosine of the axis' angle to up (upright), or |q·target|
+  (the cosine of half the rotation angle): the larger, the closer."""
+  w, x, y, z = (quats[..., i].astype(np.float64) for i in range(4))
   if query.axis is not None:
     # up·(R a) for q = (w, u): up·a (1 - 2|u|²) + 2 w u·(a × up) + 2 (u·up)(u·a).
     a, up = np.asarray(query.axis), np.asarray(query.up)
-    w, u = q[..., 0], q[..., 1:]
-    cos = (float(up @ a) * (1.0 - 2.0 * np.sum(u * u, axis=-1)) + 2.0 * w * (u @ np.cross(a, up))
-           + 2.0 * (u @ up) * (u @ a))
-    return np.arccos(np.clip(cos, -1.0, 1.0))
-  target = q[:, :1] if query.target == "initial" else np.asarray(query.target)
-  dot = np.abs(np.sum(q * target, axis=-1))
-  return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+    k = np.cross(a, up)
+    dot = lambda v: x * v[0] + y * v[1] + z * v[2]
+    return (float(up @ a) * (1.0 - 2.0 * (x * x + y * y + z * z)) + 2.0 * w * dot(k)
+            + 2.0 * dot(up) * dot(a))
+  if query.target == "initial":
+    t = [c[:, :1] for c in (w, x, y, z)]
+  else:
+    t = list(query.target)
+  return np.abs(w * t[0] + x * t[1] + y * t[2] + z * t[3])
 
 
 def body_errors(bank, query: OrientationQuery, mask: np.ndarray) -> np.ndarray:
@@ -231,8 +260,9 @@ def body_errors(bank, query: OrientationQuery, mask: np.ndarray) -> np.ndarray:
   f0, f1 = frame_range(bank, query.window)
   rows = np.arange(bank.n_worlds)
   lo, hi = int(f0.min(initial=0)), int(f1.max(initial=0))
+  cached = all_quats(bank, np.flatnonzero(mask).tolist())
   for b in np.flatnonzero(mask):
-    quats = body_quats(bank, int(b))
+    quats = cached[int(b)]
     if query.window is None:  # the last frames only
       last = quats[rows, f1][:, None]
       first = quats[:, :1]
@@ -242,12 +272,12 @@ def body_errors(bank, query: OrientationQuery, mask: np.ndarray) -> np.ndarray:
     span = quats[:, lo:hi + 1]
     if query.target == "initial" and lo > 0:
       span = np.concatenate([quats[:, :1], span], axis=1)
-      err = angle_errors(query, span)[:, 1:]
+      close = _closeness(query, span)[:, 1:]
     else:
-      err = angle_errors(query, span)  # [W, hi - lo + 1]
+      close = _closeness(query, span)  # [W, hi - lo + 1]
     frames = np.arange(lo, hi + 1)[None]
     inside = (frames >= f0[:, None]) & (frames <= f1[:, None])
-    out[:, b] = np.max(np.where(inside, err, -np.inf), axis=1)
+    out[:, b] = _angle(query, np.min(np.where(inside, close, np.inf), axis=1))  # the farthest frame
   return out
 
 
