@@ -31,9 +31,10 @@ SLOT = 0.14  # m, slot width; slot k is centred at SLOT_X[k]
 SLOT_X = [(k - 3.5) * SLOT for k in range(8)]
 W, H, T = 0.03, 0.042, 0.007  # letter half width, half height, stroke half thickness (m)
 DEPTH = 0.018  # letter half depth (y), m
-DIVIDER_HALF = 0.03  # m: slots 2 * (SLOT / 2 - DIVIDER_HALF) = 0.08 m wide, less than a letter's height
+DIVIDER_HALF = 0.008  # m: slots 2 * (SLOT / 2 - DIVIDER_HALF) = 0.124 m wide, more than a letter's diagonal
 SLOT_TOP = 0.18  # m, the dividers' height (below their roofs)
 WALL_GAP = 0.1  # m: pegs keep this far from the walls
+START_SPREAD = 0.8  # the letters' start x, as a share of their slots' x
 
 
 def _bar(cx, cz, hx, hz, angle=0.0):
@@ -94,11 +95,11 @@ def siggraph() -> str:
       f'    <geom name="side_left" class="static" type="box" size="0.012 0.04 0.85" pos="{-half - 0.012} 0 0.85"/>',
       f'    <geom name="side_right" class="static" type="box" size="0.012 0.04 0.85" pos="{half + 0.012} 0 0.85"/>',
   ]
-  # Dividers thick enough that a slot (DIVIDER_HALF each side, the outer
-  # slots lined at the walls) is narrower than a letter is tall: a letter
-  # rests in it near upright or upside down, never on its side. A roof turned
-  # 45 degrees on each divider (and a slope on each wall liner) sheds a
-  # letter into a slot instead of holding it on top.
+  # Eight slots of one width (the outer two lined at the walls), wider than
+  # a letter's diagonal: a letter never bridges a slot's mouth. A letter may
+  # rest in its slot upright, on its side or upside down; the upright queries
+  # ask which. A 45-degree roof on each divider (and a slope on each liner)
+  # sheds a letter into a slot instead of holding it on top.
   roof = DIVIDER_HALF / math.sqrt(2)
   for k in range(1, 8):
     x = SLOT_X[k] - SLOT / 2
@@ -129,7 +130,10 @@ def siggraph() -> str:
   # swapped: "I S G G A R H P".
   start_order = [1, 0, 3, 2, 5, 4, 7, 6]  # letter k starts above slot start_order[k]
   for k, (c, name) in enumerate(zip(LETTERS, letter_names())):
-    x = SLOT_X[start_order[k]]
+    # Drawn in by START_SPREAD: the outer letters start over the pegs, not
+    # over the peg-free strips along the walls, down which they would fall
+    # straight into the outer slots.
+    x = START_SPREAD * SLOT_X[start_order[k]]
     z = 1.42 + (0.13 if k % 2 else 0.0)
     lines.append(f'    <body name="{name}" pos="{x:.3f} 0 {z:.3f}">')
     lines.append("      <freejoint/>")

@@ -52,24 +52,35 @@ def _letter_extent(model, body: int) -> tuple[float, float]:
   return float(np.ptp(corners[:, 0])), float(np.ptp(corners[:, 2]))
 
 
-def test_siggraph_slots_hold_a_letter_upright_or_upside_down_only():
-  """Every slot (between dividers, or a divider and a wall liner) is wider
-  than every letter but narrower than any letter is tall: a letter cannot rest
-  on its side in a slot, so 'upright in its slot' is a matter of which way up."""
+def test_siggraph_slots_are_alike_and_no_letter_bridges_one():
+  """The eight slots (between dividers, or a divider and a wall liner) are
+  equally wide and wider than any letter's diagonal, so no letter jams across
+  a slot's mouth; the dividers reach the query's slot tops (0.18 m)."""
   model = _siggraph_model()
   letters = [b for b in range(model.nbody) if model.body(b).name.startswith("letter_")]
-  extents = np.array([_letter_extent(model, b) for b in letters])
+  diagonal = max(np.hypot(*_letter_extent(model, b)) for b in letters)
   walls = [model.geom(n) for n in ("liner_left", "liner_right")]
   faces = [walls[0].pos[0] + walls[0].size[0], walls[1].pos[0] - walls[1].size[0]]
   for k in range(7):
     d = model.geom(f"divider_{k}")
-    assert d.pos[2] + d.size[2] >= 0.18 - 1e-6  # as tall as the query's slots
+    assert d.pos[2] + d.size[2] >= 0.18 - 1e-6
     faces += [d.pos[0] - d.size[0], d.pos[0] + d.size[0]]
   faces = np.sort(faces)
   widths = faces[1::2] - faces[0::2]
   assert len(widths) == 8
-  assert widths.min() > extents[:, 0].max(), (widths, extents)
-  assert widths.max() < extents[:, 1].min(), (widths, extents)
+  assert np.ptp(widths) < 1e-6, widths
+  assert widths.min() > diagonal, (widths, diagonal)
+
+
+def test_siggraph_letters_start_over_the_pegs():
+  """Every letter starts above a peg-covered stretch (not over the peg-free
+  strips by the walls, down which it would fall untouched)."""
+  model = _siggraph_model()
+  pegs = [g for g in range(model.ngeom) if model.geom(g).name.startswith("peg_")]
+  reach = max(abs(model.geom_pos[g][0]) for g in pegs)
+  for b in range(model.nbody):
+    if model.body(b).name.startswith("letter_"):
+      assert abs(model.body_pos[b][0]) < reach, model.body(b).name
 
 
 def test_siggraph_no_letter_wedges_between_a_peg_and_a_wall():
