@@ -34,6 +34,7 @@ import json
 import os
 import pathlib
 import platform
+import shutil
 import subprocess
 import time
 
@@ -81,8 +82,11 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
   wall = time.perf_counter() - start
   load_after = os.getloadavg()[0]
   refined = [s for s in result.steps if s.refined >= 0]
-  if save_bank:  # the solved world's bank, e.g. for scripts/paper_scenes.py --bank
-    result.bank.save(out.parent / f"solve_{name}_seed{seed}")
+  print(f"{name} seed {seed}: {result.message}", flush=True)
+  if save_bank:  # the solved world's bank, e.g. for scripts/paper_scenes.py --bank; replaces an older run's
+    keep = out.parent / f"solve_{name}_seed{seed}"
+    shutil.rmtree(keep, ignore_errors=True)
+    result.bank.save(keep)
   plot = mwbx.search.progress_plot(result.steps, out.parent / (f"solve_{name}.png" if seed == 0 else
                                                              f"solve_{name}_seed{seed}.png"),
                                    title=f"{name}: queries met by the best world")
