@@ -263,9 +263,9 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
     upright = [r for r in robust["runs"] if r["scene"] == "siggraph" and r["n_queries"] == 16]
     if upright:
       solved = [r for r in upright if r["solved"]]
-      head.append(f"spelling SIGGRAPH upright (16 queries): solved unattended in {len(solved)} of {len(upright)} "
-                  f"seeds" + (f", {max(r['solve_seconds'] for r in solved) / 60:.1f} min at most" if solved else "")
-                  + f" (load average up to {max(r['load_average_after'] for r in upright):.0f} on 2 cores)")
+      head.append(f"SIGGRAPH upright (16 queries): {len(solved)} of {len(upright)} seeds solved"
+                  + (f", {max(r['solve_seconds'] for r in solved) / 60:.1f} min at most" if solved else "")
+                  + f" (load ≤ {max(r['load_average_after'] for r in upright):.0f})")
   guided = dict(d.get("guided") or {})
   if "guided" in guided:  # one case, as written before there were several
     guided = {"quickstart": guided}
