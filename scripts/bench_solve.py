@@ -34,6 +34,7 @@ import json
 import os
 import pathlib
 import platform
+import shutil
 import subprocess
 import time
 
@@ -61,10 +62,13 @@ def _machine() -> dict:
           "commit": commit, "load_average": os.getloadavg()[0]}
 
 
-def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: pathlib.Path, seed: int = 0) -> dict:
+def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: pathlib.Path, seed: int = 0,
+                save_bank: bool = False) -> dict:
   """Samples ``worlds`` worlds of the scene and solves its query file; ``seed``
-  keys both the sampling and the search."""
+  keys both the sampling and the search. ``save_bank``: keep the solved bank
+  in ``out/../solve_<scene>_seed<seed>``."""
   config = mwbx.load_config(REPO / "configs" / f"{name}.yaml")
+  load_before = os.getloadavg()[0]  # 1-minute load average: the machine may be shared
   start = time.perf_counter()
   with reporter(f"{name}: sample") as update:
     bank = mwbx.sample(config, worlds, jax.random.key(seed), backend="native", progress=update)
@@ -76,7 +80,13 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
     result = mwbx.solve(bank, queries, budget=mwbx.search.Budget(seconds=budget_s), key=jax.random.key(seed),
                         samples=samples, backend="native", progress=update)
   wall = time.perf_counter() - start
+  load_after = os.getloadavg()[0]
   refined = [s for s in result.steps if s.refined >= 0]
+  print(f"{name} seed {seed}: {result.message}", flush=True)
+  if save_bank:  # the solved world's bank, e.g. for scripts/paper_scenes.py --bank; replaces an older run's
+    keep = out.parent / f"solve_{name}_seed{seed}"
+    shutil.rmtree(keep, ignore_errors=True)
+    result.bank.save(keep)
   plot = mwbx.search.progress_plot(result.steps, out.parent / (f"solve_{name}.png" if seed == 0 else
                                                              f"solve_{name}_seed{seed}.png"),
                                    title=f"{name}: queries met by the best world")
@@ -95,6 +105,7 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
       "first_all_met_seconds": next((s.seconds for s in result.steps if s.satisfied == result.n_queries), None),
       "curve": [[s.seconds, s.world_steps, s.satisfied] for s in result.steps],
       "plot": pathlib.Path(plot).name,
+      "load_average_before": load_before, "load_average_after": load_after,
   }
 
 
@@ -180,6 +191,8 @@ def main() -> None:
   parser.add_argument("--robustness-seeds", default="",
                       help="part 'robustness': siggraph and staircase again with these seeds, e.g. 1,2")
   parser.add_argument("--robustness-scenes", default="siggraph,spiral_staircase")
+  parser.add_argument("--save-banks", action="store_true",
+                      help="robustness: keep each solved bank in out/bench/solve_<scene>_seed<seed>")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "solve.json"))
   args = parser.parse_args()
   out = pathlib.Path(args.out)
@@ -203,10 +216,12 @@ def main() -> None:
     for seed in (int(x) for x in args.robustness_seeds.split(",")):
       for name in args.robustness_scenes.split(","):
         budget = args.budget_s if name == "siggraph" else args.staircase_budget_s
-        r = solve_scene(name, args.worlds, budget, args.samples, out, seed)
+        r = solve_scene(name, args.worlds, budget, args.samples, out, seed, save_bank=args.save_banks)
         runs = [x for x in runs if (x["scene"], x["seed"]) != (name, seed)]
         runs.append({k: r[k] for k in ("scene", "seed", "solved", "satisfied", "n_queries", "refinements",
-                                       "world_steps", "solve_seconds", "message")} | {"commit": result["machine"]["commit"]})
+                                       "world_steps", "solve_seconds", "message", "world", "worlds_sampled",
+                                       "queries", "per_query_rate", "independent_estimate", "load_average_before",
+                                       "load_average_after")} | {"commit": result["machine"]["commit"]})
         print(f"{name} seed {seed}: {r['message']}", flush=True)
         result["robustness"] = {"runs": sorted(runs, key=lambda x: (x["scene"], x["seed"]))}
         out.write_text(json.dumps(result, indent=1))

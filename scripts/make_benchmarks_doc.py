@@ -244,14 +244,28 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
       head.append(f"the spiral staircase in {t['solve_seconds']:.0f} s ({t['refinements']} refinements)")
   robust = d.get("robustness")
   if robust:
-    lines += ["Other seeds (sampling and search keyed by the seed; same budgets):", "",
-              "| scene | seed | result | refinements | world-steps | solve time | commit |",
-              "|---|---:|---|---:|---:|---:|---|"]
+    lines += ["Seeds (sampling and search keyed by the seed; same budgets; load: the 1-minute load average "
+              "before sampling and after the search, on a machine shared with other work):", "",
+              "| scene | seed | queries | result | refinements | world-steps | solve time | "
+              "plain-sampling estimate | load | commit |",
+              "|---|---:|---:|---|---:|---:|---:|---:|---:|---|"]
     for r in robust["runs"]:
       result = "all met" if r["solved"] else f"{r['satisfied']} of {r['n_queries']} met"
-      lines.append(f"| {r['scene']} | {r['seed']} | {result} | {r['refinements']} | {r['world_steps']:,} | "
-                   f"{r['solve_seconds']:.0f} s | {r['commit']} |")
+      estimate = "–"
+      if "independent_estimate" in r:
+        estimate = (f"{r['independent_estimate']:.1e} ({r['worlds_sampled']} worlds)" if r["independent_estimate"] > 0
+                    else f"0: a query none of {r['worlds_sampled']} worlds meets")
+      load = (f"{r['load_average_before']:.1f} / {r['load_average_after']:.1f}" if "load_average_before" in r
+              else "–")
+      lines.append(f"| {r['scene']} | {r['seed']} | {r['n_queries']} | {result} | {r['refinements']} | "
+                   f"{r['world_steps']:,} | {r['solve_seconds']:.0f} s | {estimate} | {load} | {r['commit']} |")
     lines.append("")
+    upright = [r for r in robust["runs"] if r["scene"] == "siggraph" and r["n_queries"] == 16]
+    if upright:
+      solved = [r for r in upright if r["solved"]]
+      head.append(f"SIGGRAPH upright (16 queries): {len(solved)} of {len(upright)} seeds solved"
+                  + (f", {max(r['solve_seconds'] for r in solved) / 60:.1f} min at most" if solved else "")
+                  + f" (load ≤ {max(r['load_average_after'] for r in upright):.0f})")
   guided = dict(d.get("guided") or {})
   if "guided" in guided:  # one case, as written before there were several
     guided = {"quickstart": guided}

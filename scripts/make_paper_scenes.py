@@ -31,6 +31,10 @@ SLOT = 0.14  # m, slot width; slot k is centred at SLOT_X[k]
 SLOT_X = [(k - 3.5) * SLOT for k in range(8)]
 W, H, T = 0.03, 0.042, 0.007  # letter half width, half height, stroke half thickness (m)
 DEPTH = 0.018  # letter half depth (y), m
+DIVIDER_HALF = 0.008  # m: slots 2 * (SLOT / 2 - DIVIDER_HALF) = 0.124 m wide, more than a letter's diagonal
+SLOT_TOP = 0.18  # m, the dividers' height (below their roofs)
+WALL_GAP = 0.1  # m: pegs keep this far from the walls
+START_SPREAD = 0.8  # the letters' start x, as a share of their slots' x
 
 
 def _bar(cx, cz, hx, hz, angle=0.0):
@@ -91,9 +95,24 @@ def siggraph() -> str:
       f'    <geom name="side_left" class="static" type="box" size="0.012 0.04 0.85" pos="{-half - 0.012} 0 0.85"/>',
       f'    <geom name="side_right" class="static" type="box" size="0.012 0.04 0.85" pos="{half + 0.012} 0 0.85"/>',
   ]
+  # Eight slots of one width (the outer two lined at the walls), wider than
+  # a letter's diagonal: a letter never bridges a slot's mouth. A letter may
+  # rest in its slot upright, on its side or upside down; the upright queries
+  # ask which. A 45-degree roof on each divider (and a slope on each liner)
+  # sheds a letter into a slot instead of holding it on top.
+  roof = DIVIDER_HALF / math.sqrt(2)
   for k in range(1, 8):
-    lines.append(f'    <geom name="divider_{k - 1}" class="static" type="box" size="0.008 0.04 0.09"'
-                 f' pos="{SLOT_X[k] - SLOT / 2:.3f} 0 0.09"/>')
+    x = SLOT_X[k] - SLOT / 2
+    lines.append(f'    <geom name="divider_{k - 1}" class="static" type="box" size="{DIVIDER_HALF} 0.04 {SLOT_TOP / 2}"'
+                 f' pos="{x:.3f} 0 {SLOT_TOP / 2}"/>')
+    lines.append(f'    <geom name="divider_{k - 1}_roof" class="static" type="box" size="{roof:.4f} 0.04 {roof:.4f}"'
+                 f' pos="{x:.3f} 0 {SLOT_TOP}" euler="0 45 0"/>')
+  for side, sx in (("left", -1), ("right", 1)):
+    x = sx * (half - DIVIDER_HALF / 2)
+    lines.append(f'    <geom name="liner_{side}" class="static" type="box" size="{DIVIDER_HALF / 2} 0.04 {SLOT_TOP / 2}"'
+                 f' pos="{x:.3f} 0 {SLOT_TOP / 2}"/>')
+    lines.append(f'    <geom name="liner_{side}_slope" class="static" type="box" size="{roof:.4f} 0.04 {roof:.4f}"'
+                 f' pos="{sx * half:.3f} 0 {SLOT_TOP}" euler="0 45 0"/>')
   for k, rgb in enumerate(LETTER_RGB):  # a coloured label under each slot
     lines.append(f'    <geom name="label_{k}" type="box" size="{SLOT / 2 - 0.012:.3f} 0.002 0.012"'
                  f' pos="{SLOT_X[k]:.3f} -0.047 0.012" rgba="{rgb} 1" contype="0" conaffinity="0"/>')
@@ -103,13 +122,18 @@ def siggraph() -> str:
     n = 8 if row % 2 == 0 else 7
     for i in range(n):
       x = SLOT_X[0] + offset + i * SLOT
-      if abs(x) < half - 0.03:
+      # No peg within WALL_GAP of a wall: a letter bridges a narrower gap
+      # between a peg and the wall and wedges there.
+      if abs(x) < half - WALL_GAP:
         lines.append(f'    <geom name="peg_{row}_{i}" class="peg" pos="{x:.3f} 0 {z:.3f}"/>')
   # The letters start in two staggered rows above the board, neighbours
   # swapped: "I S G G A R H P".
   start_order = [1, 0, 3, 2, 5, 4, 7, 6]  # letter k starts above slot start_order[k]
   for k, (c, name) in enumerate(zip(LETTERS, letter_names())):
-    x = SLOT_X[start_order[k]]
+    # Drawn in by START_SPREAD: the outer letters start over the pegs, not
+    # over the peg-free strips along the walls, down which they would fall
+    # straight into the outer slots.
+    x = START_SPREAD * SLOT_X[start_order[k]]
     z = 1.42 + (0.13 if k % 2 else 0.0)
     lines.append(f'    <body name="{name}" pos="{x:.3f} 0 {z:.3f}">')
     lines.append("      <freejoint/>")

@@ -11,6 +11,11 @@ the viewer (the HTML export, screenshotted by headless Chromium).
   .venv/bin/python scripts/paper_scenes.py siggraph --worlds 256 --rounds 12
   .venv/bin/python scripts/paper_scenes.py spiral_staircase --worlds 128 --picture docs/scene_staircase.png
   .venv/bin/python scripts/paper_scenes.py refrigerator_toy --backend mjx --worlds 16 --rounds 0
+  .venv/bin/python scripts/paper_scenes.py siggraph --bank out/bench/solve_siggraph_seed0 --picture docs/scene_siggraph.png
+
+With ``--bank`` a saved bank (e.g. one that scripts/bench_solve.py
+--save-banks kept) is pictured instead: ``--world`` or its world meeting the
+most queries (the latest of equals: the solver's newest).
 """
 
 import argparse
@@ -41,7 +46,18 @@ def main():
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--out", type=pathlib.Path, help="save the bank here")
   parser.add_argument("--picture", type=pathlib.Path, help="write a PNG of the best world here")
+  parser.add_argument("--bank", type=pathlib.Path, help="picture this saved bank's world (no sampling)")
+  parser.add_argument("--world", type=int, help="with --bank: the world to picture")
   args = parser.parse_args()
+  if args.bank:
+    bank = mwbx.Bank.load(args.bank)
+    queries = mwbx.load_queries(REPO / "configs" / "queries" / f"{args.scene}.yaml", bank=bank)
+    met = mwbx.evaluate_each(bank, queries).sum(axis=1)
+    world = args.world if args.world is not None else int(bank.world_ids[np.flatnonzero(met == met.max())[-1]])
+    print(f"world {world}: {int(met[bank.row_of(world)])} of {len(queries.queries)} queries met")
+    if args.picture:
+      picture(bank, world, args.scene, args.picture)
+    return
 
   config = mwbx.load_config(REPO / "configs" / f"{args.scene}.yaml")
   start = time.perf_counter()
@@ -72,16 +88,22 @@ def main():
     bank.save(args.out)
     print(f"bank written to {args.out}")
   if args.picture:
-    sys.path.insert(0, str(REPO / "tests"))
-    from PIL import Image
-    from viewer_render import screenshot
+    picture(bank, world, args.scene, args.picture)
 
-    with tempfile.TemporaryDirectory() as tmp:
-      page = mwbx.export_html(bank, pathlib.Path(tmp) / "scene.html", worlds=[world],
-                              paths=None, view_dir=VIEW[args.scene])
-      end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
-      Image.fromarray(screenshot(page.as_uri(), seek_s=end, size=(640, 480))).save(args.picture)
-    print(f"picture of world {world} written to {args.picture}")
+
+def picture(bank: mwbx.Bank, world: int, scene: str, path: pathlib.Path) -> None:
+  """A PNG of ``world`` at its last frame through the viewer (HTML export,
+  screenshotted by headless Chromium)."""
+  sys.path.insert(0, str(REPO / "tests"))
+  from PIL import Image
+  from viewer_render import screenshot
+
+  with tempfile.TemporaryDirectory() as tmp:
+    page = mwbx.export_html(bank, pathlib.Path(tmp) / "scene.html", worlds=[world],
+                            paths=None, view_dir=VIEW[scene])
+    end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
+    Image.fromarray(screenshot(page.as_uri(), seek_s=end, size=(640, 480))).save(path)
+  print(f"picture of world {world} written to {path}")
 
 
 if __name__ == "__main__":
