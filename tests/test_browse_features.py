@@ -109,7 +109,7 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       assert int(line.group(8)) == int((np.asarray(mq.evaluate(bank, [box, upright])) & bank.valid).sum())
       # The sorter by orientation error lists what the session lists.
       _choose(page, "Metric", ORIENTATION_ERROR)
-      page.get_by_text(re.compile(r"orientation_error:sum over the bodies of q1")).wait_for(timeout=WAIT * 1000)
+      page.get_by_text(re.compile(r"error of the orientation query:sum over the bodies of q1")).wait_for(timeout=WAIT * 1000)
       session = Session(bank)
       session.add(box)
       session.add(upright)
@@ -207,7 +207,7 @@ def test_session_view_orientation_sorter_and_lineage(tmp_path):
   config, _ = _tiny_with_block(tmp_path)
   bank = mwbx.sample(mwbx.load_config(config), n_worlds=8, key=jax.random.key(1))
   session = Session(bank)
-  with pytest.raises(mwbx.MwbxError, match="orientation_error needs an orientation query"):
+  with pytest.raises(mwbx.MwbxError, match="needs an orientation query"):
     session.sorted_rows(ORIENTATION_ERROR)
   upright = mq.OrientationQuery(bodies=("cube",), axis="z", within_deg=180)
   session.add(upright)

@@ -26,8 +26,9 @@ SORTER_ROWS = 20
 # checked here: a client can send any number).
 MAX_REFINE_SAMPLES = 4096
 QUERY_SUFFIXES = (".yaml", ".yml")
-# The sorter metric ranking by the last orientation query's error (radians, smallest first).
-ORIENTATION_ERROR = "orientation_error"
+# The sorter metric ranking by the last enabled orientation query's error (radians, smallest first);
+# not the stored metric orientation_error (the angle from the initial orientation).
+ORIENTATION_ERROR = "error of the orientation query"
 
 
 class Entry(NamedTuple):
@@ -255,7 +256,7 @@ class Session:
     elif metric == ORIENTATION_ERROR:
       query = self.orientation_query()
       if query is None:
-        raise MwbxError("sorter: orientation_error needs an orientation query (add one first)")
+        raise MwbxError(f"sorter: {ORIENTATION_ERROR!r} needs an orientation query (add one first)")
       values = mq.orientation_error(self.bank, query, reduce=reduce)  # over the query's own bodies
       descending = False  # the most nearly oriented first
     else:
