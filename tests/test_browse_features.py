@@ -84,9 +84,9 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       # Several bodies at once, and whole geometry: the page's count is
       # mwbx.queries' for the same box, bodies and shape.
       page.get_by_text("Several bodies").click()
-      page.get_by_text("cube", exact=True).click()
-      page.get_by_text("ball", exact=True).click()
-      page.get_by_text("Whole geometry").click()
+      page.get_by_label("cube", exact=True).check()
+      page.get_by_label("ball", exact=True).check()
+      page.get_by_label("Whole geometry").check()
       time.sleep(0.5)
       _arm(page, "include")
       _drag(page, 420, 300, 700, 520)

@@ -318,7 +318,7 @@ class Browser:
     count = self.refresh()
     self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
     print(f"mwbx browse: query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
-          f" bodies={list(bodies) if bodies else None} mode={self.mode.value} window={window}"
+          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
           f" camera eye={camera.eye.tolist()} right={camera.right.tolist()} up={camera.up.tolist()}"
           f" forward={camera.forward.tolist()} fovy={camera.fovy} aspect={camera.aspect}"
           f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={shape}", flush=True)
@@ -338,7 +338,7 @@ class Browser:
     self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
     what = f"upright axis={self.axis.value}" if upright else "initial"
     print(f"mwbx browse: query {index} orientation {what} within_deg={query.within_deg}"
-          f" bodies={list(bodies) if bodies else None} mode={self.mode.value} window={window}"
+          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
           f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}", flush=True)
 
   # -- refresh ----------------------------------------------------------------------------
