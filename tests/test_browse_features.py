@@ -98,7 +98,6 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       page.get_by_text(re.compile(rf"^{want} of 6 worlds")).wait_for(timeout=WAIT * 1000)
       page.get_by_text("q0 include cube,ball (geometry)", exact=False).wait_for(timeout=WAIT * 1000)
       # Upright at the end, within 30 degrees, for the same bodies.
-      page.get_by_text("Orientation", exact=True).click()
       page.get_by_label("Within (deg)").fill("30")
       time.sleep(0.5)
       page.get_by_text("Upright at the end").click()
@@ -118,7 +117,6 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       assert first.inner_text().startswith(f"world {rows[0].world} · {rows[0].satisfied} · {rows[0].value:.4g}")
       # Side by side: three worlds, each labelled, one shared time.
       ids = [int(w) for w in bank.world_ids[:3]]
-      page.get_by_text("Sorter", exact=True).click()
       _fill(page, "Worlds to compare", ", ".join(map(str, ids)))
       page.get_by_text("Show side by side").click()
       server.expect("side by side: " + ", ".join(f"world {w}" for w in ids))
@@ -129,8 +127,7 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       world = ids[0]
       page.get_by_text(re.compile(rf"^world {world} · ")).click()
       server.expect(rf"playing world {world}$")
-      page.get_by_text("Refine", exact=True).click()
-      page.get_by_text("Pause").click()
+      page.get_by_label("Pause").check()
       page.get_by_label("Samples").fill("2")
       _fill(page, "Remove objects", "ball")
       page.get_by_text("Refine playing world").click()

@@ -21,6 +21,11 @@ from mwbx.viewer.kinematics import body_trajectories
 
 # Decoded worlds kept (trajectories of every moving body: T x B x 7 floats each).
 KEPT_WORLDS = 16
+# Poses sent to the page at most this often: at the recording rate (e.g.
+# 250 Hz) the pose stream alone kept a browser busy for seconds, so a click's
+# answer queued behind it; playback skips recorded frames instead and keeps
+# real time.
+DISPLAY_HZ = 30.0
 
 
 class Player:
@@ -118,12 +123,14 @@ class Player:
 
   def _loop(self) -> None:
     while not self._stop.is_set():
+      fps = float(self.session.bank.record_fps)
+      step = max(1, int(round(fps / DISPLAY_HZ)))  # recorded frames per shown frame
       with self.lock:
         if self.played and not self.paused():
           self.show()
           longest = max(self.poses(w)[0].shape[0] for w in self.played)
-          self.frame = (self.frame + 1) % longest
-      time.sleep(1.0 / self.session.bank.record_fps)
+          self.frame = (self.frame + step) % longest
+      time.sleep(step / fps)
 
   def stop(self) -> None:
     self._stop.set()
