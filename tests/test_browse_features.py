@@ -56,7 +56,7 @@ def _field(page, label: str):
 
 def _choose(page, label: str, option: str) -> None:
   """Picks ``option`` in the viser dropdown ``label``."""
-  _field(page, label).click()
+  page.get_by_role("combobox", name=label).click()
   page.get_by_role("option", name=option, exact=True).click()
 
 

@@ -32,19 +32,14 @@ import mujoco
 import numpy as np
 
 from mwbx import queries as mq
-from mwbx.browser import drawing
+from mwbx.browser import drawing, gui
+from mwbx.browser.gui import ALL_BODIES, FIRST_ENTRY, MAX_PLAYED, NO_OBJECTS
 from mwbx.browser.guard import Guard, resolve_host, serve_guarded
 from mwbx.browser.player import Player
-from mwbx.browser.scene import MAX_SLOTS, Stage
-from mwbx.browser.session import MAX_REFINE_SAMPLES, ORIENTATION_ERROR, REDUCTIONS, Session
+from mwbx.browser.scene import Stage
+from mwbx.browser.session import ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
 
-ALL_BODIES = "(every tracked body)"
-NO_OBJECTS = "(none: only add/remove)"
-MAX_PLAYED = MAX_SLOTS
-FIRST_ENTRY = "first entry of the last box"
-CURRENT_TIME = "current time"
-BODY_AXES = ("z", "y", "x", "-z", "-y", "-x")
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -171,100 +166,7 @@ class Browser:
         f"body:{b}" for b in bank.body_names if b not in bank.objects])
 
   def _build_gui(self) -> None:
-    gui = self.server.gui
-    bank = self.session.bank
-    names = self._body_names()
-    end = float((int(bank.frame_count.max()) - 1) / bank.record_fps) if bank.n_worlds else 1.0
-    self.end_time = end
-    with gui.add_folder("Queries"):
-      self.counts_md = gui.add_markdown("")
-      self.bodies = gui.add_dropdown("Bodies", names, initial_value=ALL_BODIES)
-      self.several_folder = gui.add_folder("Several bodies", expand_by_default=False)
-      with self.several_folder:
-        gui.add_markdown("tick any number: they replace *Bodies*")
-        self.several = {}
-        for name in names[1:]:
-          self.several[name] = gui.add_checkbox(name, False)
-          self.several[name].on_update(lambda _: self.refresh())
-      self.mode = gui.add_dropdown("Mode", ("any", "all"), initial_value="any")
-      self.geometry = gui.add_checkbox("Whole geometry", False,
-                                       hint="a box asks about any point of the bodies' geoms, not their COM")
-      self.only_matches = gui.add_checkbox("Only matching paths", False)
-      self.only_matches.on_update(lambda _: self.refresh())
-      self.bodies.on_update(lambda _: self.refresh())
-      self.window = gui.add_multi_slider("Time window (s)", 0.0, max(end, 1e-3), max(end, 1e-3) / 100,
-                                         (0.0, max(end, 1e-3)))
-      include = gui.add_button("Draw include box")
-      exclude = gui.add_button("Draw exclude box")
-      include.on_click(lambda event: self._arm_box("include", event.client))
-      exclude.on_click(lambda event: self._arm_box("exclude", event.client))
-      self.query_pick = gui.add_dropdown("Query", ("(none)",), initial_value="(none)")
-      toggle = gui.add_button("Toggle query")
-      remove = gui.add_button("Remove query")
-      toggle.on_click(lambda _: self._with_pick(self.session.toggle))
-      remove.on_click(lambda _: self._with_pick(self.session.remove))
-      undo = gui.add_button("Undo")
-      redo = gui.add_button("Redo")
-      undo.on_click(lambda _: self.session.undo() and self.refresh())
-      redo.on_click(lambda _: self.session.redo() and self.refresh())
-      self.query_file = gui.add_text("Query file", "queries.yaml",
-                                     hint=f"a .yaml file under {self.session.query_dir}")
-      save_q = gui.add_button("Save queries")
-      open_q = gui.add_button("Open queries")
-      save_q.on_click(lambda _: self._report(lambda: f"saved {self.session.save_queries(self.query_file.value)}"))
-      open_q.on_click(lambda _: self._report(lambda: self.session.open_queries(self.query_file.value)
-                                             or f"opened {self.query_file.value.strip()}"))
-    with gui.add_folder("Orientation"):
-      gui.add_markdown("for the chosen bodies; the window as above (whole span: at the end)")
-      self.axis = gui.add_dropdown("Body axis up", BODY_AXES, initial_value="z")
-      self.within = gui.add_number("Within (deg)", 15.0, min=0.0, max=180.0, step=1.0)
-      upright = gui.add_button("Upright at the end")
-      initial = gui.add_button("Near its initial orientation")
-      upright.on_click(lambda _: self._add_orientation(upright=True))
-      initial.on_click(lambda _: self._add_orientation(upright=False))
-    with gui.add_folder("Sorter"):
-      self.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS, ORIENTATION_ERROR),
-                                     initial_value=bank.metric_names[0])
-      self.reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
-      self.metric.on_update(lambda _: self._sorter())
-      self.reduce.on_update(lambda _: self._sorter())
-      self.sorter_md = gui.add_markdown("")
-      self.compare = gui.add_checkbox("Add to the playing worlds", False,
-                                      hint=f"play up to {MAX_PLAYED} worlds at once, each labelled with its id")
-      self.side_by_side = gui.add_checkbox("Side by side", False,
-                                           hint="the played worlds in a grid of copies of the scene, not overlaid")
-      self.side_by_side.on_update(lambda _: self._layout())
-      self.chosen = gui.add_text("Worlds to compare", "", hint=f"2 to {MAX_PLAYED} world ids, e.g. 3, 7, 12")
-      compare = gui.add_button("Show side by side")
-      compare.on_click(lambda _: self._compare())
-      self.sorter = gui.add_folder("Worlds (click to play)")
-      self.row_buttons: list = []
-    with gui.add_folder("Playback"):
-      self.playing_md = gui.add_markdown("no world playing")
-      self.lineage_md = gui.add_markdown("")
-      self.paused = gui.add_checkbox("Pause", False)
-      self.time_slider = gui.add_slider("Time (s)", 0.0, max(end, 1e-3), 1.0 / bank.record_fps, 0.0)
-      self.time_slider.on_update(lambda _: self._seek())
-    with gui.add_folder("Refine"):
-      self.objects = gui.add_dropdown("Objects", tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,),
-                                      initial_value=next(iter(bank.objects)))
-      self.start = gui.add_dropdown("From", (CURRENT_TIME, FIRST_ENTRY), initial_value=CURRENT_TIME)
-      self.samples = gui.add_number("Samples", 16, min=1, max=MAX_REFINE_SAMPLES, step=1,
-                                    hint=f"1 to {MAX_REFINE_SAMPLES}")
-      self.scene_file = gui.add_text("Scene file", "", hint="a later scene version (.yaml under "
-                                     f"{self.session.query_dir}) holding the objects to add; blank: none")
-      self.add_objects = gui.add_text("Add objects", "", hint="objects of the scene file, inserted at the start time")
-      self.remove_objects = gui.add_text("Remove objects", "", hint="objects parked from the start time on")
-      refine = gui.add_button("Refine playing world")
-      refine.on_click(lambda _: self._refine())
-      cancel = gui.add_button("Cancel refinement")
-      cancel.on_click(lambda _: self._cancel())
-      self.progress = gui.add_progress_bar(0.0, visible=False)
-      parent = gui.add_button("Go to parent")
-      parent.on_click(lambda _: self._parent())
-      save = gui.add_button("Save bank")
-      save.on_click(lambda _: self._report(lambda: f"saved {self.session.save()}"))
-      self.status_md = gui.add_markdown("")
+    gui.build(self)
 
   def _selection(self) -> tuple[str, ...] | None:
     """The bodies queries are about: the ticked *Several bodies*, else the
