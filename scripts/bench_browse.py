@@ -7,7 +7,12 @@ does when a rect-select event arrives (build the frustum, put the query on
 the stack, re-evaluate every query, redraw the paths and frustums, rebuild
 the sorter), and the same for a metric re-sort. Baseline, measured in the
 same run: the CLI round trip the page replaces (``mwbx query BANK Q.yaml``
-in a new process, the same queries).
+in a new process, the same queries). Then the same for ``--geometry-boxes``
+whole-geometry boxes (``shape="geometry"``; the geometry index is built
+before the timing, once per bank), and the play latency of a sorter click on
+a 20-body scene (tests/scenes/twenty.yaml, ``--play-worlds`` worlds): decode,
+forward kinematics and poses sent (in process), and with ``--browser`` from
+the click in Chromium to the page saying the world plays.
 
 Writes out/bench/browse.json and prints a table. Usage:
 
@@ -64,11 +69,85 @@ def _in_browser(page, camera) -> dict:
   return {"page_load_s": load_s, "initial_bytes": before, "bytes_per_box_update": update_bytes}
 
 
+def _play_latency(n_worlds: int, clicks: int, in_browser: bool) -> dict:
+  """Sorter click -> world playing, on the 20-body scene: per click, decode +
+  FK (ms) and the whole play (decode, FK, poses to the page, flushed), the
+  first click of a slot (its meshes uploaded) apart from the others."""
+  from mwbx.viewer.kinematics import body_trajectories
+  bank = mwbx.sample(mwbx.load_config(ROOT / "tests" / "scenes" / "twenty.yaml"), n_worlds, jax.random.key(0))
+  page = Browser(Session(bank))
+  decode_fk, play = [], []
+  try:
+    page.play(0)
+    page.server.flush()
+    first_uploads = page.stage.uploads
+    for k in range(clicks):
+      world = int(bank.world_ids[1 + k % (bank.n_worlds - 1)])
+      page.player._poses.clear()  # every click decodes afresh (no kept worlds)
+      start = time.perf_counter()
+      body_trajectories(page.model, bank.qpos_frames(world).astype(np.float64), page.stage.body_ids)
+      decode_fk.append(time.perf_counter() - start)
+      page.player._poses.clear()
+      start = time.perf_counter()
+      page.play(world)
+      page.server.flush()
+      play.append(time.perf_counter() - start)
+    assert page.stage.uploads == first_uploads  # no mesh sent again
+    browser_ms = _play_in_browser(page, bank, clicks) if in_browser else None
+  finally:
+    page.close()
+  return {"bodies": len(bank.body_names), "meshes_per_slot": first_uploads, "clicks": clicks,
+          "decode_fk_ms": float(1e3 * np.median(decode_fk)), "play_ms": float(1e3 * np.median(play)),
+          "play_p95_ms": float(1e3 * np.percentile(play, 95)), "browser_click_to_playing_ms": browser_ms}
+
+
+def _play_in_browser(page, bank, clicks: int) -> dict:
+  """Median / p95 ms from a sorter-row click in headless Chromium to the page
+  saying the world plays (the poses are sent before that line)."""
+  sys.path.insert(0, str(ROOT / "tests"))
+  from playwright.sync_api import sync_playwright
+  from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS
+  out, to_server = [], []
+  arrived = {}
+  play = page.play
+
+  def timed_play(world, add=False):  # when the click reaches the server
+    arrived[int(world)] = time.perf_counter()
+    play(world, add=add)
+
+  page.play = timed_play
+  with sync_playwright() as pw:
+    chromium = pw.chromium.launch(executable_path=CHROMIUM_BINARY, args=list(WEBGL_ARGS))
+    tab = chromium.new_page(viewport={"width": 1200, "height": 800})
+    tab.goto(page.url)
+    rows = tab.get_by_text(re.compile(r"^world \d+ · "))
+    rows.first.wait_for(timeout=600_000)
+    for k in range(clicks + 1):
+      row = rows.nth(k % min(4, rows.count()))
+      world = int(re.match(r"world (\d+)", row.inner_text()).group(1))
+      other = page.playing_world
+      start = time.perf_counter()
+      row.click()
+      if world == other:
+        continue
+      tab.get_by_text(f"playing world {world}", exact=True).wait_for(timeout=600_000)
+      if k:  # the first click uploads the slot's meshes
+        out.append(time.perf_counter() - start)
+        to_server.append(arrived[world] - start)
+    chromium.close()
+  ms, server_ms = 1e3 * np.array(out), 1e3 * np.array(to_server)
+  return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "clicks": len(out),
+          "click_to_server_median": float(np.median(server_ms))}
+
+
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--worlds", type=int, default=4096)
   parser.add_argument("--sample", type=int, default=256)
   parser.add_argument("--boxes", type=int, default=20)
+  parser.add_argument("--geometry-boxes", type=int, default=5)
+  parser.add_argument("--play-worlds", type=int, default=8)
+  parser.add_argument("--clicks", type=int, default=10)
   parser.add_argument("--browser", action="store_true",
                       help="also page load time and bytes sent per update, in headless Chromium")
   parser.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "bench" / "browse.json")
@@ -101,6 +180,23 @@ def main() -> None:
       page.refresh()
       page.server.flush()
       sort_s.append(time.perf_counter() - start)
+    geometry_s = []
+    while page.session.entries:
+      page.session.remove(0)
+    page.geometry.value = True
+    for k in range(args.geometry_boxes + 1):
+      u0, v0 = rng.uniform(0.1, 0.7, 2)
+      box = mq.ScreenBox(u0, v0, u0 + rng.uniform(0.05, 0.25), v0 + rng.uniform(0.05, 0.25))
+      start = time.perf_counter()
+      page.session.add(mq.Query.screen(camera, box, sign="include" if k % 2 == 0 else "exclude", shape="geometry"))
+      page.refresh()
+      page.server.flush()
+      if k:  # the first builds the bank's geometry index
+        geometry_s.append(time.perf_counter() - start)
+      else:
+        index_s = time.perf_counter() - start
+      if len(page.session.entries) > 3:
+        page.session.remove(0)
     with tempfile.TemporaryDirectory() as tmp:
       bank_dir = bank.save(pathlib.Path(tmp) / "bank")
       page.session.workdir = pathlib.Path(tmp)  # the page's query files stay under its directory
@@ -113,7 +209,8 @@ def main() -> None:
         cli_s.append(time.perf_counter() - start)
   finally:
     page.close()
-  add_ms, sort_ms = 1e3 * np.array(add_s), 1e3 * np.array(sort_s)
+  add_ms, sort_ms, geo_ms = 1e3 * np.array(add_s), 1e3 * np.array(sort_s), 1e3 * np.array(geometry_s)
+  play = _play_latency(args.play_worlds, args.clicks, args.browser)
   result = {
       "machine": f"{platform.machine()}, {os.cpu_count()} cores", "worlds": bank.n_worlds,
       "bodies": len(bank.body_names), "boxes": args.boxes,
@@ -122,6 +219,9 @@ def main() -> None:
       "cli_query_round_trip_s": float(min(cli_s)),
       "cli_over_page": float(min(cli_s) / (np.median(add_ms) / 1e3)),
       "browser": in_browser,
+      "geometry_box_to_update_ms": {"median": float(np.median(geo_ms)), "p95": float(np.percentile(geo_ms, 95)),
+                                    "boxes": len(geometry_s), "first_with_index_build_s": float(index_s)},
+      "play": play,
   }
   if in_browser:
     print(f"page load {in_browser['page_load_s']:.1f} s ({in_browser['initial_bytes'] / 1e6:.1f} MB);"
@@ -131,6 +231,12 @@ def main() -> None:
         f" re-sort median {result['resort_ms']['median']:.0f} ms, p95 {result['resort_ms']['p95']:.0f} ms;"
         f" mwbx query round trip {result['cli_query_round_trip_s']:.2f} s"
         f" ({result['cli_over_page']:.0f}x the page update)")
+  print(f"geometry box -> update median {result['geometry_box_to_update_ms']['median']:.0f} ms"
+        f" (index built in {index_s:.1f} s); play on {play['bodies']} bodies: decode + FK {play['decode_fk_ms']:.1f} ms,"
+        f" click -> poses sent {play['play_ms']:.1f} ms median (p95 {play['play_p95_ms']:.1f})"
+        + (f", in Chromium {play['browser_click_to_playing_ms']['median']:.0f} ms median (of which click to"
+           f" server {play['browser_click_to_playing_ms']['click_to_server_median']:.0f} ms)"
+           if play["browser_click_to_playing_ms"] else ""))
   args.out.parent.mkdir(parents=True, exist_ok=True)
   args.out.write_text(json.dumps(result, indent=2))
   print(f"wrote {args.out}")

@@ -341,6 +341,25 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
               f"{b['bytes_per_box_update'] / 1e6:.2f} MB (paths recoloured, counts, frustum, sorter)."]
   head = [f"**browse**: a drawn box updates {d['worlds']} worlds in {a['median']:.0f} ms (median; p95 "
           f"{a['p95']:.0f} ms), {d['cli_over_page']:.0f}× faster than the `mwbx query` round trip"]
+  if d.get("geometry_box_to_update_ms"):
+    g = d["geometry_box_to_update_ms"]
+    lines += ["", f"Whole-geometry boxes (`shape: geometry`, {g['boxes']} boxes): box → update median "
+              f"{g['median']:.0f} ms, p95 {g['p95']:.0f} ms ({g['median'] / a['median']:.1f}× the COM box); "
+              f"the first one builds the bank's geometry index ({g['first_with_index_build_s']:.0f} s, once)."]
+    head[0] += f"; a whole-geometry box in {g['median']:.0f} ms"
+  if d.get("play"):
+    p = d["play"]
+    lines += ["", f"Play (a sorter click, {p['bodies']}-body scene `tests/scenes/twenty.yaml`, {p['clicks']} clicks): "
+              f"decode + forward kinematics {p['decode_fk_ms']:.1f} ms, click → poses sent to the page "
+              f"{p['play_ms']:.1f} ms median (p95 {p['play_p95_ms']:.1f}); a slot's {p['meshes_per_slot']} meshes "
+              "go to the page once and are reused (before, every click uploaded them again: 28-30 ms on the "
+              "server per click, and the client rebuilt every mesh)."]
+    b = p.get("browser_click_to_playing_ms")
+    if b:
+      lines += ["", f"In headless Chromium (software WebGL on the shared CPUs): click → the page says the world "
+                f"plays {b['median']:.0f} ms median (p95 {b['p95']:.0f}), of which {b['click_to_server_median']:.0f} ms "
+                "pass before the click's event reaches the server: the browser's own time on this machine."]
+    head[0] += f"; a sorter click plays a {p['bodies']}-body world in {p['play_ms']:.0f} ms on the server"
   return lines, head
 
 

@@ -2,17 +2,22 @@
 
 Draw a box in the 3-D view (``Draw include box`` / ``Draw exclude box``, then
 drag): it becomes a frustum query through the camera you are looking
-through, and the counts, the path colours and the sorter update at once.
-Click a sorter row to play that world back; refine it from the current time
-or from the first entry of the last box; step back to its parent; save the
-queries as a query file and the bank as a new shard.
+through, about the chosen bodies' centres of mass or, with *Whole geometry*,
+any point of their geoms; *Upright at the end* and *Near its initial
+orientation* add orientation queries. The counts, the path colours and the
+sorter update at once. Click a sorter row to play that world back (overlaid
+on others, or side by side); refine it from the current time or from the
+first entry of the last box, adding or removing objects; step back to its
+parent; save the queries as a query file and the bank as a new shard.
 
-Every query the page adds is also printed on stdout with its screen box and
-camera, so what the page computed can be checked from outside.
+Every query the page adds is also printed on stdout with what defines it, so
+what the page computed can be checked from outside.
 
 Only a client holding the URL's token gets the page (:mod:`mwbx.browser.guard`);
-query files stay under the session's directory; refinements are limited and
-run one at a time (:class:`~mwbx.browser.session.Session`).
+query and scene files stay under the session's directory; refinements are
+limited and run one at a time (:class:`~mwbx.browser.session.Session`). The
+3-D scene is :mod:`mwbx.browser.scene`, playback :mod:`mwbx.browser.player`,
+paths and volumes :mod:`mwbx.browser.drawing`; this module is the GUI.
 """
 
 from __future__ import annotations
@@ -27,25 +32,14 @@ import mujoco
 import numpy as np
 
 from mwbx import queries as mq
+from mwbx.browser import drawing, gui
+from mwbx.browser.gui import ALL_BODIES, FIRST_ENTRY, MAX_PLAYED, NO_OBJECTS
 from mwbx.browser.guard import Guard, resolve_host, serve_guarded
-from mwbx.browser.session import MAX_REFINE_SAMPLES, REDUCTIONS, Session
+from mwbx.browser.player import Player
+from mwbx.browser.scene import Stage
+from mwbx.browser.session import ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
-from mwbx.viewer import geometry as vgeom
-from mwbx.viewer import triangles
-from mwbx.viewer.kinematics import body_trajectories
 
-# Each group of paths (faint, matching, excluded) draws at most this many
-# segments: an evenly spaced subset of its worlds beyond it, with a count shown.
-MAX_PATH_SEGMENTS = 60_000
-FAINT_RGB = (185, 185, 185)
-EXCLUDE_RGB = (220, 40, 40)
-QUERY_RGB = {"include": (40, 200, 60), "exclude": (220, 40, 40)}
-ALL_BODIES = "(every tracked body)"
-# Worlds played at once (overlaid), and the opacity of all but the first.
-MAX_PLAYED = 4
-GHOST_OPACITY = 0.45
-FIRST_ENTRY = "first entry of the last box"
-CURRENT_TIME = "current time"
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -55,25 +49,6 @@ def free_port(host: str = "127.0.0.1") -> int:
     return int(s.getsockname()[1])
 
 
-def _mesh(geometry) -> tuple[np.ndarray, np.ndarray]:
-  """(f32[V, 3], i32[F, 3]) triangles of a meshcat geometry, in its own frame."""
-  try:
-    return triangles.triangles(geometry)
-  except triangles.UnknownGeometry as err:
-    raise MwbxError(f"browse: {err}") from None
-
-
-def _pose(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-  """(wxyz, position) of a 4x4 transform."""
-  quat = np.zeros(4)
-  mujoco.mju_mat2Quat(quat, np.ascontiguousarray(matrix[:3, :3]).reshape(-1))
-  return quat, np.asarray(matrix[:3, 3], np.float64)
-
-
-def _rgb(rgba) -> tuple[int, int, int]:
-  return tuple(int(round(255 * float(c))) for c in rgba[:3])
-
-
 def camera_from_client(camera) -> mq.Camera:
   """The mwbx camera of a viser client camera (OpenCV axes: x right, y down, z forward)."""
   rot = np.zeros(9)
@@ -81,6 +56,11 @@ def camera_from_client(camera) -> mq.Camera:
   rot = rot.reshape(3, 3)
   return mq.Camera(eye=np.asarray(camera.position, np.float64), right=rot[:, 0], up=-rot[:, 1],
                    forward=rot[:, 2], fovy=float(np.degrees(camera.fov)), aspect=float(camera.aspect))
+
+
+def _names(text: str) -> tuple[str, ...]:
+  """'a, b c' -> ('a', 'b', 'c')."""
+  return tuple(n for n in text.replace(",", " ").split() if n)
 
 
 class Browser:
@@ -94,6 +74,8 @@ class Browser:
   Attributes:
     url: the page's address with its token (what to open).
     loopback: whether ``host`` is reachable from this machine only.
+    stage: the 3-D scene (:class:`~mwbx.browser.scene.Stage`).
+    player: playback (:class:`~mwbx.browser.player.Player`).
   """
 
   def __init__(self, session: Session, host: str = "127.0.0.1", port: int | None = None):
@@ -106,186 +88,93 @@ class Browser:
         lambda: viser.ViserServer(host=host, port=self.requested_port, label="mwbx", verbose=False), self.guard)
     self.port = int(self.server.get_port())  # viser moves on to the next port when this one is busy
     self.host = host
-    self.model = session.bank.model()
-    self.visuals = vgeom.scene_visuals(self.model)
     self.playing_world: int | None = None
-    self.frame = 0
-    self._stop = threading.Event()
-    self.played: dict = {}  # world id -> (body ids, pos, quat, body nodes), in play order
     self._handles: dict = {}
-    self._build_scene()
+    self.server.scene.set_up_direction("+z")
+    self._build_stage()
     self._build_gui()
+    self.player = Player(session, self.stage, paused=lambda: bool(self.paused.value))
     self.refresh()
-    self._player = threading.Thread(target=self._play_loop, daemon=True, name="mwbx-playback")
-    self._player.start()
 
   @property
   def url(self) -> str:
     host = f"[{self.host}]" if ":" in self.host else self.host
     return f"http://{host}:{self.port}/?token={self.guard.token}"
 
+  @property
+  def visuals(self):
+    return self.stage.visuals
+
+  @property
+  def moving(self) -> dict:
+    return self.stage.moving
+
+  @property
+  def frame(self) -> int:
+    return self.player.frame
+
   # -- scene ------------------------------------------------------------------------------
 
-  def _build_scene(self) -> None:
-    scene = self.server.scene
-    scene.set_up_direction("+z")
-    self._frame_view()
-    self.moving = {}  # body id -> [(name, vertices, faces, rgb, wxyz, position)] of its geoms
-    for v in self.visuals:
-      verts, faces = _mesh(v.geometry)
-      wxyz, pos = _pose(v.local)
-      if v.static:
-        scene.add_mesh_simple(f"/scene/{v.name}", verts, faces, color=_rgb(v.rgba), wxyz=wxyz, position=pos,
-                              opacity=None if v.rgba.a >= 1 else float(v.rgba.a))
-      else:
-        self.moving.setdefault(int(v.body_id), []).append((v.name, verts, faces, _rgb(v.rgba), wxyz, pos))
-    # Colour per body: the colour of its first geom (a path of the ball is the ball's colour).
-    bank = self.session.bank
-    colour = {}
-    for v in self.visuals:
-      colour.setdefault(int(v.body_id), _rgb(v.rgba))
-    self.body_rgb = np.array([colour.get(int(b), (60, 160, 60)) for b in bank.body_ids], np.uint8)
-
-  def _frame_view(self) -> None:
-    """Initial camera: from outside every body's paths in the valid worlds
-    (widened by the largest moving geom), along the model's first fixed scene
-    camera (never one riding on or tracking a body), else from the front right."""
+  def _build_stage(self) -> None:
     from mwbx.viewer import framing
     bank = self.session.bank
+    self.model = bank.model()
     rows = np.flatnonzero(np.asarray(bank.valid, bool))
-    if not rows.size:
-      return
-    lo, hi = framing.scene_bounds(bank, self.model, rows, None, None)
-    spec = framing.view_spec(self.model, None, None)
-    fov = float(self.server.initial_camera.fov)  # radians
-    centre, eye = framing.frame_box(lo, hi, spec._replace(fovy=float(np.degrees(fov))))
-    self.server.initial_camera.look_at = centre
-    self.server.initial_camera.position = eye
+    extent = (np.full(3, -0.5), np.full(3, 0.5))
+    if rows.size:
+      # Initial camera: from outside every body's paths in the valid worlds
+      # (widened by the largest moving geom), along the model's first fixed
+      # scene camera, else from the front right.
+      lo, hi = framing.scene_bounds(bank, self.model, rows, None, None)
+      extent = (lo, hi)
+      spec = framing.view_spec(self.model, None, None)
+      fov = float(self.server.initial_camera.fov)  # radians
+      centre, eye = framing.frame_box(lo, hi, spec._replace(fovy=float(np.degrees(fov))))
+      self.server.initial_camera.look_at = centre
+      self.server.initial_camera.position = eye
+    self.stage = Stage(self.server, self.model, extent)
+    self.body_rgb = self.stage.body_colours(bank.body_ids)
 
-  def _paths(self, bodies: np.ndarray, match: np.ndarray, exclude: np.ndarray) -> dict:
-    """Draws the selected bodies' paths: faint, per-body colour where all queries
-    hold, red where an exclude box rejects. Each group draws at most
-    MAX_PATH_SEGMENTS segments (an evenly spaced subset of its worlds);
-    returns {group: worlds left out}."""
+  def _scene_changed(self) -> None:
+    """After a refinement moved the bank to a later scene version (new
+    bodies): a new stage, and the new names in the pickers."""
     bank = self.session.bank
-    com, count = np.asarray(bank.com), np.asarray(bank.com_count)
-    valid = np.asarray(bank.valid, bool)
-    groups = {"faint": valid & ~match & ~exclude, "match": valid & match, "exclude": valid & exclude}
-    if self.only_matches.value:
-      groups["faint"] = groups["exclude"] = np.zeros_like(valid)
-    per_world = max(1, (com.shape[1] - 1) * bodies.size)
-    cap = max(1, MAX_PATH_SEGMENTS // per_world)
-    left_out = {}
-    for name, mask in groups.items():
-      rows = np.flatnonzero(mask)
-      left_out[name] = max(0, rows.size - cap)
-      if left_out[name]:
-        rows = rows[np.linspace(0, rows.size - 1, cap).astype(np.int64)]
-      old = self._handles.pop(f"paths/{name}", None)
-      if old is not None:
-        old.remove()
-      if not rows.size or com.shape[1] < 2:
-        continue
-      pts = com[rows][:, :, bodies]  # [n, P, k, 3]
-      seg = np.stack([pts[:, :-1], pts[:, 1:]], axis=-2)  # [n, P-1, k, 2, 3]
-      keep = np.arange(com.shape[1] - 1)[None, :] < (count[rows] - 1)[:, None]  # recorded segments only
-      seg = seg[keep]  # [m, k, 2, 3]
-      if name == "match":
-        rgb = np.broadcast_to(self.body_rgb[bodies][None, :, None, :], seg.shape)
-      else:
-        rgb = np.broadcast_to(np.asarray(FAINT_RGB if name == "faint" else EXCLUDE_RGB, np.uint8), seg.shape)
-      if seg.size:
-        self._handles[f"paths/{name}"] = self.server.scene.add_line_segments(
-            f"/paths/{name}", seg.reshape(-1, 2, 3).astype(np.float32),
-            np.ascontiguousarray(rgb, np.uint8).reshape(-1, 2, 3),
-            thickness=2.0 if name != "faint" else 1.0, thickness_units="screen")
-    return left_out
-
-  def _frustums(self) -> None:
-    scene = self.server.scene
-    for key in [k for k in self._handles if k.startswith("queries/")]:
-      self._handles.pop(key).remove()
-    edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
-    for i, entry in enumerate(self.session.entries):
-      q = entry.query
-      corners = None if q.frustum is None else q.frustum.corners  # joint queries draw nothing
-      if corners is None or not entry.enabled:
-        continue
-      seg = np.array([[corners[a], corners[b]] for a, b in edges], np.float32)
-      colours = np.broadcast_to(np.asarray(QUERY_RGB[q.sign], np.uint8), seg.shape).copy()
-      self._handles[f"queries/q{i}"] = scene.add_line_segments(f"/queries/q{i}", seg, colours, thickness=2.0,
-                                                               thickness_units="screen")
+    if bank.model().nbody == self.model.nbody:
+      return
+    with self.player.lock:
+      self.player.forget()
+      self.stage.remove()
+      self._build_stage()
+      self.stage.set_side_by_side(self.side_by_side.value)
+      self.player.stage = self.stage
+    names = self._body_names()
+    self.bodies.options = names
+    self.objects.options = tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,)
+    with self.several_folder:
+      for name in names[1:]:
+        if name not in self.several:
+          self.several[name] = self.server.gui.add_checkbox(name, False)
+          self.several[name].on_update(lambda _: self.refresh())
+    self.playing_world = None
+    self.playing_md.content = "no world playing (the scene changed)"
 
   # -- GUI --------------------------------------------------------------------------------
 
-  def _build_gui(self) -> None:
-    gui = self.server.gui
+  def _body_names(self) -> tuple[str, ...]:
     bank = self.session.bank
-    names = [ALL_BODIES] + list(bank.groups) + list(bank.objects) + [
-        f"body:{b}" for b in bank.body_names if b not in bank.objects]
-    end = float((int(bank.frame_count.max()) - 1) / bank.record_fps) if bank.n_worlds else 1.0
-    self.end_time = end
-    with gui.add_folder("Queries"):
-      self.counts_md = gui.add_markdown("")
-      self.bodies = gui.add_dropdown("Bodies", names, initial_value=ALL_BODIES)
-      self.mode = gui.add_dropdown("Mode", ("any", "all"), initial_value="any")
-      self.only_matches = gui.add_checkbox("Only matching paths", False)
-      self.only_matches.on_update(lambda _: self.refresh())
-      self.bodies.on_update(lambda _: self.refresh())
-      self.window = gui.add_multi_slider("Time window (s)", 0.0, max(end, 1e-3), max(end, 1e-3) / 100,
-                                         (0.0, max(end, 1e-3)))
-      include = gui.add_button("Draw include box")
-      exclude = gui.add_button("Draw exclude box")
-      include.on_click(lambda event: self._arm_box("include", event.client))
-      exclude.on_click(lambda event: self._arm_box("exclude", event.client))
-      self.query_pick = gui.add_dropdown("Query", ("(none)",), initial_value="(none)")
-      toggle = gui.add_button("Toggle query")
-      remove = gui.add_button("Remove query")
-      toggle.on_click(lambda _: self._with_pick(self.session.toggle))
-      remove.on_click(lambda _: self._with_pick(self.session.remove))
-      undo = gui.add_button("Undo")
-      redo = gui.add_button("Redo")
-      undo.on_click(lambda _: self.session.undo() and self.refresh())
-      redo.on_click(lambda _: self.session.redo() and self.refresh())
-      self.query_file = gui.add_text("Query file", "queries.yaml",
-                                     hint=f"a .yaml file under {self.session.query_dir}")
-      save_q = gui.add_button("Save queries")
-      open_q = gui.add_button("Open queries")
-      save_q.on_click(lambda _: self._report(lambda: f"saved {self.session.save_queries(self.query_file.value)}"))
-      open_q.on_click(lambda _: self._report(lambda: self.session.open_queries(self.query_file.value)
-                                             or f"opened {self.query_file.value.strip()}"))
-    with gui.add_folder("Sorter"):
-      self.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS,),
-                                     initial_value=bank.metric_names[0])
-      self.reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
-      self.metric.on_update(lambda _: self._sorter())
-      self.reduce.on_update(lambda _: self._sorter())
-      self.sorter_md = gui.add_markdown("")
-      self.compare = gui.add_checkbox("Add to the playing worlds", False,
-                                      hint=f"overlay up to {MAX_PLAYED} worlds, each labelled with its id")
-      self.sorter = gui.add_folder("Worlds (click to play)")
-      self.row_buttons: list = []
-    with gui.add_folder("Playback"):
-      self.playing_md = gui.add_markdown("no world playing")
-      self.paused = gui.add_checkbox("Pause", False)
-      self.time_slider = gui.add_slider("Time (s)", 0.0, max(end, 1e-3), 1.0 / bank.record_fps, 0.0)
-      self.time_slider.on_update(lambda _: self._seek())
-    with gui.add_folder("Refine"):
-      self.objects = gui.add_dropdown("Objects", tuple(bank.objects) + tuple(bank.groups),
-                                      initial_value=next(iter(bank.objects)))
-      self.start = gui.add_dropdown("From", (CURRENT_TIME, FIRST_ENTRY), initial_value=CURRENT_TIME)
-      self.samples = gui.add_number("Samples", 16, min=1, max=MAX_REFINE_SAMPLES, step=1,
-                                    hint=f"1 to {MAX_REFINE_SAMPLES}")
-      refine = gui.add_button("Refine playing world")
-      refine.on_click(lambda _: self._refine())
-      cancel = gui.add_button("Cancel refinement")
-      cancel.on_click(lambda _: self._cancel())
-      self.progress = gui.add_progress_bar(0.0, visible=False)
-      parent = gui.add_button("Go to parent")
-      parent.on_click(lambda _: self._parent())
-      save = gui.add_button("Save bank")
-      save.on_click(lambda _: self._report(lambda: f"saved {self.session.save()}"))
-      self.status_md = gui.add_markdown("")
+    return tuple([ALL_BODIES] + list(bank.groups) + list(bank.objects) + [
+        f"body:{b}" for b in bank.body_names if b not in bank.objects])
+
+  def _build_gui(self) -> None:
+    gui.build(self)
+
+  def _selection(self) -> tuple[str, ...] | None:
+    """The bodies queries are about: the ticked *Several bodies*, else the
+    *Bodies* choice (None: every tracked body)."""
+    ticked = tuple(name for name, box in self.several.items() if box.value)
+    if ticked:
+      return ticked
+    return None if self.bodies.value == ALL_BODIES else (self.bodies.value,)
 
   def _report(self, action) -> None:
     try:
@@ -301,6 +190,10 @@ class Browser:
     if label.startswith("q"):
       self._report(lambda: action(int(label[1:].split(" ")[0])) or f"{label}: done")
 
+  def _window(self):
+    lo, hi = self.window.value
+    return None if (lo <= 0.0 and hi >= self.end_time) else (float(lo), float(hi))
+
   def _arm_box(self, sign: str, client) -> None:
     scene = self.server.scene
 
@@ -314,43 +207,58 @@ class Browser:
   def _add_box(self, sign: str, event) -> None:
     camera = camera_from_client(event.client.camera)
     box = mq.ScreenBox.from_corners(event.screen_min, event.screen_max)
-    bodies = None if self.bodies.value == ALL_BODIES else (self.bodies.value,)
-    lo, hi = self.window.value
-    window = None if (lo <= 0.0 and hi >= self.end_time) else (float(lo), float(hi))
+    bodies = self._selection()
+    window = self._window()
+    shape = "geometry" if self.geometry.value else "com"
     try:
       query = mq.Query.screen(camera, box, sign=sign, bodies=bodies, mode=self.mode.value, window=window,
-                              name=f"q{len(self.session.entries)}")
+                              name=f"q{len(self.session.entries)}", shape=shape)
       index = self.session.add(query)
     except MwbxError as err:
       self.status_md.content = f"error: {err}"
       return
-    self.refresh()
-    count = self.session.counts()
+    count = self.refresh()
     self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
     print(f"mwbx browse: query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
-          f" bodies={list(bodies) if bodies else None} mode={self.mode.value} window={window}"
+          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
           f" camera eye={camera.eye.tolist()} right={camera.right.tolist()} up={camera.up.tolist()}"
           f" forward={camera.forward.tolist()} fovy={camera.fovy} aspect={camera.aspect}"
+          f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={shape}", flush=True)
+
+  def _add_orientation(self, upright: bool) -> None:
+    bodies = self._selection()
+    window = self._window()
+    goal = dict(axis=self.axis.value) if upright else dict(target="initial")
+    try:
+      query = mq.OrientationQuery(bodies=bodies, within_deg=self.within.value, window=window, mode=self.mode.value,
+                                  name=f"q{len(self.session.entries)}", **goal)
+      index = self.session.add(query)
+    except MwbxError as err:
+      self._say(f"error: {err}")
+      return
+    count = self.refresh()
+    self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
+    what = f"upright axis={self.axis.value}" if upright else "initial"
+    print(f"mwbx browse: query {index} orientation {what} within_deg={query.within_deg}"
+          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
           f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}", flush=True)
 
   # -- refresh ----------------------------------------------------------------------------
 
-  def refresh(self) -> None:
+  def refresh(self):
+    """Redraws paths, volumes, counts and the sorter from the session; returns the counts."""
     session = self.session
     bank = session.bank
-    counts = session.counts()
-    each = session._each()
-    exclude = np.zeros(bank.n_worlds, bool)
-    for i, e in enumerate(session.entries):
-      if e.enabled and not e.query.include:
-        exclude |= ~each[:, i]
-    match = session.match() if session.entries else np.zeros(bank.n_worlds, bool)
-    bodies = (np.arange(len(bank.body_names)) if self.bodies.value == ALL_BODIES
-              else np.asarray(bank.select_bodies(self.bodies.value)))
-    left_out = self._paths(bodies, match & ~exclude, exclude & np.asarray(bank.valid))
-    self._frustums()
-    self._counts_text(counts, left_out)
-    self._sorter(counts)
+    view = session.view()
+    selection = self._selection()
+    bodies = (np.arange(len(bank.body_names)) if selection is None
+              else np.asarray(bank.select_bodies(list(selection))))
+    left_out = drawing.draw_paths(self.server, self._handles, bank, self.body_rgb, bodies, view.match,
+                                  view.rejected, self.only_matches.value)
+    drawing.draw_frustums(self.server, self._handles, session.entries)
+    self._counts_text(view.counts, left_out)
+    self._sorter(view.counts)
+    return view.counts
 
   def _counts_text(self, counts, left_out: dict) -> None:
     session = self.session
@@ -358,8 +266,14 @@ class Browser:
     for i, (e, n) in enumerate(zip(session.entries, counts.per_query)):
       q = e.query
       state = "" if e.enabled else " (off)"
-      what = f"joint {q.joint} turns {q.turn}" if q.frustum is None else \
-          f"{q.sign} {','.join(q.bodies) if q.bodies else 'any body'}"
+      who = ",".join(q.bodies) if getattr(q, "bodies", None) else "any body"
+      if isinstance(q, mq.OrientationQuery):
+        goal = "initial orientation" if q.target is not None else "upright"
+        what = f"{q.sign} {who} within {q.within_deg:g}° of {goal}"
+      elif q.frustum is None:
+        what = f"joint {q.joint} turns {q.turn}"
+      else:
+        what = f"{q.sign} {who}" + (" (geometry)" if getattr(q, "shape", "com") == "geometry" else "")
       lines.append(f"- q{i} {what}: {n}{state}")
     hidden = [f"{n} {name}" for name, n in left_out.items() if n]
     if hidden:
@@ -371,10 +285,17 @@ class Browser:
   def _sorter(self, counts=None) -> None:
     session = self.session
     counts = session.counts() if counts is None else counts
-    bodies = None if self.bodies.value == ALL_BODIES else [self.bodies.value]
-    rows = session.sorted_rows(self.metric.value, self.reduce.value, bodies=bodies)
+    selection = self._selection()
+    bodies = None if selection is None else list(selection)
+    try:
+      rows = session.sorted_rows(self.metric.value, self.reduce.value, bodies=bodies)
+    except MwbxError as err:
+      self.sorter_md.content = f"error: {err}"
+      return
     closest = not counts.all and session.entries
-    over = "every tracked body" if bodies is None else bodies[0]
+    over = "every tracked body" if bodies is None else ", ".join(bodies)
+    if self.metric.value == ORIENTATION_ERROR:
+      over = f"the bodies of {session.orientation_query().name or 'the last orientation query'} (rad, smallest first)"
     self.sorter_md.content = (f"{'closest worlds: ' if closest else ''}world · queries satisfied · "
                               f"{self.metric.value}:{self.reduce.value} over {over} · parent")
     for button in self.row_buttons:
@@ -391,66 +312,53 @@ class Browser:
   # -- playback ---------------------------------------------------------------------------
 
   def play(self, world: int, add: bool = False) -> None:
-    """Plays world ``world`` back in the scene (decoded from the codec); with
-    ``add`` next to the ones playing (overlaid, translucent, each labelled),
-    at most MAX_PLAYED worlds."""
-    bank = self.session.bank
+    """Plays world ``world`` back (decoded from the codec; its slot's meshes
+    are on the page already, only poses move); with ``add`` besides the ones
+    playing (overlaid, translucent, or side by side), at most MAX_PLAYED."""
     world = int(world)
-    if not add:
-      for w in list(self.played):
-        self._unplay(w)
-    elif world in self.played:
+    try:
+      self.session.bank.row_of(world)
+    except MwbxError as err:
+      self._say(f"error: {err}")
       return
-    elif len(self.played) >= MAX_PLAYED:
-      self._unplay(next(iter(self.played)))
-    qpos = bank.qpos_frames(world).astype(np.float64)
-    body_ids = np.array(sorted(self.moving), np.int64)
-    pos, quat = body_trajectories(self.model, qpos, body_ids)
-    ghost = bool(self.played)
-    scene = self.server.scene
-    nodes = {}
-    for body in body_ids:
-      node = scene.add_frame(f"/play/w{world}/b{body}", show_axes=False)
-      for name, verts, faces, rgb, wxyz, position in self.moving[int(body)]:
-        scene.add_mesh_simple(f"/play/w{world}/b{body}/{name}", verts, faces, color=rgb, wxyz=wxyz,
-                              position=position, opacity=GHOST_OPACITY if ghost else None)
-      nodes[int(body)] = node
-    if body_ids.size:  # the label rides on the world's first body
-      scene.add_label(f"/play/w{world}/b{body_ids[0]}/label", f"world {world}")
-    self.played[world] = (body_ids, pos, quat, nodes)
+    self.player.play(world, add=add)
     self.playing_world = world
-    if not add:
-      self.frame = 0
-    parent = self.session.parent(world)
-    shown = ", ".join(f"world {w}" for w in self.played)
-    self.playing_md.content = (f"playing **{shown}**" + (f" (world {world} refined from {parent})"
-                                                         if parent is not None else ""))
+    shown = ", ".join(f"world {w}" for w in self.player.played)
+    self.playing_md.content = f"playing **{shown}**"
+    self.lineage_md.content = "\n".join(f"- {line}" for line in self.session.lineage(world))
     print(f"mwbx browse: playing world {world}" + (" (added)" if add else ""), flush=True)
 
-  def _unplay(self, world: int) -> None:
-    self.server.scene.remove_by_name(f"/play/w{world}")
-    del self.played[world]
+  def _layout(self) -> None:
+    with self.player.lock:
+      self.stage.set_side_by_side(self.side_by_side.value)
+    print(f"mwbx browse: layout {'side by side' if self.side_by_side.value else 'overlay'}"
+          f" of {list(self.player.played)}", flush=True)
 
-  def _show_frame(self) -> None:
-    with self.server.atomic():
-      for body_ids, pos, quat, nodes in list(self.played.values()):
-        f = min(self.frame, pos.shape[0] - 1)
-        for k, b in enumerate(body_ids):
-          nodes[int(b)].position = pos[f, k]
-          nodes[int(b)].wxyz = quat[f, k]
+  def _compare(self) -> None:
+    """Plays the worlds typed in *Worlds to compare* side by side, from the start."""
+    try:
+      worlds = [int(w) for w in _names(self.chosen.value)]
+    except ValueError:
+      self._say(f"error: worlds to compare: give 2 to {MAX_PLAYED} world ids, got {self.chosen.value!r}")
+      return
+    if not 2 <= len(worlds) <= MAX_PLAYED or len(set(worlds)) != len(worlds):
+      self._say(f"error: worlds to compare: give 2 to {MAX_PLAYED} different world ids, got {worlds}")
+      return
+    for w in worlds:
+      try:
+        self.session.bank.row_of(w)
+      except MwbxError as err:
+        self._say(f"error: worlds to compare: {err}")
+        return
+    self.side_by_side.value = True  # (its callback lays the grid out)
+    with self.player.lock:
+      self.stage.set_side_by_side(True)
+      for i, w in enumerate(worlds):
+        self.play(w, add=i > 0)
+    self._say(f"side by side: {', '.join(f'world {w}' for w in worlds)}")
 
   def _seek(self) -> None:
-    if self.played:
-      self.frame = int(round(self.time_slider.value * self.session.bank.record_fps))
-      self._show_frame()
-
-  def _play_loop(self) -> None:
-    while not self._stop.is_set():
-      if self.played and not self.paused.value:
-        self._show_frame()
-        longest = max(p[1].shape[0] for p in list(self.played.values()))
-        self.frame = (self.frame + 1) % longest
-      time.sleep(1.0 / self.session.bank.record_fps)
+    self.player.seek(int(round(self.time_slider.value * self.session.bank.record_fps)))
 
   # -- refinement ---------------------------------------------------------------------------
 
@@ -459,10 +367,12 @@ class Browser:
     if world is None:
       self.status_md.content = "play a world first (the one to refine)"
       return
-    objects = self.objects.value
+    objects = () if self.objects.value == NO_OBJECTS else self.objects.value
+    add, remove = _names(self.add_objects.value), _names(self.remove_objects.value)
     try:
-      t_min = (self.session.first_entry_of_last_box(world, [objects]) if self.start.value == FIRST_ENTRY
-               else self.frame / self.session.bank.record_fps)
+      entering = [objects] if objects else list(add + remove)
+      t_min = (self.session.first_entry_of_last_box(world, entering) if self.start.value == FIRST_ENTRY
+               else self.player.frame / self.session.bank.record_fps)
     except MwbxError as err:
       self.status_md.content = f"error: {err}"
       return
@@ -472,12 +382,15 @@ class Browser:
     except (TypeError, ValueError, OverflowError):
       pass
     try:
-      job = self.session.refine(world, objects, t_min=t_min, n_samples=n)
+      job = self.session.refine(world, objects, t_min=t_min, n_samples=n, add=add, remove=remove,
+                                scene=self.scene_file.value)
     except MwbxError as err:
       self._say(f"error: {err}")
       return
     self.progress.visible = True
-    print(f"mwbx browse: refining {objects} of world {world} from {t_min:.4f} s, {n} samples", flush=True)
+    changes = "".join(f", {k} {','.join(v)}" for k, v in (("adding", add), ("removing", remove)) if v)
+    print(f"mwbx browse: refining {objects or 'no objects'} of world {world} from {t_min:.4f} s, {n} samples"
+          f"{changes}", flush=True)
 
     def watch():
       while not job.done.wait(0.1):
@@ -491,6 +404,7 @@ class Browser:
       else:
         ids = job.new_ids
         message = f"refined world {world}: new worlds {int(ids[0])}..{int(ids[-1])} (parent {world})"
+        self._scene_changed()
         self.refresh()
       self.status_md.content = message
       print(f"mwbx browse: {message}", flush=True)
@@ -539,7 +453,7 @@ class Browser:
 
   def close(self) -> None:
     """Stops playback and the server."""
-    self._stop.set()
+    self.player.stop()
     self.server.stop()
 
 

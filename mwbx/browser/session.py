@@ -26,6 +26,9 @@ SORTER_ROWS = 20
 # checked here: a client can send any number).
 MAX_REFINE_SAMPLES = 4096
 QUERY_SUFFIXES = (".yaml", ".yml")
+# The sorter metric ranking by the last enabled orientation query's error (radians, smallest first);
+# not the stored metric orientation_error (the angle from the initial orientation).
+ORIENTATION_ERROR = "error of the orientation query"
 
 
 class Entry(NamedTuple):
@@ -42,6 +45,18 @@ class Counts(NamedTuple):
   per_query: tuple[int, ...]
   all: int
   valid: int
+
+
+class View(NamedTuple):
+  """What the page draws from the query stack: ``each`` bool[W, Q] per entry
+  (enabled or not), ``match`` bool[W] valid worlds satisfying every enabled
+  query (none when the stack is empty), ``rejected`` bool[W] valid worlds an
+  enabled exclude query rejects, and the counts."""
+
+  each: np.ndarray
+  match: np.ndarray
+  rejected: np.ndarray
+  counts: Counts
 
 
 class SorterRow(NamedTuple):
@@ -186,7 +201,7 @@ class Session:
 
   # -- answers ---------------------------------------------------------------------------
 
-  def _each(self) -> np.ndarray:
+  def each(self) -> np.ndarray:
     """bool[W, Q] every entry (enabled or not) on the current bank, evaluated
     once per bank and stack (a redraw asks several times)."""
     queries = tuple(e.query for e in self.entries)
@@ -197,14 +212,30 @@ class Session:
       self._cache = (key, each)
     return self._cache[1]
 
+  def view(self) -> View:
+    """The answers the page draws (see :class:`View`)."""
+    each = self.each()
+    valid = np.asarray(self.bank.valid, bool)
+    rejected = np.zeros(self.bank.n_worlds, bool)
+    for i, e in enumerate(self.entries):
+      if e.enabled and not e.query.include:
+        rejected |= ~each[:, i]
+    match = self.match() if self.entries else np.zeros(self.bank.n_worlds, bool)
+    return View(each, match & ~rejected, rejected & valid, self.counts())
+
+  def orientation_query(self):
+    """The last enabled orientation query (the sorter's ``orientation_error``), or None."""
+    found = [q for q in self.enabled if isinstance(q, mq.OrientationQuery)]
+    return found[-1] if found else None
+
   def match(self) -> np.ndarray:
     """bool[W] valid worlds satisfying every enabled query (all valid ones when none)."""
-    each = self._each()
+    each = self.each()
     on = np.array([e.enabled for e in self.entries], bool)
     return np.asarray(self.bank.valid, bool) & np.all(each[:, on], axis=1)
 
   def counts(self) -> Counts:
-    each = self._each()
+    each = self.each()
     valid = np.asarray(self.bank.valid, bool)
     on = np.array([e.enabled for e in self.entries], bool)
     return Counts(tuple(int((each[:, i] & valid).sum()) for i in range(each.shape[1])),
@@ -219,9 +250,15 @@ class Session:
       raise MwbxError(f"sorter: reduce must be one of {REDUCTIONS}, got {reduce!r}")
     match = self.match()
     on = np.array([e.enabled for e in self.entries], bool)
-    satisfied = self._each()[:, on].sum(axis=1).astype(np.int64)
+    satisfied = self.each()[:, on].sum(axis=1).astype(np.int64)
     if metric == mq.metrics.CONSTRAINTS:
       values = satisfied.astype(np.float64)
+    elif metric == ORIENTATION_ERROR:
+      query = self.orientation_query()
+      if query is None:
+        raise MwbxError(f"sorter: {ORIENTATION_ERROR!r} needs an orientation query (add one first)")
+      values = mq.orientation_error(self.bank, query, reduce=reduce)  # over the query's own bodies
+      descending = False  # the most nearly oriented first
     else:
       values = mq.metrics.score(self.bank, [mq.Term(metric, None if not bodies else tuple(bodies), reduce, 1.0)])
     if match.any():
@@ -286,13 +323,19 @@ class Session:
     return float(t)
 
   def refine(self, world: int, objects, *, t_min: float, n_samples: int, key=None,
-             backend: str | None = None, wait: bool = False) -> RefineJob:
+             backend: str | None = None, wait: bool = False, add=(), remove=(), scene=None) -> RefineJob:
     """Refines ``objects`` of world ``world`` from ``t_min`` in a background
     thread; the new worlds join the bank when it is done (``job.done``).
 
+    ``add`` / ``remove`` change the scene at ``t_min`` as ``mwbx refine
+    --add/--remove`` does; ``scene``, a later version of the bank's scene
+    holding the objects to add: a ``.yaml`` file name under :attr:`query_dir`
+    (as query files), the bank moved to it first.
+
     Raises:
-      MwbxError: ``n_samples`` outside 1..MAX_REFINE_SAMPLES, or another
-        refinement of this session still running (one at a time).
+      MwbxError: ``n_samples`` outside 1..MAX_REFINE_SAMPLES, another
+        refinement of this session still running (one at a time), or a scene
+        file outside :attr:`query_dir`.
     """
     from mwbx.refinement import refine_run
     if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
@@ -305,14 +348,23 @@ class Session:
                         " wait for it or cancel it")
       job = self.job = RefineJob(world, n_samples)
 
+    scene_path = None if scene is None or not str(scene).strip() else query_file_path(self.query_dir, scene)
+    if scene_path is not None and not scene_path.is_file():
+      job.done.set()
+      raise MwbxError(f"refine: scene file {str(scene).strip()!r}: no such file under {self.query_dir}")
+
     def work():
       try:
-        new, _ = refine_run(self.bank, world, objects, t_min=t_min, n_samples=int(n_samples), key=key,
-                            backend=backend, progress=job._report)
+        bank = self.bank
+        if scene_path is not None:
+          from mwbx.refinement.refine import as_scene
+          bank = bank.with_scene(as_scene(scene_path))
+        new, _ = refine_run(bank, world, objects, t_min=t_min, n_samples=int(n_samples), key=key,
+                            backend=backend, progress=job._report, add=add, remove=remove)
         if job._cancel.is_set():
           raise RefineCancelled
         with self._lock:
-          self.bank = self.bank.append(new)
+          self.bank = bank.append(new)
           self.unsaved.extend(int(i) for i in np.asarray(new.world_ids))
         job.new_ids = np.asarray(new.world_ids)
       except RefineCancelled:
@@ -342,3 +394,26 @@ class Session:
     """The world ``world`` was refined from (None: a sampled world)."""
     p = int(self.bank.parent_world[self.bank.row_of(int(world))])
     return None if p < 0 else p
+
+  def lineage(self, world: int) -> list[str]:
+    """How world ``world`` came to be, one line per step, oldest first: the
+    sampled world, then each refinement (its parent, t_min, objects added
+    and removed), and the objects absent from it and when."""
+    bank = self.bank
+    chain = [int(a) for a in bank.ancestors(int(world))][::-1] + [int(world)]
+    lines = []
+    for wid in chain:
+      entry = bank.lineage.get(str(wid), {})
+      parent = int(bank.parent_world[bank.row_of(wid)])
+      if parent < 0:
+        lines.append(f"world {wid}: sampled")
+        continue
+      changes = [f"+{name} at {float(t):.3g} s" for name, t in entry.get("added", {}).items()]
+      changes += [f"-{name} at {float(t):.3g} s" for name, t in entry.get("removed", {}).items()]
+      objects = ", ".join(entry.get("objects", ())) or "no objects"
+      lines.append(f"world {wid}: {objects} refined from {parent} at {float(bank.refine_time[bank.row_of(wid)]):.3g} s"
+                   + (f" ({', '.join(changes)})" if changes else ""))
+    absent = bank.absent(int(world))
+    if absent:
+      lines.append("absent: " + ", ".join(f"{name} {lo:.3g}..{hi:.3g} s" for name, (lo, hi) in absent.items()))
+    return lines
