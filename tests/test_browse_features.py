@@ -129,7 +129,8 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       page.get_by_label("Samples").fill("2")
       _fill(page, "Remove objects", "ball")
       page.get_by_text("Refine playing world").click()
-      server.expect(rf"refining cube of world {world} from .* 2 samples, removing ball")
+      said = server.expect(r"mwbx browse: (refining|error).*").group(0)
+      assert re.search(rf"refining cube of world {world} from .* 2 samples, removing ball", said), said
       removed = server.expect(r"refined world (\d+): new worlds (\d+)\.\.(\d+)")
       child = int(removed.group(2))
       # Add the block of a later scene version: the page moves to it.
