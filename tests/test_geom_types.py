@@ -14,6 +14,7 @@ import umsgpack
 
 import mwbx
 from mwbx.browser import app
+from mwbx.browser import scene as page_scene
 from mwbx import viewer
 from mwbx.viewer import geometry
 
@@ -87,7 +88,7 @@ def bank(scene_dir):
 def geom_frame_triangles(model, g):
   """(f64[V, 3] vertices in the MuJoCo geom's frame, i32[F, 3]) as both views draw it."""
   shape, fix = geometry.geom_shape(model, g, plane_extent=5.0)
-  verts, faces = app._mesh(shape)  # the browsing page's conversion of the meshcat geometry
+  verts, faces = page_scene._mesh(shape)  # the browsing page's conversion of the meshcat geometry
   return np.asarray(verts, np.float64) @ fix[:3, :3].T + fix[:3, 3], faces
 
 
@@ -179,7 +180,7 @@ def test_unknown_geometry_is_a_clear_error():
   class Odd(meshcat.geometry.Geometry):
     pass
   with pytest.raises(mwbx.MwbxError, match="Odd"):
-    app._mesh(Odd())
+    page_scene._mesh(Odd())
 
 
 def test_bank_of_every_geom_opens_in_the_viewer_and_the_page(bank):
