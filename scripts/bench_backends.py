@@ -37,11 +37,14 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
-from mujoco import rollout as mj_rollout
 
 import mwbx
 from mwbx.batch_sim import contact_budget, mjx_backend
 from mwbx.batch_sim.sampler import world_keys
+
+# Run as `python scripts/bench_backends.py`: scripts/ is on sys.path, and the native
+# baseline is bench_sampler's bare `mujoco.rollout`, the same in both benchmarks.
+from bench_sampler import bench_rollout  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 SCENES = ("quickstart", "pachinko", "toss", "siggraph", "spiral_staircase", "refrigerator_toy", "trebuchet_tower")
@@ -72,23 +75,6 @@ def initial_states(sampler, n: int) -> tuple[np.ndarray, np.ndarray]:
   _, init_keys, _ = world_keys(jax.random.key(0), np.arange(n))
   qpos0, qvel0 = sampler._init(init_keys)  # pylint: disable=protected-access
   return np.asarray(qpos0, np.float64), np.asarray(qvel0, np.float64)
-
-
-def native_rate(model: mujoco.MjModel, qpos0, qvel0, n_steps: int, threads: int) -> float:
-  """World-steps/s of bare ``mujoco.rollout`` over all worlds, ``threads`` threads."""
-  spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-  data = mujoco.MjData(model)
-  states = np.zeros((len(qpos0), mujoco.mj_stateSize(model, spec)))
-  for w in range(len(qpos0)):
-    mujoco.mj_resetData(model, data)
-    data.qpos[:], data.qvel[:] = qpos0[w], qvel0[w]
-    mujoco.mj_getState(model, data, states[w], spec)
-  datas = [mujoco.MjData(model) for _ in range(threads)]
-  with mj_rollout.Rollout(nthread=threads) as pool:
-    start = time.perf_counter()
-    pool.rollout(model, datas, states, nstep=n_steps)
-    seconds = time.perf_counter() - start
-  return len(qpos0) * n_steps / seconds
 
 
 def cost_per_world_step(step, d, batch: int) -> dict:
@@ -172,7 +158,7 @@ def bench_scene(name: str, args) -> dict:
   rates = {"native": 0.0, **{k: 0.0 for k in engines}}
   extra = {k: {} for k in engines}
   for _ in range(args.repeats):  # alternate, keep each one's best: the machine is shared
-    rates["native"] = max(rates["native"], native_rate(model, qpos0, qvel0, args.native_steps, threads))
+    rates["native"] = max(rates["native"], bench_rollout(model, qpos0, qvel0, args.native_steps, threads))
     for key, (timed, _, last, _, _) in engines.items():
       rates[key] = max(rates[key], timed())
       extra[key] = dict(last)
