@@ -60,6 +60,21 @@ def _choose(page, label: str, option: str) -> None:
   page.get_by_role("option", name=option, exact=True).click()
 
 
+def _type_number(page, label: str, text: str) -> None:
+  """Types into a viser number input key by key, as a person would, and leaves it.
+
+  A programmatic ``fill`` of a controlled number input can be lost when the
+  page re-renders it; keystrokes and a blur reach the server's value.
+  """
+  field = page.get_by_label(label)
+  field.click()
+  field.press("Control+A")
+  field.press_sequentially(text)
+  field.press("Tab")
+  assert field.input_value() == text, field.input_value()
+  time.sleep(1.0)  # (the value reaches the server before the next click)
+
+
 def _fill(page, label: str, text: str) -> None:
   _field(page, label).fill(text)
   time.sleep(0.5)  # (the value reaches the server before the next click)
@@ -126,7 +141,7 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       page.get_by_text(re.compile(rf"^world {world} · ")).click()
       server.expect(rf"playing world {world}$")
       page.get_by_label("Pause").check()
-      page.get_by_label("Samples").fill("2")
+      _type_number(page, "Samples", "2")
       _fill(page, "Remove objects", "ball")
       page.get_by_text("Refine playing world").click()
       said = server.expect(r"mwbx browse: (refining|error).*").group(0)
