@@ -16,6 +16,7 @@ import scipy.stats
 import mwbx
 from mwbx.queries import Query, query_gaps
 from mwbx.search import proposal as proposal_lib
+from mwbx.search.solver import KeyStream, stream_key
 
 TESTS = pathlib.Path(__file__).parent
 
@@ -252,3 +253,15 @@ def test_a_stall_reseeds_with_worlds_guided_at_the_blocking_query(tiny_bank):
   guided = [i for i in bank.world_ids if "proposal" in bank.lineage.get(str(int(i)), {})]
   assert len(guided) >= 4 and len(guided) % 4 == 0
   assert not result.solved and result.unmet == ("striker_far",)
+
+
+def test_search_key_streams_never_share_a_key():
+  # The old scheme folded 2 + r (reseeding) and 1000 + r (refinement) into one
+  # key: reseeding at refinement 998 drew refinement 0's key.
+  key = jax.random.key(7)
+  drawn = {(stream, i): tuple(np.asarray(jax.random.key_data(stream_key(key, stream, i))).tolist())
+           for stream in KeyStream for i in range(1001)}
+  assert len(set(drawn.values())) == len(drawn)
+  # Each stream is the search key's: another key gives other draws.
+  other = stream_key(jax.random.key(8), KeyStream.REFINE, 0)
+  assert not np.array_equal(jax.random.key_data(other), jax.random.key_data(stream_key(key, KeyStream.REFINE, 0)))

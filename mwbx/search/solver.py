@@ -38,6 +38,7 @@ A budget that runs out ends with the best world found and a message saying so
 from __future__ import annotations
 
 import dataclasses
+import enum
 import time
 from typing import NamedTuple, Sequence
 
@@ -57,6 +58,21 @@ from mwbx.search.objects import involved_objects
 # its objects go wrong: late first (small changes keep more of what works),
 # then earlier (bigger changes).
 RESTART_FRACTIONS = (0.85, 0.6, 0.35, 0.0)
+
+
+class KeyStream(enum.IntEnum):
+  """The search's independent random streams: each is folded into the search
+  key first, then the draw's index into the stream, so no two draws of one
+  search can share a key (a single ``fold_in(key, offset + index)`` per use
+  lets one stream's index reach another's offset)."""
+  GUIDED = 0  # the guided sampling before the search
+  RESEED = 1  # guided reseeding when the search stalls, by refinement count
+  REFINE = 2  # each refinement's perturbations, by refinement count
+
+
+def stream_key(key: jax.Array, stream: KeyStream, index: int = 0) -> jax.Array:
+  """The key of draw ``index`` of ``stream`` in a search keyed by ``key``."""
+  return jax.random.fold_in(jax.random.fold_in(key, int(stream)), int(index))
 SOLVE_PHASE = "solving"
 # Two paths part where their bodies are this many bounding radii apart.
 DIVERGENCE_TOLERANCE = 0.5
@@ -271,11 +287,11 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       total = budget.expected_refinements(refinements, time.perf_counter() - start, spent_steps)
       progress(Progress(SOLVE_PHASE, min(refinements, total), total, spent_steps))
 
-  def add_guided(goal, rounds, salt):
+  def add_guided(goal, rounds, guided_key):
     """Guided sampling toward ``goal``, its worlds added to the bank."""
     nonlocal bank, met, gaps, ties, spent_steps
     result = guided_sample(sampler_for(bank, backend), goal, rounds=rounds, batch=guided_batch,
-                           key=jax.random.fold_in(key, salt), first_world=bank.next_world_id)
+                           key=guided_key, first_world=bank.next_world_id)
     bank = bank.append(result.bank)
     gaps = np.concatenate([gaps, query_gaps(result.bank, queries)])
     met = gaps == 0
@@ -283,7 +299,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     spent_steps += int(result.bank.steps.sum())
 
   if guided_rounds > 0:
-    add_guided(queries, guided_rounds, 1)
+    add_guided(queries, guided_rounds, stream_key(key, KeyStream.GUIDED))
   note()
   reason = ""
   while True:
@@ -305,7 +321,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       pool = met[:, fixed].all(axis=1) & np.asarray(bank.valid, bool)
       if blocking and reseed_rounds > 0:
         try:  # more worlds where the blocking query holds (its objects' initial conditions)
-          add_guided([queries[blocking[0]]], reseed_rounds, 2 + refinements)
+          add_guided([queries[blocking[0]]], reseed_rounds, stream_key(key, KeyStream.RESEED, refinements))
         except MwbxError:
           pass  # nothing randomized to guide: fix among the worlds there are
         pool = met[:, fixed].all(axis=1) & np.asarray(bank.valid, bool)
@@ -346,7 +362,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     t_min = RESTART_FRACTIONS[min(attempt, len(RESTART_FRACTIONS) - 1)] * t_goal
     try:
       children, stats = refine_run(bank, world, objects, t_min=t_min, n_samples=samples,
-                                   key=jax.random.fold_in(key, 1000 + refinements), backend=backend)
+                                   key=stream_key(key, KeyStream.REFINE, refinements), backend=backend)
     except MwbxError as err:  # e.g. a restart past the end: this world cannot be repaired so
       tries[world] = tries_per_world
       reason = f"world {world}: {err}"
