@@ -259,145 +259,185 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     raise MwbxError(f"solve: samples, keep and tries_per_world must be >= 1, got {samples}, {keep},"
                     f" {tries_per_world}")
   key = jax.random.key(0) if key is None else key
-  start = time.perf_counter()
-  n_queries = len(queries)
-  gaps = query_gaps(bank, queries)
-  met = gaps == 0  # query_gaps is 0 exactly where evaluate_each holds
-  scale = typical_gaps(gaps)
-  ties = metric(bank, tie_metric)
-  steps: list[SolveStep] = []
-  spent_steps, refinements = 0, 0
-  tries: dict[int, int] = {}
-  fixed: list[int] = []  # queries every world worked on must meet (stalls)
-  released: set[int] = set()  # fixed once, every world meeting them tried: not fixed again
-  attempts = np.zeros(n_queries, np.int64)  # refinements aimed at each query
-  last_gain, best_met = 0, -1
-
-  def best_rows(rows: np.ndarray) -> np.ndarray:
-    """``rows`` best first: most met, smallest squashed gaps, smallest tie metric."""
-    f = fitness(gaps[rows], scale)
-    return rows[np.lexsort((ties[rows], -f))]
-
-  def note(refined=-1, objects=(), t_min=float("nan")):
-    rows = best_rows(np.flatnonzero(bank.valid)) if bank.valid.any() else np.zeros(0, int)
-    row = rows[0] if rows.size else 0
-    steps.append(SolveStep(refinements, spent_steps, time.perf_counter() - start, int(met[row].sum()),
-                           int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min)))
-    if progress is not None:
-      total = budget.expected_refinements(refinements, time.perf_counter() - start, spent_steps)
-      progress(Progress(SOLVE_PHASE, min(refinements, total), total, spent_steps))
-
-  def add_guided(goal, rounds, guided_key):
-    """Guided sampling toward ``goal``, its worlds added to the bank."""
-    nonlocal bank, met, gaps, ties, spent_steps
-    result = guided_sample(sampler_for(bank, backend), goal, rounds=rounds, batch=guided_batch,
-                           key=guided_key, first_world=bank.next_world_id)
-    bank = bank.append(result.bank)
-    gaps = np.concatenate([gaps, query_gaps(result.bank, queries)])
-    met = gaps == 0
-    ties = np.concatenate([ties, metric(result.bank, tie_metric)])
-    spent_steps += int(result.bank.steps.sum())
-
+  search = _Search(bank, queries, budget, key, tie_metric, backend, progress)
   if guided_rounds > 0:
-    add_guided(queries, guided_rounds, stream_key(key, KeyStream.GUIDED))
-  note()
+    search.add_guided(queries, guided_rounds, guided_batch, stream_key(key, KeyStream.GUIDED))
+  search.note()
+  last_gain, best_met = 0, -1
   reason = ""
   while True:
-    best = steps[-1]
-    if best.satisfied == n_queries:
+    best = search.steps[-1]
+    if best.satisfied == search.n_queries:
       break
-    if budget.spent(refinements, time.perf_counter() - start, spent_steps):
+    if search.budget_spent():
       reason = "budget spent"
       break
     if best.satisfied > best_met:
-      best_met, last_gain = best.satisfied, refinements
-    elif refinements - last_gain >= patience:
-      # Stalled: the query the search keeps failing on may be out of reach
-      # from these worlds (their initial conditions decide it). Go on in the
-      # worlds that already meet it.
-      best_row = bank.row_of(best.world)
-      blocking = [q for q in np.argsort(-attempts, kind="stable")
-                  if not met[best_row, q] and q not in fixed and q not in released]
-      pool = met[:, fixed].all(axis=1) & np.asarray(bank.valid, bool)
-      if blocking and reseed_rounds > 0:
-        try:  # more worlds where the blocking query holds (its objects' initial conditions)
-          add_guided([queries[blocking[0]]], reseed_rounds, stream_key(key, KeyStream.RESEED, refinements))
-        except MwbxError:
-          pass  # nothing randomized to guide: fix among the worlds there are
-        pool = met[:, fixed].all(axis=1) & np.asarray(bank.valid, bool)
-      for q in blocking:
-        if (pool & met[:, q]).any():
-          fixed.append(int(q))
-          break
-      last_gain = refinements
-    eligible = np.asarray(bank.valid, bool) & met[:, fixed].all(axis=1)
-    rows = best_rows(np.flatnonzero(eligible))
-    rows = [r for r in rows if tries.get(int(bank.world_ids[r]), 0) < tries_per_world]
-    if not rows and fixed:
-      released.update(fixed)  # every world meeting them was tried: all worlds again
-      fixed.clear()
+      best_met, last_gain = best.satisfied, search.refinements
+    elif search.refinements - last_gain >= patience:
+      search.fix_blocking_query(best.world, reseed_rounds, guided_batch)
+      last_gain = search.refinements
+    picked = search.pick(tries_per_world)
+    if picked is None and search.fixed:
+      search.release_fixed()  # every world meeting them was tried: all worlds again
       continue
-    if not rows:
+    if picked is None:
       reason = "every world tried"
       break
-    row = rows[0]
-    world = int(bank.world_ids[row])
-    attempt = tries.get(world, 0)
-    tries[world] = attempt + 1
-    unmet = [q for q in np.argsort(-gaps[row] / scale, kind="stable") if not met[row, q]]
+    row, world, attempt = picked
+    unmet = [q for q in np.argsort(-search.gaps[row] / search.scale, kind="stable") if not search.met[row, q]]
     if not unmet:  # a world guided reseeding just added meets every query
-      note()
+      search.note()
       continue
     chosen = [unmet[attempt % len(unmet)]]
     if attempt >= 1 and len(unmet) >= 2:  # pairs, from the second try on
       chosen.append(unmet[(attempt + 1) % len(unmet)])
-    attempts[chosen] += 1
+    search.attempts[chosen] += 1
     objects = []
     for q in chosen:
-      objects += [o for o in involved_objects(bank, queries[q]) if o not in objects]
+      objects += [o for o in involved_objects(search.bank, queries[q]) if o not in objects]
     if not objects:
-      tries[world] = tries_per_world  # nothing to refine for these queries here
+      search.tries[world] = tries_per_world  # nothing to refine for these queries here
       continue
-    t_goal = min(_restart_goal(bank, row, world, queries[q], met[:, q]) for q in chosen)
+    t_goal = min(_restart_goal(search.bank, row, world, queries[q], search.met[:, q]) for q in chosen)
     t_min = RESTART_FRACTIONS[min(attempt, len(RESTART_FRACTIONS) - 1)] * t_goal
     try:
-      children, stats = refine_run(bank, world, objects, t_min=t_min, n_samples=samples,
-                                   key=stream_key(key, KeyStream.REFINE, refinements), backend=backend)
+      search.refine(world, objects, t_min, samples, keep)
     except MwbxError as err:  # e.g. a restart past the end: this world cannot be repaired so
-      tries[world] = tries_per_world
+      search.tries[world] = tries_per_world
       reason = f"world {world}: {err}"
       continue
-    refinements += 1
-    spent_steps += int(stats.world_steps)
-    c_gaps = query_gaps(children, queries)
-    c_ties = metric(children, tie_metric)
-    f = fitness(c_gaps, scale)
-    order = np.lexsort((c_ties, -f))
+    search.note(world, objects, t_min)
+  return search.result(reason, throw)
+
+
+class _Search:
+  """The state of one :func:`solve`: the bank as it grows, each world's query
+  gaps (and so which queries it meets), the tie metric, and the bookkeeping
+  that decides where to refine next."""
+
+  def __init__(self, bank: Bank, queries, budget: Budget, key: jax.Array, tie_metric: str, backend, progress):
+    self.bank, self.queries, self.budget, self.key = bank, queries, budget, key
+    self.tie_metric, self.backend, self.progress = tie_metric, backend, progress
+    self.start = time.perf_counter()
+    self.n_queries = len(queries)
+    self.gaps = query_gaps(bank, queries)  # f[W, Q]
+    self.met = self.gaps == 0  # query_gaps is 0 exactly where evaluate_each holds
+    self.scale = typical_gaps(self.gaps)
+    self.ties = metric(bank, tie_metric)
+    self.steps: list[SolveStep] = []
+    self.spent_steps, self.refinements = 0, 0
+    self.tries: dict[int, int] = {}  # refinements started from each world id
+    self.fixed: list[int] = []  # queries every world worked on must meet (stalls)
+    self.released: set[int] = set()  # fixed once, every world meeting them tried: not fixed again
+    self.attempts = np.zeros(self.n_queries, np.int64)  # refinements aimed at each query
+
+  def elapsed(self) -> float:
+    return time.perf_counter() - self.start
+
+  def budget_spent(self) -> bool:
+    return self.budget.spent(self.refinements, self.elapsed(), self.spent_steps)
+
+  def best_rows(self, rows: np.ndarray) -> np.ndarray:
+    """``rows`` best first: most met, smallest squashed gaps, smallest tie metric."""
+    f = fitness(self.gaps[rows], self.scale)
+    return rows[np.lexsort((self.ties[rows], -f))]
+
+  def note(self, refined: int = -1, objects=(), t_min: float = float("nan")) -> None:
+    """Records a step (the best world now) and reports progress."""
+    bank = self.bank
+    rows = self.best_rows(np.flatnonzero(bank.valid)) if bank.valid.any() else np.zeros(0, int)
+    row = rows[0] if rows.size else 0
+    self.steps.append(SolveStep(self.refinements, self.spent_steps, self.elapsed(), int(self.met[row].sum()),
+                                int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min)))
+    if self.progress is not None:
+      total = self.budget.expected_refinements(self.refinements, self.elapsed(), self.spent_steps)
+      self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps))
+
+  def _add(self, new: Bank, gaps: np.ndarray, ties: np.ndarray) -> None:
+    self.bank = self.bank.append(new)
+    self.gaps = np.concatenate([self.gaps, gaps])
+    self.met = self.gaps == 0
+    self.ties = np.concatenate([self.ties, ties])
+
+  def add_guided(self, goal, rounds: int, batch: int, key: jax.Array) -> None:
+    """Guided sampling toward ``goal``, its worlds added to the bank."""
+    result = guided_sample(sampler_for(self.bank, self.backend), goal, rounds=rounds, batch=batch, key=key,
+                           first_world=self.bank.next_world_id)
+    self._add(result.bank, query_gaps(result.bank, self.queries), metric(result.bank, self.tie_metric))
+    self.spent_steps += int(result.bank.steps.sum())
+
+  def fix_blocking_query(self, best_world: int, reseed_rounds: int, batch: int) -> None:
+    """At a stall: the query the search keeps failing on may be out of reach
+    from these worlds (their initial conditions decide it). Adds worlds guided
+    toward it, then works on only in worlds that meet it."""
+    best_row = self.bank.row_of(best_world)
+    blocking = [q for q in np.argsort(-self.attempts, kind="stable")
+                if not self.met[best_row, q] and q not in self.fixed and q not in self.released]
+    if blocking and reseed_rounds > 0:
+      try:  # more worlds where the blocking query holds (its objects' initial conditions)
+        self.add_guided([self.queries[blocking[0]]], reseed_rounds, batch,
+                        stream_key(self.key, KeyStream.RESEED, self.refinements))
+      except MwbxError:
+        pass  # nothing randomized to guide: fix among the worlds there are
+    pool = self.met[:, self.fixed].all(axis=1) & np.asarray(self.bank.valid, bool)
+    for q in blocking:
+      if (pool & self.met[:, q]).any():
+        self.fixed.append(int(q))
+        break
+
+  def release_fixed(self) -> None:
+    self.released.update(self.fixed)
+    self.fixed.clear()
+
+  def pick(self, tries_per_world: int) -> tuple[int, int, int] | None:
+    """The best world meeting the fixed queries not yet tried ``tries_per_world``
+    times: (row, world id, tries so far), counted as tried; None if none."""
+    eligible = np.asarray(self.bank.valid, bool) & self.met[:, self.fixed].all(axis=1)
+    rows = [r for r in self.best_rows(np.flatnonzero(eligible))
+            if self.tries.get(int(self.bank.world_ids[r]), 0) < tries_per_world]
+    if not rows:
+      return None
+    row = rows[0]
+    world = int(self.bank.world_ids[row])
+    attempt = self.tries.get(world, 0)
+    self.tries[world] = attempt + 1
+    return row, world, attempt
+
+  def refine(self, world: int, objects, t_min: float, samples: int, keep: int) -> None:
+    """Refines ``objects`` of ``world`` from ``t_min``; keeps its ``keep`` best
+    valid children in the bank."""
+    children, stats = refine_run(self.bank, world, objects, t_min=t_min, n_samples=samples,
+                                 key=stream_key(self.key, KeyStream.REFINE, self.refinements), backend=self.backend)
+    self.refinements += 1
+    self.spent_steps += int(stats.world_steps)
+    c_gaps = query_gaps(children, self.queries)
+    c_ties = metric(children, self.tie_metric)
+    order = np.lexsort((c_ties, -fitness(c_gaps, self.scale)))
     kept = np.sort(order[:keep][children.valid[order[:keep]]])
     if kept.size:
       dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
-      bank = bank.append(children.drop(children.world_ids[dropped]) if dropped.size else children)
-      gaps = np.concatenate([gaps, c_gaps[kept]])
-      met = gaps == 0
-      ties = np.concatenate([ties, c_ties[kept]])
-    note(world, objects, t_min)
+      self._add(children.drop(children.world_ids[dropped]) if dropped.size else children, c_gaps[kept],
+                c_ties[kept])
 
-  if progress is not None:  # the bar ends at the refinements made, not the budget's estimate
-    progress(Progress(SOLVE_PHASE, refinements, max(refinements, 1), spent_steps))
-  last = steps[-1]
-  row = bank.row_of(last.world)
-  unmet = tuple(_label(queries[q], q) for q in range(n_queries) if not met[row, q])
-  elapsed = time.perf_counter() - start
-  spent = f"{refinements} refinements, {spent_steps:,} world-steps, {elapsed:.0f} s"
-  solved = last.satisfied == n_queries
-  if solved:
-    message = f"solved: world {last.world} meets all {n_queries} queries ({spent})"
-  else:
-    message = (f"not solved ({reason}; {spent}): best world {last.world} meets {last.satisfied} of"
-               f" {n_queries} queries; unmet: {', '.join(unmet)}")
-    if throw:
-      raise MwbxError(f"solve: {message}")
-  return SolveResult(bank, last.world, last.satisfied, n_queries, solved, unmet, message, tuple(steps))
+  def result(self, reason: str, throw: bool) -> SolveResult:
+    """What the search found, with one line saying so."""
+    if self.progress is not None:  # the bar ends at the refinements made, not the budget's estimate
+      self.progress(Progress(SOLVE_PHASE, self.refinements, max(self.refinements, 1), self.spent_steps))
+    last = self.steps[-1]
+    row = self.bank.row_of(last.world)
+    unmet = tuple(_label(self.queries[q], q) for q in range(self.n_queries) if not self.met[row, q])
+    spent = f"{self.refinements} refinements, {self.spent_steps:,} world-steps, {self.elapsed():.0f} s"
+    solved = last.satisfied == self.n_queries
+    if solved:
+      message = f"solved: world {last.world} meets all {self.n_queries} queries ({spent})"
+    else:
+      message = (f"not solved ({reason}; {spent}): best world {last.world} meets {last.satisfied} of"
+                 f" {self.n_queries} queries; unmet: {', '.join(unmet)}")
+      if throw:
+        raise MwbxError(f"solve: {message}")
+    return SolveResult(self.bank, last.world, last.satisfied, self.n_queries, solved, unmet, message,
+                       tuple(self.steps))
 
 
 def progress_plot(steps: Sequence[SolveStep], path, title: str = "") -> str:
