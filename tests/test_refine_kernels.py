@@ -32,11 +32,11 @@ def arm():
   return mujoco.MjModel.from_xml_string(ARM)
 
 
-def test_body_radii_cover_every_geom_in_any_pose(arm):
+def test_object_reach_radii_cover_every_geom_in_any_pose(arm):
   tracked = ("ball", "arm")  # fore and hand are untracked: covered by arm's sphere
   ids = np.array([arm.body(n).id for n in tracked])
   objects = {"ball": ("ball",), "arm": ("arm",)}
-  radius = interactions.body_radii(arm, ids, objects, tracked)
+  radius = interactions.object_reach_radii(arm, ids, objects, tracked)
   data = mujoco.MjData(arm)
   rng = np.random.default_rng(0)
   for _ in range(50):

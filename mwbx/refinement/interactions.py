@@ -54,8 +54,10 @@ class InteractionParams(NamedTuple):
   gravity: float
 
 
-def body_radii(model: mujoco.MjModel, body_ids: np.ndarray, objects: dict, body_names) -> np.ndarray:
-  """f32[B] bounding radius about each tracked body's COM.
+def object_reach_radii(model: mujoco.MjModel, body_ids: np.ndarray, objects: dict, body_names) -> np.ndarray:
+  """f32[B] how far each tracked body's object reaches from the body's COM,
+  metres, whatever its untracked joints do (unlike
+  :func:`mwbx.queries.body_radii`, which covers the body's own geoms only).
 
   Covers every geom of the body and of its untracked descendants inside the
   same object: for the body itself ``|geom_pos − ipos| + rbound + margin``
@@ -144,7 +146,7 @@ def ghost_slack(model: mujoco.MjModel, body_ids: np.ndarray, radius: np.ndarray,
 def interaction_params(model, body_ids, body_names, objects: dict, object_names, codec_bounds,
                        margin: float, horizon: float, alpha: float) -> InteractionParams:
   """Builds :class:`InteractionParams` for a scene (host, once)."""
-  radius = body_radii(model, body_ids, objects, body_names)
+  radius = object_reach_radii(model, body_ids, objects, body_names)
   onehot = np.zeros((len(body_names), len(object_names)), np.float32)
   for o, name in enumerate(object_names):
     for b in objects[name]:
