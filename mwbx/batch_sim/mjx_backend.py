@@ -1,7 +1,8 @@
 """The MJX backend: the whole lockstep loop as one jitted ``lax.scan``.
 
 A block of frames runs on device as a scan over frames whose body is a scan
-over the physics steps of one frame (``mjx.step`` vmapped over worlds), then
+over the physics steps of one frame (the MJX step vmapped over worlds: on
+impl jax, :func:`mjx_collision.step`, MJX's with a box broadphase), then
 the bookkeeping kernel on the frame's observations. Finished worlds are frozen with ``jnp.where`` (lockstep);
 the host only copies out the recorded frames after each block. This is the
 path for GPUs and TPUs.
@@ -19,6 +20,7 @@ from mujoco import mjx
 
 from mwbx.batch_sim import contact_budget
 from mwbx.batch_sim import controls
+from mwbx.batch_sim import mjx_collision
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
@@ -133,6 +135,8 @@ class MjxBackend:
     if impl == "warp":
       contact_budget.quiet_warp()
     self.mx = self._put(model)
+    # impl jax: MJX's step with pairs culled by world bounding boxes (what the budget is sized for).
+    self.mjx_step = mjx_collision.step if impl == "jax" else mjx.step
     # impl jax: flags a step that may have dropped contacts (never misses one).
     self.check = contact_budget.JaxOverflowCheck(model) if impl == "jax" else None
     self._quiet_mx = None
@@ -172,7 +176,7 @@ class MjxBackend:
 
   def step(self, d: mjx.Data, xfrc: jax.Array) -> mjx.Data:
     """One physics step of a batch; ``xfrc``: f32[W, nbody, 6]. Sensors describe s_k."""
-    return jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d.replace(xfrc_applied=xfrc))
+    return jax.vmap(self.mjx_step, in_axes=(None, 0))(self.mx, d.replace(xfrc_applied=xfrc))
 
   def overflow(self, d_next: mjx.Data) -> jax.Array:
     """bool[W]: the step that produced ``d_next`` may have dropped contacts
@@ -201,7 +205,7 @@ class MjxBackend:
       d = d.replace(xfrc_applied=scatter_wrench(xfrc_tracked, nbody, ids))
       if ctrl is not None:
         d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype))
-      d_next = jax.vmap(mjx.step, in_axes=(None, 0))(mx, d)
+      d_next = jax.vmap(self.mjx_step, in_axes=(None, 0))(mx, d)
       return d_next, (d_next.sensordata if bodies is None else (d.qpos, d.qvel), self.overflow(d_next))
 
     def observe(d_next, out):
