@@ -245,7 +245,7 @@ def bench_scene(name: str, args) -> dict:
           "start_time": args.start_time,
           "mjx_solver": {"iterations": min(int(model.opt.iterations), mjx_backend.SOLVER_ITERATIONS),
                          "ls_iterations": min(int(model.opt.ls_iterations), mjx_backend.LS_ITERATIONS)},
-          "nbody": model.nbody, "ngeom": model.ngeom, "timestep": model.opt.timestep}
+          "nbody": model.nbody, "nv": model.nv, "ngeom": model.ngeom, "timestep": model.opt.timestep}
 
 
 def time_sample(worlds: int) -> dict:
