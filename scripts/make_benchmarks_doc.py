@@ -533,7 +533,7 @@ def _what_limits(s: dict, r: dict) -> str:
     text += (f" Of a {whole:,.0f} ms batched step ({r['batch']} worlds) the solver takes "
              f"{stages.get('solver', 0):,.0f} ms and collision {stages.get('collision', 0):,.0f} ms "
              f"(parts timed apart); at {r['world_steps_per_s']:,.0f} world-steps/s the goal needs the step "
-             f"{1500 / r['world_steps_per_s']:.0f}× cheaper on these 2 shared cores. The budget is what the "
+             f"{1500 / r['world_steps_per_s']:.0f}× cheaper on these {s['machine']['cores']} shared cores. The budget is what the "
              "scene needs at its most crowded (letters heaped in the slots at the end), and a smaller one "
              "flags worlds instead: the step cannot shrink to the contacts present without giving up "
              "fixed shapes.")

@@ -3,8 +3,9 @@ MuJoCo Warp answers queries like the native backend: per-query match rates
 agree within a two-proportion confidence interval, on pachinko and SIGGRAPH.
 
 Cost: minutes of CPU (marked slow; it runs in ``make test``): on 2 cores
-shared with other work, pachinko took 6 min on mjx:jax and 2.5 min on
-mjx:warp, SIGGRAPH 12 and 3.5 min (mostly XLA compiling the block).
+shared with other work (load average 7-12), pachinko took 6 min on mjx:jax
+and 2.5 min on mjx:warp, SIGGRAPH 5 and 2 min, plus 1-2 min of native per
+scene (mostly XLA compiling the block).
 
 The test: for each query, the two-proportion z-test of H0 "same match rate"
 (pooled variance, normal approximation), Bonferroni-corrected over the
