@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from mujoco.mjx._src import collision_driver, constraint, forward as mjx_forward, sensor, smooth
 from mujoco.mjx._src import solver
 from mujoco.mjx._src.types import IntegratorType
@@ -37,7 +38,7 @@ def world_boxes(geom_xpos, geom_xmat, geom_aabb):
   """(centre f32[G, 3], half-size f32[G, 3]) of each geom's axis-aligned
   bounding box in the world frame, from its box in its own frame
   (``geom_aabb`` f32[G, 6]: centre, half-size), m. Works on numpy and jax arrays."""
-  xp = jnp if isinstance(geom_xpos, jax.Array) else __import__("numpy")
+  xp = jnp if isinstance(geom_xpos, jax.Array) else np
   rot = geom_xmat.reshape(-1, 3, 3)
   centre = geom_xpos + xp.einsum("gij,gj->gi", rot, geom_aabb[:, :3])
   half = xp.einsum("gij,gj->gi", xp.abs(rot), geom_aabb[:, 3:])
@@ -48,7 +49,7 @@ def box_gap(g1, g2, centre, half, margin):
   """f32[P] gap between the world boxes of geom pairs (g1, g2 i32[P]), less
   their margin f32[P], m: the largest per-axis separation; <= 0 where the
   grown boxes overlap (only then can the pair have a contact)."""
-  xp = jnp if isinstance(centre, jax.Array) else __import__("numpy")
+  xp = jnp if isinstance(centre, jax.Array) else np
   apart = xp.abs(centre[g2] - centre[g1]) - (half[g1] + half[g2])
   return apart.max(axis=-1) - margin
 
