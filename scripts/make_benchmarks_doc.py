@@ -504,9 +504,10 @@ def _previous_and_stages(d: dict) -> list[str]:
                 f"states and start time): {old['world_steps_per_s']:,.0f} world-steps/s at commit "
                 f"{pm['commit']} (MJX's own step, bounding-sphere culling, max_geom_pairs "
                 f"{pb['max_geom_pairs']}, max_contact_points {pb['max_contact_points']}, solver 100 / 50 "
-                f"iterations; load {pm['load_average']:.1f}) → {now['world_steps_per_s']:,.0f} now "
-                f"({now['world_steps_per_s'] / old['world_steps_per_s']:.1f}×; load "
-                f"{s['machine']['load_average']:.1f})."]
+                f"iterations; load {pm['load_average']:.1f}; {old['ratio_to_native']:.3g}× native in its run) → "
+                f"{now['world_steps_per_s']:,.0f} now (load {s['machine']['load_average']:.1f}; "
+                f"{now['ratio_to_native']:.3g}× native): {now['ratio_to_native'] / old['ratio_to_native']:.1f}× "
+                "against native measured alongside (the load differed between the runs)."]
     stages = (now or {}).get("stages_ms")
     if stages:
       solver = s.get("mjx_solver", {})
