@@ -37,9 +37,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
+from mujoco.mjx._src import constraint, forward, smooth, solver
 
 import mwbx
-from mwbx.batch_sim import contact_budget, mjx_backend
+from mwbx.batch_sim import contact_budget, mjx_backend, mjx_collision
 from mwbx.batch_sim.sampler import world_keys
 
 # Run as `python scripts/bench_backends.py`: scripts/ is on sys.path, and the native
@@ -77,6 +78,20 @@ def initial_states(sampler, n: int) -> tuple[np.ndarray, np.ndarray]:
   return np.asarray(qpos0, np.float64), np.asarray(qvel0, np.float64)
 
 
+def advance(model, qpos0: np.ndarray, qvel0: np.ndarray, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+  """The states after ``seconds`` of un-perturbed MuJoCo C from (qpos0, qvel0) f64[n, ...]: a
+  timed run from there measures the scene in contact (from t = 0 the bodies may still be falling)."""
+  qpos, qvel = qpos0.copy(), qvel0.copy()
+  data = mujoco.MjData(model)
+  for w in range(len(qpos)):
+    mujoco.mj_resetData(model, data)
+    data.qpos[:], data.qvel[:] = qpos[w], qvel[w]
+    for _ in range(round(seconds / model.opt.timestep)):
+      mujoco.mj_step(model, data)
+    qpos[w], qvel[w] = data.qpos, data.qvel
+  return qpos, qvel
+
+
 def cost_per_world_step(step, d, batch: int) -> dict:
   """XLA's cost analysis of one compiled batched step, divided by the batch."""
   analysis = jax.jit(step).lower(d).compile().cost_analysis()
@@ -93,6 +108,44 @@ def cost_per_world_step(step, d, batch: int) -> dict:
           "bound_by": (None if bound is None else
                        "memory" if bytes_accessed / GPU["hbm_bytes_per_s"] >= flops / GPU["fp32_flops_per_s"]
                        else "compute")}
+
+
+def stage_times(backend, d0, repeats: int = 3) -> dict:
+  """Milliseconds per batched step of the parts of mjx:jax's step, each jitted apart
+  on the batch's states: smooth dynamics (kinematics to the mass matrix and
+  ``fwd_velocity``/``fwd_acceleration``), collision (broadphase and narrow phase),
+  the constraint rows, the solver, and the whole step."""
+  mx = backend.mx
+
+  def position(d):
+    for f in (smooth.kinematics, smooth.com_pos, smooth.crb, smooth.factor_m):
+      d = f(mx, d)
+    return d
+
+  def velocity(d):
+    for f in (smooth.transmission, forward.fwd_velocity, forward.fwd_actuation, forward.fwd_acceleration):
+      d = f(mx, d)
+    return d
+
+  stages = [("smooth (position)", position), ("collision", lambda d: mjx_collision.collision(mx, d)),
+            ("constraint rows", lambda d: constraint.make_constraint(mx, d)), ("smooth (velocity)", velocity),
+            ("solver", lambda d: solver.solve(mx, d))]
+  out, d = {}, d0
+  for name, f in stages:  # each stage from the states the previous ones give
+    compiled = jax.jit(jax.vmap(f)).lower(d).compile()
+    d_next = jax.block_until_ready(compiled(d))
+    best = min(_timed(compiled, d) for _ in range(repeats))
+    out[name], d = 1e3 * best, d_next
+  compiled = jax.jit(jax.vmap(lambda d: backend.mjx_step(mx, d))).lower(d0).compile()
+  jax.block_until_ready(compiled(d0))
+  out["whole step"] = 1e3 * min(_timed(compiled, d0) for _ in range(repeats))
+  return out
+
+
+def _timed(compiled, d) -> float:
+  start = time.perf_counter()
+  jax.block_until_ready(compiled(d))
+  return time.perf_counter() - start
 
 
 def mjx_engine(backend_step, make_data, qpos0, qvel0, n_steps: int, overflow=None):
@@ -138,6 +191,8 @@ def bench_scene(name: str, args) -> dict:
     scene = sampler.scene
     qpos0, qvel0 = initial_states(sampler, args.batch)
   model = scene.model
+  if args.start_time > 0:
+    qpos0, qvel0 = advance(model, qpos0, qvel0, args.start_time)
   threads = os.cpu_count()
   start = time.perf_counter()
   budget = contact_budget.resolve(scene, config.sim.mjx)
@@ -150,9 +205,10 @@ def bench_scene(name: str, args) -> dict:
         lambda d, x: jax.vmap(mjx.step, in_axes=(None, 0))(bare_mx, d.replace(xfrc_applied=x)),
         lambda q, v: jax.vmap(lambda q, v: bare_base.replace(qpos=q, qvel=v))(q, v),
         qpos0, qvel0, args.bare_steps)
+  backends = {}
   for impl in ("jax", "warp"):
     if impl in args.engines:
-      backend = mjx_backend.backend_for(scene, impl, budget)
+      backend = backends[impl] = mjx_backend.backend_for(scene, impl, budget)
       engines[f"mjx:{impl}"] = mjx_engine(backend.step, backend.make_data, qpos0, qvel0, args.steps,
                                           backend.overflow)
   rates = {"native": 0.0, **{k: 0.0 for k in engines}}
@@ -168,7 +224,8 @@ def bench_scene(name: str, args) -> dict:
     row = {"engine": key, "batch": args.batch, "steps": args.bare_steps if key == "mjx:bare" else args.steps,
            "world_steps_per_s": rates[key], "compile_s": compile_seconds,
            "ratio_to_native": rates[key] / rates["native"], **extra[key]}
-    row["what"] = {"mjx:bare": "jax.vmap(mjx.step), no budget", "mjx:jax": "MJX impl jax, contact budget",
+    row["what"] = {"mjx:bare": "jax.vmap(mjx.step), no budget",
+                   "mjx:jax": "MJX impl jax, box broadphase, contact budget, solver limits",
                    "mjx:warp": "MuJoCo Warp via MJX, pools from the budget"}[key]
     if args.cost and key == "mjx:warp":  # its kernels are custom calls: XLA's cost analysis sees nothing
       row["cost"] = {"error": "MuJoCo Warp's kernels are custom calls XLA's cost analysis does not see into"}
@@ -177,13 +234,18 @@ def bench_scene(name: str, args) -> dict:
         row["cost"] = cost_per_world_step(one, d0, args.batch)
       except Exception as err:  # pylint: disable=broad-except
         row["cost"] = {"error": f"{type(err).__name__}: {err}"[:200]}
+    if args.stages and key == "mjx:jax":
+      row["stages_ms"] = stage_times(backends["jax"], d0)
     rows.append(row)
   by = {r["engine"]: r for r in rows}
   ratios = {k: r["world_steps_per_s"] / rates["native"] for k, r in by.items() if k != "native"}
   if "mjx:bare" in by and "mjx:jax" in by:
     ratios["jax_over_bare"] = by["mjx:jax"]["world_steps_per_s"] / by["mjx:bare"]["world_steps_per_s"]
   return {"rows": rows, "ratios": ratios, "budget": budget._asdict(), "pilot_s": pilot_seconds,
-          "nbody": model.nbody, "ngeom": model.ngeom, "timestep": model.opt.timestep}
+          "start_time": args.start_time,
+          "mjx_solver": {"iterations": min(int(model.opt.iterations), mjx_backend.SOLVER_ITERATIONS),
+                         "ls_iterations": min(int(model.opt.ls_iterations), mjx_backend.LS_ITERATIONS)},
+          "nbody": model.nbody, "nv": model.nv, "ngeom": model.ngeom, "timestep": model.opt.timestep}
 
 
 def time_sample(worlds: int) -> dict:
@@ -210,6 +272,13 @@ def main() -> None:
   parser.add_argument("--bare-steps", type=int, default=5, help="steps per timed run of bare MJX (slow)")
   parser.add_argument("--native-steps", type=int, default=500, help="steps per timed run of native")
   parser.add_argument("--repeats", type=int, default=2)
+  parser.add_argument("--previous", metavar="JSON",
+                      help="an earlier run's backends.json (e.g. of an earlier commit): its mjx:jax row of each"
+                           " scene is kept beside the new one")
+  parser.add_argument("--stages", action="store_true",
+                      help="also time the parts of mjx:jax's step (collision, solver, ...) apart")
+  parser.add_argument("--start-time", type=float, default=0.0, metavar="S",
+                      help="time every engine from the states after S seconds of un-perturbed MuJoCo C")
   parser.add_argument("--no-cost", dest="cost", action="store_false", help="skip XLA's cost analysis")
   parser.add_argument("--time-sample", type=int, default=0, metavar="N",
                       help="also time `mwbx sample configs/siggraph.yaml --backend mjx --worlds N` once")
@@ -231,9 +300,15 @@ def main() -> None:
     print(f"{result['sample_timing']}", flush=True)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
+  previous = json.loads(pathlib.Path(args.previous).read_text())["scenes"] if args.previous else {}
   for name in filter(None, args.scenes.split(",")):
     s = bench_scene(name, args)
     s["machine"] = m
+    old = previous.get(pathlib.Path(name).stem)
+    if old:  # the same scene's mjx:jax as an earlier commit ran it
+      row = next((r for r in old["rows"] if r["engine"] == "mjx:jax"), None)
+      s["previous"] = {"mjx:jax": row, "budget": old["budget"], "machine": old["machine"],
+                       "start_time": old.get("start_time", 0.0)}
     result["scenes"][pathlib.Path(name).stem] = s
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))

@@ -492,23 +492,80 @@ def _engine_table(d: dict) -> list[str]:
   return lines
 
 
+def _previous_and_stages(d: dict) -> list[str]:
+  """Each scene's mjx:jax against an earlier commit's, and where its step's time goes."""
+  lines = []
+  for scene, s in d["scenes"].items():
+    now = next((r for r in s["rows"] if r["engine"] == "mjx:jax"), None)
+    old = (s.get("previous") or {}).get("mjx:jax")
+    if now and old:
+      pm, pb = s["previous"]["machine"], s["previous"]["budget"]
+      lines += ["", f"{scene}, mjx:jax before and after the box broadphase and solver limits (same batch, "
+                f"states and start time): {old['world_steps_per_s']:,.0f} world-steps/s at commit "
+                f"{pm['commit']} (MJX's own step, bounding-sphere culling, max_geom_pairs "
+                f"{pb['max_geom_pairs']}, max_contact_points {pb['max_contact_points']}, solver 100 / 50 "
+                f"iterations; load {pm['load_average']:.1f}; {old['ratio_to_native']:.3g}× native in its run) → "
+                f"{now['world_steps_per_s']:,.0f} now (load {s['machine']['load_average']:.1f}; "
+                f"{now['ratio_to_native']:.3g}× native): {now['ratio_to_native'] / old['ratio_to_native']:.1f}× "
+                "against native measured alongside (the load differed between the runs)."]
+    stages = (now or {}).get("stages_ms")
+    if stages:
+      solver = s.get("mjx_solver", {})
+      parts = ", ".join(f"{k} {v:,.1f}" for k, v in stages.items() if k != "whole step")
+      top = max((k for k in stages if k != "whole step"), key=stages.get)
+      in_scan = 1e3 * now["batch"] / now["world_steps_per_s"]
+      lines += ["", f"Where a {scene} mjx:jax step goes (ms per batched step of {now['batch']}, each part "
+                f"jitted apart on the timed states; solver limits {solver.get('iterations')} / "
+                f"{solver.get('ls_iterations')}): {parts}; together "
+                f"{sum(v for k, v in stages.items() if k != 'whole step'):,.0f}, against {in_scan:,.0f} per "
+                f"step in the timed scan. The largest part is the {top}. (The whole step jitted alone, "
+                f"outside a scan, took {stages['whole step']:,.0f} ms: not understood, and not what a run "
+                "pays.)"]
+  return lines
+
+
+def _what_limits(s: dict, r: dict) -> str:
+  """One paragraph: what holds SIGGRAPH's mjx:jax step back, from its budget and stage times."""
+  b, stages = s["budget"], r.get("stages_ms") or {}
+  text = ("What limits it: MJX's arrays have fixed shapes, so every step of every world pays for its whole "
+          f"budget, not for the contacts it has: the narrow phase of up to {b['max_geom_pairs']} pairs in each "
+          f"collision-function group (box-box, capsule-box) and a dense Newton solver over "
+          f"{b['max_contact_points']} contact slots × 4 pyramidal rows ({4 * b['max_contact_points']} rows, "
+          f"each iteration building the {'nv' if 'nv' not in s else s['nv']}-square Hessian from all of them), "
+          "while MuJoCo C runs only the contacts present, sparsely.")
+  if stages:
+    text += (f" Of a {1e3 * r['batch'] / r['world_steps_per_s']:,.0f} ms batched step ({r['batch']} worlds) the solver takes "
+             f"{stages.get('solver', 0):,.0f} ms and collision {stages.get('collision', 0):,.0f} ms "
+             f"(parts timed apart); at {r['world_steps_per_s']:,.0f} world-steps/s the goal needs the step "
+             f"{1500 / r['world_steps_per_s']:.0f}× cheaper on these {s['machine']['cores']} shared cores. The budget is what the "
+             "scene needs at its most crowded (letters heaped in the slots at the end), and a smaller one "
+             "flags worlds instead: the step cannot shrink to the contacts present without giving up "
+             "fixed shapes.")
+  return text
+
+
 def backends(d: dict) -> tuple[list[str], list[str]]:
   m = d["machine"]
   lines = ["## Batched engines (CPU)", "",
            "`scripts/bench_backends.py`: per scene, in one run and from the same randomized initial "
            "states (un-perturbed), bare `mujoco.rollout` on all cores (*native*), `jax.vmap(mjx.step)` "
            "without a contact budget (*mjx:bare*, dense contacts: MJX as mwbx ran it before budgets), "
-           "MJX with the scene's contact budget (*mjx:jax*) and MuJoCo Warp through MJX with pools sized "
+           "MJX with the scene's contact budget (*mjx:jax*: mwbx's step, MJX's with geom pairs culled by "
+           "world bounding boxes, `mwbx/batch_sim/mjx_collision.py`, and the solver's iterations capped) "
+           "and MuJoCo Warp through MJX with pools sized "
            "from the same budget (*mjx:warp*). Rates exclude compile time; runs alternate and each keeps "
            "its best. *worlds flagged*: worlds whose step may have dropped a contact (over the budget) "
-           "in the timed steps.", "",
+           "in the timed steps. Where a scene names a start time, every engine is timed from the states "
+           "after that many seconds of un-perturbed MuJoCo C (bodies in contact, not still falling).", "",
            f"Machine: {m['platform']}, {m['cores']} cores, JAX {m['jax']} on {m['jax_backend']}, MuJoCo "
            f"{m['mujoco']}; load average {m['load_average']:.1f} at the start (shared: absolute rates "
            f"drift, ratios in one run hold); commit {m['commit']}.", ""]
   lines += _engine_table(d)
   lines += ["", "Load average at the start of each scene's run: " + ", ".join(
-      f"{scene} {s['machine']['load_average']:.1f} (commit {s['machine']['commit']})"
+      f"{scene} {s['machine']['load_average']:.1f} (commit {s['machine']['commit']}"
+      + (f", timed from t = {s['start_time']:g} s" if s.get("start_time") else "") + ")"
       for scene, s in d["scenes"].items() if "machine" in s) + "."]
+  lines += _previous_and_stages(d)
   lines += ["", "Contact budgets used (from the native pilot unless the config sets them):", ""]
   for scene, s in d["scenes"].items():
     b = s["budget"]
@@ -536,6 +593,8 @@ def backends(d: dict) -> tuple[list[str], list[str]]:
               f"{r['world_steps_per_s']:,.0f} at batch {r['batch']} ({goal} it)"
               + (f", {r['world_steps_per_s'] / bare['world_steps_per_s']:.0f}× bare MJX "
                  f"({bare['world_steps_per_s']:,.0f})." if bare else ".")]
+    if goal == "misses":
+      lines += ["", _what_limits(sig, r)]
   timing = d.get("sample_timing")
   if timing:
     lines += ["", f"`{timing['command']}`: {timing['wall_s'] / 60:.1f} min wall ({timing['valid']} valid, "

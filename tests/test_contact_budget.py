@@ -11,7 +11,7 @@ import pytest
 from mujoco import mjx
 
 import mwbx
-from mwbx.batch_sim import contact_budget
+from mwbx.batch_sim import contact_budget, mjx_collision
 
 TESTS = pathlib.Path(__file__).parent
 PILE = TESTS / "scenes" / "contact_pile.yaml"
@@ -88,7 +88,7 @@ def test_budgeted_mjx_step_matches_mujoco_c(pile, pile_budget):
 
   def rollout(d):
     def step(d, _):
-      d = mjx.step(mx, d)
+      d = mjx_collision.step(mx, d)
       return d, (d.qpos, check(d))
     return jax.lax.scan(step, d, None, length=_STEPS)[1]
 
@@ -167,7 +167,7 @@ def test_overflow_flag_never_misses_a_dropped_contact(pile, caps):
     mx, d0 = mjx.put_model(m, impl="jax"), mjx.make_data(m, impl="jax")
 
     def one(q):
-      d = mjx.forward(mx, d0.replace(qpos=q))
+      d = mjx_collision.forward(mx, d0.replace(qpos=q))
       c = d._impl.contact
       return jnp.sum(c.dist < c.includemargin), check(d) if m is small else False
     return jax.jit(jax.vmap(one))(states)

@@ -2,9 +2,10 @@
 
 MJX (impl ``jax``) allocates a contact slot for every candidate geom pair
 (6446 for the SIGGRAPH scene), and every step pays for all of them. Its MJCF
-numerics ``max_geom_pairs`` (pairs kept per collision-function group, the
-closest by bounding sphere) and ``max_contact_points`` (contacts kept per
-condim group, the most penetrating) bound that work. MuJoCo Warp (impl
+numerics ``max_geom_pairs`` (pairs kept per collision-function group; mwbx's
+step, :mod:`mwbx.batch_sim.mjx_collision`, keeps those whose world bounding
+boxes are nearest) and ``max_contact_points`` (contacts kept per condim
+group, the most penetrating) bound that work. MuJoCo Warp (impl
 ``warp``) has fixed contact and constraint pools, ``nconmax`` and ``njmax``
 per world. :func:`pilot` runs a few worlds of the config on the native backend
 (MuJoCo C), replays their recorded frames and counts what those caps must
@@ -28,13 +29,15 @@ import mujoco
 import numpy as np
 from mujoco.mjx._src import collision_driver
 
+from mwbx.batch_sim.mjx_collision import GAP_TOLERANCE, box_gap, world_boxes
+
 # Slack added on top of headroom × measured: a pilot of a few worlds sees
 # fewer peaks than a run of thousands.
 MIN_SLACK_PAIRS = 4
 MIN_SLACK_CONTACTS = 8
 MIN_SLACK_ROWS = 16
 # A distance this close to a margin counts as within it (float32 rounding).
-DIST_TOLERANCE = 1e-5
+DIST_TOLERANCE = GAP_TOLERANCE
 
 
 class ContactBudget(NamedTuple):
@@ -71,13 +74,14 @@ class PilotCounts(NamedTuple):
   """Most contacts any recorded frame of the pilot worlds needed.
 
   Attributes:
-    geom_pairs: geom pairs whose bounding spheres came within their margin,
-      in one cullable collision-function group of MJX.
+    geom_pairs: geom pairs whose world bounding boxes came within their
+      margin, in one cullable collision-function group of MJX.
     contact_points: contact points MJX may keep active in one condim group:
       ``ncon`` of its collision function (the points it emits per pair, 2 to
       4; duplicates included) for each geom pair MuJoCo C has in contact.
-    candidates: geom pairs within margin by bounding sphere in one world,
-      plane and height-field pairs included (MuJoCo Warp's broadphase).
+    candidates: geom pairs in one world up to the farthest, by bounding
+      sphere, whose boxes come within their margin, plane and height-field
+      pairs included (MuJoCo Warp's broadphase).
     contacts: active contacts in one world.
     rows: constraint rows (``nefc``) in one world.
     worlds: pilot worlds run; frames: frames replayed.
@@ -118,32 +122,20 @@ def _pair_groups(m: mujoco.MjModel) -> list[_PairGroup]:
   return out
 
 
-def _sphere_gap(xp, g1, g2, geom_xpos, rbound):
-  """f32[P] bounding-sphere distance of geom pairs, m (what MJX culls by)."""
-  return xp.linalg.norm(geom_xpos[g2] - geom_xpos[g1], axis=-1) - (rbound[g1] + rbound[g2])
+def _pairs_needed(g: _PairGroup, boxes) -> int:
+  """Pairs MJX must keep in group ``g`` so that none that can touch is
+  dropped: those whose world boxes, grown by the margin, overlap (the step
+  keeps the nearest by box gap). ``boxes``: ``world_boxes`` of the frame."""
+  return int((box_gap(g.geom1, g.geom2, *boxes, g.margin) <= GAP_TOLERANCE).sum())
 
 
-def _world_boxes(xp, geom_xpos, geom_xmat, geom_aabb):
-  """(centre f32[G, 3], half-size f32[G, 3]) of each geom's axis-aligned
-  bounding box in the world frame, from its box in its own frame, m."""
-  rot = geom_xmat.reshape(-1, 3, 3)
-  centre = geom_xpos + xp.einsum("gij,gj->gi", rot, geom_aabb[:, :3])
-  half = xp.einsum("gij,gj->gi", xp.abs(rot), geom_aabb[:, 3:])
-  return centre, half
-
-
-def _boxes_overlap(xp, g1, g2, centre, half, margin):
-  """bool[P]: the pairs' world boxes, grown by their margin, overlap (else they cannot touch)."""
-  reach = half[g1] + half[g2] + margin[:, None] + DIST_TOLERANCE
-  return xp.all(xp.abs(centre[g2] - centre[g1]) <= reach, axis=-1)
-
-
-def _pairs_needed(m: mujoco.MjModel, d: mujoco.MjData, g: _PairGroup, boxes) -> int:
-  """Pairs MJX must keep in group ``g`` so that every pair whose boxes overlap
-  is kept: the rank, by bounding-sphere distance, of the farthest such pair.
-  ``boxes``: :func:`_world_boxes` of the frame."""
-  gap = _sphere_gap(np, g.geom1, g.geom2, d.geom_xpos, m.geom_rbound)
-  near = _boxes_overlap(np, g.geom1, g.geom2, *boxes, g.margin)
+def _sphere_rank_needed(m: mujoco.MjModel, d: mujoco.MjData, g: _PairGroup, boxes) -> int:
+  """Candidates of group ``g`` by bounding-sphere distance up to the farthest
+  pair whose boxes overlap (MuJoCo Warp's pool holds its broadphase's
+  candidates; sized so since the first pilot)."""
+  gap = np.linalg.norm(d.geom_xpos[g.geom2] - d.geom_xpos[g.geom1], axis=-1) - (
+      m.geom_rbound[g.geom1] + m.geom_rbound[g.geom2])
+  near = box_gap(g.geom1, g.geom2, *boxes, g.margin) <= GAP_TOLERANCE
   return int((gap <= gap[near].max()).sum()) if near.any() else 0
 
 
@@ -183,15 +175,16 @@ def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None
       d.qpos[:] = qpos
       mujoco.mj_fwdPosition(m, d)
       frames += 1
-      boxes = _world_boxes(np, d.geom_xpos, d.geom_xmat, m.geom_aabb)
-      near = [_pairs_needed(m, d, g, boxes) for g in groups]
+      boxes = world_boxes(d.geom_xpos, d.geom_xmat, m.geom_aabb)
+      near = [_pairs_needed(g, boxes) for g in groups]
       cullable = [n for n, g in zip(near, groups) if g.cullable]
+      candidates = sum(_sphere_rank_needed(m, d, g, boxes) for g in groups)
       points = np.zeros(7, np.int64)
       for a, b in {(int(min(p)), int(max(p))) for p in d.contact.geom[:d.ncon]}:
         ncon, condim = emits.get((a, b), emits.get((b, a), (4, 3)))
         points[condim] += ncon
       per_condim = int(points.max())
-      counts = np.maximum(counts, [max(cullable, default=0), per_condim, sum(near), d.ncon, d.nefc])
+      counts = np.maximum(counts, [max(cullable, default=0), per_condim, candidates, d.ncon, d.nefc])
   return PilotCounts(*(int(c) for c in counts), worlds=n_worlds, frames=frames)
 
 
@@ -255,9 +248,9 @@ class JaxOverflowCheck:
   active contact, from the contacts it kept.
 
   Two caps can drop contacts. Geom pairs: a cullable group of P > cap pairs
-  keeps the cap pairs with the smallest bounding-sphere distance (the same
-  ``top_k`` is recomputed here); a dropped pair can touch only if the geoms'
-  world bounding boxes, grown by the margin, overlap.
+  keeps the cap pairs whose world bounding boxes are nearest
+  (:func:`mjx_collision.box_gap`); a dropped pair can touch only if its boxes,
+  grown by the margin, overlap, i.e. only if more than cap pairs overlap.
   Contact points: a condim group keeps the ``cap`` most penetrating contacts;
   a dropped active contact lies within the group's largest margin, and then
   so does every kept one. Flagging when either count is reached never misses
@@ -272,7 +265,6 @@ class JaxOverflowCheck:
     pair_cap, point_cap = numeric("max_geom_pairs"), numeric("max_contact_points")
     self.pair_cap, self.point_cap = pair_cap, point_cap
     groups = _pair_groups(m)
-    self.rbound = np.asarray(m.geom_rbound, np.float32)
     self.aabb = np.asarray(m.geom_aabb, np.float32)
     # Geom-pair groups the cap culls: their pairs and margins.
     self.culled = [(g.geom1, g.geom2, g.margin.astype(np.float32))
@@ -298,18 +290,15 @@ class JaxOverflowCheck:
     return bool(self.culled or self.slices)
 
   def __call__(self, d) -> jax.Array:
-    """bool[] for one world's ``mjx.Data`` after ``mjx.step`` (its contacts and
-    ``geom_xpos`` are those of the step's start state); vmap it for a batch."""
+    """bool[] for one world's ``mjx.Data`` after ``mjx_collision.step`` (its
+    contacts and ``geom_xpos`` are those of the step's start state); vmap it
+    for a batch."""
     flag = jnp.bool_(False)
     if self.culled:
-      centre, half = _world_boxes(jnp, d.geom_xpos, d.geom_xmat, jnp.asarray(self.aabb))
+      boxes = world_boxes(d.geom_xpos, d.geom_xmat, jnp.asarray(self.aabb))
     for g1, g2, margin in self.culled:
-      # As MJX's collision driver culls: the pair_cap smallest sphere distances.
-      pos1, pos2 = d.geom_xpos[g1], d.geom_xpos[g2]
-      gap = jax.vmap(jnp.linalg.norm)(pos2 - pos1) - jnp.asarray(self.rbound[g1] + self.rbound[g2])
-      _, kept = jax.lax.top_k(-gap, k=self.pair_cap)
-      dropped = jnp.ones(len(g1), bool).at[kept].set(False)
-      flag |= jnp.any(dropped & _boxes_overlap(jnp, g1, g2, centre, half, jnp.asarray(margin)))
+      overlapping = jnp.sum(box_gap(g1, g2, *boxes, jnp.asarray(margin)) <= GAP_TOLERANCE)
+      flag |= overlapping > self.pair_cap
     if self.slices:
       dist = d._impl.contact.dist  # pylint: disable=protected-access
       for lo, hi, margin in self.slices:

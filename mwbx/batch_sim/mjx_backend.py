@@ -1,7 +1,8 @@
 """The MJX backend: the whole lockstep loop as one jitted ``lax.scan``.
 
 A block of frames runs on device as a scan over frames whose body is a scan
-over the physics steps of one frame (``mjx.step`` vmapped over worlds), then
+over the physics steps of one frame (the MJX step vmapped over worlds: on
+impl jax, :func:`mjx_collision.step`, MJX's with a box broadphase), then
 the bookkeeping kernel on the frame's observations. Finished worlds are frozen with ``jnp.where`` (lockstep);
 the host only copies out the recorded frames after each block. This is the
 path for GPUs and TPUs.
@@ -19,6 +20,7 @@ from mujoco import mjx
 
 from mwbx.batch_sim import contact_budget
 from mwbx.batch_sim import controls
+from mwbx.batch_sim import mjx_collision
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
@@ -34,6 +36,17 @@ BLOCK_SECONDS = 1.0
 # Worlds per device are a multiple of this: whole groups of XLA's 8 float32
 # CPU lanes (a batch of 3 took scalar code, slower and rounding otherwise).
 LANE = 8
+
+# impl jax: the constraint solver's iteration limits at most these. Vmapped,
+# MJX's line search runs all ls_iterations every solver iteration (its early
+# exit becomes a select) and the batch iterates until its slowest world
+# converges; float32 rarely meets MuJoCo's 1e-8 tolerance, so the model's
+# 100 / 50 cost a SIGGRAPH step half its time for the same answer (at t =
+# 0.6 s, batch 64: 20 / 10 gave qacc within 3e-7 of 100 / 50). MuJoCo C on
+# SIGGRAPH needs at most 10 iterations of at most 10 line-search evaluations
+# (measured over 8 worlds, 9600 steps).
+SOLVER_ITERATIONS = 20
+LS_ITERATIONS = 10
 
 
 def frame_block(frame_fn, n_frames: int):
@@ -133,6 +146,8 @@ class MjxBackend:
     if impl == "warp":
       contact_budget.quiet_warp()
     self.mx = self._put(model)
+    # impl jax: MJX's step with pairs culled by world bounding boxes (what the budget is sized for).
+    self.mjx_step = mjx_collision.step if impl == "jax" else mjx.step
     # impl jax: flags a step that may have dropped contacts (never misses one).
     self.check = contact_budget.JaxOverflowCheck(model) if impl == "jax" else None
     self._quiet_mx = None
@@ -142,6 +157,9 @@ class MjxBackend:
     mx = mjx.put_model(model, device=self.devices[0], impl=self.impl)
     if self.impl == "warp":  # overflows are read from its counters, not printed every step
       mx = mx.tree_replace({"opt._impl.warn_overflow": 0})
+    else:
+      mx = mx.tree_replace({"opt.iterations": min(int(model.opt.iterations), SOLVER_ITERATIONS),
+                            "opt.ls_iterations": min(int(model.opt.ls_iterations), LS_ITERATIONS)})
     return mx
 
   @property
@@ -172,7 +190,7 @@ class MjxBackend:
 
   def step(self, d: mjx.Data, xfrc: jax.Array) -> mjx.Data:
     """One physics step of a batch; ``xfrc``: f32[W, nbody, 6]. Sensors describe s_k."""
-    return jax.vmap(mjx.step, in_axes=(None, 0))(self.mx, d.replace(xfrc_applied=xfrc))
+    return jax.vmap(self.mjx_step, in_axes=(None, 0))(self.mx, d.replace(xfrc_applied=xfrc))
 
   def overflow(self, d_next: mjx.Data) -> jax.Array:
     """bool[W]: the step that produced ``d_next`` may have dropped contacts
@@ -201,7 +219,7 @@ class MjxBackend:
       d = d.replace(xfrc_applied=scatter_wrench(xfrc_tracked, nbody, ids))
       if ctrl is not None:
         d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype))
-      d_next = jax.vmap(mjx.step, in_axes=(None, 0))(mx, d)
+      d_next = jax.vmap(self.mjx_step, in_axes=(None, 0))(mx, d)
       return d_next, (d_next.sensordata if bodies is None else (d.qpos, d.qvel), self.overflow(d_next))
 
     def observe(d_next, out):
