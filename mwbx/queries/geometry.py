@@ -36,14 +36,15 @@ from __future__ import annotations
 import dataclasses
 import weakref
 
-from jax import numpy as jp
 import numpy as np
 
 from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
+from mwbx.queries import geometry_cull
 from mwbx.queries import poses as poses_lib
 from mwbx.queries import shapes as shapes_lib
 
 BLOCK = 64  # worlds decoded at once while building
+CHUNK = 8  # kept frames per chunk box of the culling pass
 
 
 @dataclasses.dataclass
@@ -63,6 +64,8 @@ class GeometryIndex:
     testing it again with no larger margin cannot add a hit.
   lo, hi: f64[3] a box holding every grown shape (the volume is clipped to it).
   valid: bool[W].
+  chunk: kept frames per chunk box.
+  bounds: the culling boxes of :func:`.geometry_cull.chunk_bounds`.
   """
 
   frames: np.ndarray
@@ -78,16 +81,8 @@ class GeometryIndex:
   lo: np.ndarray
   hi: np.ndarray
   valid: np.ndarray
-  _device: tuple | None = dataclasses.field(default=None, repr=False)
-
-  def device(self) -> tuple:
-    """(com f32[B, 3, W, K] (coordinates first), sweep f32[B, W, K - 1],
-    valid bool[W]) as device arrays (made on first use, for the jitted first
-    stage)."""
-    if self._device is None:
-      self._device = (jp.asarray(np.ascontiguousarray(np.moveaxis(self.com, 3, 1))), jp.asarray(self.sweep),
-                      jp.asarray(self.valid))
-    return self._device
+  chunk: int
+  bounds: tuple = dataclasses.field(repr=False)
 
 
 def codec_reach(model, body: int, reach: float, bounds) -> float:
@@ -160,7 +155,7 @@ def sweep_margins(com: np.ndarray, quat: np.ndarray, reach: np.ndarray, stride: 
   return to_ends + (step_c + step_q).max(axis=-2)
 
 
-def build(bank, valid: np.ndarray, stride: int | None = None) -> GeometryIndex:
+def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK) -> GeometryIndex:
   """The geometry index of a bank's tracked bodies (decodes every world once)."""
   model = bank.model()
   body_ids = np.asarray(bank.body_ids, np.int64)
@@ -202,7 +197,8 @@ def build(bank, valid: np.ndarray, stride: int | None = None) -> GeometryIndex:
   repeat[:, :, 1:] = (np.all(com[:, :, 1:] == com[:, :, :-1], axis=-1)
                       & np.all(quat[:, :, 1:] == quat[:, :, :-1], axis=-1))
   return GeometryIndex(frames, frames / float(bank.record_fps), com, quat, sweep, codec, reach, cores,
-                       ipos, repeat, lo, -lo, np.asarray(valid, bool))
+                       ipos, repeat, lo, -lo, np.asarray(valid, bool), chunk,
+                       geometry_cull.chunk_bounds(com, sweep, chunk))
 
 
 # ---------------------------------------------------------------------------
