@@ -90,3 +90,21 @@ def test_within_is_the_exact_point_distance():
     ours = np.array([geometry_cull.within(p, g, *arrays, scratch) for p, g in zip(points, grow)])
     np.testing.assert_array_equal(ours, exact <= grow)
     assert 0.2 < ours.mean() < 0.8
+
+
+def test_answers_are_kept_per_query_and_returned_as_copies(bank):
+  index = geometry_lib.build(bank, np.asarray(bank.valid, bool))
+  frustum = mq.Frustum.box((-0.6, -0.5, 0.7), (0.6, 0.5, 1.2))
+  mask = np.ones(len(bank.body_names), bool)
+  first = geometry_query.geometry_hits(index, frustum, mask, (0.1, 0.3))
+  assert first.any() and len(index.answers) == 1
+  first[:] = ~first  # the caller's copy: the kept answer does not change
+  again = geometry_query.geometry_hits(index, frustum, mask, (0.1, 0.3))
+  np.testing.assert_array_equal(again, ~first)
+  np.testing.assert_array_equal(again, _every_frame(index, frustum, (0.1, 0.3)))
+  other = geometry_query.geometry_hits(index, frustum, mask, (0.0, 0.05))  # another window: computed
+  np.testing.assert_array_equal(other, _every_frame(index, frustum, (0.0, 0.05)))
+  assert len(index.answers) == 2
+  for k in range(geometry_query.ANSWERS_KEPT + 3):
+    geometry_query.geometry_hits(index, mq.Frustum.box((-0.6, -0.5, 0.7), (0.6, 0.5, 1.2 + 0.01 * k)), mask, None)
+  assert len(index.answers) == geometry_query.ANSWERS_KEPT

@@ -66,6 +66,8 @@ class GeometryIndex:
   valid: bool[W].
   chunk: kept frames per chunk box.
   bounds: the culling boxes of :func:`.geometry_cull.chunk_bounds`.
+  answers: the latest query answers by their volume, bodies and window (a
+    page re-evaluates its whole query stack when one query changes).
   """
 
   frames: np.ndarray
@@ -83,6 +85,7 @@ class GeometryIndex:
   valid: np.ndarray
   chunk: int
   bounds: tuple = dataclasses.field(repr=False)
+  answers: dict = dataclasses.field(default_factory=dict, repr=False)
 
 
 def codec_reach(model, body: int, reach: float, bounds) -> float:

@@ -15,6 +15,9 @@ frame.
 
 from __future__ import annotations
 
+import concurrent.futures
+import os
+
 import numpy as np
 
 from mwbx.queries import convex
@@ -22,6 +25,9 @@ from mwbx.queries import geometry_cull
 from mwbx.queries.frustum import Frustum
 from mwbx.queries.geometry import GeometryIndex
 from mwbx.queries.poses import quat_matrix
+
+
+ANSWERS_KEPT = 32  # latest answers kept per index
 
 
 def frame_margins(index: GeometryIndex, window) -> tuple[np.ndarray, "_Margins"]:
@@ -87,6 +93,17 @@ def geometry_hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray,
     bool[W, B]; False for unselected bodies, bodies without geoms and
     invalid worlds.
   """
+  key = (np.asarray(frustum.normals, np.float64).tobytes(), np.asarray(frustum.offsets, np.float64).tobytes(),
+         np.asarray(body_mask, bool).tobytes(), None if window is None else tuple(window))
+  if key not in index.answers:
+    while len(index.answers) >= ANSWERS_KEPT:
+      index.answers.pop(next(iter(index.answers)))
+    index.answers[key] = _hits(index, frustum, body_mask, window)
+  return index.answers[key].copy()
+
+
+def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window) -> np.ndarray:
+  """`geometry_hits` computed afresh."""
   n_bodies, n_worlds, n_frames = index.com.shape[:3]
   hits = np.zeros((n_worlds, n_bodies), bool)
   selected = np.asarray(body_mask, bool) & np.array([bool(c) for c in index.cores])
@@ -104,7 +121,8 @@ def geometry_hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray,
   vol = geometry_cull.volume_arrays(volume)
   world_lo, world_hi, world_sweep, chunk_lo, chunk_hi, chunk_sweep = index.bounds
   margin = _Margins(index.sweep, overlap)
-  for b in np.flatnonzero(selected):
+
+  def compiled_pass(b: int) -> tuple[np.ndarray, np.ndarray]:
     verts, vstart, radius = _core_arrays(index, b)
     undecided = np.zeros((n_worlds, n_frames), bool)
     found = np.zeros(n_worlds, bool)
@@ -113,6 +131,12 @@ def geometry_hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray,
                             chunk_sweep[b], index.chunk, chunk_relevant, float(index.reach[b]),
                             float(index.codec[b]), verts, vstart, radius, normals, offsets, tol, *vol, found,
                             undecided)
+    return found, undecided
+
+  bodies = np.flatnonzero(selected)
+  # The pass holds no GIL: bodies run on all cores while this thread does the
+  # exact stage of the bodies already passed.
+  for b, (found, undecided) in zip(bodies, _pool().map(compiled_pass, bodies)):
     hits[:, b] = found
     pending = np.flatnonzero(undecided.any(axis=1))
     if pending.size == 0:
@@ -132,6 +156,18 @@ def geometry_hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray,
         hits[worlds[take][hit], b] = True
       lo = hi
   return hits & index.valid[:, None]
+
+
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+  """The threads that run body passes (made on first use)."""
+  global _POOL
+  if _POOL is None:
+    _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=os.cpu_count() or 1,
+                                                  thread_name_prefix="mwbx-geometry")
+  return _POOL
+
+
+_POOL: concurrent.futures.ThreadPoolExecutor | None = None
 
 
 def _core_arrays(index: GeometryIndex, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
