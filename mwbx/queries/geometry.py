@@ -40,6 +40,7 @@ import numpy as np
 
 from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
 from mwbx.queries import geometry_cull
+from mwbx.queries import kept_poses
 from mwbx.queries import poses as poses_lib
 from mwbx.queries import shapes as shapes_lib
 
@@ -178,16 +179,13 @@ def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK
   com = np.zeros((n_bodies, n_worlds, n_int + 1, 3), np.float32)
   quat = np.zeros((n_bodies, n_worlds, n_int + 1, 4), np.float32)
   sweep = np.zeros((n_bodies, n_worlds, n_int), np.float32)
+  kinematic_tree = kept_poses.tree(model, body_ids)
   for s in range(0, n_worlds, BLOCK):
     rows = np.arange(s, min(n_worlds, s + BLOCK))
     qpos = poses_lib.padded(poses_lib.decoded_frames(bank, rows), t_pad)  # [w, T, nq]
-    w = len(rows)
-    xpos, xquat = poses_lib.body_poses(model, qpos.reshape(w * t_pad, -1), body_ids)
-    xquat = xquat.reshape(w, t_pad, n_bodies, 4)
-    c = (xpos + poses_lib.quat_rotate(xquat.reshape(-1, n_bodies, 4), ipos)).reshape(w, t_pad, n_bodies, 3)
-    sweep[:, rows] = np.transpose(sweep_margins(c, xquat, reach, stride), (2, 0, 1))
-    com[:, rows] = np.transpose(c[:, frames], (2, 0, 1, 3))
-    quat[:, rows] = np.transpose(xquat[:, frames], (2, 0, 1, 3))
+    part = slice(s, s + len(rows))
+    kept_poses.kept_poses(qpos, *kinematic_tree, body_ids, ipos, reach, stride, com[:, part], quat[:, part],
+                          sweep[:, part])
   finite = np.isfinite(com).all(axis=(0, 2, 3)) & valid
   extent = float(np.max(np.abs(com[:, finite]), initial=0.0))
   tol = 1e-6 * (1.0 + extent)  # float32 storage of poses and margins
