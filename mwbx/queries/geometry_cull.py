@@ -14,9 +14,10 @@ stops a world at its first hit:
      bound): its extent along a plane apart -> this core misses; a core vertex
      inside, or a vertex whose projection onto a plane lies in the volume
      within the growth -> hit; the nearest vertex's exact distance within it
-     -> hit (for a point core, beyond it -> miss).
+     -> hit (for a point core, beyond it -> miss); a polytope core apart
+     along one of its face normals or an edge-edge cross product -> miss.
 What is left (a polytope core near an edge or corner of the volume) is
-marked undecided for the exact separating-axis test (:mod:`.convex`).
+marked undecided for the full separating-axis test (:mod:`.convex`).
 
 Each step drops only what the next would drop and keeps only what the exact
 test would keep, so the answers are those of testing every frame exactly
@@ -106,9 +107,54 @@ def within(p, grow, vol_n, vol_off, vol_tol, cos, pair_i, pair_j, pair_inv, vol_
   return False
 
 
+@numba.njit(cache=True, nogil=True)
+def _apart_along(axis, pts, n_pts, vol_verts, grow, vol_tol):
+  """Whether the core pts[:n_pts] and the volume's vertices lie apart by more
+  than grow + vol_tol along axis (made unit; a zero axis separates nothing),
+  as :func:`.convex._gap_exceeds` tests one axis."""
+  norm = math.sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2])
+  if not norm > 1e-12:
+    return False
+  u0, u1, u2 = axis[0] / norm, axis[1] / norm, axis[2] / norm
+  core_lo, core_hi = math.inf, -math.inf
+  for v in range(n_pts):
+    x = u0 * pts[v, 0] + u1 * pts[v, 1] + u2 * pts[v, 2]
+    core_lo, core_hi = min(core_lo, x), max(core_hi, x)
+  vol_lo, vol_hi = math.inf, -math.inf
+  for v in range(vol_verts.shape[0]):
+    x = u0 * vol_verts[v, 0] + u1 * vol_verts[v, 1] + u2 * vol_verts[v, 2]
+    vol_lo, vol_hi = min(vol_lo, x), max(vol_hi, x)
+  return max(core_lo - vol_hi, vol_lo - core_hi) > grow + vol_tol
+
+
+@numba.njit(cache=True, nogil=True)
+def _separated_cheaply(pts, n_pts, r, core_normals, core_dirs, vol_verts, vol_dirs, grow, vol_tol, axis):
+  """Whether a core's face normals or the cross products of its edge
+  directions with the volume's separate it from the volume by more than
+  grow (some of the separating-axis test's axes: True only where that test
+  finds the core apart). r f64[3, 3] body-to-world; axis f64[3] scratch."""
+  for k in range(core_normals.shape[0]):
+    for a in range(3):
+      axis[a] = r[a, 0] * core_normals[k, 0] + r[a, 1] * core_normals[k, 1] + r[a, 2] * core_normals[k, 2]
+    if _apart_along(axis, pts, n_pts, vol_verts, grow, vol_tol):
+      return True
+  for k in range(core_dirs.shape[0]):
+    d0 = r[0, 0] * core_dirs[k, 0] + r[0, 1] * core_dirs[k, 1] + r[0, 2] * core_dirs[k, 2]
+    d1 = r[1, 0] * core_dirs[k, 0] + r[1, 1] * core_dirs[k, 1] + r[1, 2] * core_dirs[k, 2]
+    d2 = r[2, 0] * core_dirs[k, 0] + r[2, 1] * core_dirs[k, 1] + r[2, 2] * core_dirs[k, 2]
+    for e in range(vol_dirs.shape[0]):
+      axis[0] = d1 * vol_dirs[e, 2] - d2 * vol_dirs[e, 1]
+      axis[1] = d2 * vol_dirs[e, 0] - d0 * vol_dirs[e, 2]
+      axis[2] = d0 * vol_dirs[e, 1] - d1 * vol_dirs[e, 0]
+      if _apart_along(axis, pts, n_pts, vol_verts, grow, vol_tol):
+        return True
+  return False
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
-def _frame_verdict(c, q, m, reach, codec, verts, vstart, radius, normals, offsets, cos, tol,
-                   vol_n, vol_off, vol_tol, vol_cos, pair_i, pair_j, pair_inv, vol_verts, r, pts, dist, scratch):
+def _frame_verdict(c, q, m, reach, codec, verts, vstart, radius, core_normals, nstart, core_dirs, dstart,
+                   normals, offsets, cos, tol, vol_n, vol_off, vol_tol, vol_cos, pair_i, pair_j, pair_inv,
+                   vol_verts, vol_dirs, r, pts, dist, scratch, axis):
   """One kept pose (c f64[3] COM, q f64[4] orientation, m margin): 1 hit,
   0 miss, -1 undecided (a polytope core for the separating-axis test).
   r f64[3, 3], pts f64[V, 3], dist f64[V, F], scratch f64[F']: scratch."""
@@ -155,7 +201,9 @@ def _frame_verdict(c, q, m, reach, codec, verts, vstart, radius, normals, offset
     for v in range(v1 - v0):  # the nearest vertex's exact distance within reach
       if within(pts[v], grow, vol_n, vol_off, vol_tol, vol_cos, pair_i, pair_j, pair_inv, vol_verts, scratch):
         return 1
-    if v1 - v0 > 1:
+    if v1 - v0 > 1 and not _separated_cheaply(pts, v1 - v0, r, core_normals[nstart[core]:nstart[core + 1]],
+                                              core_dirs[dstart[core]:dstart[core + 1]], vol_verts, vol_dirs,
+                                              grow, vol_tol, axis):
       verdict = -1
   return verdict
 
@@ -163,6 +211,7 @@ def _frame_verdict(c, q, m, reach, codec, verts, vstart, radius, normals, offset
 @numba.njit(cache=True, nogil=True)
 def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, world_hi, world_sweep,
               chunk_lo, chunk_hi, chunk_sweep, chunk, chunk_relevant, reach, codec, verts, vstart, radius,
+              core_normals, nstart, core_dirs, dstart, vol_dirs,
               normals, offsets, tol, vol_n, vol_off, vol_tol, vol_cos, pair_i, pair_j, pair_inv, vol_verts,
               hits, undecided):
   """Steps 1-3 of the module docstring for one body in every world.
@@ -175,7 +224,10 @@ def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, worl
     world_lo, world_hi: f32[W, 3], world_sweep: f32[W]; chunk_lo, chunk_hi:
       f32[W, NC, 3], chunk_sweep: f32[W, NC] the bounds of steps 1 and 2.
     reach, codec: metres; verts: f64[V, 3] core vertices about the COM,
-      vstart: i64[cores + 1], radius: f64[cores].
+      vstart: i64[cores + 1], radius: f64[cores]; core_normals f64[N, 3],
+      nstart i64[cores + 1], core_dirs f64[D, 3], dstart i64[cores + 1]:
+      the cores' face normals and edge directions (body frame).
+    vol_dirs: f64[E, 3] the volume's unique edge directions.
     normals: f64[F, 3], offsets: f64[F] the volume's planes; tol: metres.
     vol_*: the clipped volume (:func:`volume_arrays`).
     hits: bool[W] out; undecided: bool[W, K] out, set only in worlds
@@ -195,6 +247,7 @@ def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, worl
   pts = np.empty((n_verts, 3))
   dist = np.empty((n_verts, n_planes))
   scratch = np.empty(vol_n.shape[0])
+  axis = np.empty(3)
   for w in range(n_worlds):
     if not valid[w] or _box_apart(world_lo[w], world_hi[w], normals, offsets, big + world_sweep[w]):
       continue
@@ -214,9 +267,9 @@ def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, worl
           c[a] = com[w, k, a]
         for a in range(4):
           q[a] = quat[w, k, a]
-        verdict = _frame_verdict(c, q, m, reach, codec, verts, vstart, radius, normals, offsets, cos, tol,
-                                 vol_n, vol_off, vol_tol, vol_cos, pair_i, pair_j, pair_inv, vol_verts, r, pts, dist,
-                                 scratch)
+        verdict = _frame_verdict(c, q, m, reach, codec, verts, vstart, radius, core_normals, nstart, core_dirs,
+                                 dstart, normals, offsets, cos, tol, vol_n, vol_off, vol_tol, vol_cos, pair_i,
+                                 pair_j, pair_inv, vol_verts, vol_dirs, r, pts, dist, scratch, axis)
         if verdict == 1:
           found = True
           break

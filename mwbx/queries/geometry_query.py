@@ -123,14 +123,15 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window)
   margin = _Margins(index.sweep, overlap)
 
   def compiled_pass(b: int) -> tuple[np.ndarray, np.ndarray]:
-    verts, vstart, radius = _core_arrays(index, b)
+    verts, vstart, radius, core_normals, nstart, core_dirs, dstart = _core_arrays(index, b)
     undecided = np.zeros((n_worlds, n_frames), bool)
     found = np.zeros(n_worlds, bool)
     geometry_cull.body_pass(index.com[b], index.quat[b], index.sweep[b], index.repeat[b], index.valid, relevant,
                             overlap, world_lo[b], world_hi[b], world_sweep[b], chunk_lo[b], chunk_hi[b],
                             chunk_sweep[b], index.chunk, chunk_relevant, float(index.reach[b]),
-                            float(index.codec[b]), verts, vstart, radius, normals, offsets, tol, *vol, found,
-                            undecided)
+                            float(index.codec[b]), verts, vstart, radius, core_normals, nstart, core_dirs, dstart,
+                            np.ascontiguousarray(volume.directions, np.float64).reshape(-1, 3), normals, offsets,
+                            tol, *vol, found, undecided)
     return found, undecided
 
   bodies = np.flatnonzero(selected)
@@ -170,13 +171,20 @@ def _pool() -> concurrent.futures.ThreadPoolExecutor:
 _POOL: concurrent.futures.ThreadPoolExecutor | None = None
 
 
-def _core_arrays(index: GeometryIndex, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _core_arrays(index: GeometryIndex, b: int) -> tuple:
   """Body b's cores for the compiled pass: (vertices f64[V, 3] about the
-  COM, starts i64[cores + 1], radii f64[cores])."""
+  COM, their starts i64[cores + 1], radii f64[cores], face normals
+  f64[N, 3], their starts, edge directions f64[D, 3], their starts)."""
   cores = index.cores[b]
-  verts = np.concatenate([c.vertices - index.ipos[b] for c in cores]).astype(np.float64)
-  vstart = np.concatenate([[0], np.cumsum([len(c.vertices) for c in cores])]).astype(np.int64)
-  return np.ascontiguousarray(verts), vstart, np.array([c.radius for c in cores], np.float64)
+
+  def stacked(arrays):
+    starts = np.concatenate([[0], np.cumsum([len(a) for a in arrays])]).astype(np.int64)
+    return np.ascontiguousarray(np.concatenate(arrays).reshape(-1, 3), np.float64), starts
+
+  verts, vstart = stacked([c.vertices - index.ipos[b] for c in cores])
+  normals, nstart = stacked([c.normals.reshape(-1, 3) for c in cores])
+  dirs, dstart = stacked([c.directions.reshape(-1, 3) for c in cores])
+  return verts, vstart, np.array([c.radius for c in cores], np.float64), normals, nstart, dirs, dstart
 
 
 def _exact_stage(index, b, worlds, frames, m, normals, offsets, volume, tol) -> np.ndarray:
