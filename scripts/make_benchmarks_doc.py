@@ -386,6 +386,15 @@ def geometry(d: dict) -> tuple[list[str], list[str]]:
         f"{k.replace('_', ' ')} {v['ms']:.0f} ms ({v['worlds']} worlds)" for k, v in o.items()) + "."]
   head = [f"**geometry**: a whole-geometry query on {d['worlds']} worlds in {g['median']:.0f} ms (median), "
           f"{d['geometry_over_com']:.1f}× the COM query"]
+  p = d.get("page")
+  if p:
+    pc, pg = p["com_box_to_update_ms"], p["geometry_box_to_update_ms"]
+    lines += ["", f"In the page ({pg['boxes']} boxes of each kind drawn in turn on a stack of at most 3 queries, "
+              f"as `scripts/bench_browse.py` draws them): box → update median / p95 {pc['median']:.0f} / "
+              f"{pc['p95']:.0f} ms for COM boxes, {pg['median']:.0f} / {pg['p95']:.0f} ms for whole-geometry "
+              f"boxes ({p['geometry_over_com']:.1f}×); the geometry index keeps its latest answers, so a stack "
+              "re-evaluated after a new box computes only that box."]
+    head[0] += f"; in the page a whole-geometry box updates in {pg['median']:.0f} ms median"
   return lines, head
 
 
