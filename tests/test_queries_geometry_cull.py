@@ -54,9 +54,9 @@ def _every_frame(index, frustum, window) -> np.ndarray:
   return out
 
 
-@pytest.mark.parametrize("chunk", [1, 3, 8])
-def test_culled_pass_equals_the_exact_test_on_every_frame(bank, chunk):
-  index = geometry_lib.build(bank, np.asarray(bank.valid, bool), chunk=chunk)
+@pytest.mark.parametrize("chunk,group", [(1, 1), (1, 3), (3, 2), (8, 1)])
+def test_culled_pass_equals_the_exact_test_on_every_frame(bank, chunk, group):
+  index = geometry_lib.build(bank, np.asarray(bank.valid, bool), chunk=chunk, group=group)
   assert index.repeat.any()  # worlds that end early hold their last pose
   rng = np.random.default_rng(chunk)
   mask = np.ones(len(bank.body_names), bool)

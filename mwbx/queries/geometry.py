@@ -45,7 +45,8 @@ from mwbx.queries import poses as poses_lib
 from mwbx.queries import shapes as shapes_lib
 
 BLOCK = 64  # worlds decoded at once while building
-CHUNK = 8  # kept frames per chunk box of the culling pass
+CHUNK = 4  # kept frames per chunk box of the culling pass
+GROUP = 4  # chunks per group box
 
 
 @dataclasses.dataclass
@@ -65,7 +66,7 @@ class GeometryIndex:
     testing it again with no larger margin cannot add a hit.
   lo, hi: f64[3] a box holding every grown shape (the volume is clipped to it).
   valid: bool[W].
-  chunk: kept frames per chunk box.
+  chunk: kept frames per chunk box; group: chunks per group box.
   bounds: the culling boxes of :func:`.geometry_cull.chunk_bounds`.
   answers: the latest query answers by their volume, bodies and window (a
     page re-evaluates its whole query stack when one query changes).
@@ -85,6 +86,7 @@ class GeometryIndex:
   hi: np.ndarray
   valid: np.ndarray
   chunk: int
+  group: int
   bounds: tuple = dataclasses.field(repr=False)
   answers: dict = dataclasses.field(default_factory=dict, repr=False)
 
@@ -159,7 +161,8 @@ def sweep_margins(com: np.ndarray, quat: np.ndarray, reach: np.ndarray, stride: 
   return to_ends + (step_c + step_q).max(axis=-2)
 
 
-def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK) -> GeometryIndex:
+def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK,
+          group: int = GROUP) -> GeometryIndex:
   """The geometry index of a bank's tracked bodies (decodes every world once)."""
   model = bank.model()
   body_ids = np.asarray(bank.body_ids, np.int64)
@@ -198,8 +201,8 @@ def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK
   repeat[:, :, 1:] = (np.all(com[:, :, 1:] == com[:, :, :-1], axis=-1)
                       & np.all(quat[:, :, 1:] == quat[:, :, :-1], axis=-1))
   return GeometryIndex(frames, frames / float(bank.record_fps), com, quat, sweep, codec, reach, cores,
-                       ipos, repeat, lo, -lo, np.asarray(valid, bool), chunk,
-                       geometry_cull.chunk_bounds(com, sweep, chunk))
+                       ipos, repeat, lo, -lo, np.asarray(valid, bool), chunk, group,
+                       geometry_cull.chunk_bounds(com, sweep, chunk, group))
 
 
 # ---------------------------------------------------------------------------

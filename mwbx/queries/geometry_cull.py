@@ -5,8 +5,9 @@ stops a world at its first hit:
   1. the world's box (its COM at every kept frame) grown by the body's reach,
      the codec's bound and the world's largest sweep margin, apart from some
      plane of the volume -> the world misses;
-  2. the same per chunk of `chunk` kept frames (with the chunk's own largest
-     margin), and chunks without a frame the window reaches are skipped;
+  2. the same per group of `group` chunks, then per chunk of `chunk` kept
+     frames (each with its own largest margin); groups and chunks without a
+     frame the window reaches are skipped;
   3. per kept frame the window reaches, in time order: a frame at rest that
      repeats a frame already tested with at least its margin is skipped; the
      bounding sphere (reach + codec + margin) apart -> miss; wholly inside ->
@@ -210,7 +211,7 @@ def _frame_verdict(c, q, m, reach, codec, verts, vstart, radius, core_normals, n
 
 @numba.njit(cache=True, nogil=True)
 def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, world_hi, world_sweep,
-              chunk_lo, chunk_hi, chunk_sweep, chunk, chunk_relevant, reach, codec, verts, vstart, radius,
+              group_lo, group_hi, group_sweep, group, chunk_lo, chunk_hi, chunk_sweep, chunk, chunk_relevant, reach, codec, verts, vstart, radius,
               core_normals, nstart, core_dirs, dstart, vol_dirs,
               normals, offsets, tol, vol_n, vol_off, vol_tol, vol_cos, pair_i, pair_j, pair_inv, vol_verts,
               hits, undecided):
@@ -221,8 +222,10 @@ def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, worl
       interval margins; repeat: bool[W, K]; valid: bool[W].
     relevant: bool[K], overlap: bool[K - 1] the window's kept frames and
       intervals; chunk_relevant: bool[NC].
-    world_lo, world_hi: f32[W, 3], world_sweep: f32[W]; chunk_lo, chunk_hi:
-      f32[W, NC, 3], chunk_sweep: f32[W, NC] the bounds of steps 1 and 2.
+    world_lo, world_hi: f32[W, 3], world_sweep: f32[W]; group_lo, group_hi:
+      f32[W, NG, 3], group_sweep: f32[W, NG] (groups of `group` chunks);
+      chunk_lo, chunk_hi: f32[W, NC, 3], chunk_sweep: f32[W, NC] the bounds
+      of steps 1 and 2.
     reach, codec: metres; verts: f64[V, 3] core vertices about the COM,
       vstart: i64[cores + 1], radius: f64[cores]; core_normals f64[N, 3],
       nstart i64[cores + 1], core_dirs f64[D, 3], dstart i64[cores + 1]:
@@ -248,14 +251,23 @@ def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, worl
   dist = np.empty((n_verts, n_planes))
   scratch = np.empty(vol_n.shape[0])
   axis = np.empty(3)
+  n_chunks = chunk_relevant.shape[0]
+  group_relevant = np.zeros(group_lo.shape[1], np.bool_)
+  for h in range(n_chunks):
+    group_relevant[h // group] |= chunk_relevant[h]
   for w in range(n_worlds):
     if not valid[w] or _box_apart(world_lo[w], world_hi[w], normals, offsets, big + world_sweep[w]):
       continue
     found = False
     pending = False
-    for h in range(chunk_relevant.shape[0]):
-      if not chunk_relevant[h] or _box_apart(chunk_lo[w, h], chunk_hi[w, h], normals, offsets,
-                                             big + chunk_sweep[w, h]):
+    skip_group = False
+    for h in range(n_chunks):
+      if h % group == 0:
+        g = h // group
+        skip_group = not group_relevant[g] or _box_apart(group_lo[w, g], group_hi[w, g], normals, offsets,
+                                                         big + group_sweep[w, g])
+      if skip_group or not chunk_relevant[h] or _box_apart(chunk_lo[w, h], chunk_hi[w, h], normals, offsets,
+                                                           big + chunk_sweep[w, h]):
         continue
       for k in range(h * chunk, min(n_frames, (h + 1) * chunk)):
         if not relevant[k]:
@@ -304,15 +316,16 @@ def volume_arrays(volume: convex.Polytope) -> tuple:
           np.ascontiguousarray(volume.vertices, np.float64).reshape(-1, 3))
 
 
-def chunk_bounds(com: np.ndarray, sweep: np.ndarray, chunk: int) -> tuple:
+def chunk_bounds(com: np.ndarray, sweep: np.ndarray, chunk: int, group: int) -> tuple:
   """The boxes of steps 1 and 2.
 
   Args:
     com: f32[B, W, K, 3] kept COM positions; sweep: f32[B, W, K - 1].
-    chunk: kept frames per chunk.
+    chunk: kept frames per chunk; group: chunks per group.
 
   Returns:
-    (world_lo, world_hi f32[B, W, 3], world_sweep f32[B, W], chunk_lo,
+    (world_lo, world_hi f32[B, W, 3], world_sweep f32[B, W], group_lo,
+    group_hi f32[B, W, NG, 3], group_sweep f32[B, W, NG], chunk_lo,
     chunk_hi f32[B, W, NC, 3], chunk_sweep f32[B, W, NC]): boxes of the COM
     and the largest margin of any interval next to a frame inside (so at
     least any frame's margin in any window).
@@ -331,4 +344,9 @@ def chunk_bounds(com: np.ndarray, sweep: np.ndarray, chunk: int) -> tuple:
     first, last = max(h * chunk - 1, 0), min((h + 1) * chunk, n_frames) - 1  # intervals first..last
     if n_int and first < min(last + 1, n_int):
       margin[:, :, h] = sweep[:, :, first:min(last + 1, n_int)].max(axis=2)
-  return (lo.min(axis=2), hi.max(axis=2), margin.max(axis=2), lo, hi, margin)
+  n_groups = -(-n_chunks // group)
+  parts = [slice(g * group, (g + 1) * group) for g in range(n_groups)]
+  return (lo.min(axis=2), hi.max(axis=2), margin.max(axis=2),
+          np.stack([lo[:, :, p].min(axis=2) for p in parts], axis=2),
+          np.stack([hi[:, :, p].max(axis=2) for p in parts], axis=2),
+          np.stack([margin[:, :, p].max(axis=2) for p in parts], axis=2), lo, hi, margin)

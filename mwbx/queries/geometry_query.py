@@ -113,13 +113,13 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window)
   if len(volume.vertices) == 0:  # empty inside the box that holds every shape
     return hits
   relevant, overlap = _relevant(index.times, window)
-  n_chunks = index.bounds[3].shape[2]
+  n_chunks = index.bounds[6].shape[2]
   chunk_relevant = np.array([relevant[h * index.chunk:(h + 1) * index.chunk].any() for h in range(n_chunks)])
   normals = np.ascontiguousarray(frustum.normals, np.float64)
   offsets = np.ascontiguousarray(frustum.offsets, np.float64)
   tol = 1e-6 * (1.0 + float(np.max(np.abs(index.hi))))
   vol = geometry_cull.volume_arrays(volume)
-  world_lo, world_hi, world_sweep, chunk_lo, chunk_hi, chunk_sweep = index.bounds
+  world_lo, world_hi, world_sweep, group_lo, group_hi, group_sweep, chunk_lo, chunk_hi, chunk_sweep = index.bounds
   margin = _Margins(index.sweep, overlap)
 
   def compiled_pass(b: int) -> tuple[np.ndarray, np.ndarray]:
@@ -127,7 +127,8 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window)
     undecided = np.zeros((n_worlds, n_frames), bool)
     found = np.zeros(n_worlds, bool)
     geometry_cull.body_pass(index.com[b], index.quat[b], index.sweep[b], index.repeat[b], index.valid, relevant,
-                            overlap, world_lo[b], world_hi[b], world_sweep[b], chunk_lo[b], chunk_hi[b],
+                            overlap, world_lo[b], world_hi[b], world_sweep[b], group_lo[b], group_hi[b],
+                            group_sweep[b], index.group, chunk_lo[b], chunk_hi[b],
                             chunk_sweep[b], index.chunk, chunk_relevant, float(index.reach[b]),
                             float(index.codec[b]), verts, vstart, radius, core_normals, nstart, core_dirs, dstart,
                             np.ascontiguousarray(volume.directions, np.float64).reshape(-1, 3), normals, offsets,
