@@ -87,7 +87,7 @@ def test_within_is_the_exact_point_distance():
     exact = convex.point_distances(points, volume)
     grow = exact * rng.choice([0.5, 0.999, 1.001, 2.0], len(points)) + rng.choice([0.0, 1e-3], len(points))
     scratch = np.empty(len(arrays[0]))
-    ours = np.array([geometry_cull.within(p, g, *arrays, scratch) for p, g in zip(points, grow)])
+    ours = np.array([geometry_cull.within(points, i, g, *arrays, scratch) for i, g in enumerate(grow)])
     np.testing.assert_array_equal(ours, exact <= grow)
     assert 0.2 < ours.mean() < 0.8
 

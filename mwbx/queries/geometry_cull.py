@@ -36,41 +36,43 @@ from mwbx.queries import convex
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _margin(sweep, overlap, k):
-  """The largest sweep margin of a window interval next to kept frame k."""
+def _margin(sweep, overlap, w, k):
+  """The largest sweep margin of a window interval next to kept frame k of
+  world w (indices, not slices: a slice costs reference counting)."""
   n_int = overlap.shape[0]
   m = 0.0
   if k >= 1 and overlap[k - 1]:
-    m = max(m, float(sweep[k - 1]))
+    m = max(m, float(sweep[w, k - 1]))
   if k < n_int and overlap[k]:
-    m = max(m, float(sweep[k]))
+    m = max(m, float(sweep[w, k]))
   return m
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _box_apart(lo, hi, normals, offsets, grow):
-  """Whether the box [lo, hi] grown by `grow` lies beyond some plane."""
+def _box_apart(lo, hi, w, h, normals, offsets, grow):
+  """Whether the box [lo[w, h], hi[w, h]] grown by `grow` lies beyond some
+  plane (lo, hi: f32[W, H, 3])."""
   for f in range(normals.shape[0]):
     near = 0.0
     for a in range(3):
       n = normals[f, a]
-      near += n * (lo[a] if n > 0 else hi[a])
+      near += n * (lo[w, h, a] if n > 0 else hi[w, h, a])
     if near - offsets[f] > grow:
       return True
   return False
 
 
 @numba.njit(cache=True, nogil=True)
-def within(p, grow, vol_n, vol_off, vol_tol, cos, pair_i, pair_j, pair_inv, vol_verts, dist):
-  """Whether point p f64[3] lies within `grow` metres of the clipped volume:
-  the exact distance of :func:`.convex.point_distances` (inside, else the
+def within(points, row, grow, vol_n, vol_off, vol_tol, cos, pair_i, pair_j, pair_inv, vol_verts, dist):
+  """Whether the point points[row] (f64[n, 3]) lies within `grow` metres of
+  the clipped volume: the exact distance of :func:`.convex.point_distances` (inside, else the
   nearest projection onto a face or an edge line that lies in the volume, or
   the nearest vertex) at most `grow`, found with early exits. dist: f64[F]
   scratch."""
   n_planes = vol_n.shape[0]
   inside = True
   for f in range(n_planes):
-    dist[f] = p[0] * vol_n[f, 0] + p[1] * vol_n[f, 1] + p[2] * vol_n[f, 2] - vol_off[f]
+    dist[f] = points[row, 0] * vol_n[f, 0] + points[row, 1] * vol_n[f, 1] + points[row, 2] * vol_n[f, 2] - vol_off[f]
     inside &= dist[f] <= vol_tol
   if inside:
     return True
@@ -91,10 +93,10 @@ def within(p, grow, vol_n, vol_off, vol_tol, cos, pair_i, pair_j, pair_inv, vol_
       continue
     c0 = dist[i] * pair_inv[e, 0, 0] + dist[j] * pair_inv[e, 0, 1]
     c1 = dist[i] * pair_inv[e, 1, 0] + dist[j] * pair_inv[e, 1, 1]
-    q0 = p[0] - c0 * vol_n[i, 0] - c1 * vol_n[j, 0]
-    q1 = p[1] - c0 * vol_n[i, 1] - c1 * vol_n[j, 1]
-    q2 = p[2] - c0 * vol_n[i, 2] - c1 * vol_n[j, 2]
-    if math.sqrt((p[0] - q0)**2 + (p[1] - q1)**2 + (p[2] - q2)**2) > grow:
+    q0 = points[row, 0] - c0 * vol_n[i, 0] - c1 * vol_n[j, 0]
+    q1 = points[row, 1] - c0 * vol_n[i, 1] - c1 * vol_n[j, 1]
+    q2 = points[row, 2] - c0 * vol_n[i, 2] - c1 * vol_n[j, 2]
+    if math.sqrt((points[row, 0] - q0)**2 + (points[row, 1] - q1)**2 + (points[row, 2] - q2)**2) > grow:
       continue
     ok = True
     for f in range(n_planes):
@@ -102,8 +104,8 @@ def within(p, grow, vol_n, vol_off, vol_tol, cos, pair_i, pair_j, pair_inv, vol_
     if ok:
       return True
   for v in range(vol_verts.shape[0]):  # vertices
-    if math.sqrt((p[0] - vol_verts[v, 0])**2 + (p[1] - vol_verts[v, 1])**2
-                 + (p[2] - vol_verts[v, 2])**2) <= grow:
+    if math.sqrt((points[row, 0] - vol_verts[v, 0])**2 + (points[row, 1] - vol_verts[v, 1])**2
+                 + (points[row, 2] - vol_verts[v, 2])**2) <= grow:
       return True
   return False
 
@@ -129,24 +131,26 @@ def _apart_along(axis, pts, n_pts, vol_verts, grow, vol_tol):
 
 
 @numba.njit(cache=True, nogil=True)
-def _separated_cheaply(pts, n_pts, r, core_normals, core_dirs, vol_verts, vol_dirs, grow, vol_tol, axis):
+def _separated_cheaply(pts, n_pts, r, core_normals, n0, n1, core_dirs, d0, d1, vol_verts, vol_dirs, grow, vol_tol,
+                       axis):
   """Whether a core's face normals or the cross products of its edge
   directions with the volume's separate it from the volume by more than
   grow (some of the separating-axis test's axes: True only where that test
-  finds the core apart). r f64[3, 3] body-to-world; axis f64[3] scratch."""
-  for k in range(core_normals.shape[0]):
+  finds the core apart). core_normals[n0:n1], core_dirs[d0:d1]: the core's;
+  r f64[3, 3] body-to-world; axis f64[3] scratch."""
+  for k in range(n0, n1):
     for a in range(3):
       axis[a] = r[a, 0] * core_normals[k, 0] + r[a, 1] * core_normals[k, 1] + r[a, 2] * core_normals[k, 2]
     if _apart_along(axis, pts, n_pts, vol_verts, grow, vol_tol):
       return True
-  for k in range(core_dirs.shape[0]):
-    d0 = r[0, 0] * core_dirs[k, 0] + r[0, 1] * core_dirs[k, 1] + r[0, 2] * core_dirs[k, 2]
-    d1 = r[1, 0] * core_dirs[k, 0] + r[1, 1] * core_dirs[k, 1] + r[1, 2] * core_dirs[k, 2]
-    d2 = r[2, 0] * core_dirs[k, 0] + r[2, 1] * core_dirs[k, 1] + r[2, 2] * core_dirs[k, 2]
+  for k in range(d0, d1):
+    e0 = r[0, 0] * core_dirs[k, 0] + r[0, 1] * core_dirs[k, 1] + r[0, 2] * core_dirs[k, 2]
+    e1 = r[1, 0] * core_dirs[k, 0] + r[1, 1] * core_dirs[k, 1] + r[1, 2] * core_dirs[k, 2]
+    e2 = r[2, 0] * core_dirs[k, 0] + r[2, 1] * core_dirs[k, 1] + r[2, 2] * core_dirs[k, 2]
     for e in range(vol_dirs.shape[0]):
-      axis[0] = d1 * vol_dirs[e, 2] - d2 * vol_dirs[e, 1]
-      axis[1] = d2 * vol_dirs[e, 0] - d0 * vol_dirs[e, 2]
-      axis[2] = d0 * vol_dirs[e, 1] - d1 * vol_dirs[e, 0]
+      axis[0] = e1 * vol_dirs[e, 2] - e2 * vol_dirs[e, 1]
+      axis[1] = e2 * vol_dirs[e, 0] - e0 * vol_dirs[e, 2]
+      axis[2] = e0 * vol_dirs[e, 1] - e1 * vol_dirs[e, 0]
       if _apart_along(axis, pts, n_pts, vol_verts, grow, vol_tol):
         return True
   return False
@@ -200,10 +204,10 @@ def _frame_verdict(c, q, m, reach, codec, verts, vstart, radius, core_normals, n
         if ok:
           return 1
     for v in range(v1 - v0):  # the nearest vertex's exact distance within reach
-      if within(pts[v], grow, vol_n, vol_off, vol_tol, vol_cos, pair_i, pair_j, pair_inv, vol_verts, scratch):
+      if within(pts, v, grow, vol_n, vol_off, vol_tol, vol_cos, pair_i, pair_j, pair_inv, vol_verts, scratch):
         return 1
-    if v1 - v0 > 1 and not _separated_cheaply(pts, v1 - v0, r, core_normals[nstart[core]:nstart[core + 1]],
-                                              core_dirs[dstart[core]:dstart[core + 1]], vol_verts, vol_dirs,
+    if v1 - v0 > 1 and not _separated_cheaply(pts, v1 - v0, r, core_normals, nstart[core], nstart[core + 1],
+                                              core_dirs, dstart[core], dstart[core + 1], vol_verts, vol_dirs,
                                               grow, vol_tol, axis):
       verdict = -1
   return verdict
@@ -222,7 +226,7 @@ def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, worl
       interval margins; repeat: bool[W, K]; valid: bool[W].
     relevant: bool[K], overlap: bool[K - 1] the window's kept frames and
       intervals; chunk_relevant: bool[NC].
-    world_lo, world_hi: f32[W, 3], world_sweep: f32[W]; group_lo, group_hi:
+    world_lo, world_hi: f32[W, 1, 3], world_sweep: f32[W]; group_lo, group_hi:
       f32[W, NG, 3], group_sweep: f32[W, NG] (groups of `group` chunks);
       chunk_lo, chunk_hi: f32[W, NC, 3], chunk_sweep: f32[W, NC] the bounds
       of steps 1 and 2.
@@ -256,7 +260,7 @@ def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, worl
   for h in range(n_chunks):
     group_relevant[h // group] |= chunk_relevant[h]
   for w in range(n_worlds):
-    if not valid[w] or _box_apart(world_lo[w], world_hi[w], normals, offsets, big + world_sweep[w]):
+    if not valid[w] or _box_apart(world_lo, world_hi, w, 0, normals, offsets, big + world_sweep[w]):
       continue
     found = False
     pending = False
@@ -264,16 +268,16 @@ def body_pass(com, quat, sweep, repeat, valid, relevant, overlap, world_lo, worl
     for h in range(n_chunks):
       if h % group == 0:
         g = h // group
-        skip_group = not group_relevant[g] or _box_apart(group_lo[w, g], group_hi[w, g], normals, offsets,
+        skip_group = not group_relevant[g] or _box_apart(group_lo, group_hi, w, g, normals, offsets,
                                                          big + group_sweep[w, g])
-      if skip_group or not chunk_relevant[h] or _box_apart(chunk_lo[w, h], chunk_hi[w, h], normals, offsets,
+      if skip_group or not chunk_relevant[h] or _box_apart(chunk_lo, chunk_hi, w, h, normals, offsets,
                                                            big + chunk_sweep[w, h]):
         continue
       for k in range(h * chunk, min(n_frames, (h + 1) * chunk)):
         if not relevant[k]:
           continue
-        m = _margin(sweep[w], overlap, k)
-        if k > 0 and repeat[w, k] and relevant[k - 1] and m <= _margin(sweep[w], overlap, k - 1):
+        m = _margin(sweep, overlap, w, k)
+        if k > 0 and repeat[w, k] and relevant[k - 1] and m <= _margin(sweep, overlap, w, k - 1):
           continue
         for a in range(3):
           c[a] = com[w, k, a]

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import os
+import threading
 
 import numpy as np
 
@@ -28,6 +29,7 @@ from mwbx.queries.poses import quat_matrix
 
 
 ANSWERS_KEPT = 32  # latest answers kept per index
+_ANSWERS_LOCK = threading.Lock()
 
 
 def frame_margins(index: GeometryIndex, window) -> tuple[np.ndarray, "_Margins"]:
@@ -95,11 +97,14 @@ def geometry_hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray,
   """
   key = (np.asarray(frustum.normals, np.float64).tobytes(), np.asarray(frustum.offsets, np.float64).tobytes(),
          np.asarray(body_mask, bool).tobytes(), None if window is None else tuple(window))
-  if key not in index.answers:
-    while len(index.answers) >= ANSWERS_KEPT:
-      index.answers.pop(next(iter(index.answers)))
-    index.answers[key] = _hits(index, frustum, body_mask, window)
-  return index.answers[key].copy()
+  answer = index.answers.get(key)
+  if answer is None:
+    answer = _hits(index, frustum, body_mask, window)
+    with _ANSWERS_LOCK:  # a page may evaluate from several threads
+      while len(index.answers) >= ANSWERS_KEPT:
+        index.answers.pop(next(iter(index.answers)))
+      index.answers[key] = answer
+  return answer.copy()
 
 
 def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window) -> np.ndarray:
@@ -127,7 +132,7 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window)
     undecided = np.zeros((n_worlds, n_frames), bool)
     found = np.zeros(n_worlds, bool)
     geometry_cull.body_pass(index.com[b], index.quat[b], index.sweep[b], index.repeat[b], index.valid, relevant,
-                            overlap, world_lo[b], world_hi[b], world_sweep[b], group_lo[b], group_hi[b],
+                            overlap, world_lo[b][:, None], world_hi[b][:, None], world_sweep[b], group_lo[b], group_hi[b],
                             group_sweep[b], index.group, chunk_lo[b], chunk_hi[b],
                             chunk_sweep[b], index.chunk, chunk_relevant, float(index.reach[b]),
                             float(index.codec[b]), verts, vstart, radius, core_normals, nstart, core_dirs, dstart,
@@ -170,6 +175,14 @@ def _pool() -> concurrent.futures.ThreadPoolExecutor:
 
 
 _POOL: concurrent.futures.ThreadPoolExecutor | None = None
+
+
+def _forget_pool() -> None:
+  global _POOL
+  _POOL = None
+
+
+os.register_at_fork(after_in_child=_forget_pool)  # a forked child has none of the parent's threads
 
 
 def _core_arrays(index: GeometryIndex, b: int) -> tuple:
