@@ -24,11 +24,13 @@ world a brute-force test finds (some point of some geom inside the volume at
 some stored frame in the window) is always found, and a reported hit has a
 geom point within the margin of the volume at a kept frame next to the window.
 
-Fast path, all conservative: one jitted pass tests every kept frame's
-bounding sphere (grown by its margin) against the volume's planes; then, for
-the frames left, each geom's extent along the planes and the exact distance
-of its nearest vertex decide; only frames near an edge or corner of the
-volume reach the separating-axis test.
+Fast path, all conservative (:mod:`.geometry_cull`): per body, one compiled
+pass culls worlds, groups and chunks of kept frames by boxes of the COM
+grown by the reach, the codec's bound and the largest margin inside, then
+decides kept frames by their bounding sphere, each geom's extent along the
+planes, a vertex in or projected into the volume and the nearest vertex's
+exact distance; only frames near an edge or corner of the volume reach the
+full separating-axis test. The index is built by :mod:`.kept_poses`.
 """
 
 from __future__ import annotations
