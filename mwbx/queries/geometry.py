@@ -24,11 +24,13 @@ world a brute-force test finds (some point of some geom inside the volume at
 some stored frame in the window) is always found, and a reported hit has a
 geom point within the margin of the volume at a kept frame next to the window.
 
-Fast path, all conservative: one jitted pass tests every kept frame's
-bounding sphere (grown by its margin) against the volume's planes; then, for
-the frames left, each geom's extent along the planes and the exact distance
-of its nearest vertex decide; only frames near an edge or corner of the
-volume reach the separating-axis test.
+Fast path, all conservative (:mod:`.geometry_cull`): per body, one compiled
+pass culls worlds, groups and chunks of kept frames by boxes of the COM
+grown by the reach, the codec's bound and the largest margin inside, then
+decides kept frames by their bounding sphere, each geom's extent along the
+planes, a vertex in or projected into the volume and the nearest vertex's
+exact distance; only frames near an edge or corner of the volume reach the
+full separating-axis test. The index is built by :mod:`.kept_poses`.
 """
 
 from __future__ import annotations
@@ -36,14 +38,17 @@ from __future__ import annotations
 import dataclasses
 import weakref
 
-from jax import numpy as jp
 import numpy as np
 
 from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
+from mwbx.queries import geometry_cull
+from mwbx.queries import kept_poses
 from mwbx.queries import poses as poses_lib
 from mwbx.queries import shapes as shapes_lib
 
 BLOCK = 64  # worlds decoded at once while building
+CHUNK = 4  # kept frames per chunk box of the culling pass
+GROUP = 4  # chunks per group box
 
 
 @dataclasses.dataclass
@@ -63,6 +68,10 @@ class GeometryIndex:
     testing it again with no larger margin cannot add a hit.
   lo, hi: f64[3] a box holding every grown shape (the volume is clipped to it).
   valid: bool[W].
+  chunk: kept frames per chunk box; group: chunks per group box.
+  bounds: the culling boxes of :func:`.geometry_cull.chunk_bounds`.
+  answers: the latest query answers by their volume, bodies and window (a
+    page re-evaluates its whole query stack when one query changes).
   """
 
   frames: np.ndarray
@@ -78,16 +87,10 @@ class GeometryIndex:
   lo: np.ndarray
   hi: np.ndarray
   valid: np.ndarray
-  _device: tuple | None = dataclasses.field(default=None, repr=False)
-
-  def device(self) -> tuple:
-    """(com f32[B, 3, W, K] (coordinates first), sweep f32[B, W, K - 1],
-    valid bool[W]) as device arrays (made on first use, for the jitted first
-    stage)."""
-    if self._device is None:
-      self._device = (jp.asarray(np.ascontiguousarray(np.moveaxis(self.com, 3, 1))), jp.asarray(self.sweep),
-                      jp.asarray(self.valid))
-    return self._device
+  chunk: int
+  group: int
+  bounds: tuple = dataclasses.field(repr=False)
+  answers: dict = dataclasses.field(default_factory=dict, repr=False)
 
 
 def codec_reach(model, body: int, reach: float, bounds) -> float:
@@ -160,7 +163,8 @@ def sweep_margins(com: np.ndarray, quat: np.ndarray, reach: np.ndarray, stride: 
   return to_ends + (step_c + step_q).max(axis=-2)
 
 
-def build(bank, valid: np.ndarray, stride: int | None = None) -> GeometryIndex:
+def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK,
+          group: int = GROUP) -> GeometryIndex:
   """The geometry index of a bank's tracked bodies (decodes every world once)."""
   model = bank.model()
   body_ids = np.asarray(bank.body_ids, np.int64)
@@ -180,16 +184,13 @@ def build(bank, valid: np.ndarray, stride: int | None = None) -> GeometryIndex:
   com = np.zeros((n_bodies, n_worlds, n_int + 1, 3), np.float32)
   quat = np.zeros((n_bodies, n_worlds, n_int + 1, 4), np.float32)
   sweep = np.zeros((n_bodies, n_worlds, n_int), np.float32)
+  kinematic_tree = kept_poses.tree(model, body_ids)
   for s in range(0, n_worlds, BLOCK):
     rows = np.arange(s, min(n_worlds, s + BLOCK))
     qpos = poses_lib.padded(poses_lib.decoded_frames(bank, rows), t_pad)  # [w, T, nq]
-    w = len(rows)
-    xpos, xquat = poses_lib.body_poses(model, qpos.reshape(w * t_pad, -1), body_ids)
-    xquat = xquat.reshape(w, t_pad, n_bodies, 4)
-    c = (xpos + poses_lib.quat_rotate(xquat.reshape(-1, n_bodies, 4), ipos)).reshape(w, t_pad, n_bodies, 3)
-    sweep[:, rows] = np.transpose(sweep_margins(c, xquat, reach, stride), (2, 0, 1))
-    com[:, rows] = np.transpose(c[:, frames], (2, 0, 1, 3))
-    quat[:, rows] = np.transpose(xquat[:, frames], (2, 0, 1, 3))
+    part = slice(s, s + len(rows))
+    kept_poses.kept_poses(qpos, *kinematic_tree, body_ids, ipos, reach, stride, com[:, part], quat[:, part],
+                          sweep[:, part])
   finite = np.isfinite(com).all(axis=(0, 2, 3)) & valid
   extent = float(np.max(np.abs(com[:, finite]), initial=0.0))
   tol = 1e-6 * (1.0 + extent)  # float32 storage of poses and margins
@@ -202,7 +203,8 @@ def build(bank, valid: np.ndarray, stride: int | None = None) -> GeometryIndex:
   repeat[:, :, 1:] = (np.all(com[:, :, 1:] == com[:, :, :-1], axis=-1)
                       & np.all(quat[:, :, 1:] == quat[:, :, :-1], axis=-1))
   return GeometryIndex(frames, frames / float(bank.record_fps), com, quat, sweep, codec, reach, cores,
-                       ipos, repeat, lo, -lo, np.asarray(valid, bool))
+                       ipos, repeat, lo, -lo, np.asarray(valid, bool), chunk, group,
+                       geometry_cull.chunk_bounds(com, sweep, chunk, group))
 
 
 # ---------------------------------------------------------------------------

@@ -1,30 +1,35 @@
 """Which bodies' geometry meets a volume in a window (the culled evaluation
 of whole-geometry queries over a :class:`~.geometry.GeometryIndex`).
 
-Stages, each conservative (a stage only drops what provably misses, or
-keeps what provably hits):
-  1. one jitted pass over every kept frame of a body in every world: its
-     bounding sphere (radius reach + margin) apart from some plane -> miss;
-     the sphere of radius reach wholly inside the volume -> hit;
-  2. per geom, the core's extent along each plane: apart by more than its
-     radius plus margin -> miss; a core vertex inside the volume, or a core
-     vertex whose projection onto a plane lies in the volume within the
-     radius plus margin -> hit; else the nearest core vertex's exact distance
-     to the volume within it -> hit (for a point core, beyond it -> miss);
-  3. the rest (near an edge or corner of the volume): the exact
-     separating-axis test (:mod:`.convex`).
+Per selected body, one compiled pass (:mod:`.geometry_cull`) culls worlds
+and chunks of kept frames by their boxes, then decides each kept frame the
+window reaches by its bounding sphere, each geom's extent along the planes,
+a vertex in or projected into the volume, and the exact distance of the
+nearest vertex, stopping a world at its first hit. Only frames that leave
+undecided (a polytope core near an edge or corner of the volume) reach the
+exact separating-axis test (:mod:`.convex`) here, a few per world at a time.
+Every stage is conservative (it drops only what provably misses and keeps
+only what provably hits), so the answer is that of the exact test on every
+frame.
 """
 
 from __future__ import annotations
 
-import jax
-from jax import numpy as jp
+import concurrent.futures
+import os
+import threading
+
 import numpy as np
 
 from mwbx.queries import convex
+from mwbx.queries import geometry_cull
 from mwbx.queries.frustum import Frustum
 from mwbx.queries.geometry import GeometryIndex
 from mwbx.queries.poses import quat_matrix
+
+
+ANSWERS_KEPT = 32  # latest answers kept per index
+_ANSWERS_LOCK = threading.Lock()
 
 
 def frame_margins(index: GeometryIndex, window) -> tuple[np.ndarray, "_Margins"]:
@@ -77,39 +82,6 @@ class _Margins:
     return np.maximum(m0, m1).astype(np.float32)
 
 
-@jax.jit
-def _sphere_stage(com, sweep, overlap, relevant, valid, body_mask, normals, offsets, grow, reach, tol):
-  """Stage 1 for every body at once: (hit bool[B, W] a relevant frame's
-  geometry is wholly inside, candidates bool[B, W, K]).
-
-  com f32[B, 3, W, K]; sweep f32[B, W, K - 1]; overlap bool[K - 1]; relevant
-  bool[K]; valid bool[W]; body_mask bool[B] (bodies with geoms, selected);
-  normals f32[F, 3]; offsets f32[F]; grow f32[B]: reach + codec bound; reach
-  f32[B]; tol: metres.
-  """
-  def one(com, sweep, selected, grow, reach):
-    m = jp.where(overlap[None], sweep, 0.0)
-    zero = jp.zeros_like(m[:, :1])
-    margin = jp.maximum(jp.concatenate([m, zero], axis=1), jp.concatenate([zero, m], axis=1))
-    apart = jp.zeros(margin.shape, bool)
-    inside = jp.ones(margin.shape, bool)
-    for f in range(normals.shape[0]):  # F <= 6, unrolled
-      d = (com[0] * normals[f, 0] + com[1] * normals[f, 1]) + com[2] * normals[f, 2] - offsets[f]
-      apart |= d > grow + margin + tol
-      inside &= d < -(reach + tol)
-    ok = relevant[None] & valid[:, None] & selected
-    hit = jp.any(inside & ok, axis=1)
-    return hit, ok & ~apart & ~hit[:, None]
-
-  def skipped(*_):
-    return jp.zeros(com.shape[2], bool), jp.zeros(com.shape[2:4], bool)
-
-  def per_body(i):  # a real branch: unselected bodies cost nothing
-    return jax.lax.cond(body_mask[i], one, skipped, com[i], sweep[i], body_mask[i], grow[i], reach[i])
-
-  return jax.lax.map(per_body, jp.arange(com.shape[0]))
-
-
 def geometry_hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window) -> np.ndarray:
   """Whether each selected body's geometry meets the volume in the window.
 
@@ -123,47 +95,110 @@ def geometry_hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray,
     bool[W, B]; False for unselected bodies, bodies without geoms and
     invalid worlds.
   """
-  n_bodies, n_worlds = index.com.shape[:2]
+  key = (np.asarray(frustum.normals, np.float64).tobytes(), np.asarray(frustum.offsets, np.float64).tobytes(),
+         np.asarray(body_mask, bool).tobytes(), None if window is None else tuple(window))
+  answer = index.answers.get(key)
+  if answer is None:
+    answer = _hits(index, frustum, body_mask, window)
+    with _ANSWERS_LOCK:  # a page may evaluate from several threads
+      while len(index.answers) >= ANSWERS_KEPT:
+        index.answers.pop(next(iter(index.answers)))
+      index.answers[key] = answer
+  return answer.copy()
+
+
+def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window) -> np.ndarray:
+  """`geometry_hits` computed afresh."""
+  n_bodies, n_worlds, n_frames = index.com.shape[:3]
   hits = np.zeros((n_worlds, n_bodies), bool)
-  relevant, overlap = _relevant(index.times, window)
-  normals = frustum.normals.astype(np.float64)
-  offsets = frustum.offsets
-  volume = None
-  tol = 1e-6 * (1.0 + float(np.max(np.abs(index.hi))))
-  com_d, sweep_d, valid_d = index.device()
   selected = np.asarray(body_mask, bool) & np.array([bool(c) for c in index.cores])
-  hit, cand = _sphere_stage(com_d, sweep_d, jp.asarray(overlap), jp.asarray(relevant), valid_d,
-                            jp.asarray(selected), jp.asarray(frustum.normals), jp.asarray(offsets, jp.float32),
-                            jp.asarray(index.reach + index.codec, jp.float32),
-                            jp.asarray(index.reach, jp.float32), np.float32(tol))
-  hits[:] = np.asarray(hit).T
-  cand = np.asarray(cand)
+  if not selected.any():
+    return hits
+  volume = convex.clipped(frustum, index.lo, index.hi)
+  if len(volume.vertices) == 0:  # empty inside the box that holds every shape
+    return hits
+  relevant, overlap = _relevant(index.times, window)
+  n_chunks = index.bounds[6].shape[2]
+  chunk_relevant = np.array([relevant[h * index.chunk:(h + 1) * index.chunk].any() for h in range(n_chunks)])
+  normals = np.ascontiguousarray(frustum.normals, np.float64)
+  offsets = np.ascontiguousarray(frustum.offsets, np.float64)
+  tol = 1e-6 * (1.0 + float(np.max(np.abs(index.hi))))
+  vol = geometry_cull.volume_arrays(volume)
+  world_lo, world_hi, world_sweep, group_lo, group_hi, group_sweep, chunk_lo, chunk_hi, chunk_sweep = index.bounds
   margin = _Margins(index.sweep, overlap)
-  for b in np.flatnonzero(selected):
-    worlds, frames = np.nonzero(cand[b])
-    m = margin[b, worlds, frames]
-    # A frame at rest repeats the previous one: skip it if that one is tested
-    # with at least its margin.
-    prev = np.maximum(frames - 1, 0)
-    again = index.repeat[b, worlds, frames] & relevant[prev] & (frames > 0) & (m <= margin[b, worlds, prev])
-    worlds, frames, m = worlds[~again], frames[~again], m[~again].astype(np.float64) + index.codec[b]
-    if worlds.size == 0:
+
+  def compiled_pass(b: int) -> tuple[np.ndarray, np.ndarray]:
+    verts, vstart, radius, core_normals, nstart, core_dirs, dstart = _core_arrays(index, b)
+    undecided = np.zeros((n_worlds, n_frames), bool)
+    found = np.zeros(n_worlds, bool)
+    geometry_cull.body_pass(index.com[b], index.quat[b], index.sweep[b], index.repeat[b], index.valid, relevant,
+                            overlap, world_lo[b][:, None], world_hi[b][:, None], world_sweep[b], group_lo[b], group_hi[b],
+                            group_sweep[b], index.group, chunk_lo[b], chunk_hi[b],
+                            chunk_sweep[b], index.chunk, chunk_relevant, float(index.reach[b]),
+                            float(index.codec[b]), verts, vstart, radius, core_normals, nstart, core_dirs, dstart,
+                            np.ascontiguousarray(volume.directions, np.float64).reshape(-1, 3), normals, offsets,
+                            tol, *vol, found, undecided)
+    return found, undecided
+
+  bodies = np.flatnonzero(selected)
+  # The pass holds no GIL: bodies run on all cores while this thread does the
+  # exact stage of the bodies already passed.
+  for b, (found, undecided) in zip(bodies, _pool().map(compiled_pass, bodies)):
+    hits[:, b] = found
+    pending = np.flatnonzero(undecided.any(axis=1))
+    if pending.size == 0:
       continue
-    # In rounds of 1, 2, 4, ... candidate frames per world (in time order): a
-    # world is done at its first hit, which for most hits comes early.
+    rows, frames = np.nonzero(undecided[pending])
+    worlds = pending[rows]
+    m = margin[b, worlds, frames].astype(np.float64) + index.codec[b]
+    # In rounds of 1, 2, 4, ... undecided frames per world (in time order): a
+    # world is done at its first hit.
     rank = np.arange(worlds.size) - np.searchsorted(worlds, worlds)
     lo = 0
     while lo <= rank.max():
       hi = 2 * lo + 1
-      take = (rank >= lo) & (rank < hi)
-      take &= ~hits[worlds, b]
+      take = (rank >= lo) & (rank < hi) & ~hits[worlds, b]
       if take.any():
-        if volume is None:
-          volume = convex.clipped(frustum, index.lo, index.hi)
-        found = _exact_stage(index, b, worlds[take], frames[take], m[take], normals, offsets, volume, tol)
-        hits[worlds[take][found], b] = True
+        hit = _exact_stage(index, b, worlds[take], frames[take], m[take], normals, offsets, volume, tol)
+        hits[worlds[take][hit], b] = True
       lo = hi
   return hits & index.valid[:, None]
+
+
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+  """The threads that run body passes (made on first use)."""
+  global _POOL
+  if _POOL is None:
+    _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=os.cpu_count() or 1,
+                                                  thread_name_prefix="mwbx-geometry")
+  return _POOL
+
+
+_POOL: concurrent.futures.ThreadPoolExecutor | None = None
+
+
+def _forget_pool() -> None:
+  global _POOL
+  _POOL = None
+
+
+os.register_at_fork(after_in_child=_forget_pool)  # a forked child has none of the parent's threads
+
+
+def _core_arrays(index: GeometryIndex, b: int) -> tuple:
+  """Body b's cores for the compiled pass: (vertices f64[V, 3] about the
+  COM, their starts i64[cores + 1], radii f64[cores], face normals
+  f64[N, 3], their starts, edge directions f64[D, 3], their starts)."""
+  cores = index.cores[b]
+
+  def stacked(arrays):
+    starts = np.concatenate([[0], np.cumsum([len(a) for a in arrays])]).astype(np.int64)
+    return np.ascontiguousarray(np.concatenate(arrays).reshape(-1, 3), np.float64), starts
+
+  verts, vstart = stacked([c.vertices - index.ipos[b] for c in cores])
+  normals, nstart = stacked([c.normals.reshape(-1, 3) for c in cores])
+  dirs, dstart = stacked([c.directions.reshape(-1, 3) for c in cores])
+  return verts, vstart, np.array([c.radius for c in cores], np.float64), normals, nstart, dirs, dstart
 
 
 def _exact_stage(index, b, worlds, frames, m, normals, offsets, volume, tol) -> np.ndarray:

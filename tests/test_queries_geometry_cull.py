@@ -1,0 +1,110 @@
+"""The compiled culling pass of whole-geometry queries answers exactly as the
+exact test on every kept frame, whatever its chunk size, and its distance
+test is that of convex.point_distances."""
+
+import numpy as np
+import pytest
+
+from mwbx import queries as mq
+from mwbx.queries import convex
+from mwbx.queries import geometry as geometry_lib
+from mwbx.queries import geometry_cull
+from mwbx.queries import geometry_query
+
+import geometry_reference as ref
+
+WINDOWS = [None, (0.1, 0.25), (0.0, 0.05), (0.3, None), (0.5, 0.5)]
+
+
+@pytest.fixture(scope="module")
+def bank():
+  return ref.shapes_bank(n_worlds=24, n_frames=81, seed=3, spin=5.0)
+
+
+def _frustums(rng, n):
+  cam = mq.Camera.look_at((0.3, -3.0, 1.5), (0.0, 0.0, 1.0), fovy=40)
+  out = []
+  for k in range(n):
+    u0, v0 = rng.uniform(0.15, 0.75, 2)
+    box = mq.ScreenBox(u0, v0, u0 + rng.uniform(0.01, 0.25), v0 + rng.uniform(0.01, 0.25))
+    if k % 3 == 0:
+      out.append(cam.frustum(box))
+    elif k % 3 == 1:
+      out.append(cam.frustum(box, 2.6 + rng.uniform(0, 0.4), 3.3 + rng.uniform(0, 0.5)))
+    else:
+      lo = rng.uniform([-0.8, -0.5, 0.6], [0.6, 0.6, 1.2])
+      out.append(mq.Frustum.box(lo, lo + rng.uniform(0.02, 0.4, 3)))
+  return out
+
+
+def _every_frame(index, frustum, window) -> np.ndarray:
+  """bool[W, B]: the exact stage on every kept frame the window reaches, no
+  culling, no skipped repeats, no early exit."""
+  n_bodies, n_worlds, n_frames = index.com.shape[:3]
+  relevant, margin = geometry_query.frame_margins(index, window)
+  volume = convex.clipped(frustum, index.lo, index.hi)
+  tol = 1e-6 * (1.0 + float(np.max(np.abs(index.hi))))
+  out = np.zeros((n_worlds, n_bodies), bool)
+  for b in range(n_bodies):
+    worlds, frames = np.nonzero(index.valid[:, None] & relevant[None])
+    m = margin[b, worlds, frames].astype(np.float64) + index.codec[b]
+    hit = geometry_query._exact_stage(index, b, worlds, frames, m, frustum.normals.astype(np.float64),
+                                      frustum.offsets, volume, tol)
+    out[worlds[hit], b] = True
+  return out
+
+
+@pytest.mark.parametrize("chunk,group", [(1, 1), (1, 3), (3, 2), (8, 1)])
+def test_culled_pass_equals_the_exact_test_on_every_frame(bank, chunk, group):
+  index = geometry_lib.build(bank, np.asarray(bank.valid, bool), chunk=chunk, group=group)
+  assert index.repeat.any()  # worlds that end early hold their last pose
+  rng = np.random.default_rng(chunk)
+  mask = np.ones(len(bank.body_names), bool)
+  hits = misses = 0
+  for k, frustum in enumerate(_frustums(rng, 15)):
+    window = WINDOWS[k % len(WINDOWS)]
+    ours = geometry_query.geometry_hits(index, frustum, mask, window)
+    np.testing.assert_array_equal(ours, _every_frame(index, frustum, window), err_msg=f"frustum {k}")
+    hits += int(ours.sum())
+    misses += int((~ours).sum())
+  assert hits > 20 and misses > 20  # both answers occur
+  # Unselected bodies report nothing, selected ones as before.
+  one = np.zeros_like(mask)
+  one[2] = True
+  both = geometry_query.geometry_hits(index, frustum, mask, None)
+  np.testing.assert_array_equal(geometry_query.geometry_hits(index, frustum, one, None), both & one[None])
+
+
+def test_within_is_the_exact_point_distance():
+  rng = np.random.default_rng(11)
+  cam = mq.Camera.look_at((0.2, -2.0, 0.4), (0.0, 0.0, 0.1), fovy=50)
+  for frustum in (cam.frustum(mq.ScreenBox(0.35, 0.4, 0.6, 0.55), 1.7, 2.3),
+                  cam.frustum(mq.ScreenBox(0.1, 0.2, 0.3, 0.9))):
+    volume = convex.clipped(frustum, (-3, -3, -3), (3, 3, 3))
+    arrays = geometry_cull.volume_arrays(volume)
+    lo, hi = volume.vertices.min(axis=0) - 0.3, volume.vertices.max(axis=0) + 0.3
+    points = rng.uniform(lo, hi, (3000, 3))
+    exact = convex.point_distances(points, volume)
+    grow = exact * rng.choice([0.5, 0.999, 1.001, 2.0], len(points)) + rng.choice([0.0, 1e-3], len(points))
+    scratch = np.empty(len(arrays[0]))
+    ours = np.array([geometry_cull.within(points, i, g, *arrays, scratch) for i, g in enumerate(grow)])
+    np.testing.assert_array_equal(ours, exact <= grow)
+    assert 0.2 < ours.mean() < 0.8
+
+
+def test_answers_are_kept_per_query_and_returned_as_copies(bank):
+  index = geometry_lib.build(bank, np.asarray(bank.valid, bool))
+  frustum = mq.Frustum.box((-0.6, -0.5, 0.7), (0.6, 0.5, 1.2))
+  mask = np.ones(len(bank.body_names), bool)
+  first = geometry_query.geometry_hits(index, frustum, mask, (0.1, 0.3))
+  assert first.any() and len(index.answers) == 1
+  first[:] = ~first  # the caller's copy: the kept answer does not change
+  again = geometry_query.geometry_hits(index, frustum, mask, (0.1, 0.3))
+  np.testing.assert_array_equal(again, ~first)
+  np.testing.assert_array_equal(again, _every_frame(index, frustum, (0.1, 0.3)))
+  other = geometry_query.geometry_hits(index, frustum, mask, (0.0, 0.05))  # another window: computed
+  np.testing.assert_array_equal(other, _every_frame(index, frustum, (0.0, 0.05)))
+  assert len(index.answers) == 2
+  for k in range(geometry_query.ANSWERS_KEPT + 3):
+    geometry_query.geometry_hits(index, mq.Frustum.box((-0.6, -0.5, 0.7), (0.6, 0.5, 1.2 + 0.01 * k)), mask, None)
+  assert len(index.answers) == geometry_query.ANSWERS_KEPT
