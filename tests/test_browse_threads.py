@@ -1,0 +1,57 @@
+"""The page's threads (viser's GUI callbacks, the playback thread, a
+refinement's watcher) share the played worlds, the frame and the drawn
+handles under one lock."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from mwbx.browser import Browser, Session
+
+from viewer_banks import quickstart_bank
+
+
+def test_gui_callbacks_and_playback_hold_one_lock():
+  bank = quickstart_bank()
+  page = Browser(Session(bank))
+  try:
+    assert page.player.lock is page.lock
+    world = int(bank.world_ids[0])
+    done: list[str] = []
+    threads = [threading.Thread(target=lambda: (page.refresh(), done.append("refresh"))),
+               threading.Thread(target=lambda: (page.play(world), done.append("play"))),
+               threading.Thread(target=lambda: (page._sorter(), done.append("sorter")))]
+    with page.lock:  # as the playback thread holds it while it poses the played worlds
+      for t in threads:
+        t.start()
+      time.sleep(1.0)
+      assert done == [] and page.playing_world is None and not page.player.played
+    for t in threads:
+      t.join(timeout=300)
+    assert sorted(done) == ["play", "refresh", "sorter"] and page.playing_world == world
+
+    # Many callbacks at once while a world plays: no error, and what is
+    # drawn stays one node per path class and query (nothing orphaned).
+    errors: list[BaseException] = []
+
+    def hammer(k: int) -> None:
+      try:
+        for i in range(4):
+          if k % 2:
+            page.play(int(bank.world_ids[(i + k) % bank.n_worlds]), add=bool(i % 2))
+          else:
+            page.refresh()
+      except BaseException as err:  # noqa: BLE001 (reported below)
+        errors.append(err)
+
+    workers = [threading.Thread(target=hammer, args=(k,)) for k in range(4)]
+    for t in workers:
+      t.start()
+    for t in workers:
+      t.join(timeout=300)
+    assert not errors, errors
+    assert set(page._handles) <= {"paths/faint", "paths/match", "paths/exclude"}
+    assert len(page.player.played) >= 1 and page.playing_world in page.player.played
+  finally:
+    page.close()
