@@ -15,8 +15,7 @@ from mwbx.viewer import display
 
 # Each class of paths (faint, matching, excluded) draws at most this many
 # segments: an evenly spaced subset of its worlds beyond it, with a count shown.
-# (Software WebGL redraws every segment each frame while a world plays.)
-MAX_PATH_SEGMENTS = 20_000
+MAX_PATH_SEGMENTS = 60_000
 BUDGET = {name: MAX_PATH_SEGMENTS for name in display.PATH_CLASSES}
 THICKNESS = {"faint": 1.0, "match": 2.0, "exclude": 2.0}
 
