@@ -55,3 +55,28 @@ def test_gui_callbacks_and_playback_hold_one_lock():
     assert len(page.player.played) >= 1 and page.playing_world in page.player.played
   finally:
     page.close()
+
+
+def test_page_lighting_is_plain(monkeypatch):
+  """No environment map and no shadows: in software WebGL they cost seconds a
+  frame, and a sorter click's answer waited for the frame (scripts/bench_browse.py)."""
+  import viser
+
+  calls, meshes = [], []
+  for name in ("configure_environment_map", "configure_default_lights"):
+    real = getattr(viser.SceneApi, name)
+    monkeypatch.setattr(viser.SceneApi, name, lambda self, *a, _n=name, _f=real, **k: (
+        calls.append((_n, a, k)), _f(self, *a, **k))[1])
+  real_mesh = viser.SceneApi.add_mesh_simple
+  monkeypatch.setattr(viser.SceneApi, "add_mesh_simple", lambda self, *a, **k: (
+      meshes.append((k.get("cast_shadow", True), k.get("receive_shadow", True))), real_mesh(self, *a, **k))[1])
+  bank = quickstart_bank()
+  page = Browser(Session(bank))
+  try:
+    page.play(int(bank.world_ids[0]))
+    assert ("configure_environment_map", (None,), {}) in calls
+    assert any(n == "configure_default_lights" and (a[1:] == (False,) or k.get("cast_shadow") is False)
+               for n, a, k in calls)
+    assert meshes and all(m == (False, False) for m in meshes)  # the scene and the played world's bodies
+  finally:
+    page.close()
