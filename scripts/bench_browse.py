@@ -101,13 +101,23 @@ def _play_latency(n_worlds: int, clicks: int, in_browser: bool) -> dict:
           "play_p95_ms": float(1e3 * np.percentile(play, 95)), "browser_click_to_playing_ms": browser_ms}
 
 
+# The page's frame rate over two seconds (requestAnimationFrame callbacks per
+# second): low while WebGL rendering keeps the main thread busy.
+_FRAME_RATE_JS = """() => new Promise(done => { let n = 0; const t0 = performance.now();
+  const tick = () => { n++; if (performance.now() - t0 < 2000) requestAnimationFrame(tick);
+                       else done(n / ((performance.now() - t0) / 1000)); };
+  requestAnimationFrame(tick); })"""
+
+
 def _play_in_browser(page, bank, clicks: int) -> dict:
   """Median / p95 ms from a sorter-row click in headless Chromium to the page
-  saying the world plays (the poses are sent before that line)."""
+  saying the world plays (the poses are sent before that line), for mouse
+  clicks at the row and for Playwright's locator clicks, with what
+  keeps the page busy: its frame rate idle and while a world plays, and the
+  websocket messages per second it receives while playing."""
   sys.path.insert(0, str(ROOT / "tests"))
   from playwright.sync_api import sync_playwright
   from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS
-  out, to_server = [], []
   arrived = {}
   play = page.play
 
@@ -116,28 +126,51 @@ def _play_in_browser(page, bank, clicks: int) -> dict:
     play(world, add=add)
 
   page.play = timed_play
+  messages = []
   with sync_playwright() as pw:
     chromium = pw.chromium.launch(executable_path=CHROMIUM_BINARY, args=list(WEBGL_ARGS))
     tab = chromium.new_page(viewport={"width": 1200, "height": 800})
+    tab.on("websocket", lambda ws: ws.on("framereceived", lambda _: messages.append(time.perf_counter())))
     tab.goto(page.url)
     rows = tab.get_by_text(re.compile(r"^world \d+ · "))
     rows.first.wait_for(timeout=600_000)
-    for k in range(clicks + 1):
-      row = rows.nth(k % min(4, rows.count()))
-      world = int(re.match(r"world (\d+)", row.inner_text()).group(1))
-      other = page.playing_world
-      start = time.perf_counter()
-      row.click()
-      if world == other:
-        continue
-      tab.get_by_text(f"playing world {world}", exact=True).wait_for(timeout=600_000)
-      if k:  # the first click uploads the slot's meshes
-        out.append(time.perf_counter() - start)
-        to_server.append(arrived[world] - start)
+    tab.wait_for_timeout(2000)  # the scene and paths arrive and are drawn
+    idle_fps = tab.evaluate(_FRAME_RATE_JS)
+    # A person's click (mouse events at the row, sent at once) and
+    # Playwright's locator click (which first waits for the row to be stable
+    # over two animation frames: slow frames delay it).
+    out, to_server = {"mouse": [], "locator": []}, {"mouse": [], "locator": []}
+    for how in ("mouse", "locator"):
+      for k in range(clicks + 1):
+        row = rows.nth(k % min(4, rows.count()))
+        world = int(re.match(r"world (\d+)", row.inner_text()).group(1))
+        other = page.playing_world
+        row.scroll_into_view_if_needed()  # (the sorter sits low in the panel)
+        tab.wait_for_timeout(300)
+        box = row.bounding_box()
+        start = time.perf_counter()
+        if how == "mouse":
+          tab.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        else:
+          row.click()
+        if world == other:
+          continue
+        tab.get_by_text(f"playing world {world}", exact=True).wait_for(timeout=600_000)
+        if k:  # (a slot's first click uploads its meshes)
+          out[how].append(time.perf_counter() - start)
+          to_server[how].append(arrived[world] - start)
+    start = time.perf_counter()
+    playing_fps = tab.evaluate(_FRAME_RATE_JS)
+    per_s = sum(1 for t in messages if t >= start) / (time.perf_counter() - start)
     chromium.close()
-  ms, server_ms = 1e3 * np.array(out), 1e3 * np.array(to_server)
-  return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "clicks": len(out),
-          "click_to_server_median": float(np.median(server_ms))}
+  ms, server_ms = 1e3 * np.array(out["mouse"]), 1e3 * np.array(to_server["mouse"])
+  locator_ms = 1e3 * np.array(out["locator"])
+  return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "clicks": len(ms),
+          "click_to_server_median": float(np.median(server_ms)),
+          "locator_click_median": float(np.median(locator_ms)), "locator_click_p95": float(np.percentile(locator_ms, 95)),
+          "locator_click_to_server_median": float(np.median(1e3 * np.array(to_server["locator"]))),
+          "idle_frames_per_s": float(idle_fps),
+          "playing_frames_per_s": float(playing_fps), "playing_messages_per_s": float(per_s)}
 
 
 def main() -> None:
@@ -150,8 +183,13 @@ def main() -> None:
   parser.add_argument("--clicks", type=int, default=10)
   parser.add_argument("--browser", action="store_true",
                       help="also page load time and bytes sent per update, in headless Chromium")
+  parser.add_argument("--only-play", action="store_true",
+                      help="run only the play part and update its entry in --out (the other parts kept)")
   parser.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "bench" / "browse.json")
   args = parser.parse_args()
+  if args.only_play:
+    _only_play(args)
+    return
   base = mwbx.sample(mwbx.load_config(ROOT / "configs" / "pachinko.yaml"), args.sample, jax.random.key(0))
   parts = [base] * max(1, args.worlds // base.n_worlds)
   bank = parts[0]
@@ -237,6 +275,23 @@ def main() -> None:
         + (f", in Chromium {play['browser_click_to_playing_ms']['median']:.0f} ms median (of which click to"
            f" server {play['browser_click_to_playing_ms']['click_to_server_median']:.0f} ms)"
            if play["browser_click_to_playing_ms"] else ""))
+  args.out.parent.mkdir(parents=True, exist_ok=True)
+  args.out.write_text(json.dumps(result, indent=2))
+  print(f"wrote {args.out}")
+
+
+def _only_play(args) -> None:
+  """The play part alone, written into --out's existing figures."""
+  play = _play_latency(args.play_worlds, args.clicks, args.browser)
+  result = json.loads(args.out.read_text()) if args.out.exists() else {}
+  result["play"] = play
+  b = play["browser_click_to_playing_ms"]
+  print(f"play on {play['bodies']} bodies: decode + FK {play['decode_fk_ms']:.1f} ms, click -> poses sent"
+        f" {play['play_ms']:.1f} ms median (p95 {play['play_p95_ms']:.1f})"
+        + (f"; in Chromium {b['median']:.0f} ms median, p95 {b['p95']:.0f} (click to server"
+           f" {b['click_to_server_median']:.0f} ms); locator clicks {b['locator_click_median']:.0f} ms median; page frames/s idle {b['idle_frames_per_s']:.1f},"
+           f" playing {b['playing_frames_per_s']:.1f}; {b['playing_messages_per_s']:.0f} messages/s while playing"
+           if b else ""))
   args.out.parent.mkdir(parents=True, exist_ok=True)
   args.out.write_text(json.dumps(result, indent=2))
   print(f"wrote {args.out}")

@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 import mwbx.viewer as mv  # noqa: E402
-from mwbx.viewer import geometry, paths, playback  # noqa: E402
+from mwbx.viewer import display, geometry, paths, playback  # noqa: E402
 
 
 def best_of_interleaved(ours, baseline, repeats: int = 3) -> tuple[float, float]:
@@ -105,7 +105,7 @@ def random_paths(n_worlds: int, n_bodies: int, n_points: int, seed: int = 1):
 
 def path_scene_ours(com, count, match, exclude):
   vis = meshcat.Visualizer(window=mv.SceneRecorder())
-  classes = paths.classify_worlds(np.ones(com.shape[0], bool), None, match, exclude)
+  classes = display.classify_worlds(np.ones(com.shape[0], bool), None, match, exclude)
   paths.draw_paths(vis["paths"], com, count, np.arange(com.shape[2]), classes)
   return vis
 
@@ -113,7 +113,7 @@ def path_scene_ours(com, count, match, exclude):
 def path_scene_baseline(com, count, match, exclude):
   vis = meshcat.Visualizer(window=mv.SceneRecorder())
   for w in range(com.shape[0]):
-    rgba = paths.EXCLUDE if exclude[w] else paths.MATCH if match[w] else paths.FAINT
+    rgba = display.PATH_RGBA['exclude' if exclude[w] else 'match' if match[w] else 'faint']
     mat = mg.LineBasicMaterial(color=rgba.hex(), opacity=rgba.a, transparent=rgba.a < 1)
     for b in range(com.shape[2]):
       pts = np.ascontiguousarray(com[w, :count[w], b].T, np.float32)

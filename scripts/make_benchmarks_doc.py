@@ -358,7 +358,20 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
               "go to the page once and are reused (before, every click uploaded them again: 28-30 ms on the "
               "server per click, and the client rebuilt every mesh)."]
     b = p.get("browser_click_to_playing_ms")
-    if b:
+    if b and "locator_click_median" in b:
+      lines += ["", f"In headless Chromium (software WebGL on the shared CPUs), a mouse click on a sorter row → the "
+                f"page says the world plays: {b['median']:.0f} ms median (p95 {b['p95']:.0f}; the click reaches "
+                f"the server after {b['click_to_server_median']:.0f} ms); Playwright's locator click, which first "
+                f"waits for two stable animation frames: {b['locator_click_median']:.0f} ms. The page draws "
+                f"{b['idle_frames_per_s']:.1f} frames/s idle and {b['playing_frames_per_s']:.1f} while a world plays "
+                f"({b['playing_messages_per_s']:.0f} websocket messages/s): what is left is WebGL drawing time."]
+      before = d.get("play_before")
+      if before:
+        lines += ["", f"Before ({before['code']}): mouse click {before['median']:.0f} ms median, locator click "
+                  f"{before['locator_click_median']:.0f} ms, {before['idle_frames_per_s']:.1f} frames/s idle and "
+                  f"{before['playing_frames_per_s']:.1f} playing: the environment map and the shadow passes cost "
+                  "software WebGL seconds per frame, and a click's answer waited for the frame."]
+    elif b:
       lines += ["", f"In headless Chromium (software WebGL on the shared CPUs): click → the page says the world "
                 f"plays {b['median']:.0f} ms median (p95 {b['p95']:.0f}), of which {b['click_to_server_median']:.0f} ms "
                 "pass before the click's event reaches the server: the browser's own time on this machine."]

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import mwbx
+from mwbx import queries as mq
 from mwbx.browser import app
 from mwbx.viewer import framing
 
@@ -93,8 +94,8 @@ def test_cameras_on_or_following_a_body_give_no_direction():
   overview = model.camera("overview").id
   assert model.camera("follow").id < overview and framing.scene_camera(model) == overview
   spec = framing.view_spec(model)
-  _, forward, fovy = framing.mjcf_camera(model, overview)
-  np.testing.assert_allclose(spec.direction, -forward) and np.testing.assert_allclose(spec.fovy, 40.0)
+  camera = mq.Camera.from_model(model, "overview")
+  np.testing.assert_allclose(spec.direction, -camera.forward) and np.testing.assert_allclose(spec.fovy, 40.0)
   # Asked for by name, any camera is viewed from exactly.
   assert framing.view_spec(model, camera="follow").eye is not None
 

@@ -20,7 +20,7 @@ with warnings.catch_warnings():
   import meshcat
 
 import mwbx.viewer as mv
-from mwbx.viewer import frustums, geometry, kinematics, paths, playback
+from mwbx.viewer import display, geometry, hull, kinematics, playback
 from viewer_banks import quickstart_bank
 from viewer_standin import STANDIN_XML, make_standin_bank
 
@@ -161,61 +161,6 @@ def test_pad_frames_holds_last():
 # ---------------------------------------------------------------- paths
 
 
-def _segments_reference(com, count):
-  out = []
-  for n in range(com.shape[0]):
-    for k in range(com.shape[2]):
-      for p in range(int(count[n]) - 1):
-        a, b = com[n, p, k], com[n, p + 1, k]
-        if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
-          out.append((tuple(a), tuple(b)))
-  return sorted(out)
-
-
-@FAST
-@given(st.data())
-def test_polyline_segments_match_loop(data):
-  n, p, k = data.draw(st.integers(1, 5)), data.draw(st.integers(1, 9)), data.draw(st.integers(1, 3))
-  com = data.draw(hnp.arrays(np.float32, (n, p, k, 3),
-                             elements=st.one_of(st.floats(-5, 5, width=32), st.just(np.nan))))
-  count = data.draw(hnp.arrays(np.int32, (n,), elements=st.integers(0, p)))
-  seg = paths.polyline_segments(com, count)
-  assert seg.dtype == np.float32 and seg.shape[0] == 3 and seg.shape[1] % 2 == 0
-  got = sorted((tuple(seg[:, 2 * s]), tuple(seg[:, 2 * s + 1])) for s in range(seg.shape[1] // 2))
-  assert got == _segments_reference(com, count)
-
-
-@FAST
-@given(st.data())
-def test_classify_worlds_partitions(data):
-  w = data.draw(st.integers(1, 12))
-  valid = np.asarray(data.draw(st.lists(st.booleans(), min_size=w, max_size=w)))
-  match = np.asarray(data.draw(st.lists(st.booleans(), min_size=w, max_size=w)))
-  exclude = np.asarray(data.draw(st.lists(st.booleans(), min_size=w, max_size=w)))
-  worlds = data.draw(st.none() | st.lists(st.integers(0, w - 1), max_size=w))
-  c = paths.classify_worlds(valid, worlds, match, exclude)
-  drawn = np.concatenate(list(c))
-  assert len(set(drawn.tolist())) == drawn.size  # disjoint
-  chosen = set(range(w)) if worlds is None else set(worlds)
-  assert set(drawn.tolist()) == {i for i in chosen if valid[i]}
-  assert all(exclude[i] for i in c.exclude) and all(match[i] and not exclude[i] for i in c.match)
-  assert all(not (match[i] and not exclude[i]) and not exclude[i] for i in c.faint)
-
-
-def test_classify_worlds_rejects_bad_input():
-  with pytest.raises(mv.ViewerError, match="match must be bool\\[3\\]"):
-    paths.classify_worlds(np.ones(3, bool), None, np.ones(4, bool), None)
-  with pytest.raises(mv.ViewerError, match="index 7"):
-    paths.classify_worlds(np.ones(3, bool), [7], None, None)
-
-
-def test_thin_out_caps_polylines():
-  worlds = np.arange(1000)
-  kept = paths.thin_out(worlds, n_bodies=4, cap=100)
-  assert kept.size == 25 and kept[0] == 0 and kept[-1] == 999 and np.all(np.diff(kept) > 0)
-  np.testing.assert_array_equal(paths.thin_out(worlds[:10], 4, 100), worlds[:10])
-
-
 # ---------------------------------------------------------------- frustums
 
 
@@ -244,7 +189,7 @@ frustum_params = st.tuples(
 def test_hull_mesh_and_eye_of_random_frustums(params):
   eye, angles, near, extra, hw, hh = params
   corners = _frustum(eye, angles, near, near + extra, hw, hh)
-  verts, faces, edges = frustums.hull_mesh(corners)
+  verts, faces, edges = hull.hull_mesh(corners)
   assert faces.shape == (12, 3) and edges.shape == (12, 2)
   centre = corners.mean(axis=0)
   for f in faces:
@@ -256,21 +201,21 @@ def test_hull_mesh_and_eye_of_random_frustums(params):
   expected = {tuple(sorted(e)) for e in [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7),
                                          (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]}
   assert {tuple(e) for e in edges.tolist()} == expected
-  np.testing.assert_allclose(frustums.frustum_eye(corners), eye, atol=1e-6 * (1 + np.abs(eye).max()))
+  np.testing.assert_allclose(hull.frustum_eye(corners), eye, atol=1e-6 * (1 + np.abs(eye).max()))
 
 
 def test_orthographic_box_has_no_eye_and_flat_frustum_is_an_error():
   box = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
                   [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
-  assert frustums.frustum_eye(box) is None
+  assert hull.frustum_eye(box) is None
   flat = box.copy()
   flat[:, 2] = 0  # a zero-height screen box: a flat wedge, drawn as a polygon
-  _, faces, edges = frustums.hull_mesh(flat)
+  _, faces, edges = hull.hull_mesh(flat)
   assert faces.shape == (2, 3) and edges.shape == (4, 2)
   line = np.zeros((8, 3))
   line[:, 0] = np.arange(8)
   with pytest.raises(mv.ViewerError, match="query 3: frustum is empty"):
-    frustums.hull_mesh(line, index=3)
+    hull.hull_mesh(line, index=3)
 
 
 @FAST
@@ -278,7 +223,7 @@ def test_orthographic_box_has_no_eye_and_flat_frustum_is_an_error():
 def test_truncate_keeps_far_face_parallel(params, depth):
   eye, angles, near, extra, hw, hh = params
   corners = _frustum(eye, angles, near, near + extra, hw, hh)
-  cut = frustums.truncate(corners, depth)
+  cut = hull.truncate(corners, depth)
   np.testing.assert_array_equal(cut[:4], corners[:4])
   longest = np.linalg.norm(corners[4:] - corners[:4], axis=1).max()
   if longest <= depth:
@@ -286,30 +231,30 @@ def test_truncate_keeps_far_face_parallel(params, depth):
   else:
     assert np.linalg.norm(cut[4:] - cut[:4], axis=1).max() == pytest.approx(depth, rel=1e-9)
   # Still a frustum of the same camera: side edges meet at the eye.
-  np.testing.assert_allclose(frustums.frustum_eye(cut), eye, atol=1e-5 * (1 + np.abs(eye).max()))
+  np.testing.assert_allclose(hull.frustum_eye(cut), eye, atol=1e-5 * (1 + np.abs(eye).max()))
 
 
 def test_as_volume_accepts_pairs_and_mwbx_queries():
   from mwbx import queries as mq
 
   corners = _frustum(np.zeros(3), (0.0, 0.0), 0.5, 2.0, 0.2, 0.1)
-  assert frustums.as_volume((corners, False)).include is False
+  assert display.as_volume((corners, False)).include is False
   camera = mq.Camera.look_at(eye=[0.0, -2.0, 1.0], target=[0.0, 0.0, 0.5])
   query = mq.Query.screen(camera, [0.4, 0.4, 0.6, 0.6], sign="exclude")
-  vol = frustums.as_volume(query)
+  vol = display.as_volume(query)
   assert not vol.include
   np.testing.assert_allclose(vol.eye, camera.eye)
-  np.testing.assert_allclose(frustums.frustum_eye(vol.corners), camera.eye, atol=1e-6)
-  box = frustums.as_volume(mq.Query.region([0, 0, 0], [1, 2, 3]))
-  assert box.include and box.eye is None and frustums.frustum_eye(box.corners) is None
+  np.testing.assert_allclose(hull.frustum_eye(vol.corners), camera.eye, atol=1e-6)
+  box = display.as_volume(mq.Query.region([0, 0, 0], [1, 2, 3]))
+  assert box.include and box.eye is None and hull.frustum_eye(box.corners) is None
   planes_only = mq.Frustum.from_planes(np.vstack([np.eye(3), -np.eye(3)]), [1, 2, 3, 0, 0, 0])
-  vol = frustums.as_volume(mq.Query(planes_only))
+  vol = display.as_volume(mq.Query(planes_only))
   assert sorted(map(tuple, vol.corners.tolist())) == sorted(
       (x, y, z) for x in (0.0, 1.0) for y in (0.0, 2.0) for z in (0.0, 3.0))
   with pytest.raises(mv.ViewerError, match="query 2: frustum corners must be finite"):
-    frustums.as_volume((corners[:3], True), index=2)
+    display.as_volume((corners[:3], True), index=2)
   with pytest.raises(mv.ViewerError, match="query 0: expected"):
-    frustums.as_volume("not a query")
+    display.as_volume("not a query")
 
 
 @FAST
@@ -322,7 +267,7 @@ def test_hull_mesh_matches_scipy(points):
     return  # flat or degenerate input: covered by the explicit flat test
   if reference.volume < 1e-3:
     return  # nearly flat: the tolerances of the two differ
-  _, faces, _ = frustums.hull_mesh(points)
+  _, faces, _ = hull.hull_mesh(points)
   tri = points[faces]
   volume = np.sum(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2]))) / 6
   assert volume == pytest.approx(reference.volume, rel=1e-6)  # outward and closed
@@ -424,7 +369,7 @@ def test_paths_queries_and_shift(bank):
   assert info.path_segments == {"faint": seg([3, 4]), "match": seg([0, 1]), "exclude": seg([2])}
   assert info.n_queries == 2 and info.worlds.size == 0
   cmds = _recorded(vis)
-  for q, hexcol in (("q0", frustums.INCLUDE.hex()), ("q1", frustums.EXCLUDE.hex())):
+  for q, hexcol in (("q0", display.QUERY_RGBA["include"].hex()), ("q1", display.QUERY_RGBA["exclude"].hex())):
     mat = cmds[("set_object", f"/meshcat/mwbx/queries/{q}/volume")]["object"]["materials"][0]
     assert mat["color"] == hexcol and mat["transparent"]
     assert ("set_object", f"/meshcat/mwbx/queries/{q}/camera/eye") in cmds

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import mwbx.viewer as mv
+from mwbx.viewer import display
 from viewer_banks import quickstart_bank
 from viewer_render import colour_fraction, hue_fraction, hue_of, screenshot, screenshots
 
@@ -70,7 +71,7 @@ def test_exported_page_shows_geometry_paths_and_motion(bank, page):
 
   Image.fromarray(shots.images[1]).save(save / "browser_test.png")
   for image in shots.images:
-    ok, fractions = scene_drawn(image, object_colours(bank), mv.paths.MATCH[:3])
+    ok, fractions = scene_drawn(image, object_colours(bank), display.PATH_RGBA["match"][:3])
     assert ok, f"scene not visible in the screenshot: {fractions}"
   # Played back at the recorded rate: the clip lasts as long as the recording.
   world = int(np.flatnonzero(np.asarray(bank.valid))[0])
@@ -84,11 +85,11 @@ def test_exported_page_shows_geometry_paths_and_motion(bank, page):
 def test_check_fails_without_webgl_and_on_an_empty_page(bank, page, tmp_path):
   colours = object_colours(bank)
   no_webgl = screenshot(page.as_uri(), webgl=False)
-  ok, fractions = scene_drawn(no_webgl, colours, mv.paths.MATCH[:3])
+  ok, fractions = scene_drawn(no_webgl, colours, display.PATH_RGBA["match"][:3])
   assert not ok, f"WebGL disabled yet the check passed: {fractions}"
   empty = tmp_path / "empty.html"
   empty.write_text(mv.SceneRecorder().get_scene())
-  ok, fractions = scene_drawn(screenshot(empty.as_uri()), colours, mv.paths.MATCH[:3])
+  ok, fractions = scene_drawn(screenshot(empty.as_uri()), colours, display.PATH_RGBA["match"][:3])
   assert not ok, f"an empty meshcat page passed the check: {fractions}"
 
 

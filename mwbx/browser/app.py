@@ -39,6 +39,7 @@ from mwbx.browser.player import Player
 from mwbx.browser.scene import Stage
 from mwbx.browser.session import ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
+from mwbx.viewer import display, framing
 
 
 
@@ -88,12 +89,20 @@ class Browser:
         lambda: viser.ViserServer(host=host, port=self.requested_port, label="mwbx", verbose=False), self.guard)
     self.port = int(self.server.get_port())  # viser moves on to the next port when this one is busy
     self.host = host
+    # One lock for what the GUI callbacks (viser's threads), the playback
+    # thread and a refinement's watcher share: the played worlds and the frame
+    # (the player's), the stage, the drawn paths and volumes, the playing world.
+    self.lock = threading.RLock()
     self.playing_world: int | None = None
     self._handles: dict = {}
     self.server.scene.set_up_direction("+z")
+    # Plain lighting: an environment map and shadow passes cost software
+    # WebGL seconds per frame, so the page answered clicks seconds late.
+    self.server.scene.configure_environment_map(None)
+    self.server.scene.configure_default_lights(True, cast_shadow=False)
     self._build_stage()
     self._build_gui()
-    self.player = Player(session, self.stage, paused=lambda: bool(self.paused.value))
+    self.player = Player(session, self.stage, paused=lambda: bool(self.paused.value), lock=self.lock)
     self.refresh()
 
   @property
@@ -116,7 +125,6 @@ class Browser:
   # -- scene ------------------------------------------------------------------------------
 
   def _build_stage(self) -> None:
-    from mwbx.viewer import framing
     bank = self.session.bank
     self.model = bank.model()
     rows = np.flatnonzero(np.asarray(bank.valid, bool))
@@ -129,11 +137,12 @@ class Browser:
       extent = (lo, hi)
       spec = framing.view_spec(self.model, None, None)
       fov = float(self.server.initial_camera.fov)  # radians
-      centre, eye = framing.frame_box(lo, hi, spec._replace(fovy=float(np.degrees(fov))))
-      self.server.initial_camera.look_at = centre
-      self.server.initial_camera.position = eye
+      pose = display.camera_pose(lo, hi, spec._replace(fovy=float(np.degrees(fov))))
+      self.server.initial_camera.look_at = pose.target
+      self.server.initial_camera.position = pose.eye
+    # Frustums are drawn as deep as the scene is wide, three times over (as in the viewer).
+    self.frustum_depth = 3.0 * max(float(np.linalg.norm(extent[1] - extent[0])) / 2, 0.2)
     self.stage = Stage(self.server, self.model, extent)
-    self.body_rgb = self.stage.body_colours(bank.body_ids)
 
   def _scene_changed(self) -> None:
     """After a refinement moved the bank to a later scene version (new
@@ -141,12 +150,13 @@ class Browser:
     bank = self.session.bank
     if bank.model().nbody == self.model.nbody:
       return
-    with self.player.lock:
+    with self.lock:
       self.player.forget()
       self.stage.remove()
       self._build_stage()
       self.stage.set_side_by_side(self.side_by_side.value)
       self.player.stage = self.stage
+      self.playing_world = None
     names = self._body_names()
     self.bodies.options = names
     self.objects.options = tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,)
@@ -155,7 +165,6 @@ class Browser:
         if name not in self.several:
           self.several[name] = self.server.gui.add_checkbox(name, False)
           self.several[name].on_update(lambda _: self.refresh())
-    self.playing_world = None
     self.playing_md.content = "no world playing (the scene changed)"
 
   # -- GUI --------------------------------------------------------------------------------
@@ -253,11 +262,12 @@ class Browser:
     selection = self._selection()
     bodies = (np.arange(len(bank.body_names)) if selection is None
               else np.asarray(bank.select_bodies(list(selection))))
-    left_out = drawing.draw_paths(self.server, self._handles, bank, self.body_rgb, bodies, view.match,
-                                  view.rejected, self.only_matches.value)
-    drawing.draw_frustums(self.server, self._handles, session.entries)
-    self._counts_text(view.counts, left_out)
-    self._sorter(view.counts)
+    with self.lock:
+      left_out = drawing.draw_paths(self.server, self._handles, bank, bodies, view.match, view.rejected,
+                                    self.only_matches.value)
+      drawing.draw_frustums(self.server, self._handles, session.entries, self.frustum_depth)
+      self._counts_text(view.counts, left_out)
+      self._sorter(view.counts)
     return view.counts
 
   def _counts_text(self, counts, left_out: dict) -> None:
@@ -298,10 +308,10 @@ class Browser:
       over = f"the bodies of {session.orientation_query().name or 'the last orientation query'} (rad, smallest first)"
     self.sorter_md.content = (f"{'closest worlds: ' if closest else ''}world · queries satisfied · "
                               f"{self.metric.value}:{self.reduce.value} over {over} · parent")
-    for button in self.row_buttons:
-      button.remove()
-    self.row_buttons = []
-    with self.sorter:
+    with self.lock, self.sorter:
+      for button in self.row_buttons:
+        button.remove()
+      self.row_buttons = []
       for r in rows:
         label = (f"world {r.world} · {r.satisfied} · {r.value:.4g}"
                  + ("" if r.parent < 0 else f" · from {r.parent}"))
@@ -321,15 +331,16 @@ class Browser:
     except MwbxError as err:
       self._say(f"error: {err}")
       return
-    self.player.play(world, add=add)
-    self.playing_world = world
-    shown = ", ".join(f"world {w}" for w in self.player.played)
-    self.playing_md.content = f"playing **{shown}**"
-    self.lineage_md.content = "\n".join(f"- {line}" for line in self.session.lineage(world))
+    with self.lock:
+      self.player.play(world, add=add)
+      self.playing_world = world
+      shown = ", ".join(f"world {w}" for w in self.player.played)
+      self.playing_md.content = f"playing **{shown}**"
+      self.lineage_md.content = "\n".join(f"- {line}" for line in self.session.lineage(world))
     print(f"mwbx browse: playing world {world}" + (" (added)" if add else ""), flush=True)
 
   def _layout(self) -> None:
-    with self.player.lock:
+    with self.lock:
       self.stage.set_side_by_side(self.side_by_side.value)
     print(f"mwbx browse: layout {'side by side' if self.side_by_side.value else 'overlay'}"
           f" of {list(self.player.played)}", flush=True)
@@ -351,7 +362,7 @@ class Browser:
         self._say(f"error: worlds to compare: {err}")
         return
     self.side_by_side.value = True  # (its callback lays the grid out)
-    with self.player.lock:
+    with self.lock:
       self.stage.set_side_by_side(True)
       for i, w in enumerate(worlds):
         self.play(w, add=i > 0)
@@ -363,7 +374,8 @@ class Browser:
   # -- refinement ---------------------------------------------------------------------------
 
   def _refine(self) -> None:
-    world = self.playing_world
+    with self.lock:
+      world, frame = self.playing_world, self.player.frame
     if world is None:
       self.status_md.content = "play a world first (the one to refine)"
       return
@@ -372,7 +384,7 @@ class Browser:
     try:
       entering = [objects] if objects else list(add + remove)
       t_min = (self.session.first_entry_of_last_box(world, entering) if self.start.value == FIRST_ENTRY
-               else self.player.frame / self.session.bank.record_fps)
+               else frame / self.session.bank.record_fps)
     except MwbxError as err:
       self.status_md.content = f"error: {err}"
       return
@@ -420,11 +432,12 @@ class Browser:
     print(f"mwbx browse: {message}", flush=True)
 
   def _parent(self) -> None:
-    if self.playing_world is None:
+    world = self.playing_world
+    if world is None:
       return
-    parent = self.session.parent(self.playing_world)
+    parent = self.session.parent(world)
     if parent is None:
-      self.status_md.content = f"world {self.playing_world} was sampled: it has no parent"
+      self.status_md.content = f"world {world} was sampled: it has no parent"
     else:
       self.play(parent)
 

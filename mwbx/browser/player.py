@@ -35,6 +35,7 @@ class Player:
     session: the :class:`~mwbx.browser.session.Session` (its bank may grow).
     stage: the :class:`~mwbx.browser.scene.Stage` the worlds are drawn on.
     paused: a callable saying whether playback is paused.
+    lock: the page's lock (an RLock), shared with the GUI callbacks; None: a new one.
 
   Attributes:
     lock: guards ``played``, ``frame`` and the stage's poses.
@@ -43,9 +44,9 @@ class Player:
       holds its last frame).
   """
 
-  def __init__(self, session, stage, paused=lambda: False):
+  def __init__(self, session, stage, paused=lambda: False, lock=None):
     self.session, self.stage, self.paused = session, stage, paused
-    self.lock = threading.RLock()
+    self.lock = threading.RLock() if lock is None else lock
     self.played: dict[int, int] = {}
     self.frame = 0
     self._poses: collections.OrderedDict = collections.OrderedDict()  # world -> (pos, quat)

@@ -25,6 +25,9 @@ GHOST_OPACITY = 0.45
 # between cells, as a fraction of the scene's extent.
 GRID_COLUMNS = 2
 GRID_GAP = 0.15
+# Meshes neither cast nor receive shadows: shadow passes redraw the scene per
+# light for every frame, which software WebGL cannot afford while a world plays.
+NO_SHADOWS = {"cast_shadow": False, "receive_shadow": False}
 
 
 def _mesh(geometry) -> tuple[np.ndarray, np.ndarray]:
@@ -86,14 +89,7 @@ class Stage:
     self._copies: dict = {}  # slot -> frame holding a copy of the static scene
     for name, verts, faces, rgb, wxyz, pos, opacity in self.static:
       server.scene.add_mesh_simple(f"/scene/{name}", verts, faces, color=rgb, wxyz=wxyz, position=pos,
-                                   opacity=opacity)
-
-  def body_colours(self, bank_body_ids) -> np.ndarray:
-    """u8[B, 3] a colour per tracked body: its first geom's (paths take it)."""
-    colour = {}
-    for v in self.visuals:
-      colour.setdefault(int(v.body_id), _rgb(v.rgba))
-    return np.array([colour.get(int(b), (60, 160, 60)) for b in bank_body_ids], np.uint8)
+                                   opacity=opacity, **NO_SHADOWS)
 
   def offset(self, slot: int) -> np.ndarray:
     """f64[3] where slot ``slot`` sits: the origin overlaid, its grid cell side by side."""
@@ -116,7 +112,7 @@ class Stage:
       frames[int(body)] = scene.add_frame(f"/play/s{k}/b{body}", show_axes=False)
       for name, verts, faces, rgb, wxyz, position in self.moving[int(body)]:
         meshes.append(scene.add_mesh_simple(f"/play/s{k}/b{body}/{name}", verts, faces, color=rgb, wxyz=wxyz,
-                                            position=position, opacity=self._opacity(k)))
+                                            position=position, opacity=self._opacity(k), **NO_SHADOWS))
         self.uploads += 1
     label = None
     if self.body_ids.size:  # the label rides on the slot's first body
@@ -156,7 +152,7 @@ class Stage:
         self._copies[k] = scene.add_frame(f"/copies/s{k}", show_axes=False, position=self.offset(k))
         for name, verts, faces, rgb, wxyz, pos, opacity in self.static:
           scene.add_mesh_simple(f"/copies/s{k}/{name}", verts, faces, color=rgb, wxyz=wxyz, position=pos,
-                                opacity=opacity)
+                                opacity=opacity, **NO_SHADOWS)
           self.uploads += 1
       if k in self._copies:
         self._copies[k].visible = on and k < len(self._slots) and self._slots[k][0].visible

@@ -20,10 +20,12 @@ import numpy as np
 
 from mwbx.errors import MwbxError
 from mwbx.viewer.errors import ViewerError
+from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS, QueryVolume, as_volume, classify_worlds
 from mwbx.viewer.framing import place_camera, scene_bounds, view_spec
-from mwbx.viewer.frustums import QueryVolume, as_volume, draw_volume, frustum_eye
-from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS, pose_matrix, scene_visuals
-from mwbx.viewer.paths import classify_worlds, draw_paths
+from mwbx.viewer.frustums import draw_volume
+from mwbx.viewer.geometry import pose_matrix, scene_visuals
+from mwbx.viewer.hull import frustum_eye
+from mwbx.viewer.paths import draw_paths
 from mwbx.viewer.playback import LAYOUTS, draw_playback, grid_offsets, make_grid
 from mwbx.viewer.recorder import SceneRecorder
 from mwbx.viewer.server import LiveView

@@ -1,20 +1,24 @@
 """Framing the first view: what is shown, and where meshcat's camera looks from.
 
+The pose itself is :func:`mwbx.viewer.display.camera_pose` (shared with the
+page); an MJCF camera is posed by :meth:`mwbx.queries.Camera.from_model`.
 meshcat's orbit controls always orbit the display origin, so the caller
 shifts the scene by the returned centre; the camera is placed relative to it.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import Sequence
 
 import mujoco
 import numpy as np
 
 from mwbx.bank import versions
+from mwbx.errors import MwbxError
+from mwbx.queries import Camera
+from mwbx.viewer.display import (DEFAULT_VISIBLE_GROUPS, PathClasses, ViewSpec, camera_pose, fit_distance,  # noqa: F401
+                                 frame_box)
 from mwbx.viewer.errors import ViewerError
-from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS
-from mwbx.viewer.paths import PathClasses
 
 # Field of view (degrees) used when the model has no MJCF camera to copy.
 DEFAULT_FOVY = 50.0
@@ -57,48 +61,6 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
   return pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64)
 
 
-def fit_distance(lo: np.ndarray, hi: np.ndarray, centre: np.ndarray, direction: np.ndarray,
-                 fovy: float, aspect: float = 4 / 3, margin: float = 0.9) -> float:
-  """Smallest distance from `centre` along unit `direction` (towards the eye)
-  at which all 8 corners of the box [lo, hi] are inside the view.
-
-  fovy: vertical field of view in degrees; aspect: width / height assumed for
-  the browser window; margin: fraction of the half-angles used.
-  """
-  corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-  forward = -direction
-  right = np.cross(forward, [0.0, 0.0, 1.0])
-  if np.linalg.norm(right) < 1e-6:  # looking straight down or up
-    right = np.array([1.0, 0.0, 0.0])
-  right /= np.linalg.norm(right)
-  up = np.cross(right, forward)
-  tan_v = np.tan(np.radians(fovy) / 2) * margin
-  tan_h = tan_v * aspect
-
-  def fits(dist: float) -> bool:
-    v = corners - (centre + dist * direction)
-    depth = v @ forward
-    return bool(np.all(depth > 1e-3) and np.all(np.abs(v @ right) <= tan_h * depth)
-                and np.all(np.abs(v @ up) <= tan_v * depth))
-
-  radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.1)
-  near, far = 0.0, radius / np.sin(np.radians(fovy) / 2) * 2 + 1.0
-  for _ in range(40):  # bisection; the view only widens with distance
-    mid = (near + far) / 2
-    near, far = (near, mid) if fits(mid) else (mid, far)
-  return far
-
-
-def mjcf_camera(model: mujoco.MjModel, cam_id: int) -> tuple[np.ndarray, np.ndarray, float]:
-  """(position f64[3], forward unit f64[3], fovy degrees) of an MJCF camera
-  at the reference configuration."""
-  data = mujoco.MjData(model)
-  mujoco.mj_kinematics(model, data)
-  mujoco.mj_camlight(model, data)
-  forward = -data.cam_xmat[cam_id].reshape(3, 3)[:, 2]  # cameras look along -z
-  return data.cam_xpos[cam_id].copy(), forward, float(model.cam_fovy[cam_id])
-
-
 def _finite_extent(com: np.ndarray, worlds: np.ndarray, bodies: np.ndarray,
                    chunk: int = 1024) -> np.ndarray:
   """f64[k, 3] (k = 0 or 2) finite min and max over com[worlds][:, :, bodies]
@@ -113,22 +75,9 @@ def _finite_extent(com: np.ndarray, worlds: np.ndarray, bodies: np.ndarray,
   return np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((0, 3))
 
 
-class ViewSpec(NamedTuple):
-  """Where the first view looks from.
-
-  direction: f64[3] unit vector from the scene towards the eye.
-  fovy: vertical field of view, degrees.
-  eye: f64[3] exact eye position (an MJCF camera), or None to fit the scene.
-  """
-
-  direction: np.ndarray
-  fovy: float
-  eye: np.ndarray | None
-
-
 def scene_camera(model: mujoco.MjModel) -> int:
-  """Id of the model's first camera that looks at the scene from a fixed place
-  (mode ``fixed``, on the world or a body welded to it), or -1.
+  """Id of the model's first named camera that looks at the scene from a
+  fixed place (mode ``fixed``, on the world or a body welded to it), or -1.
 
   A camera riding on a moving body (an egocentric head camera) or tracking one
   (``track``, ``trackcom``, ``targetbody*``) says where a body is seen from,
@@ -136,7 +85,7 @@ def scene_camera(model: mujoco.MjModel) -> int:
   """
   for cam in range(model.ncam):
     fixed = int(model.cam_mode[cam]) == int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)
-    if fixed and int(model.body_weldid[model.cam_bodyid[cam]]) == 0:
+    if fixed and int(model.body_weldid[model.cam_bodyid[cam]]) == 0 and model.camera(cam).name:
       return cam
   return -1
 
@@ -148,12 +97,11 @@ def view_spec(model: mujoco.MjModel, camera: str | None = None,
   the model's first fixed scene camera (:func:`scene_camera`), else
   obliquely from the front right."""
   if camera is not None:
-    cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-    if cam_id < 0:
-      names = [model.camera(i).name for i in range(model.ncam)]
-      raise ViewerError(f"camera: no MJCF camera named {camera!r} (cameras: {names})")
-    eye, forward, fovy = mjcf_camera(model, cam_id)
-    return ViewSpec(-forward, fovy, eye)
+    try:
+      cam = Camera.from_model(model, camera)
+    except MwbxError as err:
+      raise ViewerError(str(err)) from None
+    return ViewSpec(-cam.forward, cam.fovy, cam.eye)
   cam = scene_camera(model)
   fovy = float(model.cam_fovy[cam]) if cam >= 0 else DEFAULT_FOVY
   if view_dir is not None:
@@ -161,42 +109,23 @@ def view_spec(model: mujoco.MjModel, camera: str | None = None,
     if direction.shape != (3,) or not np.all(np.isfinite(direction)) or not np.any(direction):
       raise ViewerError(f"view_dir: must be a finite nonzero 3-vector, got {direction.tolist()}")
   elif cam >= 0:
-    direction = -mjcf_camera(model, cam)[1]
+    direction = -Camera.from_model(model, model.camera(cam).name).forward
   else:
     direction = DEFAULT_VIEW_DIR
   return ViewSpec(direction / np.linalg.norm(direction), fovy, None)
-
-
-def frame_box(lo: np.ndarray, hi: np.ndarray, spec: ViewSpec,
-              aspect: float = 4 / 3) -> tuple[np.ndarray, np.ndarray]:
-  """(centre f64[3], eye f64[3]): where a first view of the box [lo, hi]
-  orbits about and looks from, metres.
-
-  Without an exact eye the eye is along ``spec.direction`` from the box's
-  centre, as near as lets every corner of the box be seen in front of it: it
-  is outside the box, whatever the direction.
-  """
-  box_centre = (lo + hi) / 2
-  if spec.eye is not None:
-    # Orbit about the point on the camera's axis nearest the scene, so the
-    # first view looks exactly where the MJCF camera does.
-    forward = -spec.direction
-    depth = max(float(np.dot(box_centre - spec.eye, forward)), 0.1)
-    return spec.eye + depth * forward, np.asarray(spec.eye, np.float64)
-  eye = box_centre + spec.direction * fit_distance(lo, hi, box_centre, spec.direction, spec.fovy, aspect)
-  return box_centre, eye
 
 
 def place_camera(vis, lo: np.ndarray, hi: np.ndarray, spec: ViewSpec) -> tuple[np.ndarray, np.ndarray]:
   """Aims meshcat's camera at the box [lo, hi]. Returns (centre f64[3],
   eye f64[3]) in world coordinates; the caller shifts the scene by -centre."""
   radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.2)
-  centre, eye = frame_box(lo, hi, spec)
+  pose = camera_pose(lo, hi, spec)
+  centre, eye = pose.target, pose.eye
   d = eye - centre
   cam = vis["/Cameras/default/rotated/<object>"]
   # The camera's parent is rotated +90 deg about x (three.js is y-up):
   # world (x, y, z) = local (x, -z, y).
   cam.set_property("position", [float(d[0]), float(d[2]), float(-d[1])])
-  cam.set_property("fov", spec.fovy)
+  cam.set_property("fov", pose.fovy)
   cam.set_property("far", float(max(100.0, 20 * (radius + np.linalg.norm(d)))))
   return centre, eye

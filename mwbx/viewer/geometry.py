@@ -14,11 +14,9 @@ import meshcat.geometry as mg
 import mujoco
 import numpy as np
 
+from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS, Rgba  # noqa: F401 (re-exported)
 from mwbx.viewer.errors import ViewerError
 
-# MuJoCo's own viewer shows geom groups 0-2 by default; 3+ usually hold
-# collision-only geoms that would hide the visual ones.
-DEFAULT_VISIBLE_GROUPS = (0, 1, 2)
 # Thickness of the slab drawn for a plane (planes are infinite half-spaces).
 PLANE_THICKNESS = 0.01
 # Vertices a height field is drawn with at most (larger grids: every k-th row
@@ -27,20 +25,6 @@ HFIELD_MAX_VERTICES = 128 * 128
 # MuJoCo's default geom rgba: a geom with a material and this rgba takes the
 # material's colour (as in mjv_updateScene).
 _DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], np.float32)
-
-
-class Rgba(NamedTuple):
-  """A colour with opacity, components in [0, 1]."""
-
-  r: float
-  g: float
-  b: float
-  a: float
-
-  def hex(self) -> int:
-    """0xRRGGBB, as meshcat/three.js materials take it."""
-    c = np.clip(np.round(np.asarray(self[:3]) * 255.0), 0, 255).astype(int)
-    return int(c[0]) << 16 | int(c[1]) << 8 | int(c[2])
 
 
 class GeomVisual(NamedTuple):
