@@ -40,6 +40,7 @@ from mujoco import mjx
 
 import mwbx
 from mwbx.batch_sim import contact_budget, mjx_backend
+from mwbx.batch_sim.sampler import resolve_contact_budget
 from mwbx.batch_sim.sampler import world_keys
 
 # Run as `python scripts/bench_backends.py`: scripts/ is on sys.path, and the native
@@ -140,7 +141,7 @@ def bench_scene(name: str, args) -> dict:
   model = scene.model
   threads = os.cpu_count()
   start = time.perf_counter()
-  budget = contact_budget.resolve(scene, config.sim.mjx)
+  budget = resolve_contact_budget(scene, config.sim.mjx)
   pilot_seconds = time.perf_counter() - start
   engines = {}
   if "bare" in args.engines:

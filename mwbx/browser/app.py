@@ -39,6 +39,7 @@ from mwbx.browser.player import Player
 from mwbx.browser.scene import Stage
 from mwbx.browser.session import ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
+from mwbx.viewer import framing
 
 
 
@@ -116,7 +117,6 @@ class Browser:
   # -- scene ------------------------------------------------------------------------------
 
   def _build_stage(self) -> None:
-    from mwbx.viewer import framing
     bank = self.session.bank
     self.model = bank.model()
     rows = np.flatnonzero(np.asarray(bank.valid, bool))

@@ -24,6 +24,7 @@ from mwbx.viewer.framing import place_camera, scene_bounds, view_spec
 from mwbx.viewer.frustums import QueryVolume, as_volume, draw_volume, frustum_eye
 from mwbx.viewer.geometry import DEFAULT_VISIBLE_GROUPS, pose_matrix, scene_visuals
 from mwbx.viewer.paths import classify_worlds, draw_paths
+from mwbx.viewer import query_adapter
 from mwbx.viewer.playback import LAYOUTS, draw_playback, grid_offsets, make_grid
 from mwbx.viewer.recorder import SceneRecorder
 from mwbx.viewer.server import LiveView
@@ -190,8 +191,6 @@ def query_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray | None, np.n
   """(match bool[W], exclude bool[W]) from the mwbx.queries.Query items:
   match = satisfies every query; exclude = rejected by a negative query.
   (None, None) when all are plain frustums (nothing to evaluate)."""
-  from mwbx.viewer import query_adapter
-
   if not any(query_adapter.is_query(q) for q in queries):
     return None, None
   return query_adapter.evaluate_classes(bank, queries)
