@@ -25,19 +25,32 @@ import pathlib
 import secrets
 import signal
 import sys
+import uuid
 
+import jax
+import mujoco
+import numpy as np
+
+import mwbx
+from mwbx import __version__
+from mwbx import distributed
+from mwbx.bank import FLAG_CONTACT_OVERFLOW, FLAG_SIM_ERROR, BankDirectory, runs, shards
+from mwbx.batch_sim import memory
+from mwbx.batch_sim.sampler import MAX_WORLD_ID, empty_bank
 from mwbx.errors import MwbxError
+from mwbx.files import write_atomic
 from mwbx.progress import reporter
+from mwbx.queries import Camera, ScreenBox, load_queries
+from mwbx.queries.report import run_query_file
+from mwbx.refinement import refine_run
+from mwbx.refinement.refine import as_scene
+
+# The viewer (meshcat), the page (viser), search (optax) and the MJX contact
+# budget (mujoco.mjx) are imported by the commands that use them: seconds of
+# imports every other command does not pay.
 
 
 def _cmd_sample(args) -> int:
-  import uuid
-
-  import numpy as np
-  import mwbx
-  from mwbx import distributed
-  from mwbx.bank import BankDirectory, runs
-  from mwbx.bank.shards import id_ranges
   _check_sample_args(args)
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
@@ -56,8 +69,8 @@ def _cmd_sample(args) -> int:
     if group.leader:
       record = plan["record"]
     else:  # recorded now, live: a process killed before its first shard is resumed too
-      record = {"id": uuid.uuid4().hex, "seed": seed, "id_ranges": id_ranges(mine),
-                "group_ranges": id_ranges(todo), "finished": False}
+      record = {"id": uuid.uuid4().hex, "seed": seed, "id_ranges": runs.id_ranges(mine),
+                "group_ranges": runs.id_ranges(todo), "finished": False}
       alive = runs.Liveness(out, record["id"])
       directory.append_run(record)
     record.update(process=group.process_id, processes=group.num_processes)
@@ -69,8 +82,6 @@ def _cmd_sample(args) -> int:
 
 def _sample_share(args, out, scene, config, directory, record, mine, seed, group) -> int:
   """Samples this process's ids of the run into the bank, a shard per chunk."""
-  import jax
-  import mwbx
   who = f" (process {group.process_id} of {group.num_processes})" if group.num_processes > 1 else ""
   summary = _RunSummary()
   if mine.size:
@@ -105,7 +116,6 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
         return 130
     summary.stats = stats
   directory.finish_run(record["id"])
-  from mwbx.files import write_atomic
   write_atomic(out / "config.resolved.json", json.dumps(scene.config.resolved(), indent=2), "resolved config")
   write_atomic(out / "scene.xml", scene.mjcf_text, "scene MJCF")
   summary.print(out, len(directory.stored_ids()))
@@ -135,12 +145,6 @@ def _plan_run(args, out: pathlib.Path, scene, group):
   bank's lock): the seed, the world ids to sample (fresh ids reserved at
   once, or those of a dead run), and for a resumed run (worlds done, worlds
   in it); recorded in the manifest with this process's liveness lock held."""
-  import uuid
-
-  import mwbx
-  from mwbx import distributed
-  from mwbx.bank import BankDirectory, runs
-  from mwbx.batch_sim.sampler import empty_bank
   directory = BankDirectory(out)
   if directory.manifest is None and (out / "checkpoints").is_dir():
     mwbx.Bank.load(out).save(out)  # a bank of the orbax format: its worlds become the first shard
@@ -148,8 +152,6 @@ def _plan_run(args, out: pathlib.Path, scene, group):
   if directory.manifest is not None and directory.manifest["scene"]["digest"] != scene.digest:
     raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
   if args.worlds is not None:  # before a list of the run's ids is made
-    from mwbx.batch_sim import memory
-    from mwbx.batch_sim.sampler import MAX_WORLD_ID
     first = 0 if directory.manifest is None else int(directory.manifest["next_id"])
     if first + args.worlds - 1 > MAX_WORLD_ID:
       raise MwbxError(f"--worlds: {args.worlds:,} worlds from id {first:,} would pass the last world id"
@@ -170,7 +172,6 @@ class _RunSummary:
     self.budget = None  # the MJX contact budget record, if any
 
   def add(self, part) -> None:
-    from mwbx.bank import FLAG_CONTACT_OVERFLOW, FLAG_SIM_ERROR
     self.worlds += part.n_worlds
     self.overflow += int(((part.flags & FLAG_CONTACT_OVERFLOW) != 0).sum())
     self.budget = part.run.get("contact_budget", self.budget)
@@ -200,13 +201,12 @@ class _RunSummary:
 
 def _budget_line(record: dict) -> str:
   """The MJX contact budget a bank's worlds were sampled under (its ``run`` record)."""
-  from mwbx.batch_sim.contact_budget import ContactBudget
+  from mwbx.batch_sim.contact_budget import ContactBudget  # lazy: imports mujoco.mjx (seconds)
   return ContactBudget.from_dict(record).describe()
 
 
 def _cmd_info(args) -> int:
   if args.verify:  # read every array of every shard, not only what the summary needs
-    from mwbx.bank import shards
     problems = shards.verify(args.bank) if shards.has_manifest(pathlib.Path(args.bank)) else []
     if problems:
       raise MwbxError("; ".join(problems))
@@ -251,7 +251,6 @@ def _cmd_info(args) -> int:
 def _load_bank(args):
   """The bank of ``args.bank``; with ``--skip-corrupt`` without its corrupt
   shards, naming them and their worlds."""
-  import mwbx
   bank = mwbx.Bank.load(args.bank, skip_corrupt=args.skip_corrupt)
   if bank.run.get("corrupt_shards"):
     worlds = ", ".join(f"{lo}..{hi}" if hi > lo else f"{lo}" for lo, hi in bank.run["corrupt_worlds"])
@@ -267,8 +266,6 @@ def _id_span(bank) -> str:
 
 def _cameras(bank) -> list[str]:
   """'name (aspect a)' of each named MJCF camera."""
-  import mujoco
-  from mwbx.queries import Camera
   model = bank.model()
   out = []
   for i in range(model.ncam):
@@ -279,12 +276,10 @@ def _cameras(bank) -> list[str]:
 
 
 def _cmd_view(args) -> int:
-  import mwbx
-  import mwbx.viewer
+  import mwbx.viewer  # lazy: meshcat
   bank = _load_bank(args)
   queries = None
   if args.queries:
-    from mwbx.queries import load_queries
     queries = load_queries(args.queries, bank=bank)
   ids = mwbx.viewer.select.parse_world_ids(args.worlds, known=bank.world_ids) if args.worlds else None
   ids, _ = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
@@ -309,7 +304,6 @@ def _cmd_view(args) -> int:
 
 
 def _cmd_query(args) -> int:
-  from mwbx.queries.report import run_query_file
   bank = _load_bank(args)
   report = run_query_file(bank, args.queries, rank=args.rank, top=args.top, under=args.under)
   print(json.dumps(report.to_dict(), indent=2) if args.json else report.format())
@@ -317,9 +311,6 @@ def _cmd_query(args) -> int:
 
 
 def _cmd_refine(args) -> int:
-  import jax
-  from mwbx.refinement import refine_run
-  from mwbx.refinement.refine import as_scene
   bank = _load_bank(args)
   if args.objects is None and args.add is None and args.remove is None:
     raise MwbxError("refine: name objects to refine (--objects), to add (--add) or to remove (--remove)")
@@ -336,7 +327,6 @@ def _cmd_refine(args) -> int:
   if (args.box is None) == (args.time is None):
     raise MwbxError("refine: give either --box with --camera, or --time")
   if args.box is not None:
-    from mwbx.queries import Camera, ScreenBox
     if args.camera is None:
       raise MwbxError("--box: needs --camera (an MJCF camera name)")
     try:
@@ -371,9 +361,7 @@ def _cmd_refine(args) -> int:
 
 
 def _cmd_solve(args) -> int:
-  import jax
-  import mwbx
-  from mwbx.search import Budget, progress_plot, solve
+  from mwbx.search import Budget, progress_plot, solve  # lazy: optax
   bank = _load_bank(args)
   queries = mwbx.load_queries(args.queries, bank=bank)
   budget = Budget(refinements=args.budget, seconds=args.time_budget,
@@ -404,21 +392,20 @@ def _cmd_solve(args) -> int:
 
 
 def _cmd_drop(args) -> int:
-  from mwbx.bank.shards import id_ranges
-  from mwbx.viewer.select import parse_world_ids
+  from mwbx.viewer.select import parse_world_ids  # lazy: mwbx.viewer imports meshcat
   bank = _load_bank(args)
   ids = parse_world_ids(args.ids, flag="IDS", known=bank.world_ids)
   kept = bank.drop(ids)
   out = pathlib.Path(args.out or args.bank)
   kept.save(out)
-  dropped = ", ".join(f"{lo}..{hi}" if hi > lo else str(lo) for lo, hi in id_ranges(ids))
+  dropped = ", ".join(f"{lo}..{hi}" if hi > lo else str(lo) for lo, hi in runs.id_ranges(ids))
   print(f"dropped worlds      {dropped}")
   print(f"bank                {out} ({kept.n_worlds} worlds, ids {_id_span(kept)})")
   return 0
 
 
 def _cmd_browse(args) -> int:
-  from mwbx.browser import browse
+  from mwbx.browser import browse  # lazy: viser
   bank = _load_bank(args)
   browse(bank, path=args.bank, host=args.host, port=args.port, open_browser=not args.no_browser,
          workdir=args.workdir, autosave=args.autosave)
@@ -426,7 +413,6 @@ def _cmd_browse(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-  from mwbx import __version__
   parser = argparse.ArgumentParser(prog="mwbx", description="Many-Worlds Browsing on JAX and MuJoCo.")
   parser.add_argument("--version", action="version", version=f"mwbx {__version__}")
   sub = parser.add_subparsers(dest="command", required=True)
@@ -555,7 +541,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _enable_compilation_cache() -> None:
   """Keeps compiled kernels on disk, so a second ``mwbx`` run skips compiling."""
-  import jax
   cache = os.environ.get("MWBX_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "mwbx", "jax"))
   try:
     os.makedirs(cache, exist_ok=True)

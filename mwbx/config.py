@@ -24,9 +24,12 @@ import math
 import pathlib
 from typing import Literal
 
+import numpy as np
 import pydantic
 
 from mwbx import yaml_input
+from mwbx.codec import polyline
+from mwbx.codec.layout import CodecBounds
 from mwbx.errors import MwbxError
 
 ASSET_DIR = pathlib.Path(__file__).parent / "assets"
@@ -205,6 +208,17 @@ class CodecSection(_Strict):
   e_rot_deg: float = pydantic.Field(0.5, gt=0, lt=MAX_ROTATION_BOUND_DEG)
   e_scalar: float = pydantic.Field(1e-3, gt=0)
   e_com: float | None = pydantic.Field(5e-4, gt=0)
+
+  def bounds(self) -> CodecBounds:
+    """The qpos bounds in the codec's units: ``e_pos`` m, ``e_rot`` rad (from
+    ``e_rot_deg``), ``e_scalar`` rad or m; what the compressed store codes
+    under and what refinement's ghosts are padded by."""
+    return CodecBounds(e_pos=self.e_pos, e_rot=float(np.deg2rad(self.e_rot_deg)), e_scalar=self.e_scalar)
+
+  def com_step(self) -> float | None:
+    """The grid step of the stored COM polylines, m (``2·e_com``; None: float32
+    paths): sampled and refined worlds alike are rounded to it."""
+    return polyline.grid_step(self.e_com)
 
 
 class ControlSchedule(_Strict):

@@ -152,6 +152,3 @@ class RawQposStore:
   @classmethod
   def restore(cls, arrays: dict, meta: dict) -> "RawQposStore":
     return cls(meta["nq"], arrays["data"], arrays["offsets"])
-
-
-QPOS_STORES = {RawQposStore.kind: RawQposStore}

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mwbx import controls
 from mwbx import rates as rates_lib
 from mwbx import rotations
 from mwbx.config import Config, Distribution
@@ -250,7 +251,6 @@ class Scene:
     self.perturbable = np.ones(len(self.body_names), bool)
     self.perturbable[excluded] = False
     self.object_inits = self._object_inits(source, subtree, root_names)
-    from mwbx.batch_sim import controls  # here: batch_sim imports this module
     controls.actuator_ids(self.model, config.controls, source)  # names each unknown actuator
 
   # -- names ------------------------------------------------------------------

@@ -41,6 +41,7 @@ from mujoco.mjx._src import constraint, forward, smooth, solver
 
 import mwbx
 from mwbx.batch_sim import contact_budget, mjx_backend, mjx_collision
+from mwbx.batch_sim.sampler import resolve_contact_budget
 from mwbx.batch_sim.sampler import world_keys
 
 # Run as `python scripts/bench_backends.py`: scripts/ is on sys.path, and the native
@@ -195,7 +196,7 @@ def bench_scene(name: str, args) -> dict:
     qpos0, qvel0 = advance(model, qpos0, qvel0, args.start_time)
   threads = os.cpu_count()
   start = time.perf_counter()
-  budget = contact_budget.resolve(scene, config.sim.mjx)
+  budget = resolve_contact_budget(scene, config.sim.mjx)
   pilot_seconds = time.perf_counter() - start
   engines = {}
   if "bare" in args.engines:

@@ -1,8 +1,6 @@
 """Configs: defaults, validation, and one clear message per user mistake."""
 
 import pathlib
-import subprocess
-import sys
 import textwrap
 
 import numpy as np
@@ -180,14 +178,3 @@ def test_configs_copies_match_the_packaged_assets(name):
   repo = pathlib.Path(__file__).parent.parent
   assert (repo / "configs" / name).read_bytes() == (repo / "mwbx" / "assets" / name).read_bytes()
 
-
-def test_import_mwbx_leaves_the_viewer_page_and_search_unloaded():
-  """`import mwbx` (and so every CLI command) does not pay for meshcat, viser or
-  optax; `mwbx.view`, `mwbx.browse`, `mwbx.solve` load them on first use."""
-  code = ("import sys, mwbx; heavy = ('meshcat', 'viser', 'optax');"
-          "print(sorted(m for m in heavy if m in sys.modules));"
-          "mwbx.solve; mwbx.view; print(sorted(m for m in heavy if m in sys.modules))")
-  out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-  before, after = out.stdout.splitlines()
-  assert before == "[]"
-  assert "meshcat" in after and "optax" in after

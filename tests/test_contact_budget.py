@@ -12,6 +12,7 @@ from mujoco import mjx
 
 import mwbx
 from mwbx.batch_sim import contact_budget, mjx_collision
+from mwbx.batch_sim import sampler as sampler_lib
 
 TESTS = pathlib.Path(__file__).parent
 PILE = TESTS / "scenes" / "contact_pile.yaml"
@@ -33,7 +34,7 @@ def pile():
 
 @pytest.fixture(scope="module")
 def pile_budget(pile):
-  return contact_budget.resolve(pile)
+  return sampler_lib.resolve_contact_budget(pile)
 
 
 def _reference(model):
@@ -59,7 +60,7 @@ def _assert_agrees(model, qpos, reference):
 
 
 def test_pilot_sizes_a_budget_with_headroom(pile, pile_budget):
-  counts = contact_budget.pilot(pile, n_worlds=2)
+  counts = sampler_lib.pilot_counts(pile, n_worlds=2)
   assert counts.contacts >= 16 and counts.frames > 100  # the pile at rest has 16 contacts
   budget = contact_budget.budget_from_counts(counts, 1.5)
   assert budget.max_contact_points >= 1.5 * counts.contact_points
@@ -72,7 +73,7 @@ def test_pilot_sizes_a_budget_with_headroom(pile, pile_budget):
   assert pile_budget.source.startswith("pilot (8 worlds")
   # A config giving every value runs no pilot.
   given = mwbx.config.MjxSection(max_contact_points=5, max_geom_pairs=2, nconmax=9, njmax=30)
-  assert contact_budget.resolve(pile, given) == contact_budget.ContactBudget(5, 2, 9, 30, "config")
+  assert sampler_lib.resolve_contact_budget(pile, given) == contact_budget.ContactBudget(5, 2, 9, 30, "config")
 
 
 def test_budgeted_mjx_step_matches_mujoco_c(pile, pile_budget):

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import mwbx
-from mwbx.batch_sim import controls, mujoco_c
+from mwbx import controls
+from mwbx.batch_sim import mujoco_c
 from conftest import TESTS
 from test_sampler import _reference_chunk
 

@@ -230,7 +230,8 @@ def test_state_observation_samples_like_the_sensors(tiny_config, monkeypatch):
 def _reference_chunk(sampler, qpos0, qvel0, step_keys):
   """Worlds one after another through ``mujoco.mj_step`` and the host loops,
   the slow and obvious form of the compiled per-world loop (world_loop)."""
-  from mwbx.batch_sim import controls, free_bodies, host_bookkeeping, host_loops
+  from mwbx import controls
+  from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops
 
   backend, scene, params = sampler.backend, sampler.scene, sampler.params
   ctrl = controls.scene_table(scene, sampler.n_frames * params.steps_per_frame)

@@ -5,7 +5,7 @@ from mwbx.bank.core import FLAG_CONTACT_OVERFLOW
 from mwbx.bank.core import FLAG_FINISHED
 from mwbx.bank.core import FLAG_SIM_ERROR
 from mwbx.bank.core import FLAG_UNSTABLE
-from mwbx.bank.core import QPOS_STORES
+from mwbx.bank.stores import QPOS_STORES
 from mwbx.bank.core import Bank
 from mwbx.bank.core import rows_of
 from mwbx.bank.shards import BankDirectory

@@ -17,14 +17,20 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 from typing import Sequence
+import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 
+from mwbx import scene as scene_lib
 from mwbx.bank import lazy
-from mwbx.codec import CompressedQposStore
+from mwbx.bank import legacy
+from mwbx.bank import saving
+from mwbx.bank import shards
+from mwbx.bank import versions
+from mwbx.config import ASSET_DIR
 from mwbx.errors import MwbxError
 from mwbx.joints import QPOS_WIDTH
-from mwbx.qpos_store import QposStore, RawQposStore
+from mwbx.qpos_store import QposStore
 
 FLAG_FINISHED = 1
 FLAG_AT_REST = 2
@@ -231,13 +237,11 @@ class Bank:
 
   def select_bodies(self, names: str | Sequence[str]) -> np.ndarray:
     """i32[k] indices into the tracked-body axis for body, object or group names."""
-    from mwbx.scene import select_bodies
-    return select_bodies(names, self.body_names, self.objects, self.groups, "selection", "bank")
+    return scene_lib.select_bodies(names, self.body_names, self.objects, self.groups, "selection", "bank")
 
   def mjcf_dir(self) -> str | None:
     """Directory the MJCF's relative file names (meshes, textures, includes)
     resolve against: where it was when the bank was sampled, if it still exists."""
-    from mwbx.config import ASSET_DIR
     source = self.config.get("source")
     mjcf = (self.config.get("scene") or {}).get("mjcf")
     if not mjcf:
@@ -252,10 +256,9 @@ class Bank:
   def model(self):
     """The scene's ``MjModel`` (with the mwbx observation sensors)."""
     if self._model is None:
-      from mwbx.scene import build_model
       stored_includes_only(self.mjcf_text, self.mjcf_includes)
       try:
-        self._model = build_model(self.mjcf_text, self.body_names, self.mjcf_dir(), self.mjcf_includes)
+        self._model = scene_lib.build_model(self.mjcf_text, self.body_names, self.mjcf_dir(), self.mjcf_includes)
       except ValueError as err:
         raise MwbxError(f"bank: its MJCF does not compile here ({err}); files it names are "
                         f"looked up relative to {self.mjcf_dir() or 'the working directory'}")
@@ -266,13 +269,11 @@ class Bank:
   def with_scene(self, scene, progress=None) -> "Bank":
     """This bank in a later version of its scene (objects added after its
     own), every world kept; see :func:`mwbx.bank.versions.upgrade`."""
-    from mwbx.bank import versions
     return versions.upgrade(self, scene, progress)
 
   def absent(self, world: int) -> dict[str, tuple[float, float]]:
     """Objects not in world ``world`` for a while: name -> (from, until) s
     (``until`` inf: to the end); see :func:`mwbx.bank.versions.absent`."""
-    from mwbx.bank import versions
     return versions.absent(self, world)
 
   def metric(self, name: str) -> np.ndarray:
@@ -378,7 +379,6 @@ class Bank:
     ``path/config.resolved.json`` and ``path/scene.xml`` for people. See
     :mod:`mwbx.bank.saving`.
     """
-    from mwbx.bank import saving
     return saving.save(self, path)
 
   @classmethod
@@ -409,7 +409,6 @@ class Bank:
       >>> hits = mwbx.evaluate(bank, queries)               # a shard at a time
       >>> q = bank.qpos_frames(int(bank.world_ids[hits][0]))  # reads one shard
     """
-    from mwbx.bank import legacy, shards
     path = pathlib.Path(path).absolute()
     if not path.is_dir():
       raise MwbxError(f"{path}: no bank here (not a directory)")
@@ -438,7 +437,6 @@ def stored_includes_only(mjcf_text: str, includes: dict[str, str]) -> None:
   """MwbxError if the MJCF (or an included file) includes a file the bank does
   not store: a bank's model is built only from the text stored in it, never
   from a file a (crafted) manifest names on disk."""
-  import xml.etree.ElementTree as ElementTree
   texts = [("the bank's MJCF", mjcf_text)] + [(repr(k), v) for k, v in includes.items()]
   for where, text in texts:
     try:
@@ -474,13 +472,3 @@ def rows_of(world_ids: np.ndarray, ids):
   rows = order[pos].astype(np.int64)
   return int(rows[0]) if scalar else rows
 
-
-# The qpos stores a saved bank may name, by their ``kind``.
-QPOS_STORES: dict[str, type] = {RawQposStore.kind: RawQposStore,
-                                CompressedQposStore.kind: CompressedQposStore}
-
-
-def store_class(kind: str):
-  if kind not in QPOS_STORES:
-    raise MwbxError(f"bank: unknown qpos store {kind!r} (have: {', '.join(QPOS_STORES)})")
-  return QPOS_STORES[kind]

@@ -14,6 +14,7 @@ import pathlib
 import numpy as np
 
 from mwbx.bank import checks
+from mwbx.bank.stores import store_class
 from mwbx.errors import MwbxError
 
 FORMATS = (1, 2)
@@ -40,7 +41,6 @@ class _manager:
 def load(cls, path: pathlib.Path):
   """The bank of the latest orbax checkpoint under ``path/checkpoints``."""
   import orbax.checkpoint as ocp
-  from mwbx.bank.core import store_class
   try:
     with _manager(path) as manager:
       step = manager.latest_step()

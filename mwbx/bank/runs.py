@@ -19,6 +19,10 @@ import fcntl
 import os
 import pathlib
 
+import numpy as np
+
+from mwbx.errors import MwbxError
+
 RUNS = "runs"
 
 
@@ -78,6 +82,17 @@ def forget(bank: str | os.PathLike, run_id: str | None) -> None:
     _lock_path(pathlib.Path(bank), run_id).unlink(missing_ok=True)
 
 
+def id_ranges(ids: np.ndarray) -> list[list[int]]:
+  """Sorted ids as [first, last] runs of consecutive ids (the manifest's form)."""
+  ids = np.unique(np.asarray(ids, np.int64))
+  if not ids.size:
+    return []
+  breaks = np.flatnonzero(np.diff(ids) != 1)
+  starts = np.concatenate([[0], breaks + 1])
+  ends = np.concatenate([breaks, [ids.size - 1]])
+  return [[int(ids[a]), int(ids[b])] for a, b in zip(starts, ends)]
+
+
 def ranges_ids(ranges) -> set[int]:
   """The ids of [first, last] ranges."""
   return {i for lo, hi in ranges for i in range(int(lo), int(hi) + 1)}
@@ -101,8 +116,6 @@ def plan(directory, template, *, n_worlds: int | None, seed: int | None, run_id:
     ``resume`` ([done, target] or None), ``record`` (this process's record),
     this run's held liveness lock).
   """
-  from mwbx.bank.shards import id_ranges
-  from mwbx.errors import MwbxError
   with directory._locked():
     fresh = directory.manifest is None
     directory._check_scene(template)

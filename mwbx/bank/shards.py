@@ -44,7 +44,9 @@ import numpy as np
 
 from mwbx import files
 from mwbx.bank import checks
+from mwbx.bank import lazy as lazy_lib
 from mwbx.bank import runs
+from mwbx.bank.stores import store_class
 from mwbx.codec import polyline
 from mwbx.errors import MwbxError
 
@@ -241,17 +243,6 @@ class BankDirectory:
     return f"{n:05d}"
 
 
-def id_ranges(ids: np.ndarray) -> list[list[int]]:
-  """Sorted ids as [first, last] runs of consecutive ids (the manifest's form)."""
-  ids = np.unique(np.asarray(ids, np.int64))
-  if not ids.size:
-    return []
-  breaks = np.flatnonzero(np.diff(ids) != 1)
-  starts = np.concatenate([[0], breaks + 1])
-  ends = np.concatenate([breaks, [ids.size - 1]])
-  return [[int(ids[a]), int(ids[b])] for a, b in zip(starts, ends)]
-
-
 def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   """Writes the worlds ``rows`` of ``bank`` as shard ``name``; returns its manifest entry."""
   part = bank._take(rows)
@@ -279,7 +270,7 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
     files.remove_quietly(tmp)
     raise MwbxError(f"{shards / name}: cannot write this shard of {int(part.n_worlds)} worlds ({files.why(err)});"
                     f" nothing of it was kept, the worlds saved before stay") from None
-  return {"name": name, "worlds": int(part.n_worlds), "id_ranges": id_ranges(part.world_ids),
+  return {"name": name, "worlds": int(part.n_worlds), "id_ranges": runs.id_ranges(part.world_ids),
           "com_row_shape": [int(x) for x in part.com.shape[1:]],
           "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
           "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8))}
@@ -378,8 +369,6 @@ def verify(path: str | pathlib.Path) -> list[str]:
 
 def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = True):
   """The bank of a shard directory (see :meth:`mwbx.bank.Bank.load`)."""
-  from mwbx.bank import lazy as lazy_lib
-  from mwbx.bank.core import store_class
   manifest = read_manifest(path)
   scene = manifest["scene"]
   store_meta = scene["qpos_store"]

@@ -25,8 +25,10 @@ import math
 import mujoco
 import numpy as np
 
+from mwbx.bank.stores import store_for
 from mwbx.errors import MwbxError
 from mwbx.joints import JNT_FREE
+from mwbx.progress import Progress
 
 # m: where a free object waits while it is not in a world (added in a later
 # scene version, or removed): far below any scene, so no query box, contact
@@ -128,9 +130,6 @@ def upgrade(bank, scene, progress=None):
   Raises:
     MwbxError: naming the object, joint or config section that does not fit.
   """
-  from mwbx.batch_sim.sampler import compressed_store
-  from mwbx.progress import Progress
-  from mwbx.qpos_store import RawQposStore
   if scene.digest == bank.digest:
     return bank
   if scene.digest in {v["digest"] for v in bank.versions}:
@@ -140,7 +139,7 @@ def upgrade(bank, scene, progress=None):
   fill = parked_qpos(model, added).astype(np.float32)
   if progress is not None:
     progress(Progress("re-laying", 0, bank.n_worlds, 0))
-  target = compressed_store(scene) if bank.qpos_store.kind == "codec" else RawQposStore(model.nq)
+  target = store_for(scene, bank.qpos_store.kind)
   store = bank.qpos_store.relaid(target, fill)
   # The added bodies' COM where they are parked, for every point of every old world.
   data = mujoco.MjData(model)

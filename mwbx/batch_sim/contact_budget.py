@@ -7,9 +7,12 @@ step, :mod:`mwbx.batch_sim.mjx_collision`, keeps those whose world bounding
 boxes are nearest) and ``max_contact_points`` (contacts kept per condim
 group, the most penetrating) bound that work. MuJoCo Warp (impl
 ``warp``) has fixed contact and constraint pools, ``nconmax`` and ``njmax``
-per world. :func:`pilot` runs a few worlds of the config on the native backend
-(MuJoCo C), replays their recorded frames and counts what those caps must
-hold; :func:`budget_from_counts` adds headroom.
+per world. A pilot runs a few worlds of the config on the native backend
+(MuJoCo C; :func:`mwbx.batch_sim.sampler.pilot_counts`); :func:`count_frames`
+replays their recorded frames and counts what those caps must hold;
+:func:`budget_from_counts` adds headroom and :func:`given` reads the values a
+config sets (:func:`mwbx.batch_sim.sampler.resolve_contact_budget` puts them
+together).
 
 A budget trades exactness for speed only where it can be seen: a world whose
 step may have needed more than the budget is flagged
@@ -30,6 +33,7 @@ import numpy as np
 from mujoco.mjx._src import collision_driver
 
 from mwbx.batch_sim.mjx_collision import GAP_TOLERANCE, box_gap, world_boxes
+from mwbx import scene as scene_lib
 
 # Slack added on top of headroom × measured: a pilot of a few worlds sees
 # fewer peaks than a run of thousands.
@@ -139,30 +143,17 @@ def _sphere_rank_needed(m: mujoco.MjModel, d: mujoco.MjData, g: _PairGroup, boxe
   return int((gap <= gap[near].max()).sum()) if near.any() else 0
 
 
-def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None) -> PilotCounts:
-  """Runs ``n_worlds`` worlds of the scene on the native backend and counts,
-  over every recorded frame, what MJX's and MuJoCo Warp's caps must hold.
+def count_frames(scene, bank) -> PilotCounts:
+  """Counts, over every recorded frame of ``bank``'s worlds (a pilot run on
+  the native backend), what MJX's and MuJoCo Warp's caps must hold.
 
   Args:
-    scene: the :class:`mwbx.scene.Scene` (its config's perturbations,
-      controls and randomization apply).
-    n_worlds: pilot worlds (ids 0..n-1 of ``seed``).
-    seed: run key seed of the pilot.
-    end_time: stop the pilot worlds earlier than the config's end time, s.
+    scene: the :class:`mwbx.scene.Scene` the worlds were sampled from.
+    bank: the pilot worlds (:func:`mwbx.batch_sim.sampler.pilot_counts`).
 
   Returns:
     the :class:`PilotCounts`.
   """
-  from mwbx.batch_sim.sampler import Sampler
-  from mwbx.qpos_store import RawQposStore
-  cfg = scene.config
-  if end_time is not None:
-    cfg = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"end_time": end_time})})
-  from mwbx.scene import Scene
-  pilot_scene = Scene(cfg) if end_time is not None else scene
-  with Sampler(pilot_scene, backend="native", chunk_size=n_worlds,
-               store=RawQposStore(scene.model.nq)) as sampler:
-    bank, _ = sampler.run(n_worlds, jax.random.key(seed))
   m = scene.model
   d = mujoco.MjData(m)
   groups = _pair_groups(m)
@@ -185,7 +176,7 @@ def pilot(scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None
         points[condim] += ncon
       per_condim = int(points.max())
       counts = np.maximum(counts, [max(cullable, default=0), per_condim, candidates, d.ncon, d.nefc])
-  return PilotCounts(*(int(c) for c in counts), worlds=n_worlds, frames=frames)
+  return PilotCounts(*(int(c) for c in counts), worlds=bank.n_worlds, frames=frames)
 
 
 def budget_from_counts(counts: PilotCounts, headroom: float, overrides: dict | None = None,
@@ -206,26 +197,15 @@ def budget_from_counts(counts: PilotCounts, headroom: float, overrides: dict | N
   return ContactBudget(source=label, **{k: int(v) for k, v in budget.items()})
 
 
-def resolve(scene, settings=None) -> ContactBudget:
-  """The scene's budget: the config's ``sim.mjx`` values, the rest from a pilot.
-
-  Args:
-    scene: the scene.
-    settings: the config's :class:`mwbx.config.MjxSection` (None: defaults).
-  """
-  from mwbx.config import MjxSection
-  settings = settings if settings is not None else MjxSection()
-  given = {k: getattr(settings, k) for k in ("max_contact_points", "max_geom_pairs", "nconmax", "njmax")}
-  if all(v is not None for v in given.values()):
-    return ContactBudget(source="config", **given)
-  counts = pilot(scene, settings.pilot_worlds)
-  return budget_from_counts(counts, settings.headroom, given)
+def given(settings) -> dict:
+  """The budget values the config's :class:`mwbx.config.MjxSection` sets
+  (None: left to the pilot)."""
+  return {k: getattr(settings, k) for k in ("max_contact_points", "max_geom_pairs", "nconmax", "njmax")}
 
 
 def budgeted_model(scene, budget: ContactBudget, timestep: float | None = None) -> mujoco.MjModel:
   """The scene's model with MJX's ``max_geom_pairs`` and ``max_contact_points``
   numerics (MJX reads them from the model; nothing else changes)."""
-  from mwbx import scene as scene_lib
   spec = scene_lib.parse_mjcf(scene.mjcf_text, scene.mjcf_dir, scene.mjcf_includes)
   for numeric in list(spec.numerics):
     if numeric.name in ("max_geom_pairs", "max_contact_points"):

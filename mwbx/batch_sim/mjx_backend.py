@@ -18,8 +18,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from mwbx import controls
 from mwbx.batch_sim import contact_budget
-from mwbx.batch_sim import controls
 from mwbx.batch_sim import mjx_collision
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
@@ -103,8 +103,7 @@ def _per_world(tree, path) -> bool:
   return warp_types._BATCH_DIM["Data"].get(tree_path_to_attr_str(path), True)  # pylint: disable=protected-access
 
 
-def backend_for(scene, impl: str = "jax", budget: contact_budget.ContactBudget | None = None,
-                devices=None) -> "MjxBackend":
+def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=None) -> "MjxBackend":
   """The MJX backend of a scene under a contact budget (the entry point for
   sampling and benchmarks: ``backend.make_data`` and ``backend.step`` are one
   budgeted batched step, ``backend.overflow`` its flag).
@@ -112,12 +111,10 @@ def backend_for(scene, impl: str = "jax", budget: contact_budget.ContactBudget |
   Args:
     scene: the :class:`mwbx.scene.Scene` (its model's timestep is used).
     impl: ``jax`` or ``warp``.
-    budget: the budget (default: the config's ``sim.mjx`` values, the rest
-      from :func:`contact_budget.pilot`).
+    budget: the budget (:func:`mwbx.batch_sim.sampler.resolve_contact_budget`:
+      the config's ``sim.mjx`` values, the rest from a native pilot).
     devices: as for :class:`MjxBackend`.
   """
-  if budget is None:
-    budget = contact_budget.resolve(scene, scene.config.sim.mjx)
   # impl jax reads its caps from the model's numerics; warp sizes its pools from the budget.
   model = contact_budget.budgeted_model(scene, budget) if impl == "jax" else scene.model
   return MjxBackend(model, impl, devices, budget=budget)
@@ -204,7 +201,7 @@ class MjxBackend:
   def block(self, params: world.WorldParams, body_ids: np.ndarray, n_frames: int):
     """``run(state, ctrl_table, count)`` for up to ``n_frames`` sampled frames
     (cached; see :func:`frame_block`). ``ctrl_table``: f32[N, nu] control of
-    each step (:mod:`controls`), or None for a scene without controls."""
+    each step (:mod:`mwbx.controls`), or None for a scene without controls."""
     cache_key = (id(params), n_frames)
     if cache_key in self._blocks:
       return self._blocks[cache_key][1]

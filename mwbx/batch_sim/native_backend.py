@@ -26,7 +26,8 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
-from mwbx.batch_sim import controls, host_bookkeeping, host_loops, mujoco_c, world, world_loop
+from mwbx import controls
+from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, world_loop
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 from mwbx.errors import MwbxError
 
@@ -117,7 +118,7 @@ class NativeBackend:
       out: optional (f64[N, S, nstate], f64[N, S, nsensordata or 0]) buffers,
         N ≥ n, whose first n rows receive the result (no allocation per frame).
       ctrl: optional f64[S, nu] actuator controls of the steps, the same for
-        every world (:mod:`controls`); None or width 0 leaves ``ctrl`` at 0.
+        every world (:mod:`mwbx.controls`); None or width 0 leaves ``ctrl`` at 0.
 
     Returns:
       (f64[n, S, nstate] states s_{k+1} … s_{k+S},

@@ -18,13 +18,15 @@ import numpy as np
 
 from mwbx import bank as bank_lib
 from mwbx import rates as rates_lib
+from mwbx.bank.stores import store_for
 from mwbx.batch_sim import memory, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
-from mwbx.codec import CodecBounds, CompressedQposStore, polyline
-from mwbx.config import Config
+from mwbx.batch_sim.native_backend import NativeBackend
+from mwbx.codec import polyline
+from mwbx.config import Config, MjxSection
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress, ProgressFn
-from mwbx.qpos_store import QposStore
+from mwbx.qpos_store import QposStore, RawQposStore
 from mwbx.scene import Scene
 
 
@@ -138,7 +140,7 @@ class Sampler:
   def __init__(self, scene: Scene | Config, backend: str | None = None, chunk_size: int | None = None,
                store: QposStore | None = None, contact_budget=None):
     self.scene = scene if isinstance(scene, Scene) else Scene(scene)
-    self.store = store if store is not None else compressed_store(self.scene)
+    self.store = store if store is not None else store_for(self.scene)
     cfg = self.scene.config
     self.backend_name = resolve_backend(backend or cfg.sim.backend)
     self.chunk_size = int(chunk_size or cfg.sim.chunk_size)
@@ -152,17 +154,19 @@ class Sampler:
     self.params = world.world_params(self.scene, spf, end_frame)
     self.contact_budget = None
     if self.backend_name == "mjx":
+      # Lazy on purpose: both import mujoco.mjx (seconds), which native runs never need.
       from mwbx.batch_sim import contact_budget as budget_lib
       from mwbx.batch_sim.mjx_backend import backend_for
       impl = resolve_mjx_impl(cfg.sim.mjx_impl)
       budget = contact_budget
       if isinstance(budget, dict):
         budget = budget_lib.ContactBudget.from_dict(budget)
+      if budget is None:
+        budget = resolve_contact_budget(self.scene, cfg.sim.mjx)
       self.backend = backend_for(self.scene, impl, budget)
       self.contact_budget = self.backend.budget
       self.backend_label = f"mjx:{impl}"
     else:
-      from mwbx.batch_sim.native_backend import NativeBackend
       self.backend = NativeBackend(model, cfg.sim.threads)
       self.backend_label = "native"
     self._init = per_world(self.scene.initial_state)
@@ -328,7 +332,7 @@ class Sampler:
     com = fill_tail(np.ascontiguousarray(com), com_count)  # the tail repeats the last polyline point
     com = np.nan_to_num(com)
     # On the COM grid as stored: queries see exactly what is stored.
-    com = polyline.round_to_grid(com, polyline.grid_step(scene.config.codec.e_com))
+    com = polyline.round_to_grid(com, scene.config.codec.com_step())
     flags = np.full(len(ids), bank_lib.FLAG_FINISHED, np.uint8)
     flags[status == world.AT_REST] |= bank_lib.FLAG_AT_REST
     flags[status == world.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
@@ -350,15 +354,6 @@ class Sampler:
         digest=scene.digest,
         run={} if self.contact_budget is None else {"contact_budget": self.contact_budget._asdict()},
     )
-
-
-def compressed_store(scene: Scene):
-  """An empty compressed qpos store, bounds from the config's ``codec`` section."""
-  cfg = scene.config
-  bounds = CodecBounds(e_pos=cfg.codec.e_pos, e_rot=float(np.deg2rad(cfg.codec.e_rot_deg)),
-                       e_scalar=cfg.codec.e_scalar)
-  return CompressedQposStore.from_model(scene.model, bounds, cfg.sim.record_fps,
-                                        n_bodies=len(scene.body_names))
 
 
 def _store_chunk(store, result: ChunkResult) -> ChunkResult:
@@ -418,8 +413,52 @@ def empty_bank(scene: Scene, store: QposStore | None = None) -> bank_lib.Bank:
       frame_count=empty(np.int32), com=empty(np.float32, 1, b, 3), com_count=empty(np.int32),
       metrics=empty(np.float32, b, m), perturbations=empty(np.int32), steps=empty(np.int32),
       parent_world=empty(np.int64), refine_time=empty(np.float32),
-      qpos_store=(store if store is not None else compressed_store(scene)).empty(),
+      qpos_store=(store if store is not None else store_for(scene)).empty(),
       body_names=scene.body_names, body_ids=scene.body_ids, objects=dict(scene.objects),
       groups=dict(scene.groups), metric_names=world.METRIC_NAMES, record_fps=cfg.sim.record_fps,
       query_fps=cfg.sim.query_fps, timestep=float(timestep), config=cfg.resolved(),
       mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes), digest=scene.digest)
+
+
+def pilot_counts(scene: Scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None):
+  """Runs ``n_worlds`` worlds of the scene on the native backend and counts,
+  over every recorded frame, what MJX's and MuJoCo Warp's caps must hold.
+
+  Args:
+    scene: the scene (its config's perturbations, controls and randomization apply).
+    n_worlds: pilot worlds (ids 0..n-1 of ``seed``).
+    seed: run key seed of the pilot.
+    end_time: stop the pilot worlds earlier than the config's end time, s.
+
+  Returns:
+    the :class:`~mwbx.batch_sim.contact_budget.PilotCounts`.
+  """
+  from mwbx.batch_sim import contact_budget as budget_lib  # lazy on purpose: imports mujoco.mjx
+  cfg = scene.config
+  if end_time is not None:
+    cfg = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"end_time": end_time})})
+  pilot_scene = Scene(cfg) if end_time is not None else scene
+  with Sampler(pilot_scene, backend="native", chunk_size=n_worlds,
+               store=RawQposStore(scene.model.nq)) as sampler:
+    bank, _ = sampler.run(n_worlds, jax.random.key(seed))
+  return budget_lib.count_frames(scene, bank)
+
+
+def resolve_contact_budget(scene: Scene, settings: MjxSection | None = None):
+  """The scene's MJX contact budget: the config's ``sim.mjx`` values, the rest
+  from a native pilot (:func:`pilot_counts`) with headroom.
+
+  Args:
+    scene: the scene.
+    settings: the config's :class:`mwbx.config.MjxSection` (None: defaults).
+
+  Returns:
+    the :class:`~mwbx.batch_sim.contact_budget.ContactBudget`.
+  """
+  from mwbx.batch_sim import contact_budget as budget_lib  # lazy on purpose: imports mujoco.mjx
+  settings = settings if settings is not None else MjxSection()
+  given = budget_lib.given(settings)
+  if all(v is not None for v in given.values()):
+    return budget_lib.ContactBudget(source="config", **given)
+  counts = pilot_counts(scene, settings.pilot_worlds)
+  return budget_lib.budget_from_counts(counts, settings.headroom, given)

@@ -73,7 +73,7 @@ def run_world(row, model_adr, data_adr, xfrc_applied, data_sensordata, data_ctrl
     xfrc_applied: f64[nbody, 6], data_sensordata: f64[nsensordata] and
       data_ctrl: f64[nu], views of that ``MjData``'s arrays.
     ctrl_table: f64[n_frames · S, nu] control of each step
-      (:func:`controls.control_table`); width 0: ``ctrl`` is left alone.
+      (:func:`mwbx.controls.control_table`); width 0: ``ctrl`` is left alone.
     initial_states: f64[C, nstate] full physics states at time 0.
     n_frames: frames per world at most.
     timestep: physics step, s. gravity: f64[3], m/s**2.

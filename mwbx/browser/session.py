@@ -18,6 +18,8 @@ import numpy as np
 from mwbx import queries as mq
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
+from mwbx.refinement import refine_run
+from mwbx.refinement.refine import as_scene
 
 REDUCTIONS = ("sum", "max")
 # The sorter lists at most this many worlds.
@@ -337,7 +339,6 @@ class Session:
         refinement of this session still running (one at a time), or a scene
         file outside :attr:`query_dir`.
     """
-    from mwbx.refinement import refine_run
     if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
         or not 1 <= n_samples <= MAX_REFINE_SAMPLES:
       raise MwbxError(f"refine: samples must be a whole number from 1 to {MAX_REFINE_SAMPLES}, got {n_samples!r}")
@@ -357,7 +358,6 @@ class Session:
       try:
         bank = self.bank
         if scene_path is not None:
-          from mwbx.refinement.refine import as_scene
           bank = bank.with_scene(as_scene(scene_path))
         new, _ = refine_run(bank, world, objects, t_min=t_min, n_samples=int(n_samples), key=key,
                             backend=backend, progress=job._report, add=add, remove=remove)

@@ -13,7 +13,7 @@ from mwbx.codec.batch import decode_batch
 from mwbx.codec.decode import decode_world
 from mwbx.codec.encode import DEFAULT_GRAVITY, encode_batch_checked
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
-from mwbx.codec.splice import splice_stream
+from mwbx.codec.splice import channel_map, splice_stream
 
 
 class CompressedQposStore:
@@ -151,7 +151,6 @@ class CompressedQposStore:
     verbatim (:func:`mwbx.codec.splice.splice_stream`), so they decode
     exactly as before.
     """
-    from mwbx.codec.splice import channel_map
     if target.bounds != self.bounds or target.fps != self.fps:
       raise CodecError("relaid: the target store has other error bounds or fps")
     mapping = channel_map(target.layout, self.layout)

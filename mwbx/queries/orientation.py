@@ -36,6 +36,7 @@ import weakref
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.joints import QPOS_WIDTH
 from mwbx.queries import poses as poses_lib
 from mwbx.queries.intervals import checked_interval
 
@@ -200,7 +201,6 @@ def all_quats(bank, bodies) -> dict:
 
 
 def _chain_columns(model, body_id: int) -> np.ndarray:
-  from mwbx.joints import QPOS_WIDTH
   columns = []
   for b in poses_lib.chain(model, [body_id]):
     for j in range(int(model.body_jntadr[b]), int(model.body_jntadr[b] + model.body_jntnum[b])):

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mwbx.codec import CodecBounds
 from mwbx.errors import MwbxError
 from mwbx.host_jit import host_jit
 from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
@@ -93,11 +94,12 @@ def object_reach_radii(model: mujoco.MjModel, body_ids: np.ndarray, objects: dic
   return radius.astype(np.float32)
 
 
-def ghost_slack(model: mujoco.MjModel, body_ids: np.ndarray, radius: np.ndarray, codec_bounds) -> np.ndarray:
+def ghost_slack(model: mujoco.MjModel, body_ids: np.ndarray, radius: np.ndarray,
+                codec_bounds: CodecBounds) -> np.ndarray:
   """f64[B] how far a tracked body's geoms can lie from where its decoded
-  (stored) pose puts them, given the codec's bounds ``(e_pos m, e_rot rad,
-  e_scalar rad or m)``: a ghost is the original motion, the stored path is
-  within this of it.
+  (stored) pose puts them, given the codec's bounds (``e_pos`` m, ``e_rot``
+  rad, ``e_scalar`` rad or m; :meth:`mwbx.config.CodecSection.bounds`): a
+  ghost is the original motion, the stored path is within this of it.
 
   Each joint from the object's root down to the body moves the body's geoms
   by at most its bound times its lever arm: a free joint ``√3·e_pos`` (an ℓ∞
@@ -109,7 +111,7 @@ def ghost_slack(model: mujoco.MjModel, body_ids: np.ndarray, radius: np.ndarray,
   descendants (whose geoms the radius covers) add their bound times twice
   the radius.
   """
-  e_pos, e_rot, e_scalar = codec_bounds
+  e_pos, e_rot, e_scalar = codec_bounds.e_pos, codec_bounds.e_rot, codec_bounds.e_scalar
   tracked = {int(b) for b in body_ids}
   slack = np.zeros(len(body_ids))
   for i, b in enumerate(np.asarray(body_ids)):
@@ -143,7 +145,7 @@ def ghost_slack(model: mujoco.MjModel, body_ids: np.ndarray, radius: np.ndarray,
   return slack
 
 
-def interaction_params(model, body_ids, body_names, objects: dict, object_names, codec_bounds,
+def interaction_params(model, body_ids, body_names, objects: dict, object_names, codec_bounds: CodecBounds,
                        margin: float, horizon: float, alpha: float) -> InteractionParams:
   """Builds :class:`InteractionParams` for a scene (host, once)."""
   radius = object_reach_radii(model, body_ids, objects, body_names)

@@ -60,7 +60,7 @@ class RefineInputs(NamedTuple):
       they are all free bodies; the sensor block then comes from the states
       and ``models`` step with sensors disabled (:mod:`free_bodies`).
     ctrl: f64[n_frames · S, nu] actuator control of each step from step 0
-      (:mod:`mwbx.batch_sim.controls`; width 0: none).
+      (:mod:`mwbx.controls`; width 0: none).
     act0: f64[C, na] actuator activations at f0 (None: the model has none).
   """
 
@@ -360,7 +360,7 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
   """Refined worlds on the MJX backend: blocks of frames as one jitted loop
   (:func:`mwbx.batch_sim.mjx_backend.frame_block`), inactive objects put on
   the stored path before every physics step."""
-  from mwbx.batch_sim.mjx_backend import FRAMES_PER_BLOCK
+  from mwbx.batch_sim.mjx_backend import FRAMES_PER_BLOCK  # lazy: imports mujoco.mjx (seconds)
   m = backend.model
   params, inter, path = inp.params, inp.inter, inp.path
   c, spf, f0 = len(inp.qpos0), params.steps_per_frame, inp.first_frame
@@ -422,7 +422,7 @@ _BLOCKS: dict = {}
 
 def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: int, n_sensor: int):
   """``run(state, consts, count)`` for up to ``block`` refined frames on MJX (cached)."""
-  from mwbx.batch_sim.mjx_backend import frame_block, hold_finished, scatter_wrench
+  from mwbx.batch_sim.mjx_backend import frame_block, hold_finished, scatter_wrench  # lazy: mujoco.mjx
   cache_key = (id(backend), id(params), block, n_sensor)
   if cache_key in _BLOCKS:
     return _BLOCKS[cache_key][2]

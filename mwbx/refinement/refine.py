@@ -37,18 +37,20 @@ import mujoco
 import numpy as np
 
 from mwbx import bank as bank_lib
-from mwbx.batch_sim import controls
+from mwbx import controls
 from mwbx.batch_sim import mujoco_c
 from mwbx.batch_sim import free_bodies
 from mwbx.batch_sim import world as world_lib
 from mwbx.bank.versions import parked_columns, parked_qpos
 from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
 from mwbx.codec import polyline
+from mwbx.config import Config, config_from_dict, load_config
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
 from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
 from mwbx.refinement import interactions, kinematic
-from mwbx.scene import objects_of
+from mwbx.queries import first_entry
+from mwbx.scene import Scene, objects_of
 from mwbx.refinement import loop as refine_loop
 from mwbx.refinement import world_loop
 
@@ -56,8 +58,6 @@ DEFAULT_MARGIN = 0.01  # m, contact margin of the interaction test
 
 
 def _scene_of(bank):
-  from mwbx.config import config_from_dict
-  from mwbx.scene import Scene
   data = dict(bank.config)
   data.pop("source", None)
   scene = Scene(config_from_dict(data, source="<bank config>"), mjcf_text=bank.mjcf_text,
@@ -115,7 +115,6 @@ def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_mi
     raise MwbxError("refine: give exactly one of frustum (a screen box through a camera) or t_min")
   last = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
   if frustum is not None:
-    from mwbx.queries import first_entry
     t_min = first_entry(bank, world, list(objects), frustum)
     if t_min is None:
       raise MwbxError(f"refine: no object of {', '.join(objects)} enters the box in world {world}")
@@ -285,7 +284,7 @@ def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, play
   cfg = scene.config
   inter = interactions.interaction_params(
       model, scene.body_ids, scene.body_names, scene.objects, object_names,
-      (cfg.codec.e_pos, float(np.deg2rad(cfg.codec.e_rot_deg)), cfg.codec.e_scalar),
+      cfg.codec.bounds(),
       margin, (spf + 1) * model.opt.timestep, cfg.perturb.alpha)
 
   qpos0 = path.qpos[f0]
@@ -384,7 +383,7 @@ def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, out
   stride = sampler.query_stride
   n_points = bank.com.shape[1]
   # On the bank's COM grid, like the parent's stored points.
-  new_com = polyline.round_to_grid(new_com, polyline.grid_step(sampler.scene.config.codec.e_com))
+  new_com = polyline.round_to_grid(new_com, sampler.scene.config.codec.com_step())
   com_rate = np.concatenate([np.zeros((w, f0) + new_com.shape[2:], np.float32), new_com], axis=1)
   com = com_rate[:, ::stride][:, :n_points]
   com = np.concatenate([com, np.repeat(com[:, -1:], n_points - com.shape[1], axis=1)], axis=1)
@@ -499,8 +498,6 @@ def refine(bank, world: int, objects=(), *, frustum=None, t_min: float | None = 
 
 def as_scene(scene):
   """A :class:`mwbx.Scene` from a Scene, a Config or a config file path."""
-  from mwbx.config import Config, load_config
-  from mwbx.scene import Scene
   if isinstance(scene, Scene):
     return scene
   if isinstance(scene, Config):

@@ -46,6 +46,7 @@ from mwbx.batch_sim.world_loop import monotonic_seconds as _now
 from mwbx.batch_sim.world_loop import physics_step
 from mwbx.host_jit import host_jit
 from mwbx.refinement import interactions
+from mwbx.refinement.loop import RefineOutput, start_active
 from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR_WIDTH
 
 
@@ -245,8 +246,6 @@ def run_compiled(backend, inp, progress=None):
     inp: :class:`loop.RefineInputs` (``models`` and ``step_targets`` required).
     progress: optional callback(world_steps_done, worlds_finished).
   """
-  from mwbx.refinement.loop import RefineOutput, start_active
-
   m = backend.model
   params, path = inp.params, inp.path
   c, spf, f0 = len(inp.qpos0), params.steps_per_frame, inp.first_frame

@@ -26,6 +26,7 @@ from mwbx.viewer.frustums import draw_volume
 from mwbx.viewer.geometry import pose_matrix, scene_visuals
 from mwbx.viewer.hull import frustum_eye
 from mwbx.viewer.paths import draw_paths
+from mwbx.viewer import query_adapter
 from mwbx.viewer.playback import LAYOUTS, draw_playback, grid_offsets, make_grid
 from mwbx.viewer.recorder import SceneRecorder
 from mwbx.viewer.server import LiveView
@@ -192,8 +193,6 @@ def query_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray | None, np.n
   """(match bool[W], exclude bool[W]) from the mwbx.queries.Query items:
   match = satisfies every query; exclude = rejected by a negative query.
   (None, None) when all are plain frustums (nothing to evaluate)."""
-  from mwbx.viewer import query_adapter
-
   if not any(query_adapter.is_query(q) for q in queries):
     return None, None
   return query_adapter.evaluate_classes(bank, queries)

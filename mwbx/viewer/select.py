@@ -9,6 +9,7 @@ from typing import Sequence
 
 import numpy as np
 
+from mwbx import queries as mq
 from mwbx.errors import MwbxError
 from mwbx.yaml_input import short_repr
 from mwbx.viewer.errors import ViewerError
@@ -72,8 +73,6 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
     raise ViewerError("--worlds cannot be combined with --top/--rank")
   match = None
   if queries is not None and len(queries.queries):
-    from mwbx import queries as mq
-
     match = np.asarray(mq.evaluate(bank, queries.queries), bool)
   if ids is not None:
     ids = np.asarray(list(ids), np.int64)
@@ -87,8 +86,6 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
       first = np.asarray(bank.world_ids)[np.flatnonzero(match)[:1]]
       return (first if first.size else None), match
     return None, match
-  from mwbx import queries as mq
-
   by = rank
   if by is None:
     if queries is None or not queries.rank:
