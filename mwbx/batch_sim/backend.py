@@ -54,6 +54,10 @@ class ChunkResult(NamedTuple):
   errors: tuple = ()
   contact_overflow: np.ndarray | None = None
 
+  def first(self, n: int) -> ChunkResult:
+    """The result of the first ``n`` worlds (a padded chunk without its padding)."""
+    return ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in self))
+
 
 @runtime_checkable
 class Backend(Protocol):

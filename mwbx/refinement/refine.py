@@ -23,13 +23,11 @@ used to touch become active.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
-import functools
 import math
 import secrets
 import time
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -39,18 +37,17 @@ import numpy as np
 from mwbx import bank as bank_lib
 from mwbx.batch_sim import controls
 from mwbx.batch_sim import mujoco_c
-from mwbx.batch_sim import free_bodies
+from mwbx.batch_sim import rows as rows_lib
 from mwbx.batch_sim import world as world_lib
 from mwbx.bank.versions import parked_columns, parked_qpos
 from mwbx.batch_sim.sampler import Sampler, SampleStats, world_keys
-from mwbx.codec import polyline
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
 from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
 from mwbx.refinement import interactions, kinematic
 from mwbx.scene import objects_of
 from mwbx.refinement import loop as refine_loop
-from mwbx.refinement import world_loop
+from mwbx.refinement import runners
 
 DEFAULT_MARGIN = 0.01  # m, contact margin of the interaction test
 
@@ -78,7 +75,13 @@ def resolve_objects(bank, objects: str | Sequence[str], field: str = "objects",
     objects = [o for o in objects.split(",") if o]
   out: list[str] = []
   for name in objects:
-    members = objects_of(name, tuple(bank.objects), bank.groups, field, "refine")
+    try:
+      members = objects_of(name, tuple(bank.objects), bank.groups, field, "refine")
+    except MwbxError as err:
+      if field != "add":
+        raise
+      raise MwbxError(f"{err}; to add an object, give the scene version that has it (scene=, mwbx refine"
+                      " --scene NEW.yaml)") from None
     out.extend(m for m in members if m not in out)
   if required and not out:
     raise MwbxError("refine: objects: name at least one object or group to refine")
@@ -109,11 +112,14 @@ def _resolve_changes(bank, world: int, names, added, removed, t_min: float):
   return tuple(o for o in bank.objects if o in gone and o not in added)
 
 
-def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_min: float | None = None) -> float:
-  """t_min in seconds: given, or the first time an object's COM enters ``frustum``."""
+def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_min: float | None = None,
+                  row: int | None = None) -> float:
+  """t_min in seconds: given, or the first time an object's COM enters ``frustum``
+  (``row``: the world's bank row, if known)."""
   if (frustum is None) == (t_min is None):
     raise MwbxError("refine: give exactly one of frustum (a screen box through a camera) or t_min")
-  last = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
+  row = bank.row_of(world) if row is None else row
+  last = (int(bank.frame_count[row]) - 1) / bank.record_fps
   if frustum is not None:
     from mwbx.queries import first_entry
     t_min = first_entry(bank, world, list(objects), frustum)
@@ -150,22 +156,60 @@ class RefineStats(SampleStats):
   inactive_perturbations: np.ndarray | None = None
 
 
-def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
-               key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-               margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None,
-               add=(), remove=()):
-  """:func:`refine` that also returns :class:`RefineStats` and only the new worlds.
+class RefinePlan(NamedTuple):
+  """One refinement resolved against its bank, checked: what the loops take.
 
-  The bank must already be in the scene version holding objects to ``add``
-  (:meth:`mwbx.Bank.with_scene`; :func:`refine` does that from ``scene=``).
-
-  ``loop`` (native backend, ``playback="step"``): ``compiled`` runs each
-  refined world in compiled calls (:mod:`mwbx.refinement.world_loop`),
-  ``lockstep`` steps the batch through ``mujoco.rollout`` a step at a time
-  (:func:`mwbx.refinement.loop.run_native`), ``auto`` the first where
-  MuJoCo's C library can be bound.
+  Attributes:
+    world: the parent's world id; row: its bank row.
+    objects: objects asked for (refined from t_min).
+    added: objects inserted at t_min; removed: objects taken out at t_min.
+    gone: objects already absent from the parent at t_min, kept out.
+    t_min: the restart time asked for, s (the worlds restart at
+      ``first_frame``, t_min rounded down to a recorded frame).
+    first_frame: f0, the frame at t_min.
+    n_samples: refined worlds to make; chunk: worlds per lockstep batch.
+    key: the run key (refined world i draws from ``fold_in(key, i)``).
+    backend: the backend asked for (None: the config's).
+    playback: ``step`` | ``frame``; compiled_loop: native ``step`` playback
+      runs each world in compiled calls.
+    margin: contact margin of the interaction test, m.
+    scene_version: the new worlds' scene version (the bank's current one when
+      objects are added, else the parent's).
+    first_id: the first new world's id.
+    bounds: the codec's (e_pos m, e_rot rad, e_scalar) error bounds.
+    contact_budget: the MJX contact budget the bank was sampled with (None: none).
   """
-  start_wall = time.perf_counter()
+
+  world: int
+  row: int
+  objects: tuple[str, ...]
+  added: tuple[str, ...]
+  removed: tuple[str, ...]
+  gone: tuple[str, ...]
+  t_min: float
+  first_frame: int
+  n_samples: int
+  chunk: int
+  key: jax.Array
+  backend: str | None
+  playback: str
+  compiled_loop: bool
+  margin: float
+  scene_version: int
+  first_id: int
+  bounds: tuple[float, float, float]
+  contact_budget: dict | None
+
+
+def plan_refinement(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
+                    key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
+                    margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto",
+                    add=(), remove=()) -> RefinePlan:
+  """Resolves and checks a refinement of ``bank`` (arguments as :func:`refine_run`).
+
+  Raises:
+    MwbxError: naming the argument or value that cannot be refined.
+  """
   world = int(world)
   try:
     row = bank.row_of(world)
@@ -185,21 +229,50 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
     raise MwbxError(f"refine: loop must be 'auto', 'compiled' or 'lockstep', got {loop!r}")
   if loop == "compiled" and not mujoco_c.available():
     raise MwbxError("refine: loop='compiled' needs MuJoCo's C library bound for numba; use 'lockstep'")
-  compiled_loop = loop == "compiled" or (loop == "auto" and mujoco_c.available())
   names = resolve_objects(bank, objects, required=not (add or remove))
   added = resolve_objects(bank, add, "add", required=False)
   removed = resolve_objects(bank, remove, "remove", required=False)
-  t_min = resolve_t_min(bank, world, names or added or removed, frustum, t_min)
+  t_min = resolve_t_min(bank, world, names or added or removed, frustum, t_min, row=row)
   # Objects already gone at t_min stay out: colliding with nothing even if
   # something activates them.
   gone = _resolve_changes(bank, world, names, added, removed, t_min)
   sampler = sampler_for(bank, backend)
-  chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
-  if sampler.backend_name == "mjx" and (removed or any(not parked_columns(sampler.scene.model, [o]).any()
-                                                         for o in gone)):
-    raise MwbxError("refine: the MJX backend cannot keep removed objects out of contact yet; use backend='native'")
-  return _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, compiled_loop,
-              progress, start_wall, added, removed, gone)
+  runners.runner_for(sampler).check(sampler.scene.model, removed, gone)
+  f0 = int(math.floor(t_min * bank.record_fps + 1e-6))
+  if f0 >= sampler.n_frames:
+    raise MwbxError(f"refine: t_min {t_min:g} s is at or past the end time")
+  codec = sampler.scene.config.codec
+  return RefinePlan(
+      world=world, row=row, objects=names, added=added, removed=removed, gone=gone, t_min=t_min, first_frame=f0,
+      n_samples=n_samples, chunk=int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples)),
+      key=key, backend=backend, playback=playback,
+      compiled_loop=loop == "compiled" or (loop == "auto" and mujoco_c.available()), margin=margin,
+      # An added object puts a world in the bank's current scene version.
+      scene_version=len(bank.versions) if added else int(bank.scene_version[row]),
+      first_id=bank.next_world_id, bounds=(codec.e_pos, float(np.deg2rad(codec.e_rot_deg)), codec.e_scalar),
+      contact_budget=bank.run.get("contact_budget"))
+
+
+def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
+               key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
+               margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None,
+               add=(), remove=()):
+  """:func:`refine` that also returns :class:`RefineStats` and only the new worlds.
+
+  The bank must already be in the scene version holding objects to ``add``
+  (:meth:`mwbx.Bank.with_scene`; :func:`refine` does that from ``scene=``).
+
+  ``loop`` (native backend, ``playback="step"``): ``compiled`` runs each
+  refined world in compiled calls (:mod:`mwbx.refinement.world_loop`),
+  ``lockstep`` steps the batch through ``mujoco.rollout`` a step at a time
+  (:func:`mwbx.refinement.loop.run_native`), ``auto`` the first where
+  MuJoCo's C library can be bound.
+  """
+  start_wall = time.perf_counter()
+  plan = plan_refinement(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
+                         backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
+                         add=add, remove=remove)
+  return run_plan(bank, plan, progress, start_wall)
 
 
 _SAMPLERS: dict = {}
@@ -218,19 +291,163 @@ def sampler_for(bank, backend: str | None = None) -> Sampler:
   return _SAMPLERS[cache_key]
 
 
-def _removal_model(model: mujoco.MjModel, removed) -> mujoco.MjModel:
-  """``model`` with the ``removed`` objects colliding with nothing and
-  weightless (gravity compensated), so parked they stay put."""
-  if not removed:
-    return model
-  out = copy.copy(model)  # mj_copyModel
-  roots = [model.body(name).id for name in removed]
-  bodies = np.isin(model.body_rootid, roots)
-  geoms = bodies[model.geom_bodyid]
-  out.geom_contype[geoms] = 0
-  out.geom_conaffinity[geoms] = 0
-  out.body_gravcomp[bodies] = 1.0
-  return out
+class _Parent(NamedTuple):
+  """The parent world as refinement restarts it (see :func:`_parent_of`)."""
+
+  frames: np.ndarray  # f32[T, nq] its decoded qpos
+  path: kinematic.StoredPath
+  qpos0: np.ndarray  # f32[nq] state at f0
+  qvel0: np.ndarray  # f32[nv]
+  metrics0: np.ndarray  # its metrics up to f0
+  qpos_object: np.ndarray  # bool[O, nq]
+  dof_object: np.ndarray  # bool[O, nv]
+  asked: np.ndarray  # bool[O] objects active from t_min
+
+
+def _parent_of(bank, plan: RefinePlan, sampler) -> _Parent:
+  scene, model = sampler.scene, sampler.scene.model
+  fps, f0 = bank.record_fps, plan.first_frame
+  frame_time = 1.0 / fps
+  frames = bank.qpos_store.frames(plan.row)
+  path = kinematic.stored_path(model, frames, scene.body_ids, sampler.n_frames + 2, frame_time)
+  object_names = tuple(scene.object_names)
+  qm, vm = object_coordinates(model, object_names)
+  # Added and removed objects are active from t_min: an added one is simulated,
+  # a removed one parked, its ghost (stored path) still tested.
+  asked = np.array([o in plan.objects or o in plan.added or o in plan.removed for o in object_names])
+  qvel0 = np.where(vm[asked].any(axis=0), kinematic.central_velocity(model, path, f0, frame_time), path.qvel[f0])
+  cfg = scene.config
+  metrics0 = kinematic.prefix_metrics(
+      path, f0, frame_time, model.opt.timestep, np.asarray(model.opt.gravity), cfg.rest.linear_speed,
+      cfg.rest.angular_speed, cfg.perturb.linear_threshold,
+      max(1, int(round(cfg.perturb.collision_gap * fps))))
+  return _Parent(frames, path, path.qpos[f0], qvel0, metrics0, qm, vm, asked)
+
+
+def run_plan(bank, plan: RefinePlan, progress=None, start_wall: float | None = None):
+  """Runs a :class:`RefinePlan`: (the new worlds as a bank, :class:`RefineStats`)."""
+  start_wall = time.perf_counter() if start_wall is None else start_wall
+  sampler = sampler_for(bank, plan.backend)
+  runner = runners.runner_for(sampler, plan.playback, plan.compiled_loop)
+  scene, params = sampler.scene, sampler.params
+  model = scene.model
+  spf, f0, n_frames, n_samples, chunk = params.steps_per_frame, plan.first_frame, sampler.n_frames, \
+      plan.n_samples, plan.chunk
+  parent = _parent_of(bank, plan, sampler)
+  object_names = tuple(scene.object_names)
+  parked = plan.removed + plan.gone
+  extras = runner.loop_extras(scene, parent.path, parked)
+  inter = interactions.interaction_params(
+      model, scene.body_ids, scene.body_names, scene.objects, object_names, plan.bounds,
+      plan.margin, (spf + 1) * model.opt.timestep, scene.config.perturb.alpha)
+  params = params if not parked else params._replace(perturbable=jnp.asarray(
+      np.asarray(params.perturbable) & ~np.isin(np.asarray(scene.body_names),
+                                                 [b for o in parked for b in scene.objects[o]])))
+  ctrl = controls.scene_table(scene, n_frames * spf)
+  keys, _, step_keys = world_keys(plan.key, np.arange(n_samples, dtype=np.int64))
+  start_qpos, start_qvel = _start_states(scene, parent.qpos0, parent.qvel0, parent.qpos_object,
+                                         parent.dof_object, object_names, plan.added, plan.removed, keys)
+  # Actuator activations at t_min: the same in every world (they follow the controls).
+  act0 = controls.activation_at(model, ctrl, f0 * spf)[None] if model.na else None
+  stats = RefineStats(backend=sampler.backend_label, first_frame=f0)
+  outputs = []
+  for lo in range(0, n_samples, chunk):
+    n = min(chunk, n_samples - lo)
+    pad = np.concatenate([np.arange(lo, lo + n), np.full(chunk - n, lo)])
+    running0 = np.arange(chunk) < n
+    carry = jax.vmap(world_lib.init_carry, in_axes=(None, 0))(len(scene.body_names), jnp.asarray(running0))
+    carry = carry._replace(
+        step=jnp.full(chunk, f0 * spf, jnp.int32),
+        metrics=jnp.broadcast_to(jnp.asarray(parent.metrics0), carry.metrics.shape),
+        prev_com=jnp.broadcast_to(jnp.asarray(parent.path.com[f0]), carry.prev_com.shape),
+        init_quat=jnp.broadcast_to(jnp.asarray(parent.path.quat[0]), carry.init_quat.shape))
+    inp = refine_loop.RefineInputs(
+        params=params, inter=inter, path=parent.path, step_targets=extras.step_targets, first_frame=f0,
+        qpos0=start_qpos[pad], qvel0=start_qvel[pad], active0=np.tile(parent.asked, (chunk, 1)), carry0=carry,
+        qpos_object=parent.qpos_object, dof_object=parent.dof_object, step_keys=step_keys[pad],
+        running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=extras.models,
+        free_bodies=extras.free_bodies, ctrl=ctrl, act0=None if act0 is None else np.repeat(act0, chunk, axis=0))
+    base = stats.world_steps
+    most_steps = (n_frames - f0) * spf  # one world from t_min to the end time
+
+    def report(steps, finished, _base=base, _lo=lo, _n=n):
+      # Worlds step in lockstep and mostly finish together: report world-steps
+      # as world-equivalents so the bar moves while they run.
+      if progress is not None:
+        done = _lo + min(_n, max(finished, steps / most_steps))
+        progress(Progress("refining", done, n_samples, _base + steps))
+
+    out = runner.run(inp, progress=report).first(n)
+    outputs.append(out)
+    stats.world_steps += int(out.chunk.steps.sum())
+    stats.run_seconds += out.chunk.run_seconds
+    stats.compile_seconds += out.chunk.compile_seconds
+  stats.max_perturbation_ratio = np.concatenate([o.max_perturbation_ratio for o in outputs])
+  stats.inactive_perturbations = np.concatenate([o.inactive_perturbations for o in outputs])
+  if progress is not None:
+    progress(Progress("refining", n_samples, n_samples, stats.world_steps))
+    progress(Progress("compressing", 0, n_samples, stats.world_steps))
+  codec_start = time.perf_counter()
+  new = _assemble(bank, plan, sampler, parent, keys, outputs)
+  stats.codec_seconds = time.perf_counter() - codec_start
+  if progress is not None:
+    progress(Progress("compressing", n_samples, n_samples, stats.world_steps))
+  stats.wall_seconds = time.perf_counter() - start_wall
+  return new, stats
+
+
+def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -> bank_lib.Bank:
+  """The refined worlds as a bank (same scene, config and digest as ``bank``)."""
+  f0, row = plan.first_frame, plan.row
+  object_names = tuple(sampler.scene.object_names)
+  chunks = [o.chunk for o in outputs]
+  cat = lambda name: np.concatenate([getattr(o, name) for o in outputs])
+  count = f0 + np.concatenate([c.frame_count for c in chunks]).astype(np.int32)
+  status = np.concatenate([c.status for c in chunks])
+  new_qpos = np.concatenate([c.qpos for c in chunks])
+  # A refined world at rest before the parent's end holds its last frame to the
+  # parent's length: then untouched objects' coded channels are the parent's own.
+  count = np.where((status == world_lib.AT_REST) & (count < parent.path.n_parent),
+                   np.minimum(parent.path.n_parent, f0 + new_qpos.shape[1]), count).astype(np.int32)
+  w = len(count)
+  active = cat("active")
+  activated = cat("activated")
+  body_obj = np.array([object_names.index(next(o for o, bs in bank.objects.items() if b in bs))
+                       for b in bank.body_names])
+  body_active = active[:, body_obj]  # [W, B]
+
+  path = parent.path
+  qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
+  keep_qpos = (~active).astype(np.float32) @ parent.qpos_object.astype(np.float32) > 0.5
+  store = bank.qpos_store.refined(qpos, count, row, parent.frames, keep_qpos)
+
+  # Inactive bodies keep the parent's polylines; a removed object keeps the
+  # parent's metrics too (what it did while it was there).
+  removed_body = np.isin(np.asarray(bank.body_names), [b for o in plan.removed for b in bank.objects[o]])
+  rows = rows_lib.rows_from_chunks(
+      chunks, sampler.query_stride, sampler.scene.config.codec.e_com, first_frame=f0, frame_count=count,
+      parent=rows_lib.ParentRow(com=np.asarray(bank.com[row]), metrics=np.asarray(bank.metrics[row]),
+                                com_kept=~body_active, metrics_kept=~body_active | removed_body))
+  first_id = plan.first_id
+  t0 = f0 / bank.record_fps
+  lineage = {}
+  for i in range(w):
+    lineage[str(first_id + i)] = {
+        "parent": plan.world, "t_min": t0, "objects": list(plan.objects),
+        "active": [o for o, a in zip(object_names, active[i]) if a and o not in plan.removed],
+        "activated_at": {o: int(f) / bank.record_fps for o, f in zip(object_names, activated[i])
+                         if f >= 0 and o not in plan.removed},
+    }
+    if plan.added:
+      lineage[str(first_id + i)]["added"] = {o: t0 for o in plan.added}
+    if plan.removed:
+      lineage[str(first_id + i)]["removed"] = {o: t0 for o in plan.removed}
+  return dataclasses.replace(
+      bank, world_ids=np.arange(first_id, first_id + w, dtype=np.int64),
+      keys=np.asarray(jax.random.key_data(keys)), **rows._asdict(),
+      parent_world=np.full(w, plan.world, np.int64), refine_time=np.full(w, t0, np.float32),
+      qpos_store=store, lineage=lineage, next_id=first_id + w,
+      scene_version=np.full(w, plan.scene_version, np.int16), _model=None)
 
 
 def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, removed, keys):
@@ -255,181 +472,6 @@ def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, 
       qpos[:, free] = parked[free]
       qvel[:, vm[i]] = 0.0
   return qpos, qvel
-
-
-def _run(bank, world, names, t_min, n_samples, key, sampler, chunk, margin, playback, compiled_loop, progress,
-         start_wall, added=(), removed=(), gone=()):
-  scene, params = sampler.scene, sampler.params
-  model = scene.model
-  fps, spf = bank.record_fps, params.steps_per_frame
-  frame_time = 1.0 / fps
-  f0 = int(math.floor(t_min * fps + 1e-6))
-  n_frames = sampler.n_frames
-  if f0 >= n_frames:
-    raise MwbxError(f"refine: t_min {t_min:g} s is at or past the end time")
-  row = bank.row_of(world)
-  parent = bank.qpos_frames(world)
-  path = kinematic.stored_path(model, parent, scene.body_ids, n_frames + 2, frame_time)
-  mjx = sampler.backend_name == "mjx"
-  targets = kinematic.step_targets(model, path, spf, model.opt.timestep) if mjx or playback == "step" else None
-  object_names = tuple(scene.object_names)
-  qm, vm = object_coordinates(model, object_names)
-  # Native: free bodies are observed from their states, so the rollout models
-  # (and their contact-free copies) step with sensors disabled.
-  bodies = None if mjx else free_bodies.free_bodies(model, scene.body_ids)
-  models = None if mjx else kinematic.ContactFreeModels(
-      _removal_model(model if bodies is None else sampler.backend.quiet_model, removed + gone), object_names)
-  # Added and removed objects are active from t_min: an added one is simulated,
-  # a removed one parked, its ghost (stored path) still tested.
-  asked = np.array([o in names or o in added or o in removed for o in object_names])
-  cfg = scene.config
-  inter = interactions.interaction_params(
-      model, scene.body_ids, scene.body_names, scene.objects, object_names,
-      (cfg.codec.e_pos, float(np.deg2rad(cfg.codec.e_rot_deg)), cfg.codec.e_scalar),
-      margin, (spf + 1) * model.opt.timestep, cfg.perturb.alpha)
-
-  qpos0 = path.qpos[f0]
-  qvel0 = np.where(vm[asked].any(axis=0), kinematic.central_velocity(model, path, f0, frame_time), path.qvel[f0])
-  params = params if not (removed or gone) else params._replace(perturbable=jnp.asarray(
-      np.asarray(params.perturbable) & ~np.isin(np.asarray(scene.body_names),
-                                                 [b for o in removed + gone for b in scene.objects[o]])))
-  metrics0 = kinematic.prefix_metrics(
-      path, f0, frame_time, model.opt.timestep, np.asarray(model.opt.gravity), cfg.rest.linear_speed,
-      cfg.rest.angular_speed, cfg.perturb.linear_threshold,
-      max(1, int(round(cfg.perturb.collision_gap * fps))))
-
-  ctrl = controls.scene_table(scene, n_frames * spf)
-  ids = np.arange(n_samples, dtype=np.int64)
-  keys, _, step_keys = world_keys(key, ids)
-  start_qpos, start_qvel = _start_states(scene, qpos0, qvel0, qm, vm, object_names, added, removed, keys)
-  # Actuator activations at t_min: the same in every world (they follow the controls).
-  act0 = controls.activation_at(model, ctrl, f0 * spf)[None] if model.na else None
-  stats = RefineStats(backend=sampler.backend_label, first_frame=f0)
-  outputs = []
-  for lo in range(0, n_samples, chunk):
-    n = min(chunk, n_samples - lo)
-    pad = np.concatenate([np.arange(lo, lo + n), np.full(chunk - n, lo)])
-    running0 = np.arange(chunk) < n
-    carry = jax.vmap(world_lib.init_carry, in_axes=(None, 0))(len(scene.body_names), jnp.asarray(running0))
-    carry = carry._replace(
-        step=jnp.full(chunk, f0 * spf, jnp.int32),
-        metrics=jnp.broadcast_to(jnp.asarray(metrics0), carry.metrics.shape),
-        prev_com=jnp.broadcast_to(jnp.asarray(path.com[f0]), carry.prev_com.shape),
-        init_quat=jnp.broadcast_to(jnp.asarray(path.quat[0]), carry.init_quat.shape))
-    inp = refine_loop.RefineInputs(
-        params=params, inter=inter, path=path, step_targets=targets, first_frame=f0,
-        qpos0=start_qpos[pad], qvel0=start_qvel[pad],
-        active0=np.tile(asked, (chunk, 1)), carry0=carry, qpos_object=qm, dof_object=vm,
-        step_keys=step_keys[pad], running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=models,
-        free_bodies=bodies, ctrl=ctrl, act0=None if act0 is None else np.repeat(act0, chunk, axis=0))
-    if mjx:
-      run = refine_loop.run_mjx
-    elif playback == "step" and compiled_loop:
-      run = world_loop.run_compiled
-    else:
-      run = functools.partial(refine_loop.run_native, every_step=playback == "step")
-    base = stats.world_steps
-    most_steps = (n_frames - f0) * spf  # one world from t_min to the end time
-
-    def report(steps, finished, _base=base, _lo=lo, _n=n):
-      # Worlds step in lockstep and mostly finish together: report world-steps
-      # as world-equivalents so the bar moves while they run.
-      if progress is not None:
-        done = _lo + min(_n, max(finished, steps / most_steps))
-        progress(Progress("refining", done, n_samples, _base + steps))
-
-    out = run(sampler.backend, inp, progress=report)
-    out = refine_loop.RefineOutput(*(x[:n] if isinstance(x, np.ndarray) else x for x in out))
-    outputs.append(out)
-    stats.world_steps += int(out.steps.sum())
-    stats.run_seconds += out.run_seconds
-    stats.compile_seconds += out.compile_seconds
-  stats.max_perturbation_ratio = np.concatenate([o.max_perturbation_ratio for o in outputs])
-  stats.inactive_perturbations = np.concatenate([o.inactive_perturbations for o in outputs])
-  if progress is not None:
-    progress(Progress("refining", n_samples, n_samples, stats.world_steps))
-    progress(Progress("compressing", 0, n_samples, stats.world_steps))
-  codec_start = time.perf_counter()
-  new = _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler, added,
-                  removed)
-  stats.codec_seconds = time.perf_counter() - codec_start
-  if progress is not None:
-    progress(Progress("compressing", n_samples, n_samples, stats.world_steps))
-  stats.wall_seconds = time.perf_counter() - start_wall
-  return new, stats
-
-
-def _assemble(bank, world, row, names, object_names, f0, path, parent, keys, outputs, qm, sampler, added=(),
-              removed=()):
-  """The refined worlds as a bank (same scene, config and digest as ``bank``)."""
-  cat = lambda name: np.concatenate([getattr(o, name) for o in outputs])
-  count = f0 + cat("frame_count").astype(np.int32)
-  status = cat("status")
-  # A refined world at rest before the parent's end holds its last frame to the
-  # parent's length: then untouched objects' coded channels are the parent's own.
-  count = np.where((status == world_lib.AT_REST) & (count < path.n_parent),
-                   np.minimum(path.n_parent, f0 + cat("qpos").shape[1]), count).astype(np.int32)
-  new_qpos, new_com = cat("qpos"), cat("com")
-  w = len(count)
-  active = cat("active")
-  activated = cat("activated")
-  body_obj = np.array([object_names.index(next(o for o, bs in bank.objects.items() if b in bs))
-                       for b in bank.body_names])
-  body_active = active[:, body_obj]  # [W, B]
-
-  qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
-  keep_qpos = (~active).astype(np.float32) @ qm.astype(np.float32) > 0.5
-  store = bank.qpos_store.refined(qpos, count, row, parent, keep_qpos)
-
-  stride = sampler.query_stride
-  n_points = bank.com.shape[1]
-  # On the bank's COM grid, like the parent's stored points.
-  new_com = polyline.round_to_grid(new_com, polyline.grid_step(sampler.scene.config.codec.e_com))
-  com_rate = np.concatenate([np.zeros((w, f0) + new_com.shape[2:], np.float32), new_com], axis=1)
-  com = com_rate[:, ::stride][:, :n_points]
-  com = np.concatenate([com, np.repeat(com[:, -1:], n_points - com.shape[1], axis=1)], axis=1)
-  before = (np.arange(n_points) * stride < f0)
-  com[:, before] = bank.com[row][before]
-  parent_com = bank.com[row]
-  com = np.where(body_active[:, None, :, None], com, parent_com[None])
-  com = np.nan_to_num(com)
-  com_count = ((count - 1) // stride + 1).astype(np.int32)
-
-  metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
-  # A removed object keeps the parent's metrics (what it did while it was there).
-  body_kept = ~body_active | np.isin(np.asarray(bank.body_names), [b for o in removed for b in bank.objects[o]])
-  metrics = np.where(body_kept[:, :, None], bank.metrics[row][None], metrics)
-  flags = np.full(w, bank_lib.FLAG_FINISHED, np.uint8)
-  flags[status == world_lib.AT_REST] |= bank_lib.FLAG_AT_REST
-  flags[status == world_lib.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
-  flags[status == world_lib.SIM_ERROR] |= bank_lib.FLAG_SIM_ERROR  # trapped by the compiled loop
-  if all(o.contact_overflow is not None for o in outputs):  # MJX: over its contact budget
-    flags[cat("contact_overflow")] |= bank_lib.FLAG_CONTACT_OVERFLOW
-  first_id = bank.next_world_id
-  t0 = f0 / bank.record_fps
-  lineage = {}
-  for i in range(w):
-    lineage[str(first_id + i)] = {
-        "parent": int(world), "t_min": t0, "objects": list(names),
-        "active": [o for o, a in zip(object_names, active[i]) if a and o not in removed],
-        "activated_at": {o: int(f) / bank.record_fps for o, f in zip(object_names, activated[i])
-                         if f >= 0 and o not in removed},
-    }
-    if added:
-      lineage[str(first_id + i)]["added"] = {o: t0 for o in added}
-    if removed:
-      lineage[str(first_id + i)]["removed"] = {o: t0 for o in removed}
-  # An added object puts a world in the bank's current scene version.
-  version = len(bank.versions) if added else int(bank.scene_version[row])
-  return dataclasses.replace(
-      bank, world_ids=np.arange(first_id, first_id + w, dtype=np.int64),
-      keys=np.asarray(jax.random.key_data(keys)), flags=flags, frame_count=count, com=com.astype(np.float32),
-      com_count=com_count, metrics=metrics.astype(np.float32),
-      perturbations=cat("perturbations").astype(np.int32), steps=cat("steps").astype(np.int32),
-      parent_world=np.full(w, world, np.int64), refine_time=np.full(w, t0, np.float32),
-      qpos_store=store, lineage=lineage, next_id=first_id + w, scene_version=np.full(w, version, np.int16),
-      _model=None)
-
 
 
 def refine(bank, world: int, objects=(), *, frustum=None, t_min: float | None = None, n_samples: int,
@@ -489,12 +531,47 @@ def refine(bank, world: int, objects=(), *, frustum=None, t_min: float | None = 
     ...                    n_samples=16)
     >>> bank = mwbx.refine(bank, 4, remove="bucket_top", t_min=1.0, n_samples=16)
   """
+  return run_refinement(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
+                        backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
+                        progress=progress, scene=scene, add=add, remove=remove).bank
+
+
+class Refinement(NamedTuple):
+  """What one refinement made (:func:`run_refinement`; what ``mwbx refine`` reports).
+
+  Attributes:
+    bank: the bank with the refined worlds appended (in ``scene``'s version if given).
+    new: the refined worlds alone (ids from the bank's ``next_world_id`` on).
+    stats: timing and perturbation audit.
+    plan: the refinement as resolved (objects, t_min, frame, key, …).
+    scene_version: the scene version the bank moved to for ``scene=``; None:
+      it stayed in its own.
+  """
+
+  bank: bank_lib.Bank
+  new: bank_lib.Bank
+  stats: RefineStats
+  plan: RefinePlan
+  scene_version: int | None
+
+
+def run_refinement(bank, world: int, objects=(), *, frustum=None, t_min: float | None = None, n_samples: int,
+                   key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
+                   margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None,
+                   scene=None, add=(), remove=()) -> Refinement:
+  """:func:`refine`, returning the new worlds and stats beside the grown bank
+  (arguments as :func:`refine`)."""
+  start_wall = time.perf_counter()
+  moved = None
   if scene is not None:
+    before = bank.digest
     bank = bank.with_scene(as_scene(scene), progress)
-  new, _ = refine_run(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
-                      backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
-                      progress=progress, add=add, remove=remove)
-  return bank.append(new)
+    moved = len(bank.versions) if bank.digest != before else None
+  plan = plan_refinement(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
+                         backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
+                         add=add, remove=remove)
+  new, stats = run_plan(bank, plan, progress, start_wall)
+  return Refinement(bank=bank.append(new), new=new, stats=stats, plan=plan, scene_version=moved)
 
 
 def as_scene(scene):
