@@ -13,7 +13,7 @@ import mwbx
 from mwbx.bank.core import Bank
 from mwbx.errors import MwbxError
 from mwbx.refinement import plan_refinement, refine_run, run_refinement, runners, sampler_for
-from mwbx.refinement.refine import run_plan
+from mwbx.refinement.plan import run_plan
 
 TINY = pathlib.Path(__file__).parent / "scenes" / "tiny.yaml"
 ARRAYS = ("world_ids", "keys", "flags", "frame_count", "com", "com_count", "metrics", "perturbations", "steps",
@@ -41,7 +41,7 @@ def test_the_plan_holds_the_resolved_refinement(bank):
   assert plan.first_frame == int(0.31 * bank.record_fps) and plan.t_min == pytest.approx(0.31)
   assert (plan.n_samples, plan.chunk, plan.first_id, plan.scene_version) == (3, 2, bank.next_world_id, 0)
   assert plan.bounds[1] == pytest.approx(np.deg2rad(bank.config["codec"]["e_rot_deg"]))
-  new, stats = run_plan(bank, plan)
+  new, stats = run_plan(bank, plan, sampler_for(bank, "native"))
   again, _ = refine_run(bank, 2, "ball", t_min=0.31, n_samples=3, key=jax.random.key(1), backend="native",
                         chunk_size=2, remove="cube")
   _same(new, again)

@@ -20,8 +20,8 @@ from mwbx import bank as bank_lib
 from mwbx import rates as rates_lib
 from mwbx.batch_sim import memory, world
 from mwbx.batch_sim import rows as rows_lib
-from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
-from mwbx.codec import CodecBounds, CompressedQposStore, polyline
+from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_impl
+from mwbx.codec import CodecBounds, CompressedQposStore
 from mwbx.config import Config
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress, ProgressFn
