@@ -42,8 +42,7 @@ from mwbx.files import write_atomic
 from mwbx.progress import reporter
 from mwbx.queries import Camera, ScreenBox, load_queries
 from mwbx.queries.report import run_query_file
-from mwbx.refinement import refine_run
-from mwbx.refinement.refine import as_scene
+from mwbx.refinement import run_refinement
 
 # The viewer (meshcat), the page (viser), search (optax) and the MJX contact
 # budget (mujoco.mjx) are imported by the commands that use them: seconds of
@@ -312,20 +311,12 @@ def _cmd_query(args) -> int:
 
 def _cmd_refine(args) -> int:
   bank = _load_bank(args)
+  # Which flags go together is the command's to say; what they name, refine checks.
   if args.objects is None and args.add is None and args.remove is None:
     raise MwbxError("refine: name objects to refine (--objects), to add (--add) or to remove (--remove)")
-  if args.scene is not None:
-    before = bank.digest
-    bank = bank.with_scene(as_scene(args.scene))
-    if bank.digest != before:
-      print(f"mwbx: bank moved to scene version {len(bank.versions)} ({args.scene})", file=sys.stderr)
-  unknown = [o for o in (args.add or "").split(",") if o and o not in bank.objects and o not in bank.groups]
-  if unknown:
-    raise MwbxError(f"refine: --add: {', '.join(unknown)} is not an object of the bank's scene; give the scene"
-                    f" version that has it with --scene NEW.yaml")
-  frustum = None
   if (args.box is None) == (args.time is None):
     raise MwbxError("refine: give either --box with --camera, or --time")
+  frustum = None
   if args.box is not None:
     if args.camera is None:
       raise MwbxError("--box: needs --camera (an MJCF camera name)")
@@ -338,10 +329,12 @@ def _cmd_refine(args) -> int:
   # Without --seed every run draws new worlds; the seed is printed to repeat one.
   seed = secrets.randbits(31) if args.seed is None else args.seed
   with reporter("refine") as update:
-    new, stats = refine_run(bank, args.world, args.objects or (), frustum=frustum, t_min=args.time,
-                            n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
-                            progress=update, add=args.add or (), remove=args.remove or ())
-  total = bank.append(new)
+    done = run_refinement(bank, args.world, args.objects or (), frustum=frustum, t_min=args.time,
+                          n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
+                          progress=update, scene=args.scene, add=args.add or (), remove=args.remove or ())
+  total, new, stats = done.bank, done.new, done.stats
+  if done.scene_version is not None:
+    print(f"mwbx: bank moved to scene version {done.scene_version} ({args.scene})", file=sys.stderr)
   active = [len(new.lineage[str(int(i))]["active"]) for i in new.world_ids]
   print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
   total.save(out)  # may renumber the new worlds (another process took their ids meanwhile)

@@ -154,8 +154,10 @@ def test_the_command_line_adds_and_removes(toy_bank, tmp_path, capsys):
                    "--time", "0.2", "--samples", "2", "--seed", "5", "--backend", "native"]) == 0
   assert cli.main(["refine", str(path), "--world", "3", "--remove", "bucket_left", "--time", "0.5",
                    "--samples", "2", "--seed", "6", "--backend", "native"]) == 0
-  out = capsys.readouterr().out
+  captured = capsys.readouterr()
+  out = captured.out
   assert "added: block" in out and "removed: bucket_left" in out
+  assert captured.err.count("mwbx: bank moved to scene version 1 (") == 1  # the first call only
   bank = mwbx.Bank.load(path)
   assert bank.n_worlds == toy_bank.n_worlds + 4 and len(bank.versions) == 1
   assert bank.absent(int(bank.world_ids[-1]))["bucket_left"] == (0.5, math.inf)

@@ -5,7 +5,10 @@ tracked body's centre of mass, and reports the tracked bodies' sensor block
 (see :data:`mwbx.scene.SENSORS`). The sampling loops live with each backend
 (``mjx_backend.run_chunk`` as one jitted scan per block of frames in lockstep,
 ``native_backend.run_chunk`` as one compiled call per world on a thread per
-core, :mod:`world_loop`); both return a :class:`ChunkResult`.
+core, :mod:`world_loop`); both return a :class:`ChunkResult`, which
+:func:`mwbx.batch_sim.rows.rows_from_chunks` turns into bank rows.
+Refinement's entry points into each backend are in
+:mod:`mwbx.refinement.runners` (refinement sits above batch_sim).
 """
 
 from __future__ import annotations
@@ -53,6 +56,10 @@ class ChunkResult(NamedTuple):
   physics_seconds: float = float("nan")
   errors: tuple = ()
   contact_overflow: np.ndarray | None = None
+
+  def first(self, n: int) -> ChunkResult:
+    """The result of the first ``n`` worlds (a padded chunk without its padding)."""
+    return ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in self))
 
 
 @runtime_checkable

@@ -20,9 +20,9 @@ from mwbx import bank as bank_lib
 from mwbx import rates as rates_lib
 from mwbx.bank.stores import store_for
 from mwbx.batch_sim import memory, world
-from mwbx.batch_sim.backend import ChunkResult, fill_tail, resolve_backend, resolve_mjx_impl
+from mwbx.batch_sim import rows as rows_lib
+from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_impl
 from mwbx.batch_sim.native_backend import NativeBackend
-from mwbx.codec import polyline
 from mwbx.config import Config, MjxSection
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress, ProgressFn
@@ -272,7 +272,7 @@ class Sampler:
       result = self.backend.run_chunk(
           self.scene, self.params, np.asarray(qpos0), np.asarray(qvel0), step_keys[pad],
           active, self.n_frames, progress=report)
-      result = ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in result))
+      result = result.first(n)
       stats.sim_errors.extend((int(ids[lo + row]), message) for row, message in result.errors)
       # Compress as worlds are produced: raw qpos never outlives its chunk.
       chunk_steps = base_steps + int(result.steps.sum())
@@ -324,28 +324,10 @@ class Sampler:
 
   def _assemble(self, ids, keys, results: list[ChunkResult], store) -> bank_lib.Bank:
     scene = self.scene
-    cat = lambda name: np.concatenate([getattr(r, name) for r in results])
-    frame_count = cat("frame_count").astype(np.int32)
-    status = cat("status")
-    com = np.concatenate([r.com for r in results])[:, ::self.query_stride]
-    com_count = np.where(frame_count > 0, (frame_count - 1) // self.query_stride + 1, 0).astype(np.int32)
-    com = fill_tail(np.ascontiguousarray(com), com_count)  # the tail repeats the last polyline point
-    com = np.nan_to_num(com)
-    # On the COM grid as stored: queries see exactly what is stored.
-    com = polyline.round_to_grid(com, scene.config.codec.com_step())
-    flags = np.full(len(ids), bank_lib.FLAG_FINISHED, np.uint8)
-    flags[status == world.AT_REST] |= bank_lib.FLAG_AT_REST
-    flags[status == world.UNSTABLE] |= bank_lib.FLAG_UNSTABLE
-    flags[status == world.SIM_ERROR] |= bank_lib.FLAG_SIM_ERROR
-    overflow = [r.contact_overflow for r in results]
-    if all(o is not None for o in overflow):
-      flags[np.concatenate(overflow)] |= bank_lib.FLAG_CONTACT_OVERFLOW
-    metrics = np.nan_to_num(cat("metrics"), nan=0.0, posinf=0.0, neginf=0.0)
+    rows = rows_lib.rows_from_chunks(results, self.query_stride, scene.config.codec.com_step())
     cfg = scene.config
     return bank_lib.Bank(
-        world_ids=ids, keys=np.asarray(jax.random.key_data(keys)), flags=flags,
-        frame_count=frame_count, com=com, com_count=com_count, metrics=metrics,
-        perturbations=cat("perturbations").astype(np.int32), steps=cat("steps").astype(np.int32),
+        world_ids=ids, keys=np.asarray(jax.random.key_data(keys)), **rows._asdict(),
         parent_world=np.full(len(ids), -1, np.int64), refine_time=np.full(len(ids), np.nan, np.float32),
         qpos_store=store, body_names=scene.body_names, body_ids=scene.body_ids,
         objects=dict(scene.objects), groups=dict(scene.groups), metric_names=world.METRIC_NAMES,

@@ -9,5 +9,6 @@ from mwbx.refinement.refine import DEFAULT_MARGIN
 from mwbx.refinement.refine import RefineStats
 from mwbx.refinement.refine import refine
 from mwbx.refinement.refine import refine_run
+from mwbx.refinement.refine import Refinement, RefinePlan, plan_refinement, run_refinement
 from mwbx.refinement.refine import sampler_for
 from mwbx.refinement.exact_activation import exact_active

@@ -17,7 +17,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from mwbx.refinement.refine import object_coordinates
+from mwbx.refinement.plan import object_coordinates
 
 
 def _object_geoms(model: mujoco.MjModel, object_names) -> list[np.ndarray]:

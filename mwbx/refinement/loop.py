@@ -35,7 +35,7 @@ import numpy as np
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
-from mwbx.batch_sim.backend import fill_tail
+from mwbx.batch_sim.backend import ChunkResult, fill_tail
 from mwbx.refinement import interactions, kinematic
 
 
@@ -86,36 +86,29 @@ class RefineInputs(NamedTuple):
 
 
 class RefineOutput(NamedTuple):
-  """What a batch produced (host arrays); frames counted from f0.
+  """What a batch produced (host arrays).
 
   Attributes:
-    qpos: f32[C, F - f0, nq]; com: f32[C, F - f0, B, 3] (tails repeat the last).
-    frame_count: i32[C] frames recorded from f0 on.
-    status: i32[C]; metrics: f32[C, B, M]; perturbations: i32[C].
-    steps: i32[C] physics steps simulated (from f0).
+    chunk: the batch as a :class:`~mwbx.batch_sim.backend.ChunkResult`, its
+      frames counted from f0: ``qpos`` f32[C, F - f0, nq], ``com``
+      f32[C, F - f0, B, 3] (tails repeat the last), ``frame_count`` frames
+      recorded from f0 on, ``steps`` physics steps simulated from f0;
+      ``contact_overflow`` on MJX only.
     active: bool[C, O] final active sets.
     activated: i32[C, O] frame each object became active (-1: never).
     max_perturbation_ratio: f32[C] largest ‖perturbation‖ / (α‖Δv‖) applied.
     inactive_perturbations: i64[C] perturbations drawn for inactive bodies (0).
-    compile_seconds, run_seconds: s.
-    contact_overflow: bool[C] a step may have needed more contacts than the
-      MJX backend's budget (None on native loops).
   """
 
-  qpos: np.ndarray
-  com: np.ndarray
-  frame_count: np.ndarray
-  status: np.ndarray
-  metrics: np.ndarray
-  perturbations: np.ndarray
-  steps: np.ndarray
+  chunk: ChunkResult
   active: np.ndarray
   activated: np.ndarray
   max_perturbation_ratio: np.ndarray
   inactive_perturbations: np.ndarray
-  compile_seconds: float
-  run_seconds: float
-  contact_overflow: np.ndarray | None = None
+
+  def first(self, n: int) -> RefineOutput:
+    """The output of the first ``n`` worlds (a padded batch without its padding)."""
+    return RefineOutput(self.chunk.first(n), *(x[:n] for x in self[1:]))
 
 
 def _activate_batch(active, com_sim, speed_sim, com_now, com_next, inter):
@@ -180,15 +173,17 @@ def start_active(inp: RefineInputs):
                          jnp.asarray(p.com[f0]), jnp.asarray(p.com[f0 + 1]), inp.inter)
 
 
-def _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds, audit):
+def _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds, audit,
+            contact_overflow=None):
   frame_count = np.asarray(carry.frame_count)
   steps = np.asarray(carry.step) - inp.first_frame * inp.params.steps_per_frame
-  return RefineOutput(
+  chunk = ChunkResult(
       qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count), frame_count=frame_count,
       status=np.asarray(carry.status), metrics=world.finalize_metrics(carry),
       perturbations=np.asarray(carry.perturbations), steps=np.where(inp.running0, steps, 0).astype(np.int32),
-      active=np.asarray(active), activated=activated, max_perturbation_ratio=np.asarray(audit[0]),
-      inactive_perturbations=np.asarray(audit[1]), compile_seconds=compile_seconds, run_seconds=run_seconds)
+      compile_seconds=compile_seconds, run_seconds=run_seconds, contact_overflow=contact_overflow)
+  return RefineOutput(chunk=chunk, active=np.asarray(active), activated=activated,
+                      max_perturbation_ratio=np.asarray(audit[0]), inactive_perturbations=np.asarray(audit[1]))
 
 
 _KERNELS: dict = {}
@@ -412,9 +407,8 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
       break
   jax.block_until_ready(state)
   run_seconds = time.perf_counter() - t0
-  out = _finish(inp, state[1], qpos_buf, com_buf, state[4], activated, compile_seconds, run_seconds,
-                (audit_ratio, audit_stray))
-  return out._replace(contact_overflow=np.asarray(state[7]))
+  return _finish(inp, state[1], qpos_buf, com_buf, state[4], activated, compile_seconds, run_seconds,
+                 (audit_ratio, audit_stray), contact_overflow=np.asarray(state[7]))
 
 
 _BLOCKS: dict = {}

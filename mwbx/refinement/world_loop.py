@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 
 from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops, mujoco_c, world
-from mwbx.batch_sim.backend import fill_tail
+from mwbx.batch_sim.backend import ChunkResult, fill_tail
 from mwbx.batch_sim.world_loop import monotonic_seconds as _now
 from mwbx.batch_sim.world_loop import physics_step
 from mwbx.host_jit import host_jit
@@ -323,9 +323,10 @@ def run_compiled(backend, inp, progress=None):
   run_seconds = time.perf_counter() - t0
   frame_count = carry.frame_count.astype(np.int32)
   steps = np.where(inp.running0, carry.step - f0 * spf, 0).astype(np.int32)
-  return RefineOutput(
+  chunk = ChunkResult(
       qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count), frame_count=frame_count,
       status=carry.status.astype(np.int32), metrics=world.finalize_metrics(carry).astype(np.float32),
-      perturbations=carry.perturbations.astype(np.int32), steps=steps, active=active, activated=activated,
-      max_perturbation_ratio=audit_ratio.astype(np.float32), inactive_perturbations=audit_stray,
-      compile_seconds=compile_seconds, run_seconds=run_seconds)
+      perturbations=carry.perturbations.astype(np.int32), steps=steps, compile_seconds=compile_seconds,
+      run_seconds=run_seconds)
+  return RefineOutput(chunk=chunk, active=active, activated=activated,
+                      max_perturbation_ratio=audit_ratio.astype(np.float32), inactive_perturbations=audit_stray)
