@@ -43,6 +43,7 @@ from mwbx.progress import reporter
 from mwbx.queries import Camera, ScreenBox, load_queries
 from mwbx.queries.report import run_query_file
 from mwbx.refinement import run_refinement
+from mwbx.world_ids import parse_world_ids
 
 # The viewer (meshcat), the page (viser), search (optax) and the MJX contact
 # budget (mujoco.mjx) are imported by the commands that use them: seconds of
@@ -280,7 +281,7 @@ def _cmd_view(args) -> int:
   queries = None
   if args.queries:
     queries = load_queries(args.queries, bank=bank)
-  ids = mwbx.viewer.select.parse_world_ids(args.worlds, known=bank.world_ids) if args.worlds else None
+  ids = parse_world_ids(args.worlds, known=bank.world_ids) if args.worlds else None
   ids, _ = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
   paths = None if args.paths == "none" else True if args.paths == "all" else args.paths.split(",")
   kwargs = dict(worlds=ids, paths=paths, layout=args.layout, camera=args.camera,
@@ -385,7 +386,6 @@ def _cmd_solve(args) -> int:
 
 
 def _cmd_drop(args) -> int:
-  from mwbx.viewer.select import parse_world_ids  # lazy: mwbx.viewer imports meshcat
   bank = _load_bank(args)
   ids = parse_world_ids(args.ids, flag="IDS", known=bank.world_ids)
   kept = bank.drop(ids)

@@ -16,7 +16,7 @@ from conftest import REPO, TESTS
 from mwbx.batch_sim import memory
 from mwbx.batch_sim.sampler import MAX_WORLD_ID, world_keys
 from mwbx.queries import load_queries
-from mwbx.viewer.select import parse_world_ids
+from mwbx.world_ids import parse_world_ids
 
 TINY = TESTS / "scenes" / "tiny.yaml"
 

@@ -40,7 +40,7 @@ def test_the_plan_holds_the_resolved_refinement(bank):
   assert (plan.world, plan.row, plan.objects, plan.removed, plan.added) == (2, 2, ("ball",), ("cube",), ())
   assert plan.first_frame == int(0.31 * bank.record_fps) and plan.t_min == pytest.approx(0.31)
   assert (plan.n_samples, plan.chunk, plan.first_id, plan.scene_version) == (3, 2, bank.next_world_id, 0)
-  assert plan.bounds[1] == pytest.approx(np.deg2rad(bank.config["codec"]["e_rot_deg"]))
+  assert plan.bounds.e_rot == pytest.approx(np.deg2rad(bank.config["codec"]["e_rot_deg"]))
   new, stats = run_plan(bank, plan, sampler_for(bank, "native"))
   again, _ = refine_run(bank, 2, "ball", t_min=0.31, n_samples=3, key=jax.random.key(1), backend="native",
                         chunk_size=2, remove="cube")

@@ -1,6 +1,7 @@
 """Which worlds to show, from world ids or a ranking (used by `mwbx view`).
 
-World ids are `bank.world_ids` (what rankings print), as everywhere.
+World ids are `bank.world_ids` (what rankings print), as everywhere; lists of
+them are read by :func:`mwbx.world_ids.parse_world_ids`.
 """
 
 from __future__ import annotations
@@ -11,52 +12,10 @@ import numpy as np
 
 from mwbx import queries as mq
 from mwbx.errors import MwbxError
-from mwbx.yaml_input import short_repr
 from mwbx.viewer.errors import ViewerError
 
 # Worlds shown by `--rank METRIC` without `--top`.
 DEFAULT_TOP = 4
-# Ids one range may name when it is not bounded by a bank's ids.
-MAX_RANGE_IDS = 1_000_000
-
-
-def parse_world_ids(text: str, flag: str = "--worlds", known=None) -> list[int]:
-  """'3,17, 20..22' -> [3, 17, 20, 21, 22] (``a..b`` includes both ends); the
-  message names the flag and the bad item.
-
-  Args:
-    text: ids and ranges, comma separated.
-    flag: the flag or argument, for messages.
-    known: optional i64[W] ids of the bank: a range then stands for the
-      bank's ids within it (``0..1000000000`` is every world, not a billion
-      ids); single ids are kept as given (an unknown one is an error later).
-      Without it a range may hold at most :data:`MAX_RANGE_IDS` ids.
-  """
-  known = None if known is None else np.unique(np.asarray(known, np.int64))
-  out: list[int] = []
-  for item in text.split(","):
-    item = item.strip()
-    if not item:
-      continue
-    lo, dots, hi = item.partition("..")
-    try:
-      lo, hi = (int(lo), int(hi)) if dots else (int(item), int(item))
-    except ValueError:
-      raise ViewerError(f"{flag}: {short_repr(item)} is not a world id or range (expected e.g. 3,17,20..29)") from None
-    if not dots:
-      out.append(lo)
-    elif known is not None:
-      inside = known[(known >= lo) & (known <= hi)]
-      if not inside.size:
-        raise ViewerError(f"{flag}: the bank has no world in {lo}..{hi}")
-      out.extend(int(i) for i in inside)
-    elif hi - lo + 1 > MAX_RANGE_IDS:
-      raise ViewerError(f"{flag}: {lo}..{hi} spans {hi - lo + 1:,} ids; at most {MAX_RANGE_IDS:,}")
-    else:
-      out.extend(range(lo, hi + 1))
-  if not out:
-    raise ViewerError(f"{flag}: no world ids in {short_repr(text)}")
-  return out
 
 
 def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = None,
