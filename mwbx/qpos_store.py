@@ -43,9 +43,9 @@ class QposStore(Protocol):
     """A new store of refined worlds whose ``keep_qpos`` (bool[W, nq]) coordinates
     decode exactly to ``parent_frames`` (f32[T, nq], the row ``parent``'s frames)."""
 
-  def frames(self, world: int, start: int = 0, stop: int | None = None,
+  def row_frames(self, row: int, start: int = 0, stop: int | None = None,
              columns=None) -> np.ndarray:
-    """f32[n, nq] frames ``start:stop`` of row ``world``; with ``columns`` the others are zero."""
+    """f32[n, nq] frames ``start:stop`` of row ``row``; with ``columns`` the others are zero."""
 
   def relaid(self, target: "QposStore", fill: np.ndarray) -> "QposStore":
     """Every world in ``target``'s settings (an empty store of a later scene
@@ -122,10 +122,10 @@ class RawQposStore:
     index = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)] + [np.zeros(0, np.int64)])
     return RawQposStore(self.nq, self.data[index], np.concatenate([[0], np.cumsum(hi - lo)]))
 
-  def frames(self, world: int, start: int = 0, stop: int | None = None,
+  def row_frames(self, row: int, start: int = 0, stop: int | None = None,
              columns=None) -> np.ndarray:
     """f32[n, nq] frames ``start:stop``; with ``columns`` the others are zero."""
-    lo, hi = self.offsets[world], self.offsets[world + 1]
+    lo, hi = self.offsets[row], self.offsets[row + 1]
     out = self.data[lo:hi][start:stop]
     if columns is None:
       return out

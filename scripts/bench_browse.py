@@ -45,9 +45,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 def _in_browser(page, camera) -> dict:
   """Page load time (to the GUI shown, scene and paths sent) and websocket bytes
   the page receives for one box update, in headless Chromium."""
-  sys.path.insert(0, str(ROOT / "tests"))
   from playwright.sync_api import sync_playwright
-  from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS
+  from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
   received = []
   with sync_playwright() as pw:
     chromium = pw.chromium.launch(executable_path=CHROMIUM_BINARY, args=list(WEBGL_ARGS))
@@ -115,9 +114,8 @@ def _play_in_browser(page, bank, clicks: int) -> dict:
   clicks at the row and for Playwright's locator clicks, with what
   keeps the page busy: its frame rate idle and while a world plays, and the
   websocket messages per second it receives while playing."""
-  sys.path.insert(0, str(ROOT / "tests"))
   from playwright.sync_api import sync_playwright
-  from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS
+  from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
   arrived = {}
   play = page.play
 

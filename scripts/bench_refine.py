@@ -107,14 +107,14 @@ def measure(args) -> dict:
                backend=args.backend, chunk_size=n, playback=playback, loop=loop)
   # Plain sampling of the same time span: every object simulated and perturbed
   # from the parent's state at t_min (same phase of the scene as refinement).
-  from mwbx.refinement import kinematic
+  from mwbx.refinement import stored_motion
   from mwbx.batch_sim.sampler import world_keys
   model = sampler.scene.model
   f0 = int(np.floor(t_min * bank.record_fps + 1e-6))
-  stored = kinematic.stored_path(model, bank.qpos_frames(parent), sampler.scene.body_ids, sampler.n_frames + 2,
+  stored = stored_motion.stored_path(model, bank.qpos_frames(parent), sampler.scene.body_ids, sampler.n_frames + 2,
                                  1 / bank.record_fps)
   qpos0 = np.tile(stored.qpos[f0], (n, 1))
-  qvel0 = np.tile(kinematic.central_velocity(model, stored, f0, 1 / bank.record_fps), (n, 1))
+  qvel0 = np.tile(stored_motion.central_velocity(model, stored, f0, 1 / bank.record_fps), (n, 1))
   span_keys = world_keys(jax.random.key(2), np.arange(n))[2]
 
   def span_once():

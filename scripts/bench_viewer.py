@@ -37,7 +37,6 @@ with warnings.catch_warnings():
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
 import mwbx.viewer as mv  # noqa: E402
 from mwbx.viewer import display, geometry, paths, playback  # noqa: E402
@@ -144,7 +143,7 @@ FRAME_JS = """() => {
 
 def browser_frame(html: str, workdir: pathlib.Path, name: str) -> dict:
   from playwright.sync_api import sync_playwright
-  from viewer_render import CHROMIUM_BINARY, WEBGL_ARGS
+  from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
 
   page_file = workdir / f"{name}.html"
   page_file.write_text(html)
@@ -170,7 +169,7 @@ def load_bank():
 
     cfg = mwbx.load_config(str(ROOT / "configs/quickstart.yaml"))
     return "quickstart", mwbx.sample(cfg, n_worlds=128, key=jax.random.key(0))
-  from viewer_standin import make_standin_bank
+  from mwbx.viewer.standin import make_standin_bank
 
   return "viewer stand-in", make_standin_bank(n_worlds=128)
 
@@ -224,7 +223,7 @@ def main() -> None:
                                        / results["browser"]["mwbx"]["ms_per_frame"])
     if args.screenshot:
       from PIL import Image
-      from viewer_render import screenshot
+      from mwbx.viewer.headless import screenshot
 
       Image.fromarray(screenshot(out.as_uri(), seek_s=0.6)).save(args.screenshot)
 

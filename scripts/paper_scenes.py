@@ -20,7 +20,6 @@ most queries (the latest of equals: the solver's newest).
 
 import argparse
 import pathlib
-import sys
 import tempfile
 import time
 
@@ -94,9 +93,8 @@ def main():
 def picture(bank: mwbx.Bank, world: int, scene: str, path: pathlib.Path) -> None:
   """A PNG of ``world`` at its last frame through the viewer (HTML export,
   screenshotted by headless Chromium)."""
-  sys.path.insert(0, str(REPO / "tests"))
   from PIL import Image
-  from viewer_render import screenshot
+  from mwbx.viewer.headless import screenshot
 
   with tempfile.TemporaryDirectory() as tmp:
     page = mwbx.export_html(bank, pathlib.Path(tmp) / "scene.html", worlds=[world],

@@ -45,7 +45,7 @@ def tiny_native_bank(tiny_native):
 def browser():
   """Skips a real-browser test, saying why, where Chromium or Playwright is missing."""
   import sys
-  from viewer_render import chromium_unavailable_reason
+  from mwbx.viewer.headless import chromium_unavailable_reason
   reason = chromium_unavailable_reason()
   if reason is not None:
     print(f"skipping a real-browser test: {reason}", file=sys.stderr)

@@ -234,7 +234,7 @@ def brute_geometry_hits(bank, frustum, bodies_mask, window, spacing: float) -> n
   surf = {b: body_surface(model, int(bank.body_ids[b]), spacing) for b in np.flatnonzero(bodies_mask)}
   out = np.zeros((bank.n_worlds, len(bank.body_names)), bool)
   for row in range(bank.n_worlds):
-    q = bank.qpos_store.frames(row)
+    q = bank.qpos_store.row_frames(row)
     for j in stored_frames(bank, row, window):
       data.qpos[:] = q[j]
       mujoco.mj_kinematics(model, data)
@@ -255,7 +255,7 @@ def bound_geometry_hits(bank, index, frustum, bodies_mask, window, spacing: floa
   surf = {b: body_surface(model, int(bank.body_ids[b]), spacing) for b in np.flatnonzero(bodies_mask)}
   out = np.zeros((bank.n_worlds, len(bank.body_names)), bool)
   for row in range(bank.n_worlds):
-    q = bank.qpos_store.frames(row)
+    q = bank.qpos_store.row_frames(row)
     for k in np.flatnonzero(relevant):
       data.qpos[:] = q[min(int(index.frames[k]), len(q) - 1)]
       mujoco.mj_kinematics(model, data)

@@ -288,11 +288,11 @@ def test_store_append_frames_state_restore(boxes):
   assert store.n_worlds == 4
   assert store.data.dtype == np.uint8 and store.offsets.dtype == np.int64
   for w in range(4):
-    np.testing.assert_array_equal(store.frames(w), decode_world(enc.streams[w]))
-  np.testing.assert_array_equal(store.frames(0, 10, 20), store.frames(0)[10:20])
+    np.testing.assert_array_equal(store.row_frames(w), decode_world(enc.streams[w]))
+  np.testing.assert_array_equal(store.row_frames(0, 10, 20), store.row_frames(0)[10:20])
   arrays, meta = store.state()
   again = CompressedQposStore.restore({k: v.copy() for k, v in arrays.items()}, meta)
-  np.testing.assert_array_equal(again.frames(3), store.frames(3))
+  np.testing.assert_array_equal(again.row_frames(3), store.row_frames(3))
   stats = again.stats()
   assert stats["ratio_vs_float32"] > 10
   assert 0 < stats["max_error_pos_m"] <= BOUNDS.e_pos
@@ -300,16 +300,16 @@ def test_store_append_frames_state_restore(boxes):
   both = store.copy()
   both.extend(again)
   assert both.n_worlds == 8 and store.n_worlds == 4
-  np.testing.assert_array_equal(both.frames(7), store.frames(3))
+  np.testing.assert_array_equal(both.row_frames(7), store.row_frames(3))
 
 
-def test_store_reports_corrupt_stream_with_world(boxes):
+def test_store_reports_corrupt_stream_with_its_row(boxes):
   model, qpos, frame_count, _, _ = boxes
   store = CompressedQposStore.from_model(model, BOUNDS, FPS)
   store.append(qpos[:1], frame_count[:1])
   store.data[store.offsets[1] // 2] ^= 0x10
-  with pytest.raises(CodecError, match="world 0: corrupt stream"):
-    store.frames(0)
+  with pytest.raises(CodecError, match="row 0: corrupt stream"):
+    store.row_frames(0)
   arrays, meta = store.state()
   arrays["offsets"] = arrays["offsets"] + 3
   with pytest.raises(CodecError, match="offsets"):
@@ -370,13 +370,13 @@ def test_batch_reader_falls_back_and_names_corrupt_world(boxes):
     decode_batch(data, offsets)
 
 
-def test_store_frames_batch(boxes):
+def test_store_frames_of_rows(boxes):
   model, qpos, frame_count, _, enc = boxes
   store = CompressedQposStore.from_model(model, BOUNDS, FPS)
   store.append(qpos, frame_count)
-  got = store.frames_batch([3, 0], 10, 40)
-  np.testing.assert_array_equal(got[0], store.frames(3, 10, 40))
-  np.testing.assert_array_equal(got[1], store.frames(0, 10, 40))
+  got = store.frames_of_rows([3, 0], 10, 40)
+  np.testing.assert_array_equal(got[0], store.row_frames(3, 10, 40))
+  np.testing.assert_array_equal(got[1], store.row_frames(0, 10, 40))
 
 
 def test_slow_drift_after_a_huge_jump_is_fitted_not_stored_raw():

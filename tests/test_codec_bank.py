@@ -57,7 +57,7 @@ def test_bank_save_load_keeps_streams_and_reports_corruption(quickstart, tmp_pat
   np.testing.assert_array_equal(loaded.qpos_frames(5, 10, 20), bank.qpos_frames(5, 10, 20))
   store = loaded.qpos_store
   store.data[store.offsets[3] + 30] ^= 0x01
-  with pytest.raises(mwbx.MwbxError, match="world 3: corrupt stream"):
+  with pytest.raises(mwbx.MwbxError, match="world 3: compressed qpos of row 3: corrupt stream"):
     loaded.qpos_frames(3)
   assert issubclass(CodecError, mwbx.MwbxError)
 
@@ -97,7 +97,7 @@ def test_stores_take_and_empty_keep_settings_and_worlds(quickstart):
   for store in (bank.qpos_store, raw.qpos_store):
     picked = store.take(np.array([3, 0]))
     assert type(picked) is type(store) and picked.n_worlds == 2
-    np.testing.assert_array_equal(picked.frames(0), store.frames(3))
-    np.testing.assert_array_equal(picked.frames(1), store.frames(0))
+    np.testing.assert_array_equal(picked.row_frames(0), store.row_frames(3))
+    np.testing.assert_array_equal(picked.row_frames(1), store.row_frames(0))
     empty = store.empty()
     assert empty.n_worlds == 0 and type(empty) is type(store)

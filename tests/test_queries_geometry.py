@@ -106,7 +106,7 @@ def test_sweep_margins_bound_every_stored_frame(bank):
 
   worst = 0.0
   for row in range(0, bank.n_worlds, 3):
-    q = bank.qpos_store.frames(row)
+    q = bank.qpos_store.row_frames(row)
     q = np.concatenate([q, np.repeat(q[-1:], index.frames[-1] + 1 - len(q), axis=0)])
     for i in range(len(index.frames) - 1):
       a, b = points(q[index.frames[i]]), points(q[index.frames[i + 1]])

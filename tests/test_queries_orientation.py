@@ -48,7 +48,7 @@ def _reference_errors(bank, body: str, error, window):
   bid = model.body(body).id
   out = []
   for row in range(bank.n_worlds):
-    q = bank.qpos_store.frames(row)
+    q = bank.qpos_store.row_frames(row)
     last = len(q) - 1
     if window is None:
       frames = [last]

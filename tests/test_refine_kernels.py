@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from mwbx.refinement import interactions, kinematic
+from mwbx.refinement import interactions, stored_motion
 
 ARM = """
 <mujoco>
@@ -111,8 +111,8 @@ def _free_path(n=6, seed=2):
 def test_step_targets_interpolate_between_frames_like_lerp_and_slerp():
   model, frames, rot, x = _free_path()
   h, spf = 1 / 120, 4
-  path = kinematic.stored_path(model, frames, np.array([1]), len(frames), h)
-  targets = kinematic.step_targets(model, path, spf, h / spf)
+  path = stored_motion.stored_path(model, frames, np.array([1]), len(frames), h)
+  targets = stored_motion.step_targets(model, path, spf, h / spf)
   np.testing.assert_array_equal(targets[::spf], path.qpos)  # exactly on every frame
   slerp = Slerp(np.arange(len(frames)), rot)
   for k in range((len(frames) - 1) * spf):
@@ -124,12 +124,12 @@ def test_step_targets_interpolate_between_frames_like_lerp_and_slerp():
   # Chord velocity: the finite difference (translation), held to zero past the end.
   np.testing.assert_allclose(path.qvel[:-1, :3], np.diff(x, axis=0) / h, rtol=1e-4, atol=1e-5)
   np.testing.assert_array_equal(path.qvel[-1], 0)
-  v = kinematic.central_velocity(model, path, 2, h)
+  v = stored_motion.central_velocity(model, path, 2, h)
   np.testing.assert_allclose(v[:3], (x[3] - x[1]) / (2 * h), rtol=1e-4, atol=1e-5)
 
 
 def test_contact_free_models_switch_off_only_the_inactive_objects(arm):
-  models = kinematic.ContactFreeModels(arm, ("ball", "arm"))
+  models = stored_motion.ContactFreeModels(arm, ("ball", "arm"))
   assert models.enabled
   inactive = np.array([[False, False], [True, False], [False, True], [True, False]])
   out = models(inactive)
@@ -144,16 +144,16 @@ def test_contact_free_models_switch_off_only_the_inactive_objects(arm):
   assert np.all(arm.geom_contype == 1) and np.all(arm.geom_conaffinity == 1)  # the scene's model untouched
   # The arm moves and is no object of this refinement: it could touch an
   # inactive ball, so the ball keeps its contacts.
-  only_ball = kinematic.ContactFreeModels(arm, ("ball",))
+  only_ball = stored_motion.ContactFreeModels(arm, ("ball",))
   assert not only_ball.enabled and only_ball(np.array([[True]]))[0] is arm
 
 
 def test_prefix_metrics_match_plain_loops():
   model, frames, rot, x = _free_path(n=30, seed=3)
   h = 1 / 120
-  path = kinematic.stored_path(model, frames, np.array([1]), 30, h)
+  path = stored_motion.stored_path(model, frames, np.array([1]), 30, h)
   f = 20
-  m = kinematic.prefix_metrics(path, f, h, h / 4, np.array([0, 0, -9.81]), 0.02, 0.1, 100.0, 1)
+  m = stored_motion.prefix_metrics(path, f, h, h / 4, np.array([0, 0, -9.81]), 0.02, 0.1, 100.0, 1)
   length = sum(np.linalg.norm(path.com[i + 1, 0] - path.com[i, 0]) for i in range(f))
   angle = sum((rot[i].inv() * rot[i + 1]).magnitude() for i in range(f))
   assert m[0, 4] == pytest.approx(length, rel=1e-5)
@@ -173,10 +173,10 @@ def test_splice_keeps_parent_channels_bit_for_bit(child_frames):
   store.append(np.stack([parent]), np.array([40]))
   keep = np.zeros(model.nq, bool)
   keep[7:14] = True  # the second box, translation and rotation channels
-  out = store.refined(child[None], np.array([child_frames]), 0, store.frames(0), keep[None])
-  got = out.frames(0)
+  out = store.refined(child[None], np.array([child_frames]), 0, store.row_frames(0), keep[None])
+  got = out.row_frames(0)
   assert got.shape == (child_frames, model.nq)
-  stored = store.frames(0)
+  stored = store.row_frames(0)
   n = min(child_frames, 40)
   if child_frames >= 40:
     np.testing.assert_array_equal(got[:n, 7:14], stored[:n, 7:14])  # the parent's frames, bit for bit
@@ -188,7 +188,7 @@ def test_splice_keeps_parent_channels_bit_for_bit(child_frames):
   np.testing.assert_allclose(np.abs(np.sum(got[n:, 10:14] * stored[-1, 10:14], axis=1)), 1.0, atol=1e-5)
   plain = CompressedQposStore.from_model(model, CodecBounds(), 120.0)
   plain.append(child[None], np.array([child_frames]))
-  np.testing.assert_array_equal(got[:, ~keep], plain.frames(0)[:, ~keep])
+  np.testing.assert_array_equal(got[:, ~keep], plain.row_frames(0)[:, ~keep])
 
 
 def test_stored_motion_and_audit_against_loops():

@@ -229,7 +229,7 @@ def test_state_observation_samples_like_the_sensors(tiny_config, monkeypatch):
 
 def _reference_chunk(sampler, qpos0, qvel0, step_keys):
   """Worlds one after another through ``mujoco.mj_step`` and the host loops,
-  the slow and obvious form of the compiled per-world loop (world_loop)."""
+  the slow and obvious form of the compiled per-world loop (compiled_world)."""
   from mwbx import controls
   from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops
 

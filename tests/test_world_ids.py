@@ -47,7 +47,7 @@ def test_ids_not_rows_everywhere(offset_bank, tmp_path):
   row = bank.row_of(chosen)
   assert bank.world_ids[row] == chosen and bank.row_of([chosen, 100]).tolist() == [row, 0]
   # qpos_frames, export_html and refine take the id that rank returned.
-  np.testing.assert_array_equal(bank.qpos_frames(chosen), bank.qpos_store.frames(row))
+  np.testing.assert_array_equal(bank.qpos_frames(chosen), bank.qpos_store.row_frames(row))
   out = mwbx.export_html(bank, tmp_path / "v.html", worlds=[chosen])
   assert out.exists()
   refined = mwbx.refine(bank, chosen, "striker", t_min=T_MIN, n_samples=2, key=jax.random.key(1),

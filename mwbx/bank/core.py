@@ -217,9 +217,11 @@ class Bank:
       >>> q = bank.qpos_frames(3, 0, 60, bodies="ball_6")  # first half second of one ball
     """
     row = self.row_of(int(world))
-    if bodies is None:
-      return self.qpos_store.frames(row, start, stop)
-    return self.qpos_store.frames(row, start, stop, columns=self.qpos_columns(bodies))
+    columns = None if bodies is None else self.qpos_columns(bodies)
+    try:
+      return self.qpos_store.row_frames(row, start, stop, columns=columns)
+    except MwbxError as err:  # the store knows rows; name the world the caller asked for
+      raise type(err)(f"world {int(world)}: {err}") from None
 
   def qpos_columns(self, bodies: str | Sequence[str]) -> np.ndarray:
     """i64[k] qpos columns of the joints placing the named bodies (body, object or

@@ -285,13 +285,13 @@ class LazyQposStore:
     p, local = int(self._map.piece[parent]), int(self._map.local[parent])
     return self._map.pieces.get(p).refined(qpos, frame_count, local, parent_frames, keep_qpos)
 
-  def frames(self, world: int, start: int = 0, stop: int | None = None, columns=None) -> np.ndarray:
-    p, local = int(self._map.piece[world]), int(self._map.local[world])
-    return self._map.pieces.get(p).frames(local, start, stop, columns)
+  def row_frames(self, row: int, start: int = 0, stop: int | None = None, columns=None) -> np.ndarray:
+    p, local = int(self._map.piece[row]), int(self._map.local[row])
+    return self._map.pieces.get(p).row_frames(local, start, stop, columns)
 
-  def frames_batch(self, worlds=None, start: int = 0, stop: int | None = None, **kwargs):
-    worlds = np.arange(self.n_worlds) if worlds is None else np.asarray(worlds, np.int64)
-    return self.take(worlds).concrete().frames_batch(None, start, stop, **kwargs)
+  def frames_of_rows(self, rows=None, start: int = 0, stop: int | None = None, **kwargs):
+    rows = np.arange(self.n_worlds) if rows is None else np.asarray(rows, np.int64)
+    return self.take(rows).concrete().frames_of_rows(None, start, stop, **kwargs)
 
   @property
   def n_worlds(self) -> int:

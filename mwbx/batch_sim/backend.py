@@ -5,7 +5,7 @@ tracked body's centre of mass, and reports the tracked bodies' sensor block
 (see :data:`mwbx.scene.SENSORS`). The sampling loops live with each backend
 (``mjx_backend.run_chunk`` as one jitted scan per block of frames in lockstep,
 ``native_backend.run_chunk`` as one compiled call per world on a thread per
-core, :mod:`world_loop`); both return a :class:`ChunkResult`, which
+core, :mod:`compiled_world`); both return a :class:`ChunkResult`, which
 :func:`mwbx.batch_sim.rows.rows_from_chunks` turns into bank rows.
 Refinement's entry points into each backend are in
 :mod:`mwbx.refinement.runners` (refinement sits above batch_sim).

@@ -1,7 +1,7 @@
 """Compiled per-frame host loops of the native sampling loop.
 
 After each frame (a ``rollout`` call, or a world's ``mj_step`` calls in
-:mod:`world_loop`) the loop copies each world's new state, warm start and
+:mod:`compiled_world`) the loop copies each world's new state, warm start and
 sensors into its chunk buffers. As numpy that is a dozen calls per frame;
 as one compiled loop (numba, cached on disk) it costs a few microseconds, which
 matters next to a frame of physics that takes a few milliseconds. Same

@@ -1,7 +1,7 @@
 """The native backend: MuJoCo C on a thread per core. The fast path on CPUs.
 
 Sampling runs each world from start to finish in one compiled call
-(:mod:`world_loop`: ``mj_step`` through MuJoCo's C library, then the
+(:mod:`compiled_world`: ``mj_step`` through MuJoCo's C library, then the
 observation, bookkeeping and recording of each frame), a thread per core
 pulling worlds from a shared counter, each thread with its own ``MjData``.
 
@@ -27,7 +27,7 @@ from mujoco import rollout as mj_rollout
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx import controls
-from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, world_loop
+from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, compiled_world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 from mwbx.errors import MwbxError
 
@@ -207,7 +207,7 @@ class NativeBackend:
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                 n_frames: int, progress=None) -> ChunkResult:
     """Runs C worlds until all have finished, each from start to finish on one
-    thread (:mod:`world_loop`), or in lockstep where that is not available.
+    thread (:mod:`compiled_world`), or in lockstep where that is not available.
 
     Args:
       scene: the :class:`mwbx.scene.Scene`.
@@ -232,7 +232,7 @@ class NativeBackend:
     ctrl_table = controls.scene_table(scene, n_frames * params.steps_per_frame)
 
     def run(row, data, running_flags):
-      return world_loop.run_world(
+      return compiled_world.run_world(
           row, model._address, data._address, data.xfrc_applied, data.sensordata, data.ctrl, ctrl_table,
           initial, n_frames,
           m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, ch.sensordata, ch.warmstart,

@@ -168,7 +168,7 @@ class CompressedQposStore:
       part = target.empty()
       part.append(held, counts)  # the old channels are replaced below: code them held too
       frames = held.copy()  # the decoded frames, for channels the splice copies raw
-      for i, f in enumerate(self.frames_batch(rows)):
+      for i, f in enumerate(self.frames_of_rows(rows)):
         frames[i, :len(f), :self.layout.nq] = f
       part._set_streams([splice_stream(part.stream(i), self.stream(int(r)), frames[i, :counts[i]], keep, mapping)
                          for i, r in enumerate(rows)])
@@ -188,31 +188,31 @@ class CompressedQposStore:
       raise CodecError(f"world {world} out of range [0, {self.n_worlds})")
     return self.data[self.offsets[world]:self.offsets[world + 1]]
 
-  def frames(self, world: int, start: int = 0, stop: int | None = None,
+  def row_frames(self, row: int, start: int = 0, stop: int | None = None,
              columns=None) -> np.ndarray:
-    """Decoded frames ``start:stop`` of one world, f32[n, nq].
+    """Decoded frames ``start:stop`` of one row, f32[n, nq].
 
     columns: optional qpos columns; only the channels holding them are decoded
     (other channels' columns stay zero).
     """
     channels = None if columns is None else self.layout.channels_for(columns)
     try:
-      return decode_world(self.stream(world), start, stop, channels)
+      return decode_world(self.stream(row), start, stop, channels)
     except CodecError as err:
-      raise CodecError(f"compressed qpos of world {world}: {err}") from None
+      raise CodecError(f"compressed qpos of row {row}: {err}") from None
 
-  def frames_batch(self, worlds=None, start: int = 0, stop: int | None = None,
+  def frames_of_rows(self, rows=None, start: int = 0, stop: int | None = None,
                    columns=None) -> list:
-    """Decoded frames ``start:stop`` of many worlds at once (all by default).
+    """Decoded frames ``start:stop`` of many rows at once (all by default).
 
-    One pass over their streams; returns one f32[n, nq] per world. columns: as
-    ``frames``.
+    One pass over their streams; returns one f32[n, nq] per row. columns: as
+    ``row_frames``.
     """
     channels = None if columns is None else self.layout.channels_for(columns)
-    worlds = np.arange(self.n_worlds) if worlds is None else np.asarray(worlds, np.int64)
-    if worlds.size and (worlds.min() < 0 or worlds.max() >= self.n_worlds):
-      raise CodecError(f"worlds out of range [0, {self.n_worlds})")
-    data, offsets = self._gather(worlds)
+    rows = np.arange(self.n_worlds) if rows is None else np.asarray(rows, np.int64)
+    if rows.size and (rows.min() < 0 or rows.max() >= self.n_worlds):
+      raise CodecError(f"rows out of range [0, {self.n_worlds})")
+    data, offsets = self._gather(rows)
     try:
       return decode_batch(data, offsets, start, stop, channels)
     except CodecError as err:

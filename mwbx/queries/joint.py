@@ -95,10 +95,10 @@ def joint_paths(bank, joint: str) -> np.ndarray:
   out = np.zeros((n, max(int(counts.max(initial=1)), 1)), np.float32)
   store = bank.qpos_store
   columns = np.array([column])
-  if hasattr(store, "frames_batch"):
-    frames = store.frames_batch(None, columns=columns)
+  if hasattr(store, "frames_of_rows"):
+    frames = store.frames_of_rows(None, columns=columns)
   else:
-    frames = [store.frames(w, columns=columns) for w in range(n)]
+    frames = [store.row_frames(w, columns=columns) for w in range(n)]
   for w, f in enumerate(frames):
     if len(f):
       out[w, :len(f)] = f[:, column]

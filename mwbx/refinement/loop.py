@@ -15,7 +15,7 @@ frame f (both backends):
    backend by S one-step ``mujoco.rollout`` calls (``every_step=False``:
    one call per frame, reset at frame boundaries only). Native rollouts use
    a model in which the world's inactive objects collide with nothing
-   (:class:`kinematic.ContactFreeModels`): they are overwritten anyway, an
+   (:class:`stored_motion.ContactFreeModels`): they are overwritten anyway, an
    active object never touches one (it would have been activated), and
    their contacts with the scene were most of the cost of stepping them;
 4. the bookkeeping kernel runs with only active bodies perturbable.
@@ -36,7 +36,7 @@ import numpy as np
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
-from mwbx.refinement import interactions, kinematic
+from mwbx.refinement import interactions, stored_motion
 
 
 class RefineInputs(NamedTuple):
@@ -66,7 +66,7 @@ class RefineInputs(NamedTuple):
 
   params: world.WorldParams
   inter: interactions.InteractionParams
-  path: kinematic.StoredPath
+  path: stored_motion.StoredPath
   step_targets: np.ndarray | None
   first_frame: int
   qpos0: np.ndarray
@@ -79,7 +79,7 @@ class RefineInputs(NamedTuple):
   running0: np.ndarray
   n_frames: int
   body_ids: np.ndarray
-  models: kinematic.ContactFreeModels | None = None
+  models: stored_motion.ContactFreeModels | None = None
   free_bodies: free_bodies_lib.FreeBodies | None = None
   ctrl: np.ndarray | None = None
   act0: np.ndarray | None = None
@@ -265,7 +265,7 @@ def run_native(backend, inp: RefineInputs, progress=None, every_step: bool = Tru
   ``every_step``: put inactive objects on the stored path before every
   physics step (S one-step rollout calls per frame); False: at every frame
   boundary only (one call per frame). Either way the rollout models of a
-  world are :class:`kinematic.ContactFreeModels` for its inactive objects.
+  world are :class:`stored_motion.ContactFreeModels` for its inactive objects.
   """
   m = backend.model
   params, inter, path = inp.params, inp.inter, inp.path

@@ -27,7 +27,7 @@ from mwbx.batch_sim.sampler import SampleStats, world_keys
 from mwbx.codec import CodecBounds
 from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
 from mwbx.progress import Progress
-from mwbx.refinement import interactions, kinematic
+from mwbx.refinement import interactions, stored_motion
 from mwbx.refinement import loop as refine_loop
 from mwbx.refinement import runners
 
@@ -106,7 +106,7 @@ class _Parent(NamedTuple):
   """The parent world as refinement restarts it (see :func:`_parent_of`)."""
 
   frames: np.ndarray  # f32[T, nq] its decoded qpos
-  path: kinematic.StoredPath
+  path: stored_motion.StoredPath
   qpos0: np.ndarray  # f32[nq] state at f0
   qvel0: np.ndarray  # f32[nv]
   metrics0: np.ndarray  # its metrics up to f0
@@ -119,16 +119,16 @@ def _parent_of(bank, plan: RefinePlan, sampler) -> _Parent:
   scene, model = sampler.scene, sampler.scene.model
   fps, f0 = bank.record_fps, plan.first_frame
   frame_time = 1.0 / fps
-  frames = bank.qpos_store.frames(plan.row)
-  path = kinematic.stored_path(model, frames, scene.body_ids, sampler.n_frames + 2, frame_time)
+  frames = bank.qpos_store.row_frames(plan.row)
+  path = stored_motion.stored_path(model, frames, scene.body_ids, sampler.n_frames + 2, frame_time)
   object_names = tuple(scene.object_names)
   qm, vm = object_coordinates(model, object_names)
   # Added and removed objects are active from t_min: an added one is simulated,
   # a removed one parked, its ghost (stored path) still tested.
   asked = np.array([o in plan.objects or o in plan.added or o in plan.removed for o in object_names])
-  qvel0 = np.where(vm[asked].any(axis=0), kinematic.central_velocity(model, path, f0, frame_time), path.qvel[f0])
+  qvel0 = np.where(vm[asked].any(axis=0), stored_motion.central_velocity(model, path, f0, frame_time), path.qvel[f0])
   cfg = scene.config
-  metrics0 = kinematic.prefix_metrics(
+  metrics0 = stored_motion.prefix_metrics(
       path, f0, frame_time, model.opt.timestep, np.asarray(model.opt.gravity), cfg.rest.linear_speed,
       cfg.rest.angular_speed, cfg.perturb.linear_threshold,
       max(1, int(round(cfg.perturb.collision_gap * fps))))

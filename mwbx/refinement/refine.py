@@ -180,7 +180,7 @@ def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None =
   (:meth:`mwbx.Bank.with_scene`; :func:`refine` does that from ``scene=``).
 
   ``loop`` (native backend, ``playback="step"``): ``compiled`` runs each
-  refined world in compiled calls (:mod:`mwbx.refinement.world_loop`),
+  refined world in compiled calls (:mod:`mwbx.refinement.compiled_refinement`),
   ``lockstep`` steps the batch through ``mujoco.rollout`` a step at a time
   (:func:`mwbx.refinement.loop.run_native`), ``auto`` the first where
   MuJoCo's C library can be bound.

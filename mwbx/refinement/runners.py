@@ -9,7 +9,7 @@ one class each, chosen once by :func:`runner_for`:
 - what the loop needs besides the shared inputs: per-step playback targets,
   contact-free rollout models, free-body state addresses;
 - which loop runs a batch (:mod:`mwbx.refinement.loop`,
-  :mod:`mwbx.refinement.world_loop`).
+  :mod:`mwbx.refinement.compiled_refinement`).
 
 They live beside the loops, not on :class:`mwbx.batch_sim.backend.Backend`:
 ``batch_sim`` sits below ``refinement`` and never imports it.
@@ -26,16 +26,16 @@ import numpy as np
 from mwbx.bank.versions import parked_columns
 from mwbx.batch_sim import free_bodies
 from mwbx.errors import MwbxError
-from mwbx.refinement import kinematic
+from mwbx.refinement import stored_motion
 from mwbx.refinement import loop as refine_loop
-from mwbx.refinement import world_loop
+from mwbx.refinement import compiled_refinement
 
 
 class LoopExtras(NamedTuple):
   """A backend's own inputs of :class:`~mwbx.refinement.loop.RefineInputs`."""
 
   step_targets: np.ndarray | None
-  models: kinematic.ContactFreeModels | None
+  models: stored_motion.ContactFreeModels | None
   free_bodies: free_bodies.FreeBodies | None
 
 
@@ -46,7 +46,7 @@ class RefineRunner(Protocol):
     """Raises MwbxError if this backend cannot refine with objects ``removed``
     at t_min or ``gone`` before it."""
 
-  def loop_extras(self, scene, path: kinematic.StoredPath, parked: tuple[str, ...]) -> LoopExtras:
+  def loop_extras(self, scene, path: stored_motion.StoredPath, parked: tuple[str, ...]) -> LoopExtras:
     """The loop inputs of this backend for the parent's stored ``path``;
     ``parked``: objects removed or gone, colliding with nothing."""
 
@@ -69,18 +69,18 @@ class NativeRunner:
 
   def loop_extras(self, scene, path, parked) -> LoopExtras:
     model = scene.model
-    targets = (kinematic.step_targets(model, path, self.steps_per_frame, model.opt.timestep)
+    targets = (stored_motion.step_targets(model, path, self.steps_per_frame, model.opt.timestep)
                if self.playback == "step" else None)
     # Free bodies are observed from their states, so the rollout models (and
     # their contact-free copies) step with sensors disabled.
     bodies = free_bodies.free_bodies(model, scene.body_ids)
-    models = kinematic.ContactFreeModels(
+    models = stored_motion.ContactFreeModels(
         removal_model(model if bodies is None else self.backend.quiet_model, parked), tuple(scene.object_names))
     return LoopExtras(targets, models, bodies)
 
   def run(self, inp, progress=None):
     if self.playback == "step" and self.compiled:
-      return world_loop.run_compiled(self.backend, inp, progress=progress)
+      return compiled_refinement.run_compiled(self.backend, inp, progress=progress)
     return refine_loop.run_native(self.backend, inp, progress=progress, every_step=self.playback == "step")
 
 
@@ -99,7 +99,7 @@ class MjxRunner:
 
   def loop_extras(self, scene, path, parked) -> LoopExtras:
     model = scene.model
-    return LoopExtras(kinematic.step_targets(model, path, self.steps_per_frame, model.opt.timestep), None, None)
+    return LoopExtras(stored_motion.step_targets(model, path, self.steps_per_frame, model.opt.timestep), None, None)
 
   def run(self, inp, progress=None):
     return refine_loop.run_mjx(self.backend, inp, progress=progress)

@@ -1,8 +1,11 @@
-"""Renders an exported viewer page in headless Chromium and measures colours.
+"""Exported viewer pages and the browse page in headless Chromium: screenshots
+and colour measurements.
 
-Used by tests/test_viewer_browser.py and scripts/bench_viewer.py. Chromium is
-Debian's package (scripts/ensure_chromium.sh installs it); WebGL runs on the
-CPU through SwiftShader.
+What the browser tests, the viewer and browse benchmarks and
+``scripts/paper_scenes.py`` (the README's pictures) share. Chromium is
+Debian's package (``scripts/ensure_chromium.sh`` installs it); WebGL runs on
+the CPU through SwiftShader. Playwright comes with the ``dev`` extra, so it is
+imported only when a page is opened.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ def chromium_unavailable_reason() -> str | None:
     return (f"{CHROMIUM_BINARY} not found (Debian package 'chromium'; "
             "scripts/ensure_chromium.sh installs it when run as root)")
   try:
-    import playwright.sync_api  # noqa: F401
+    import playwright.sync_api  # noqa: F401  (lazy: the dev extra)
   except ImportError as err:
     return f"playwright is not importable: {err}"
   return None
@@ -48,7 +51,7 @@ def screenshots(url: str, seeks_s: Sequence[float | None] = (None,), *, webgl: b
   the page as it is.
   """
   from PIL import Image
-  from playwright.sync_api import sync_playwright
+  from playwright.sync_api import sync_playwright  # lazy: the dev extra
 
   images, duration = [], 0.0
   with sync_playwright() as pw:

@@ -5,7 +5,7 @@ The lockstep loop (:func:`loop.run_native`) steps every refined world of a
 batch through ``mujoco.rollout`` one physics step at a time, with a jitted
 kernel per frame: its cost per step is Python and dispatch, more than the
 physics of the few objects that move. Here, as in sampling's
-:mod:`mwbx.batch_sim.world_loop`, a numba function (no GIL) steps ONE refined
+:mod:`mwbx.batch_sim.compiled_world`, a numba function (no GIL) steps ONE refined
 world with MuJoCo's C ``mj_step`` frame after frame and runs the same
 per-frame work on it:
 
@@ -14,7 +14,7 @@ per-frame work on it:
 2. the frame's S physics steps, objects inactive during the frame put back
    on the stored path before every step after the first
    (``playback="step"``), in a model where they collide with nothing
-   (:class:`kinematic.ContactFreeModels`);
+   (:class:`stored_motion.ContactFreeModels`);
 3. the observations (MuJoCo's sensors, or the states of free bodies), with
    inactive bodies reporting their stored motion (COM along the chord, chord
    velocities, no contact acceleration);
@@ -42,8 +42,8 @@ import numpy as np
 
 from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops, mujoco_c, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
-from mwbx.batch_sim.world_loop import monotonic_seconds as _now
-from mwbx.batch_sim.world_loop import physics_step
+from mwbx.batch_sim.compiled_world import monotonic_seconds as _now
+from mwbx.batch_sim.compiled_world import physics_step
 from mwbx.host_jit import host_jit
 from mwbx.refinement import interactions
 from mwbx.refinement.loop import RefineOutput, start_active
@@ -149,9 +149,9 @@ def run_refined_world(row, model_adr, data_adr, data_qpos, data_qvel, xfrc_appli
     ctrl_table: f64[n_frames · S, nu] control of each step from step 0 (width 0: none).
     n_frames: end_frame + 1. first_frame: f0.
     timestep: s. gravity: f64[3] m/s². free, qpos_adr, dof_adr, ipos, iquat:
-      free-body observation (as sampling's ``world_loop.run_world``).
+      free-body observation (as sampling's ``compiled_world.run_world``).
     path_qpos, path_qvel, step_targets, path_com, path_quat, path_lin_vel,
-      path_ang_vel: the parent's :class:`kinematic.StoredPath` arrays and the
+      path_ang_vel: the parent's :class:`stored_motion.StoredPath` arrays and the
       per-step playback qpos (f32[F · S, nq]).
     qpos_object: bool[O, nq]; dof_object: bool[O, nv] each object's coordinates.
     body_object, radius, ghost_slack, margin, horizon, speed_factor, g_norm:

@@ -1,4 +1,6 @@
-"""A small stand-in for `mwbx.bank.Bank` used by the viewer tests and benchmark.
+"""A small stand-in for `mwbx.bank.Bank` used by the viewer tests and benchmark
+(like MJX's ``test_util``: test support that scripts share, so it lives in the
+package).
 
 It has exactly the attributes of the bank contract and is filled by simulating
 a tiny MJCF scene with `mujoco.mj_step` (no perturbations): a floor, a static
@@ -13,11 +15,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
-from mwbx.bank import rows_of
-
-FLAG_FINISHED = 1
-FLAG_AT_REST = 2
-FLAG_UNSTABLE = 4
+from mwbx.bank import FLAG_FINISHED, FLAG_UNSTABLE, rows_of
 
 METRIC_NAMES = (
   "angular_travel", "rest_time", "collisions", "orientation_error", "path_length", "max_height",
