@@ -2,7 +2,7 @@
 
 JAX forms and their numpy twins side by side (as brax's ``math.py`` does);
 the numba twin of :func:`quat_to_matrix` used inside the compiled per-world
-loop is ``mwbx.batch_sim.host_loops.rotation_matrix``. ``tests/test_rotations.py``
+loop is ``mwbx.batch_sim.host_loops.rotation_matrix``. ``tests/codec/test_rotations.py``
 compares each form with its twin and with MuJoCo's ``mju_*`` functions.
 """
 

@@ -1,6 +1,6 @@
 #!/bin/sh
 # Make sure Debian's headless-capable Chromium is present for the real-browser
-# viewer test (tests/test_viewer_browser.py). Quiet and idempotent; never fails
+# viewer test (tests/viewer/test_viewer_browser.py). Quiet and idempotent; never fails
 # the build: when it cannot install, it says why and exits 0 (the test skips).
 CHROMIUM=/usr/bin/chromium
 

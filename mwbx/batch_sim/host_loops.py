@@ -53,7 +53,7 @@ def absorb_rows(rows, before, after, sensors, timestep, qvel_start, sensordata, 
 @host_jit
 def rotation_matrix(w, x, y, z):
   """The 3x3 rotation matrix of the unit quaternion (w, x, y, z), row by row
-  (numba twin of ``mwbx.rotations.quat_to_matrix``; tests/test_rotations.py)."""
+  (numba twin of ``mwbx.rotations.quat_to_matrix``; tests/codec/test_rotations.py)."""
   return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
           2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
           2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))

@@ -220,7 +220,7 @@ class Sampler:
     block on its share: a world is bit-identical across runs with the same
     per-device batch, on any number of devices. Across per-device batch
     shapes XLA may round differently in the last bit (contacts then amplify
-    it; tests/test_mjx.py states the agreement).
+    it; tests/batch_sim/test_mjx.py states the agreement).
     """
     if self.backend_name != "mjx":
       return min(self.chunk_size, n_worlds)

@@ -22,7 +22,7 @@ marked undecided for the full separating-axis test (:mod:`.convex`).
 
 Each step drops only what the next would drop and keeps only what the exact
 test would keep, so the answers are those of testing every frame exactly
-(``tests/test_queries_geometry.py`` compares the two). Float64 throughout.
+(``tests/queries/test_queries_geometry.py`` compares the two). Float64 throughout.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ geometry and on orientation need the poses of a few bodies at every stored
 frame of thousands of worlds. `body_poses` is the same forward kinematics
 (tree order: parent frame, body offset, then the body's joints) written over
 a leading frame axis in numpy, so a bank's frames go through it a block at a
-time. `tests/test_queries_orientation.py` checks it against `mj_kinematics`.
+time. `tests/queries/test_queries_orientation.py` checks it against `mj_kinematics`.
 """
 
 from __future__ import annotations

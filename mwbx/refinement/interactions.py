@@ -221,7 +221,7 @@ def host_interaction(p: InteractionParams) -> tuple:
 def activate_host(active, com_sim, speed_sim, com_now, com_next, body_object, radius, ghost_slack, margin,
                   horizon, speed_factor, gravity, out):
   """:func:`activate` for ONE world, compiled for the host's per-world
-  refinement loop (its numba twin, in float64; tests/test_refine_kernels.py
+  refinement loop (its numba twin, in float64; tests/refinement/test_refine_kernels.py
   compares the two and :func:`activate_reference`).
 
   Args:

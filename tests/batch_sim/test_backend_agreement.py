@@ -15,12 +15,12 @@ a difference in distribution, not in a shared draw.
 
 Power: each query splits the native outcomes near their median (a threshold
 on a body's x at the end, measured once on a separate native run, seed 99:
-``python tests/test_backend_agreement.py <scene>`` prints them), so p ~ 0.5.
+``python tests/batch_sim/test_backend_agreement.py <scene>`` prints them), so p ~ 0.5.
 With n worlds per backend the test detects, with 80 % power, a difference of
 about (z_crit + 0.84) * sqrt(0.5 / n): 0.36 for pachinko (n = 64) and 0.42
 for SIGGRAPH (n = 48), with 8 queries each (z_crit = 3.23). It catches a backend that drops or doubles
 contacts (letters that stop on pegs instead of passing, balls that stick),
-not subtle biases; tests/test_mjx.py compares distributions of tiny's
+not subtle biases; tests/batch_sim/test_mjx.py compares distributions of tiny's
 metrics more finely.
 """
 
@@ -35,11 +35,11 @@ import mwbx
 from mwbx.queries import Query
 from mwbx.queries.query import evaluate_each
 
-REPO = pathlib.Path(__file__).parent.parent
+REPO = pathlib.Path(__file__).parents[2]
 
 # Per scene: simulated time (s), worlds per backend, and each body's median x
 # at the end time on the native backend (128 worlds of seed 99), m, as
-# ``python tests/test_backend_agreement.py <scene>`` prints them (SIGGRAPH
+# ``python tests/batch_sim/test_backend_agreement.py <scene>`` prints them (SIGGRAPH
 # measured on the scene with the letters spelled upright; pachinko re-measured
 # then, unchanged to 1 mm).
 SCENES = {

@@ -16,7 +16,7 @@ from mwbx import cli
 from mwbx.bank import lazy, shards
 from mwbx.queries import query as query_lib
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 TINY = REPO / "tests" / "refine_scenes" / "tiny.yaml"
 N_SHARDS = 8
 PER_SHARD = 4

@@ -16,7 +16,7 @@ import pytest
 import mwbx
 from mwbx import cli
 
-SCENES = pathlib.Path(__file__).parent / "refine_scenes"
+SCENES = pathlib.Path(__file__).parents[1] / "refine_scenes"
 T_MIN = 0.1
 
 

@@ -14,7 +14,7 @@ from mwbx.queries import load_queries, rank
 
 import queries_reference as ref
 
-REPO = pathlib.Path(__file__).parent.parent
+REPO = pathlib.Path(__file__).parents[2]
 EXAMPLE = REPO / "configs" / "queries" / "quickstart.yaml"
 
 

@@ -106,7 +106,7 @@ def native_config_without_noise(bank):
   return mwbx.config_from_dict({k: v for k, v in cfg.items() if k != "source"}, source=bank.config["source"])
 
 
-CHAIN = mwbx.load_config(pathlib.Path(__file__).parent / "scenes" / "chain.yaml")
+CHAIN = mwbx.load_config(pathlib.Path(__file__).parents[1] / "scenes" / "chain.yaml")
 
 
 # Across per-device batch shapes XLA may round differently in the last bit and
@@ -181,7 +181,7 @@ def test_ctrl_c_stops_mjx_sampling_between_blocks_and_keeps_finished_chunks(tmp_
   import sys
   import time
   out = tmp_path / "bank"
-  tiny = pathlib.Path(__file__).parent / "scenes" / "tiny.yaml"
+  tiny = pathlib.Path(__file__).parents[1] / "scenes" / "tiny.yaml"
   proc = subprocess.Popen([sys.executable, "-m", "mwbx.cli", "sample", str(tiny), "--backend", "mjx",
                            "--worlds", "64", "--chunk-size", "8", "--out", str(out)],
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -29,7 +29,7 @@ ORIENTATION_LINE = re.compile(r"mwbx browse: query (\d+) orientation upright axi
 
 def _scenes_dir():
   import pathlib
-  return pathlib.Path(__file__).resolve().parent / "scenes"
+  return pathlib.Path(__file__).resolve().parents[1] / "scenes"
 
 
 def _tiny_with_block(tmp_path):

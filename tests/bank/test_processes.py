@@ -20,7 +20,7 @@ import numpy as np
 import mwbx
 from test_shards import same_worlds
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 TINY = REPO / "tests" / "refine_scenes" / "tiny.yaml"
 N_WORLDS = 24
 

@@ -18,7 +18,7 @@ import pytest
 import mwbx
 from mwbx.refinement.refine import refine, refine_run
 
-SCENES = pathlib.Path(__file__).parent / "refine_scenes"
+SCENES = pathlib.Path(__file__).parents[1] / "refine_scenes"
 T_MIN = 0.1
 N = 8
 

@@ -14,7 +14,7 @@ import mwbx
 from mwbx.batch_sim import contact_budget, mjx_collision
 from mwbx.batch_sim import sampler as sampler_lib
 
-TESTS = pathlib.Path(__file__).parent
+TESTS = pathlib.Path(__file__).parents[1]
 PILE = TESTS / "scenes" / "contact_pile.yaml"
 
 # A settling pile (3 stacked boxes, 4 balls, 16 contacts at rest) over 300

@@ -17,7 +17,7 @@ from mwbx.batch_sim.backend import ChunkResult
 from mwbx.codec import polyline
 from mwbx.refinement import refine_run
 
-TINY = pathlib.Path(__file__).parent / "scenes" / "tiny.yaml"
+TINY = pathlib.Path(__file__).parents[1] / "scenes" / "tiny.yaml"
 
 
 def _chunk(com, frame_count, status, metrics=None, overflow=None):

@@ -18,7 +18,7 @@ from mwbx.queries import Query, query_gaps
 from mwbx.search import proposal as proposal_lib
 from mwbx.search.solver import KeyStream, stream_key
 
-TESTS = pathlib.Path(__file__).parent
+TESTS = pathlib.Path(__file__).parents[1]
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import pytest
 import mwbx
 from mwbx.refinement.refine import refine_run
 
-SCENES = pathlib.Path(__file__).parent / "refine_scenes"
+SCENES = pathlib.Path(__file__).parents[1] / "refine_scenes"
 
 
 @pytest.fixture(scope="module")

@@ -27,7 +27,7 @@ import mwbx
 from mwbx import cli
 from mwbx.errors import MwbxError
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 TINY = REPO / "tests" / "scenes" / "tiny.yaml"
 QUERY = ("camera: {eye: [0, -3, 1], target: [0, 0, 0.4], up: [0, 0, 1], fovy: 60, aspect: 1}\n"
          "queries:\n  - {box: [0, 0, 1, 1], bodies: [ball]}\n")

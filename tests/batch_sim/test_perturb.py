@@ -136,7 +136,7 @@ def test_no_perturbations_in_free_flight():
       "randomize": {"spinner": {"angular_velocity": {"dist": "normal", "scale": 6.0},
                                 "linear_velocity": {"dist": "normal", "scale": 2.0}}},
       "sim": {"end_time": 0.6, "chunk_size": 8},
-  }, source=str(__import__("pathlib").Path(__file__).parent / "scenes" / "flight.yaml"))
+  }, source=str(__import__("pathlib").Path(__file__).parents[1] / "scenes" / "flight.yaml"))
   bank = mwbx.sample(cfg, n_worlds=8, key=jax.random.key(0), backend="native")
   assert bank.valid.all()
   assert (bank.perturbations == 0).all()

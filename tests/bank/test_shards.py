@@ -19,7 +19,7 @@ import pytest
 import mwbx
 from mwbx import cli
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 TINY = REPO / "tests" / "refine_scenes" / "tiny.yaml"
 
 

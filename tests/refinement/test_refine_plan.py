@@ -15,7 +15,7 @@ from mwbx.errors import MwbxError
 from mwbx.refinement import plan_refinement, refine_run, run_refinement, runners, sampler_for
 from mwbx.refinement.plan import run_plan
 
-TINY = pathlib.Path(__file__).parent / "scenes" / "tiny.yaml"
+TINY = pathlib.Path(__file__).parents[1] / "scenes" / "tiny.yaml"
 ARRAYS = ("world_ids", "keys", "flags", "frame_count", "com", "com_count", "metrics", "perturbations", "steps",
           "parent_world", "refine_time", "scene_version")
 
