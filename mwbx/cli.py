@@ -409,7 +409,25 @@ def build_parser() -> argparse.ArgumentParser:
   parser = argparse.ArgumentParser(prog="mwbx", description="Many-Worlds Browsing on JAX and MuJoCo.")
   parser.add_argument("--version", action="version", version=f"mwbx {__version__}")
   sub = parser.add_subparsers(dest="command", required=True)
+  _add_sample(sub)
+  _add_info(sub)
+  _add_query(sub)
+  _add_view(sub)
+  _add_refine(sub)
+  _add_solve(sub)
+  _add_drop(sub)
+  _add_browse(sub)
+  return parser
 
+
+def _skip_corrupt(p) -> None:
+  """The flag every command that opens a bank takes."""
+  p.add_argument("--skip-corrupt", action="store_true",
+                 help="open the bank without its corrupt shards (named on stderr)")
+
+
+def _add_sample(sub) -> None:
+  """`mwbx sample CONFIG`: sample worlds into a bank, alone or with other processes."""
   p = sub.add_parser("sample", help="sample worlds of a config into a bank")
   p.add_argument("config", help="YAML config (e.g. configs/quickstart.yaml)")
   p.add_argument("--num-processes", type=int, default=None, metavar="N",
@@ -428,15 +446,20 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--out", default=None, help="bank directory; an existing bank is continued")
   p.set_defaults(func=_cmd_sample)
 
+
+def _add_info(sub) -> None:
+  """`mwbx info BANK`: summarize a bank."""
   p = sub.add_parser("info", help="summarize a bank")
   p.add_argument("bank")
   p.add_argument("--json", action="store_true")
   p.add_argument("--verify", action="store_true",
                  help="check every shard's checksums (opening reads only the small arrays)")
-  p.add_argument("--skip-corrupt", action="store_true",
-                 help="open the bank without its corrupt shards (named on stderr)")
+  _skip_corrupt(p)
   p.set_defaults(func=_cmd_info)
 
+
+def _add_query(sub) -> None:
+  """`mwbx query BANK QUERIES`: match and rank worlds."""
   p = sub.add_parser("query", help="find worlds of a bank with screen-box, whole-geometry, joint and "
                                    "orientation queries (docs/queries.md) and rank them")
   p.add_argument("bank", help="bank directory")
@@ -447,10 +470,12 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--under", type=int, default=None, metavar="ID",
                  help="only world ID and the worlds refined from it (directly or not)")
   p.add_argument("--json", action="store_true")
-  p.add_argument("--skip-corrupt", action="store_true",
-                 help="open the bank without its corrupt shards (named on stderr)")
+  _skip_corrupt(p)
   p.set_defaults(func=_cmd_query)
 
+
+def _add_view(sub) -> None:
+  """`mwbx view BANK`: meshcat playback or standalone HTML."""
   p = sub.add_parser("view", help="show worlds, paths and queries in meshcat (or write HTML)")
   p.add_argument("bank")
   p.add_argument("--worlds", default=None, help="world ids to play back, e.g. 3,17")
@@ -463,10 +488,12 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--html", default=None, help="write one standalone HTML file instead of serving")
   p.add_argument("--zmq-url", default=None, help="draw into a running meshcat server")
   p.add_argument("--no-browser", action="store_true", help="only print the URL")
-  p.add_argument("--skip-corrupt", action="store_true",
-                 help="open the bank without its corrupt shards (named on stderr)")
+  _skip_corrupt(p)
   p.set_defaults(func=_cmd_view)
 
+
+def _add_refine(sub) -> None:
+  """`mwbx refine BANK --world ID`: resample objects of one world from t_min on."""
   p = sub.add_parser("refine", help="resample chosen objects of one world from a time or a screen box on")
   p.add_argument("bank", help="bank directory")
   p.add_argument("--world", type=int, required=True, help="id of the world to refine")
@@ -482,10 +509,12 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--seed", type=int, default=None, help="refinement seed (default: a new one, printed)")
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
-  p.add_argument("--skip-corrupt", action="store_true",
-                 help="open the bank without its corrupt shards (named on stderr)")
+  _skip_corrupt(p)
   p.set_defaults(func=_cmd_refine)
 
+
+def _add_solve(sub) -> None:
+  """`mwbx solve BANK QUERIES`: search refinements until every query is met."""
   p = sub.add_parser("solve", help="search refinements for a world that meets every query, unattended")
   p.add_argument("bank", help="bank directory")
   p.add_argument("queries", help="query YAML: the goal (every query met)")
@@ -506,18 +535,22 @@ def build_parser() -> argparse.ArgumentParser:
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
   p.add_argument("--plot", default=None, help="progress plot PNG (default: BANK-solve.png next to the bank)")
-  p.add_argument("--skip-corrupt", action="store_true",
-                 help="open the bank without its corrupt shards (named on stderr)")
+  _skip_corrupt(p)
   p.set_defaults(func=_cmd_solve)
 
+
+def _add_drop(sub) -> None:
+  """`mwbx drop BANK IDS`: remove worlds."""
   p = sub.add_parser("drop", help="remove worlds from a bank (their ids are never reused)")
   p.add_argument("bank", help="bank directory")
   p.add_argument("ids", help="world ids, e.g. 260,261")
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")
-  p.add_argument("--skip-corrupt", action="store_true",
-                 help="open the bank without its corrupt shards (named on stderr)")
+  _skip_corrupt(p)
   p.set_defaults(func=_cmd_drop)
 
+
+def _add_browse(sub) -> None:
+  """`mwbx browse BANK`: the interactive page."""
   p = sub.add_parser("browse", help="browse a bank in the browser: draw boxes, sort, play, refine")
   p.add_argument("bank", help="bank directory")
   p.add_argument("--port", type=int, default=None, help="port to serve on (default: a free one)")
@@ -526,10 +559,8 @@ def build_parser() -> argparse.ArgumentParser:
                  " (default: BANK)")
   p.add_argument("--autosave", action="store_true", help="on Ctrl-C, save the worlds refined on the page")
   p.add_argument("--no-browser", action="store_true", help="only print the URL")
-  p.add_argument("--skip-corrupt", action="store_true",
-                 help="open the bank without its corrupt shards (named on stderr)")
+  _skip_corrupt(p)
   p.set_defaults(func=_cmd_browse)
-  return parser
 
 
 def _enable_compilation_cache() -> None:
