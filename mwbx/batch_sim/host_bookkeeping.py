@@ -179,9 +179,152 @@ def _finite_step(sensors, n_bodies):
 # --- one frame of a batch ----------------------------------------------------
 
 @host_jit
+def _contact_impacts(obs, n_bodies, p, delta_v, delta_w, impact_v, impact_w):
+  """The velocity changes contacts made in each step of one world's frame, and
+  which are impacts (over the perturbation thresholds).
+
+  Args:
+    obs: f32[S, B * SENSOR_WIDTH] the world's sensors of the frame's steps.
+    n_bodies: B tracked bodies.
+    p: :func:`host_params`.
+    delta_v, delta_w: f64[S, B, 3] out, m/s and rad/s.
+    impact_v, impact_w: bool[S, B] out.
+  """
+  dt = p.dt
+  for j in range(obs.shape[0]):
+    for b in range(n_bodies):
+      o = b * SENSOR_WIDTH
+      for a in range(3):
+        # The sensor reads a - gravity: the velocity change contacts made.
+        delta_v[j, b, a] = dt * obs[j, o + LIN_ACC + a]
+        delta_w[j, b, a] = dt * obs[j, o + ANG_ACC + a]
+      impact_v[j, b] = (_norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2])
+                        > p.perturb.linear_threshold * dt)
+      impact_w[j, b] = (_norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2])
+                        > p.perturb.angular_threshold * dt)
+
+
+@host_jit
+def _step_bookkeeping(obs, r, k0, was_running, n_bodies, p, carry, impact_v, impact_w):
+  """Health, rest and metrics of world ``r`` through the frame's steps.
+
+  Updates ``carry``'s metrics, initial orientations, steps since an impact and
+  previous COM of row ``r`` for every step that is part of the world.
+
+  Returns:
+    (healthy: every step finite and under ``max_speed``, still: steps in a
+    row with every body below the rest speeds, counted on from the carry).
+  """
+  dt = p.dt
+  healthy = True
+  still = carry.still_steps[r]
+  for j in range(obs.shape[0]):
+    k = k0 + j
+    healthy = healthy and _finite_step(obs[j], n_bodies)
+    for b in range(n_bodies):
+      o = b * SENSOR_WIDTH
+      if _norm3(obs[j, o + LIN_VEL], obs[j, o + LIN_VEL + 1], obs[j, o + LIN_VEL + 2]) > p.max_speed:
+        healthy = False
+    # The last frame is recorded at its first step; later steps of it are
+    # not part of the world (its simulation ends there).
+    keep = healthy and was_running and (k0 // p.steps_per_frame < p.end_frame or j == 0)
+    any_moving = False
+    for b in range(n_bodies):
+      o = b * SENSOR_WIDTH
+      speed = _norm3(obs[j, o + LIN_VEL], obs[j, o + LIN_VEL + 1], obs[j, o + LIN_VEL + 2])
+      spin = _norm3(obs[j, o + ANG_VEL], obs[j, o + ANG_VEL + 1], obs[j, o + ANG_VEL + 2])
+      moving = speed >= p.rest_linear_speed or spin >= p.rest_angular_speed
+      any_moving = any_moving or moving
+      if k == 0:
+        for a in range(4):
+          carry.init_quat[r, b, a] = obs[j, o + QUAT + a]
+      if not keep:
+        continue
+      m = carry.metrics[r, b]
+      impact = impact_v[j, b] or impact_w[j, b]
+      m[ANGULAR_TRAVEL] += spin * dt
+      if moving:
+        # k·dt rounded as float32 arithmetic rounds it (the product of two
+        # float32 values is exact in float64): rest times are the same
+        # discrete values on every backend.
+        m[REST_TIME] = np.float32(float(np.float32(k)) * float(np.float32(dt)))
+      if impact and carry.since_impact[r, b] > p.collision_gap_steps:
+        m[COLLISIONS] += 1.0
+      dot = 0.0
+      for a in range(4):
+        dot += carry.init_quat[r, b, a] * obs[j, o + QUAT + a]
+      m[ORIENTATION_ERROR] = 2.0 * math.acos(min(abs(dot), 1.0))
+      if k > 0:
+        m[PATH_LENGTH] += _norm3(obs[j, o + COM_POS] - carry.prev_com[r, b, 0],
+                                 obs[j, o + COM_POS + 1] - carry.prev_com[r, b, 1],
+                                 obs[j, o + COM_POS + 2] - carry.prev_com[r, b, 2])
+      m[MAX_HEIGHT] = max(m[MAX_HEIGHT], obs[j, o + COM_POS + 2])
+      carry.since_impact[r, b] = 0 if impact else carry.since_impact[r, b] + 1
+      for a in range(3):
+        carry.prev_com[r, b, a] = obs[j, o + COM_POS + a]
+    still = 0 if any_moving else still + 1
+  return healthy, still
+
+
+@host_jit
+def _frame_status(status, was_running, healthy, still, k0, p):
+  """A world's status after the frame it started at step ``k0`` (a world that
+  was not running keeps ``status``)."""
+  if not was_running:
+    return status
+  if not healthy:
+    return world.UNSTABLE
+  if still >= p.rest_steps:
+    return world.AT_REST
+  if k0 // p.steps_per_frame >= p.end_frame:
+    return world.END_TIME
+  return world.RUNNING
+
+
+@host_jit
+def _next_wrenches(r, obs, k0, keep_going, key_data, p, tracked, delta_v, delta_w, impact_v, impact_w,
+                   wrench_full, u, dv, dw, quat, wrench):
+  """The perturbation impulses of world ``r``'s impacts, as ``xfrc_applied``
+  wrenches of its next frame's steps (zero where none).
+
+  ``u``, ``dv``, ``dw``, ``quat``, ``wrench`` are scratch (f64[6], [3], [3],
+  [4], [6]). Returns the number of nonzero perturbations applied.
+  """
+  n_applied = 0
+  for j in range(obs.shape[0]):
+    for b in range(tracked.size):
+      for a in range(6):
+        wrench_full[r, j, tracked[b], a] = 0.0
+      if not (keep_going and p.enabled and p.perturbable[b] and (impact_v[j, b] or impact_w[j, b])):
+        continue
+      body_step_uniforms(key_data[r, 0], key_data[r, 1], k0 + j, b, u)
+      dv[:] = 0.0
+      dw[:] = 0.0
+      if impact_v[j, b]:
+        _perturbation(u[0], u[1], u[2], delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2],
+                      p.perturb.alpha, p.perturb.lobe_exponent, dv)
+      if impact_w[j, b]:
+        _perturbation(u[3], u[4], u[5], delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2],
+                      p.perturb.alpha, p.perturb.lobe_exponent, dw)
+      if (dv[0] != 0.0 or dv[1] != 0.0 or dv[2] != 0.0 or dw[0] != 0.0 or dw[1] != 0.0
+          or dw[2] != 0.0):
+        n_applied += 1
+      for a in range(4):
+        quat[a] = obs[j, b * SENSOR_WIDTH + 3 + a]
+      _impulse_wrench(dv, dw, p.mass[b], p.inertia[b], quat, p.dt, wrench)
+      for a in range(6):
+        wrench_full[r, j, tracked[b], a] = wrench[a]
+  return n_applied
+
+
+@host_jit
 def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_start, frame,
                  qpos_buf, com_buf, wrench_full, running):
   """:func:`world.frame_update` for the worlds that ran a frame, and the recording.
+
+  Per world: the frame's contact impacts, its steps' health, rest and
+  metrics, its status, the next frame's perturbation wrenches, and the
+  frame's ``qpos`` and COM recorded (from the state the frame started at).
 
   Args:
     rows: i64[n] chunk row of each world that stepped the frame.
@@ -201,7 +344,6 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
   n_steps = sensordata.shape[1]
   n_bodies = tracked.size
   nq = qpos_buf.shape[2]
-  dt = p.dt
   delta_v = np.empty((n_steps, n_bodies, 3))
   delta_w = np.empty((n_steps, n_bodies, 3))
   impact_v = np.empty((n_steps, n_bodies), np.bool_)
@@ -217,104 +359,12 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
     k0 = carry.step[r]
     was_running = carry.status[r] == world.RUNNING
     record = was_running and _finite_step(obs[0], n_bodies)
-
-    for j in range(n_steps):
-      for b in range(n_bodies):
-        o = b * SENSOR_WIDTH
-        for a in range(3):
-          # The sensor reads a - gravity: the velocity change contacts made.
-          delta_v[j, b, a] = dt * obs[j, o + LIN_ACC + a]
-          delta_w[j, b, a] = dt * obs[j, o + ANG_ACC + a]
-        impact_v[j, b] = (_norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2])
-                          > p.perturb.linear_threshold * dt)
-        impact_w[j, b] = (_norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2])
-                          > p.perturb.angular_threshold * dt)
-
-    healthy = True
-    still = carry.still_steps[r]
-    for j in range(n_steps):
-      k = k0 + j
-      healthy = healthy and _finite_step(obs[j], n_bodies)
-      for b in range(n_bodies):
-        o = b * SENSOR_WIDTH
-        if _norm3(obs[j, o + LIN_VEL], obs[j, o + LIN_VEL + 1], obs[j, o + LIN_VEL + 2]) > p.max_speed:
-          healthy = False
-      # The last frame is recorded at its first step; later steps of it are
-      # not part of the world (its simulation ends there).
-      keep = healthy and was_running and (k0 // p.steps_per_frame < p.end_frame or j == 0)
-      any_moving = False
-      for b in range(n_bodies):
-        o = b * SENSOR_WIDTH
-        speed = _norm3(obs[j, o + LIN_VEL], obs[j, o + LIN_VEL + 1], obs[j, o + LIN_VEL + 2])
-        spin = _norm3(obs[j, o + ANG_VEL], obs[j, o + ANG_VEL + 1], obs[j, o + ANG_VEL + 2])
-        moving = speed >= p.rest_linear_speed or spin >= p.rest_angular_speed
-        any_moving = any_moving or moving
-        if k == 0:
-          for a in range(4):
-            carry.init_quat[r, b, a] = obs[j, o + QUAT + a]
-        if not keep:
-          continue
-        m = carry.metrics[r, b]
-        impact = impact_v[j, b] or impact_w[j, b]
-        m[ANGULAR_TRAVEL] += spin * dt
-        if moving:
-          # k·dt rounded as float32 arithmetic rounds it (the product of two
-          # float32 values is exact in float64): rest times are the same
-          # discrete values on every backend.
-          m[REST_TIME] = np.float32(float(np.float32(k)) * float(np.float32(dt)))
-        if impact and carry.since_impact[r, b] > p.collision_gap_steps:
-          m[COLLISIONS] += 1.0
-        dot = 0.0
-        for a in range(4):
-          dot += carry.init_quat[r, b, a] * obs[j, o + QUAT + a]
-        m[ORIENTATION_ERROR] = 2.0 * math.acos(min(abs(dot), 1.0))
-        if k > 0:
-          m[PATH_LENGTH] += _norm3(obs[j, o + COM_POS] - carry.prev_com[r, b, 0],
-                                   obs[j, o + COM_POS + 1] - carry.prev_com[r, b, 1],
-                                   obs[j, o + COM_POS + 2] - carry.prev_com[r, b, 2])
-        m[MAX_HEIGHT] = max(m[MAX_HEIGHT], obs[j, o + COM_POS + 2])
-        carry.since_impact[r, b] = 0 if impact else carry.since_impact[r, b] + 1
-        for a in range(3):
-          carry.prev_com[r, b, a] = obs[j, o + COM_POS + a]
-      still = 0 if any_moving else still + 1
-
-    status = carry.status[r]
-    if was_running:
-      if not healthy:
-        status = world.UNSTABLE
-      elif still >= p.rest_steps:
-        status = world.AT_REST
-      elif k0 // p.steps_per_frame >= p.end_frame:
-        status = world.END_TIME
-      else:
-        status = world.RUNNING
+    _contact_impacts(obs, n_bodies, p, delta_v, delta_w, impact_v, impact_w)
+    healthy, still = _step_bookkeeping(obs, r, k0, was_running, n_bodies, p, carry, impact_v, impact_w)
+    status = _frame_status(carry.status[r], was_running, healthy, still, k0, p)
     keep_going = was_running and status == world.RUNNING
-
-    n_applied = 0
-    for j in range(n_steps):
-      for b in range(n_bodies):
-        for a in range(6):
-          wrench_full[r, j, tracked[b], a] = 0.0
-        if not (keep_going and p.enabled and p.perturbable[b] and (impact_v[j, b] or impact_w[j, b])):
-          continue
-        body_step_uniforms(key_data[r, 0], key_data[r, 1], k0 + j, b, u)
-        dv[:] = 0.0
-        dw[:] = 0.0
-        if impact_v[j, b]:
-          _perturbation(u[0], u[1], u[2], delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2],
-                        p.perturb.alpha, p.perturb.lobe_exponent, dv)
-        if impact_w[j, b]:
-          _perturbation(u[3], u[4], u[5], delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2],
-                        p.perturb.alpha, p.perturb.lobe_exponent, dw)
-        if (dv[0] != 0.0 or dv[1] != 0.0 or dv[2] != 0.0 or dw[0] != 0.0 or dw[1] != 0.0
-            or dw[2] != 0.0):
-          n_applied += 1
-        for a in range(4):
-          quat[a] = obs[j, b * SENSOR_WIDTH + 3 + a]
-        _impulse_wrench(dv, dw, p.mass[b], p.inertia[b], quat, dt, wrench)
-        for a in range(6):
-          wrench_full[r, j, tracked[b], a] = wrench[a]
-
+    n_applied = _next_wrenches(r, obs, k0, keep_going, key_data, p, tracked, delta_v, delta_w, impact_v,
+                               impact_w, wrench_full, u, dv, dw, quat, wrench)
     if was_running:
       carry.step[r] = k0 + n_steps
       carry.still_steps[r] = still
