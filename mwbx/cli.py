@@ -36,7 +36,7 @@ from mwbx import __version__
 from mwbx import distributed
 from mwbx.bank import FLAG_CONTACT_OVERFLOW, FLAG_SIM_ERROR, BankDirectory, runs, shards
 from mwbx.batch_sim import memory
-from mwbx.batch_sim.sampler import MAX_WORLD_ID, empty_bank
+from mwbx.batch_sim.sampler import MAX_WORLD_ID, check_chunk_memory, empty_bank
 from mwbx.errors import MwbxError
 from mwbx.files import write_atomic
 from mwbx.progress import reporter
@@ -55,6 +55,9 @@ def _cmd_sample(args) -> int:
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
   scene = mwbx.Scene(config)
+  # Before a bank directory is made or a run recorded: a run that cannot fit leaves nothing behind.
+  chunk = args.chunk_size or config.sim.chunk_size
+  check_chunk_memory(scene, min(chunk, args.worlds) if args.worlds else chunk)
   group = distributed.join(args.coordinator, args.num_processes, args.process_id, auto=args.distributed,
                            timeout=args.timeout)
   plan, alive = _plan_run(args, out, scene, group) if group.leader else (None, None)

@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import jax
+import numpy as np
 import pytest
 
 import mwbx
@@ -152,6 +153,27 @@ def test_a_billion_worlds_that_cannot_fit_are_refused_with_the_figure(tmp_path):
   result = run_cli("sample", str(TINY), "--worlds", "1000000000", "--out", str(tmp_path / "out"),
                    env={memory.ENV_AVAILABLE: str(8 << 30)})
   assert_one_line(result, "--worlds 1000000000", "GiB of memory", "8.0 GiB is available")
+
+
+def test_a_chunk_that_cannot_fit_leaves_no_bank_behind(tmp_path):
+  # It was refused after the bank directory and the run record were written:
+  # the same --out then held "a bank of a different config".
+  path = tmp_path / "c.yaml"
+  path.write_text(f"scene: {{mjcf: {TESTS / 'scenes' / 'tiny.xml'}}}\nsim: {{end_time: 3000.0}}\n")
+  result = run_cli("sample", str(path), "--worlds", "256", "--chunk-size", "256", "--out", str(tmp_path / "out"),
+                   env={memory.ENV_AVAILABLE: str(1 << 30)})
+  assert_one_line(result, "a chunk of 256 worlds", "sim.end_time 3000", "1.0 GiB is available")
+  assert not (tmp_path / "out").exists()
+
+
+def test_a_refinement_that_cannot_fit_is_refused_with_the_figure(tiny_native_bank):
+  # It ended in numpy's MemoryError traceback (the start states of 1e9 worlds).
+  bank = tiny_native_bank
+  world = int(bank.world_ids[np.flatnonzero(bank.valid)[0]])
+  with pytest.raises(mwbx.MwbxError, match=r"refine: n_samples 1,000,000,000: a bank of 1,000,000,000 worlds"
+                                           r" in memory.*GiB of memory") as err:
+    mwbx.refine(bank, world, next(iter(bank.objects)), t_min=0.1, n_samples=10**9, backend="native")
+  assert len(str(err.value)) < 400
 
 
 def test_world_ids_past_32_bits_are_refused(tiny_native):

@@ -16,8 +16,10 @@ lock and on the manifest as it is at that moment:
   path always holds a complete bank; it is refused, and nothing written, if
   other processes added worlds since the load or a sampling run is writing.
 
-A bank not loaded from the directory (e.g. sampled in memory) writes its
-worlds whose ids are not stored there and drops nothing.
+A bank not loaded from the directory (e.g. sampled in memory) drops nothing
+and writes every world that is not already stored there (the same id with
+the same key); a world whose id is taken there by another world gets a fresh
+id, as above.
 """
 
 from __future__ import annotations
@@ -59,9 +61,8 @@ def save(bank, path: str | os.PathLike) -> pathlib.Path:
     if origin is not None:
       rows = np.flatnonzero(~np.isin(bank.world_ids, origin.ids))
       gone = set(directory.taken(np.setdiff1d(origin.ids, bank.world_ids)).tolist())
-    else:  # worlds with ids stored there are taken to be the same worlds
-      stored = np.asarray(sorted(directory.stored_ids()), np.int64)
-      rows = np.flatnonzero(~np.isin(bank.world_ids, stored))
+    else:  # a world stored there with the same id and key is the same world; others are new
+      rows = np.flatnonzero(~directory.same_worlds(bank.world_ids, bank.keys))
       gone = set()
     mapping = _fresh_ids(directory, bank.world_ids[rows])
     out = renumbered(bank, mapping)

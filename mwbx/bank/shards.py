@@ -49,6 +49,7 @@ from mwbx.bank import runs
 from mwbx.bank.stores import store_class
 from mwbx.codec import polyline
 from mwbx.errors import MwbxError
+from mwbx.yaml_input import short_repr
 
 FORMAT = 3
 MANIFEST = "manifest.json"
@@ -133,6 +134,29 @@ class BankDirectory:
     for lo, hi in ranges:
       hit[np.searchsorted(ids, lo):np.searchsorted(ids, hi, side="right")] = True
     return ids[hit]
+
+  def same_worlds(self, ids, keys) -> np.ndarray:
+    """bool[k]: whether world ``ids[i]`` is stored here (not dropped) with the
+    same key ``keys[i]`` (u32[k, 2], the bank's ``keys``), i.e. is the same
+    world; reads the ``world_ids`` and ``keys`` of the shards holding them."""
+    ids = np.asarray(ids, np.int64)
+    keys = np.asarray(keys).reshape(len(ids), -1)
+    same = np.zeros(len(ids), bool)
+    stored = np.isin(ids, np.asarray(sorted(self.stored_ids()), np.int64))
+    if not stored.any():
+      return same
+    for entry in self.manifest["shards"]:
+      inside = np.zeros(len(ids), bool)
+      for lo, hi in entry["id_ranges"]:
+        inside |= (ids >= lo) & (ids <= hi)
+      if not (inside & stored).any():
+        continue
+      arrays = _load_arrays(self.path, entry, ["world_ids", "keys"])
+      at = {int(i): k for i, k in zip(arrays["world_ids"], arrays["keys"].reshape(len(arrays["world_ids"]), -1))}
+      for row in np.flatnonzero(inside & stored):
+        key = at.get(int(ids[row]))
+        same[row] = key is not None and np.array_equal(key, keys[row])
+    return same
 
   def unfinished_runs(self) -> list[dict]:
     """Run records not finished (of one or of several processes)."""
@@ -293,6 +317,12 @@ def read_manifest(path: pathlib.Path) -> dict:
     for key in list(entry.get("checksums", {})):
       if not _PLAIN_NAME.fullmatch(key):
         raise MwbxError(f"{file}: shards[{i}].checksums: {key!r} is not an array name (never a path)")
+  for i, run in enumerate(manifest.get("runs", [])):
+    run_id = run.get("id") if isinstance(run, dict) else None
+    # A run's id names its liveness lock file (runs/<id>.lock), which is unlinked.
+    if run_id is not None and (not isinstance(run_id, str) or not _PLAIN_NAME.fullmatch(run_id)):
+      raise MwbxError(f"{file}: runs[{i}].id: {short_repr(run_id)} is not a run id (letters, digits, - and _;"
+                      f" never a path)")
   return manifest
 
 

@@ -306,21 +306,7 @@ class Sampler:
       MwbxError: naming the chunk size, frames, sim.end_time and the figures.
     """
     n_worlds = max(int(n_worlds), 1)
-    c = self.batch_size(n_worlds)
-    m, sim = self.scene.model, self.scene.config.sim
-    needed = memory.chunk_bytes(
-        c, self.n_frames, m.nq, len(self.scene.body_names), self.query_stride, nbody=m.nbody,
-        nstate=mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS), nsensordata=m.nsensordata,
-        steps_per_frame=self.params.steps_per_frame)
-    what = (f"a chunk of {c:,} worlds of {self.n_frames:,} frames each (sim.end_time {sim.end_time:g} s at"
-            f" sim.record_fps {sim.record_fps:g})")
-    advice = "lower sim.end_time or the chunk size (sim.chunk_size, --chunk-size)"
-    if in_memory:
-      needed += n_worlds * memory.stored_bytes_per_world(self.n_frames, len(self.scene.body_names),
-                                                         self.query_stride, len(world.METRIC_NAMES))
-      what = f"a bank of {n_worlds:,} worlds in memory and {what}"
-      advice = f"sample fewer worlds per call, or {advice}"
-    memory.check(needed, what, advice)
+    check_chunk_memory(self.scene, self.batch_size(n_worlds), n_worlds if in_memory else 0)
 
   def _assemble(self, ids, keys, results: list[ChunkResult], store) -> bank_lib.Bank:
     scene = self.scene
@@ -336,6 +322,35 @@ class Sampler:
         digest=scene.digest,
         run={} if self.contact_budget is None else {"contact_budget": self.contact_budget._asdict()},
     )
+
+
+
+def check_chunk_memory(scene: Scene, batch: int, n_in_memory: int = 0) -> None:
+  """Refuses a chunk of ``batch`` worlds (and a bank of ``n_in_memory`` worlds
+  kept in memory) whose estimated host memory (:mod:`memory`) does not fit,
+  with the figure; needs no sampler, so a command can check before it writes
+  anything (:meth:`Sampler.check_memory` checks with its own batch).
+
+  Raises:
+    MwbxError: naming the chunk size, frames, sim.end_time and the figures.
+  """
+  m, cfg = scene.model, scene.config
+  timestep = cfg.sim.timestep if cfg.sim.timestep is not None else m.opt.timestep
+  spf, query_stride, end_frame = frame_rates(cfg, timestep)
+  n_frames = end_frame + 1
+  needed = memory.chunk_bytes(
+      batch, n_frames, m.nq, len(scene.body_names), query_stride, nbody=m.nbody,
+      nstate=mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS), nsensordata=m.nsensordata,
+      steps_per_frame=spf)
+  what = (f"a chunk of {batch:,} worlds of {n_frames:,} frames each (sim.end_time {cfg.sim.end_time:g} s at"
+          f" sim.record_fps {cfg.sim.record_fps:g})")
+  advice = "lower sim.end_time or the chunk size (sim.chunk_size, --chunk-size)"
+  if n_in_memory:
+    needed += n_in_memory * memory.stored_bytes_per_world(n_frames, len(scene.body_names), query_stride,
+                                                          len(world.METRIC_NAMES))
+    what = f"a bank of {n_in_memory:,} worlds in memory and {what}"
+    advice = f"sample fewer worlds per call, or {advice}"
+  memory.check(needed, what, advice)
 
 
 def _store_chunk(store, result: ChunkResult) -> ChunkResult:

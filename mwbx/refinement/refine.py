@@ -32,7 +32,7 @@ import jax
 
 from mwbx import bank as bank_lib
 from mwbx.batch_sim import mujoco_c
-from mwbx.batch_sim.sampler import Sampler
+from mwbx.batch_sim.sampler import MAX_WORLD_ID, Sampler, check_chunk_memory
 from mwbx.config import Config, config_from_dict, load_config
 from mwbx.errors import MwbxError
 from mwbx.queries import first_entry
@@ -159,9 +159,17 @@ def plan_refinement(bank, world: int, objects, *, frustum=None, t_min: float | N
   f0 = int(math.floor(t_min * bank.record_fps + 1e-6))
   if f0 >= sampler.n_frames:
     raise MwbxError(f"refine: t_min {t_min:g} s is at or past the end time")
+  chunk = int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples))
+  if bank.next_world_id + n_samples - 1 > MAX_WORLD_ID:
+    raise MwbxError(f"refine: {n_samples:,} refined worlds from id {bank.next_world_id:,} would pass the last"
+                    f" world id {MAX_WORLD_ID:,}")
+  try:  # the refined worlds are kept in one bank in memory until they are saved
+    check_chunk_memory(sampler.scene, chunk, n_samples)
+  except MwbxError as err:
+    raise MwbxError(f"refine: n_samples {n_samples:,}: {err}") from None
   return RefinePlan(
       world=world, row=row, objects=names, added=added, removed=removed, gone=gone, t_min=t_min, first_frame=f0,
-      n_samples=n_samples, chunk=int(min(chunk_size or sampler.scene.config.sim.chunk_size, n_samples)),
+      n_samples=n_samples, chunk=chunk,
       key=key, backend=backend, playback=playback,
       compiled_loop=loop == "compiled" or (loop == "auto" and mujoco_c.available()), margin=margin,
       # An added object puts a world in the bank's current scene version.

@@ -319,6 +319,33 @@ def test_a_manifest_cannot_make_loading_read_outside_the_bank(small_bank, tmp_pa
     mwbx.Bank.load(small_bank)
 
 
+def test_a_crafted_run_id_is_refused_and_removes_nothing(small_bank, tmp_path):
+  # A run's id names its lock file, which a later run unlinked: "../../x" reached outside the bank.
+  victim = tmp_path / "victimdir" / "victim.lock"
+  victim.parent.mkdir()
+  victim.write_text("x")
+  manifest = _manifest(small_bank)
+  manifest["runs"].append({"id": "../../victimdir/victim", "seed": 0, "finished": False,
+                           "id_ranges": [[100, 101]]})
+  (small_bank / "manifest.json").write_text(json.dumps(manifest))
+  done = subprocess.run(_sample_argv(small_bank, 2), capture_output=True, text=True, timeout=1200)
+  assert done.returncode == 2 and "is not a run id" in done.stderr, done.stderr
+  assert len(done.stderr.strip().splitlines()) == 1 and victim.exists()
+
+
+def test_a_bank_sampled_elsewhere_keeps_its_worlds_when_saved_over_the_same_ids(small_bank, tiny_native):
+  # Worlds with stored ids were taken to be the stored worlds: other worlds were silently not written.
+  again, _ = tiny_native.run(4, jax.random.key(0))  # the stored worlds themselves
+  again.save(small_bank)
+  assert sorted(mwbx.Bank.load(small_bank).world_ids.tolist()) == [0, 1, 2, 3]
+  other, _ = tiny_native.run(2, jax.random.key(9))  # ids 0 and 1 again, other worlds
+  other.save(small_bank)
+  loaded = mwbx.Bank.load(small_bank)
+  assert sorted(loaded.world_ids.tolist()) == [0, 1, 2, 3, 4, 5] and other.world_ids.tolist() == [4, 5]
+  np.testing.assert_array_equal(loaded.qpos_frames(4), other.qpos_frames(4))
+  np.testing.assert_array_equal(loaded.qpos_frames(0), again.qpos_frames(0))
+
+
 def test_a_bank_model_is_built_only_from_the_text_it_stores(small_bank, tmp_path):
   planted = tmp_path / "planted.xml"
   planted.write_text('<mujoco><worldbody><body name="planted"><geom size="0.1"/></body></worldbody></mujoco>')

@@ -17,6 +17,7 @@ import pytest
 
 import mwbx
 from mwbx.browser import Session, browse
+from mwbx.browser import session as session_lib
 from mwbx.browser.session import MAX_REFINE_SAMPLES
 
 from viewer_banks import quickstart_bank
@@ -166,11 +167,9 @@ def test_refinement_limits_hold_on_the_server(bank_dir, monkeypatch):
   small = session.refine(world, "capsule", t_min=0.5, n_samples=2, key=jax.random.key(0), wait=True)
   assert small.error is None and small.new_ids.tolist() == [4, 5] and session.unsaved == [4, 5]
   # A job that fails in any way says why (it used to die silently in its thread).
-  from mwbx import refinement
-
   def out_of_memory(*args, **kwargs):
     raise MemoryError
-  monkeypatch.setattr(refinement, "refine_run", out_of_memory)
+  monkeypatch.setattr(session_lib, "refine_run", out_of_memory)
   failed = session.refine(world, "capsule", t_min=0.5, n_samples=3, wait=True)
   assert failed.error.startswith("MemoryError") and failed.new_ids is None
   assert session.refine(world, "capsule", t_min=0.5, n_samples=3, wait=True).done.is_set()  # not stuck
