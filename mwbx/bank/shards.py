@@ -188,6 +188,10 @@ class BankDirectory:
       try:
         if has_manifest(self.path):
           self.manifest = read_manifest(self.path)
+        # Shards are written only under this lock: a temporary shard folder
+        # here now was left by a process that died writing it.
+        for tmp in (self.path / SHARDS).glob(".tmp-*"):
+          files.remove_quietly(tmp)
         yield
       finally:
         fcntl.flock(lock, fcntl.LOCK_UN)

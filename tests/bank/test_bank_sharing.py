@@ -164,10 +164,15 @@ def test_a_killed_run_is_resumed_once_its_process_is_gone(small_bank):
   finally:
     if proc.poll() is None:
       proc.kill()
+  # What a process killed while writing a shard leaves (SIGKILL skips its clean-up).
+  left = small_bank / "shards" / ".tmp-0123456789abcdef"
+  left.mkdir(exist_ok=True)
+  (left / "world_ids.npy").write_bytes(b"half")
   again = subprocess.run(argv, capture_output=True, text=True, timeout=1200)
   assert again.returncode == 0, again.stderr
   assert "resuming" in again.stderr
   assert sorted(mwbx.Bank.load(small_bank).world_ids.tolist()) == list(range(44))
+  assert not list((small_bank / "shards").glob(".tmp-*"))
 
 
 def test_two_refinements_of_one_bank_at_once_are_both_saved(small_bank):
