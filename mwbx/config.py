@@ -317,11 +317,39 @@ class Config(_Strict):
 MAX_ERROR_LINES = 10
 
 
+def _is_union_branch(part) -> bool:
+  """Whether a pydantic error location part names a branch of a union
+  (``float``, ``tuple[float, ...]``) rather than a key or index of the input."""
+  return isinstance(part, str) and (part in ("float", "int", "str", "bool", "none") or "[" in part)
+
+
+def _deepest_branches(errors: list[dict]) -> list[dict]:
+  """One error per union: pydantic reports every branch a value failed; the
+  branch that got deepest into the value says best what is wrong with it
+  (``scale: [.nan, 0, 0]`` fails ``float`` at the list and the tuple branch at
+  its first item: the second is the useful line)."""
+  best: dict[tuple, dict] = {}
+  out = []
+  for e in errors:
+    loc = tuple(e["loc"])
+    cut = next((i for i, part in enumerate(loc) if _is_union_branch(part)), None)
+    if cut is None:
+      out.append(e)
+      continue
+    key = loc[:cut]
+    if key not in best:
+      out.append(key)  # placeholder: the union's place in the order
+      best[key] = e
+    elif len(loc) > len(best[key]["loc"]):
+      best[key] = e
+  return [best[e] if isinstance(e, tuple) else e for e in out]
+
+
 def _format_error(source: str, err: pydantic.ValidationError) -> str:
   lines = []
-  errors = err.errors()
+  errors = _deepest_branches(err.errors())
   for e in errors[:MAX_ERROR_LINES]:
-    field = ".".join(str(p) for p in e["loc"]) or "<top>"
+    field = ".".join(str(p) for p in e["loc"] if not _is_union_branch(p)) or "<top>"
     if e["type"] == "extra_forbidden":
       lines.append(f"{source}: {field}: unknown key")
     else:

@@ -107,8 +107,13 @@ def test_config_alias_bomb_on_the_command_line(tmp_path):
 def test_non_finite_config_values_are_refused(tmp_path, value):
   path = tmp_path / "c.yaml"
   path.write_text(f"scene: {{mjcf: tiny.xml}}\nrandomize: {{cube: {{position: {{scale: {value}}}}}}}\n")
-  with pytest.raises(mwbx.MwbxError, match=r"randomize\.cube\.position\.scale.*finite"):
+  with pytest.raises(mwbx.MwbxError, match=r"randomize\.cube\.position\.scale: .*finite") as err:
     mwbx.load_config(path)
+  assert "\n" not in str(err.value)  # one line, not one per branch of the field's union
+  path.write_text(f"scene: {{mjcf: tiny.xml}}\nrandomize: {{cube: {{position: {{scale: [0, {value}, 0]}}}}}}\n")
+  with pytest.raises(mwbx.MwbxError, match=r"randomize\.cube\.position\.scale\.1: .*finite") as err:
+    mwbx.load_config(path)
+  assert "\n" not in str(err.value)
   path.write_text(f"scene: {{mjcf: tiny.xml}}\nrandomize: {{cube: {{rotation: {{mean: [0, {value}, 0]}}}}}}\n")
   with pytest.raises(mwbx.MwbxError, match=r"randomize\.cube\.rotation\.mean.*finite"):
     mwbx.load_config(path)
