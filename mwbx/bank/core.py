@@ -42,7 +42,6 @@ FLAG_CONTACT_OVERFLOW = 16
 INVALID = FLAG_UNSTABLE | FLAG_SIM_ERROR | FLAG_CONTACT_OVERFLOW
 
 
-
 @dataclasses.dataclass
 class Bank:
   """Sampled worlds of one scene.

@@ -82,8 +82,6 @@ def has_manifest(path: pathlib.Path) -> bool:
   return (pathlib.Path(path) / MANIFEST).is_file()
 
 
-
-
 def scene_meta(bank) -> dict:
   """What every world of a bank shares (JSON)."""
   _, store_meta = bank.qpos_store.empty().state()

@@ -17,7 +17,6 @@ from mwbx.host_jit import host_jit
 from mwbx.scene import COM_POS, LIN_ACC, LIN_VEL, SENSOR_WIDTH
 
 
-
 @host_jit
 def absorb_rows(rows, before, after, sensors, timestep, qvel_start, sensordata, warmstart,
                 states):

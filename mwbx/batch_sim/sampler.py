@@ -324,7 +324,6 @@ class Sampler:
     )
 
 
-
 def check_chunk_memory(scene: Scene, batch: int, n_in_memory: int = 0) -> None:
   """Refuses a chunk of ``batch`` worlds (and a bank of ``n_in_memory`` worlds
   kept in memory) whose estimated host memory (:mod:`memory`) does not fit,

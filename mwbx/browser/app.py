@@ -42,7 +42,6 @@ from mwbx.errors import MwbxError
 from mwbx.viewer import display, framing
 
 
-
 def free_port(host: str = "127.0.0.1") -> int:
   """A TCP port nothing listens on now (the OS picks it)."""
   with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
