@@ -543,9 +543,10 @@ def _previous_and_stages(d: dict) -> list[str]:
                 f"jitted apart on the timed states; solver limits {solver.get('iterations')} / "
                 f"{solver.get('ls_iterations')}): {parts}; together "
                 f"{sum(v for k, v in stages.items() if k != 'whole step'):,.0f}, against {in_scan:,.0f} per "
-                f"step in the timed scan. The largest part is the {top}. (The whole step jitted alone, "
-                f"outside a scan, took {stages['whole step']:,.0f} ms: not understood, and not what a run "
-                "pays.)"]
+                f"step in the timed scan. The largest part is the {top}. The whole step jitted alone, "
+                f"outside a scan, took {stages['whole step']:,.0f} ms"
+                + (": far more than in the scan, not understood, and not what a run pays."
+                   if stages["whole step"] > 2 * in_scan else ".")]
   return lines
 
 
@@ -622,7 +623,8 @@ def backends(d: dict) -> tuple[list[str], list[str]]:
       lines += ["", _what_limits(sig, r)]
   timing = d.get("sample_timing")
   if timing:
-    lines += ["", f"`{timing['command']}`: {timing['wall_s'] / 60:.1f} min wall ({timing['valid']} valid, "
+    lines += ["", f"`{timing['command']}`: {timing['wall_s'] / 60:.1f} min wall, as a user first runs it (a fresh"
+              f" process with an empty compilation cache: pilot and compile included; {timing['valid']} valid, "
               f"{timing['over_budget']} over the budget; load average {timing['load_average']:.1f}; goal ≤ 10 min)."]
   return lines, []
 
