@@ -280,7 +280,10 @@ def main() -> None:
 
 def _only_play(args) -> None:
   """The play part alone, written into --out's existing figures."""
+  load = os.getloadavg()[0]
   play = _play_latency(args.play_worlds, args.clicks, args.browser)
+  commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+  play.update(load_average=load, commit=commit.stdout.strip() or None)
   result = json.loads(args.out.read_text()) if args.out.exists() else {}
   result["play"] = play
   b = play["browser_click_to_playing_ms"]

@@ -364,7 +364,10 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
                 f"the server after {b['click_to_server_median']:.0f} ms); Playwright's locator click, which first "
                 f"waits for two stable animation frames: {b['locator_click_median']:.0f} ms. The page draws "
                 f"{b['idle_frames_per_s']:.1f} frames/s idle and {b['playing_frames_per_s']:.1f} while a world plays "
-                f"({b['playing_messages_per_s']:.0f} websocket messages/s): what is left is WebGL drawing time."]
+                f"({b['playing_messages_per_s']:.0f} websocket messages/s): what is left is WebGL drawing time."
+                + (f" Load average {p['load_average']:.1f} at the start, commit {p['commit']}; goal ≤ 200 ms"
+                   f" ({'met' if b['median'] <= 200 else 'missed'}). On busy cores the same click takes several"
+                   " times as long: software WebGL shares them." if "load_average" in p else "")]
       before = d.get("play_before")
       if before:
         lines += ["", f"Before ({before['code']}): mouse click {before['median']:.0f} ms median, locator click "
