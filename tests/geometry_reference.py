@@ -9,6 +9,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
+from mwbx import queries as mq
 from mwbx.qpos_store import RawQposStore
 from queries_bank import FLAG_FINISHED, METRIC_NAMES, StandInBank
 
@@ -127,6 +128,26 @@ def bank_from_qpos(qpos, counts=None, store=None, seed: int = 0) -> ShapesBank:
 
 # ---------------------------------------------------------------------------
 # Dense surface points
+
+
+def random_frustums(rng, n: int, corner=(0.2, 0.7), size=(0.02, 0.2), box_side=(0.05, 0.4)) -> list:
+  """``n`` volumes around the shapes bank, in turn: a camera frustum with an
+  open far end (clipped to the bank's box), one with near and far planes, and
+  an axis-aligned box. Screen boxes start at ``corner`` (u and v each in the
+  range) and are ``size`` wide and high; boxes have sides in ``box_side``, m."""
+  cam = mq.Camera.look_at((0.3, -3.0, 1.5), (0.0, 0.0, 1.0), fovy=40)
+  out = []
+  for k in range(n):
+    u0, v0 = rng.uniform(*corner, 2)
+    box = mq.ScreenBox(u0, v0, u0 + rng.uniform(*size), v0 + rng.uniform(*size))
+    if k % 3 == 0:
+      out.append(cam.frustum(box))
+    elif k % 3 == 1:
+      out.append(cam.frustum(box, 2.6 + rng.uniform(0, 0.4), 3.3 + rng.uniform(0, 0.5)))
+    else:
+      lo = rng.uniform([-0.8, -0.5, 0.6], [0.6, 0.6, 1.2])
+      out.append(mq.Frustum.box(lo, lo + rng.uniform(*box_side, 3)))
+  return out
 
 
 def _sphere_points(n: int) -> np.ndarray:

@@ -24,28 +24,12 @@ def bank():
   return ref.shapes_bank(n_worlds=10, n_frames=41, seed=1)
 
 
-def _frustums(rng, n):
-  cam = mq.Camera.look_at((0.3, -3.0, 1.5), (0.0, 0.0, 1.0), fovy=40)
-  out = []
-  for k in range(n):
-    u0, v0 = rng.uniform(0.2, 0.7, 2)
-    box = mq.ScreenBox(u0, v0, u0 + rng.uniform(0.02, 0.2), v0 + rng.uniform(0.02, 0.2))
-    if k % 3 == 0:
-      out.append(cam.frustum(box))  # open far end: clipped to the bank's box
-    elif k % 3 == 1:
-      out.append(cam.frustum(box, 2.6 + rng.uniform(0, 0.4), 3.3 + rng.uniform(0, 0.5)))
-    else:
-      lo = rng.uniform([-0.8, -0.5, 0.6], [0.6, 0.6, 1.2])
-      out.append(mq.Frustum.box(lo, lo + rng.uniform(0.05, 0.4, 3)))
-  return out
-
-
 def test_geometry_hits_between_brute_force_and_the_stated_bound(bank):
   index = geometry_lib.geometry_index(bank)
   rng = np.random.default_rng(0)
   mask = np.ones(len(bank.body_names), bool)
   found = extra = 0
-  for k, frustum in enumerate(_frustums(rng, 9)):
+  for k, frustum in enumerate(ref.random_frustums(rng, 9)):
     window = [None, (0.1, 0.25), (0.0, 0.05), (0.3, None)][k % 4]
     ours = geometry_hits(index, frustum, mask, window)
     brute = ref.brute_geometry_hits(bank, frustum, mask, window, SPACING)
@@ -132,7 +116,7 @@ def test_codec_bound_covers_the_simulated_motion():
   assert (index.codec > 5e-3).all()
   rng = np.random.default_rng(5)
   mask = np.ones(len(raw.body_names), bool)
-  for frustum in _frustums(rng, 6):
+  for frustum in ref.random_frustums(rng, 6):
     truth = ref.brute_geometry_hits(raw, frustum, mask, None, SPACING)
     assert not (truth & ~geometry_hits(index, frustum, mask, None)).any()
 

@@ -21,22 +21,6 @@ def bank():
   return ref.shapes_bank(n_worlds=24, n_frames=81, seed=3, spin=5.0)
 
 
-def _frustums(rng, n):
-  cam = mq.Camera.look_at((0.3, -3.0, 1.5), (0.0, 0.0, 1.0), fovy=40)
-  out = []
-  for k in range(n):
-    u0, v0 = rng.uniform(0.15, 0.75, 2)
-    box = mq.ScreenBox(u0, v0, u0 + rng.uniform(0.01, 0.25), v0 + rng.uniform(0.01, 0.25))
-    if k % 3 == 0:
-      out.append(cam.frustum(box))
-    elif k % 3 == 1:
-      out.append(cam.frustum(box, 2.6 + rng.uniform(0, 0.4), 3.3 + rng.uniform(0, 0.5)))
-    else:
-      lo = rng.uniform([-0.8, -0.5, 0.6], [0.6, 0.6, 1.2])
-      out.append(mq.Frustum.box(lo, lo + rng.uniform(0.02, 0.4, 3)))
-  return out
-
-
 def _every_frame(index, frustum, window) -> np.ndarray:
   """bool[W, B]: the exact stage on every kept frame the window reaches, no
   culling, no skipped repeats, no early exit."""
@@ -61,7 +45,7 @@ def test_culled_pass_equals_the_exact_test_on_every_frame(bank, chunk, group):
   rng = np.random.default_rng(chunk)
   mask = np.ones(len(bank.body_names), bool)
   hits = misses = 0
-  for k, frustum in enumerate(_frustums(rng, 15)):
+  for k, frustum in enumerate(ref.random_frustums(rng, 15, corner=(0.15, 0.75), size=(0.01, 0.25), box_side=(0.02, 0.4))):
     window = WINDOWS[k % len(WINDOWS)]
     ours = geometry_query.geometry_hits(index, frustum, mask, window)
     np.testing.assert_array_equal(ours, _every_frame(index, frustum, window), err_msg=f"frustum {k}")
