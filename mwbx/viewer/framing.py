@@ -16,8 +16,7 @@ import numpy as np
 from mwbx.bank import versions
 from mwbx.errors import MwbxError
 from mwbx.queries import Camera
-from mwbx.viewer.display import (DEFAULT_VISIBLE_GROUPS, PathClasses, ViewSpec, camera_pose, fit_distance,  # noqa: F401
-                                 frame_box)
+from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS, PathClasses, ViewSpec, camera_pose
 from mwbx.viewer.errors import ViewerError
 
 # Field of view (degrees) used when the model has no MJCF camera to copy.

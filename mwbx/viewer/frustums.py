@@ -13,7 +13,6 @@ import meshcat.geometry as mg
 import numpy as np
 
 from mwbx.viewer.display import CAMERA_RGBA, QUERY_RGBA, QueryVolume, as_volume, volume_shape
-from mwbx.viewer.hull import frustum_eye, hull_mesh, plane_vertices, truncate  # noqa: F401 (re-exported)
 
 INCLUDE, EXCLUDE = QUERY_RGBA["include"], QUERY_RGBA["exclude"]
 __all__ = ["QueryVolume", "as_volume", "draw_volume", "INCLUDE", "EXCLUDE", "CAMERA_RGBA"]

@@ -9,7 +9,7 @@ import pytest
 import mwbx
 from mwbx import queries as mq
 from mwbx.browser import app
-from mwbx.viewer import framing
+from mwbx.viewer import display, framing
 
 # A humanoid-like figure lying on the floor (it hardly moves: its paths span
 # less than its own size), whose only cameras ride on it: one tracking its
@@ -104,7 +104,7 @@ def test_cameras_on_or_following_a_body_give_no_direction():
 def test_frame_box_puts_the_eye_outside_seeing_every_corner(direction):
   lo, hi = np.array([-0.5, -0.2, 0.0]), np.array([0.7, 0.3, 0.25])
   d = np.asarray(direction) / np.linalg.norm(direction)
-  centre, eye = framing.frame_box(lo, hi, framing.ViewSpec(d, 50.0, None))
+  centre, eye = display.frame_box(lo, hi, framing.ViewSpec(d, 50.0, None))
   np.testing.assert_allclose(centre, (lo + hi) / 2)
   assert_frames_from_outside(lo, hi, eye, centre, 50.0)
 
@@ -131,7 +131,7 @@ def test_viewer_first_view_of_a_lying_figure_is_from_outside_its_paths(bank):
   box_lo, box_hi = framing.scene_bounds(bank, model, rows, None, None)
   assert np.all(box_lo <= lo + 1e-6) and np.all(box_hi >= hi - 1e-6)  # the viewer's box holds the paths
   spec = framing.view_spec(model)
-  centre, eye = framing.frame_box(box_lo, box_hi, spec)
+  centre, eye = display.frame_box(box_lo, box_hi, spec)
   assert_frames_from_outside(lo, hi, eye, centre, spec.fovy)
 
 
