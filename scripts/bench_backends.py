@@ -309,7 +309,7 @@ def main() -> None:
     if old:  # the same scene's mjx:jax as an earlier commit ran it
       row = next((r for r in old["rows"] if r["engine"] == "mjx:jax"), None)
       s["previous"] = {"mjx:jax": row, "budget": old["budget"], "machine": old["machine"],
-                       "start_time": old.get("start_time", 0.0)}
+                       "start_time": old.get("start_time", 0.0), "mjx_solver": old.get("mjx_solver")}
     result["scenes"][pathlib.Path(name).stem] = s
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))

@@ -528,11 +528,13 @@ def _previous_and_stages(d: dict) -> list[str]:
     old = (s.get("previous") or {}).get("mjx:jax")
     if now and old:
       pm, pb = s["previous"]["machine"], s["previous"]["budget"]
-      lines += ["", f"{scene}, mjx:jax before and after the box broadphase and solver limits (same batch, "
-                f"states and start time): {old['world_steps_per_s']:,.0f} world-steps/s at commit "
-                f"{pm['commit']} (MJX's own step, bounding-sphere culling, max_geom_pairs "
-                f"{pb['max_geom_pairs']}, max_contact_points {pb['max_contact_points']}, solver 100 / 50 "
-                f"iterations; load {pm['load_average']:.1f}; {old['ratio_to_native']:.3g}× native in its run) → "
+      # Runs before solver limits were recorded ran MJX's own step with the model's 100 / 50.
+      ps = s["previous"].get("mjx_solver") or {"iterations": 100, "ls_iterations": 50}
+      lines += ["", f"{scene}, mjx:jax at an earlier commit and now (same batch, states and start time): "
+                f"{old['world_steps_per_s']:,.0f} world-steps/s at commit {pm['commit']} ({old['what']}, "
+                f"max_geom_pairs {pb['max_geom_pairs']}, max_contact_points {pb['max_contact_points']}, solver "
+                f"limits {ps['iterations']} / {ps['ls_iterations']}; load {pm['load_average']:.1f}; "
+                f"{old['ratio_to_native']:.3g}× native in its run) → "
                 f"{now['world_steps_per_s']:,.0f} now (load {s['machine']['load_average']:.1f}; "
                 f"{now['ratio_to_native']:.3g}× native): {now['ratio_to_native'] / old['ratio_to_native']:.1f}× "
                 "against native measured alongside (the load differed between the runs)."]
@@ -569,7 +571,8 @@ def _what_limits(s: dict, r: dict) -> str:
              f"{1500 / r['world_steps_per_s']:.0f}× cheaper on these {s['machine']['cores']} shared cores. The budget is what the "
              "scene needs at its most crowded (letters heaped in the slots at the end), and a smaller one "
              "flags worlds instead: the step cannot shrink to the contacts present without giving up "
-             "fixed shapes.")
+             "fixed shapes. What was tried and measured, and the active contacts per phase against the "
+             "budget: [sampling](sampling.md#contact-budgets-mjx).")
   return text
 
 
