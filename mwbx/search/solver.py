@@ -196,9 +196,33 @@ def divergence_time(bank, row: int, matching: np.ndarray, bodies: np.ndarray) ->
   return float(first_apart.max()) / float(bank.query_fps)
 
 
+def settle_time(bank, row: int, bodies: np.ndarray) -> float:
+  """When a world's bodies come to their final place.
+
+  Args:
+    bank: the bank. row: the world's row.
+    bodies: bool[B] the bodies.
+
+  Returns:
+    seconds: the first stored time from which every chosen body stays
+    within :data:`DIVERGENCE_TOLERANCE` of its bounding radius of where it
+    ends (0 if none moves that far).
+  """
+  com = np.asarray(bank.com[row], np.float32)[:, bodies]  # [P, b, 3]; past com_count: the last point
+  radius = np.maximum(body_radii(bank.model(), np.asarray(bank.body_ids)[bodies]), 1e-3)
+  away = (np.linalg.norm(com - com[-1:], axis=-1) > DIVERGENCE_TOLERANCE * radius).any(axis=-1)  # [P]
+  last_away = np.flatnonzero(away)
+  return float(last_away[-1] + 1 if last_away.size else 0) / float(bank.query_fps)
+
+
 def _restart_goal(bank, row: int, world: int, query, met: np.ndarray) -> float:
   """The time a query's objects go wrong in a world: when they leave the
-  nearest path of a world that meets it, else the query's deadline."""
+  nearest path of a world that meets it, else the query's deadline. An
+  orientation query's bodies go wrong where they settle (how a body lands
+  decides how it ends up turned, not the path that brought it there, which
+  may meet other queries): from when they come to their final place."""
+  if isinstance(query, OrientationQuery):
+    return min(settle_time(bank, row, selection_mask(bank, query.bodies)), deadline(bank, world, query))
   if isinstance(query, JointQuery):
     objects = involved_objects(bank, query)
     bodies = selection_mask(bank, objects) if objects else np.zeros(len(bank.body_names), bool)

@@ -265,3 +265,26 @@ def test_search_key_streams_never_share_a_key():
   # Each stream is the search key's: another key gives other draws.
   other = stream_key(jax.random.key(8), KeyStream.REFINE, 0)
   assert not np.array_equal(jax.random.key_data(other), jax.random.key_data(stream_key(key, KeyStream.REFINE, 0)))
+
+
+def test_settle_time_is_when_the_bodies_stay_near_where_they_end(tiny_bank):
+  """settle_time against a frame-by-frame reading of the stored path: from
+  that frame on every chosen body stays within the tolerance of its last
+  point, and at the frame before it one does not."""
+  from mwbx.queries.query import body_radii
+  from mwbx.search.solver import DIVERGENCE_TOLERANCE, settle_time
+  names = list(tiny_bank.body_names)
+  moved = 0
+  for row in range(tiny_bank.n_worlds):
+    for chosen in (["striker"], ["target"], ["striker", "target"]):
+      bodies = np.isin(names, chosen)
+      t = settle_time(tiny_bank, row, bodies)
+      frame = round(t * tiny_bank.query_fps)
+      com = np.asarray(tiny_bank.com[row], np.float64)[:, bodies]
+      radius = body_radii(tiny_bank.model(), np.asarray(tiny_bank.body_ids)[bodies])
+      near = (np.linalg.norm(com - com[-1], axis=-1) <= DIVERGENCE_TOLERANCE * radius + 1e-6).all(axis=-1)
+      assert near[frame:].all(), (row, chosen, t)
+      if frame > 0:
+        moved += 1
+        assert not near[frame - 1], (row, chosen, t)
+  assert moved > 0  # the striker moves in every world: some settle time is after the start
