@@ -17,7 +17,8 @@ best-first over the bank's refinement tree:
    when they leave the nearest path of a world that meets the query
    (:func:`divergence_time`; without such a world, the query's deadline: an
    include query's window start, an exclude query's first entry, a joint
-   query's window), a fraction of it that shrinks at each attempt
+   query's window; an orientation query's bodies: when they settle,
+   :func:`settle_time`), a fraction of it that shrinks at each attempt
    (:data:`RESTART_FRACTIONS`).
 4. The best ``keep`` children join the bank under their parent; the others
    are dropped. A branch that stops improving is abandoned once its worlds'
