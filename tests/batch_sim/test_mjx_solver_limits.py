@@ -45,6 +45,7 @@ def test_capped_solver_matches_the_models_own_limits_in_contact():
   full = capped.tree_replace({"opt.iterations": int(scene.model.opt.iterations),
                               "opt.ls_iterations": int(scene.model.opt.ls_iterations)})
   assert full.opt.iterations > capped.opt.iterations and full.opt.ls_iterations > capped.opt.ls_iterations
+
   def forward(mx):
     def one(d):
       d = mjx_collision.forward(mx, d)

@@ -16,7 +16,8 @@ import scipy.stats
 import mwbx
 from mwbx.queries import Query, query_gaps
 from mwbx.search import proposal as proposal_lib
-from mwbx.search.solver import KeyStream, stream_key
+from mwbx.queries.query import body_radii
+from mwbx.search.solver import DIVERGENCE_TOLERANCE, KeyStream, settle_time, stream_key
 
 TESTS = pathlib.Path(__file__).parents[1]
 
@@ -271,8 +272,6 @@ def test_settle_time_is_when_the_bodies_stay_near_where_they_end(tiny_bank):
   """settle_time against a frame-by-frame reading of the stored path: from
   that frame on every chosen body stays within the tolerance of its last
   point, and at the frame before it one does not."""
-  from mwbx.queries.query import body_radii
-  from mwbx.search.solver import DIVERGENCE_TOLERANCE, settle_time
   names = list(tiny_bank.body_names)
   moved = 0
   for row in range(tiny_bank.n_worlds):
