@@ -174,6 +174,14 @@ def deadline(bank, world: int, query) -> float:
   return end if t is None else t
 
 
+def _apart(bank, bodies: np.ndarray, com: np.ndarray, reference: np.ndarray) -> np.ndarray:
+  """bool[...]: where some chosen body's COM (``com`` f32[..., b, 3], m) is
+  more than :data:`DIVERGENCE_TOLERANCE` of its bounding radius from
+  ``reference`` (broadcast against ``com``)."""
+  radius = np.maximum(body_radii(bank.model(), np.asarray(bank.body_ids)[bodies]), 1e-3)
+  return (np.linalg.norm(com - reference, axis=-1) > DIVERGENCE_TOLERANCE * radius).any(axis=-1)
+
+
 def divergence_time(bank, row: int, matching: np.ndarray, bodies: np.ndarray) -> float | None:
   """When a world's bodies leave the nearest path that meets the query.
 
@@ -191,8 +199,7 @@ def divergence_time(bank, row: int, matching: np.ndarray, bodies: np.ndarray) ->
   if matching.size == 0 or not bodies.any():
     return None
   com = np.asarray(bank.com[np.concatenate([[row], matching])], np.float32)[:, :, bodies]  # [1+K, P, b, 3]
-  radius = np.maximum(body_radii(bank.model(), np.asarray(bank.body_ids)[bodies]), 1e-3)
-  apart = (np.linalg.norm(com[1:] - com[:1], axis=-1) > DIVERGENCE_TOLERANCE * radius).any(axis=-1)  # [K, P]
+  apart = _apart(bank, bodies, com[1:], com[:1])  # [K, P]
   first_apart = np.where(apart.any(axis=1), apart.argmax(axis=1), apart.shape[1])
   return float(first_apart.max()) / float(bank.query_fps)
 
@@ -210,8 +217,7 @@ def settle_time(bank, row: int, bodies: np.ndarray) -> float:
     ends (0 if none moves that far).
   """
   com = np.asarray(bank.com[row], np.float32)[:, bodies]  # [P, b, 3]; past com_count: the last point
-  radius = np.maximum(body_radii(bank.model(), np.asarray(bank.body_ids)[bodies]), 1e-3)
-  away = (np.linalg.norm(com - com[-1:], axis=-1) > DIVERGENCE_TOLERANCE * radius).any(axis=-1)  # [P]
+  away = _apart(bank, bodies, com, com[-1:])  # [P]
   last_away = np.flatnonzero(away)
   return float(last_away[-1] + 1 if last_away.size else 0) / float(bank.query_fps)
 
