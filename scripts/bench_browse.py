@@ -108,12 +108,43 @@ _FRAME_RATE_JS = """() => new Promise(done => { let n = 0; const t0 = performanc
   requestAnimationFrame(tick); })"""
 
 
+# In-page timing of a click's answer, on the page's own clock: the last
+# pointer press, and the first time the page shows "playing world N" after
+# it (a MutationObserver on the panel's text) and the animation frame that
+# follows (the world drawn). Playwright's own waits poll at 0, 20, 100, 100,
+# 500 ms steps, so a wall clock around them reads in steps of ~100 ms.
+_CLICK_TIMING_JS = """() => {
+  const t = window.__mwbxTiming = {press: 0, shown: []};
+  document.addEventListener("pointerdown", () => { t.press = performance.now(); }, true);
+  new MutationObserver(records => {
+    const now = performance.now();
+    for (const r of records) {
+      const nodes = [r.target, ...r.addedNodes];
+      for (let a = r.target.parentNode, up = 0; a && up < 4; a = a.parentNode, up++) nodes.push(a);
+      for (const n of nodes) {
+        const text = (n.textContent || "");
+        if (text.length > 200) continue;
+        const m = text.match(/playing world (\\d+)/);
+        if (m) {
+          const e = {world: Number(m[1]), press: t.press, shown: now, drawn: null};
+          t.shown.push(e);
+          requestAnimationFrame(() => { e.drawn = performance.now(); });
+          return;
+        }
+      }
+    }
+  }).observe(document.body, {subtree: true, childList: true, characterData: true});
+}"""
+
+
 def _play_in_browser(page, bank, clicks: int) -> dict:
   """Median / p95 ms from a sorter-row click in headless Chromium to the page
   saying the world plays (the poses are sent before that line), for mouse
   clicks at the row and for Playwright's locator clicks, with what
   keeps the page busy: its frame rate idle and while a world plays, and the
-  websocket messages per second it receives while playing."""
+  websocket messages per second it receives while playing. Mouse clicks are
+  also timed in the page (:data:`_CLICK_TIMING_JS`): press → text shown, and
+  → the next frame drawn."""
   from playwright.sync_api import sync_playwright
   from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
   arrived = {}
@@ -134,6 +165,8 @@ def _play_in_browser(page, bank, clicks: int) -> dict:
     rows.first.wait_for(timeout=600_000)
     tab.wait_for_timeout(2000)  # the scene and paths arrive and are drawn
     idle_fps = tab.evaluate(_FRAME_RATE_JS)
+    tab.evaluate(_CLICK_TIMING_JS)
+    in_page = []
     # A person's click (mouse events at the row, sent at once) and
     # Playwright's locator click (which first waits for the row to be stable
     # over two animation frames: slow frames delay it).
@@ -157,13 +190,21 @@ def _play_in_browser(page, bank, clicks: int) -> dict:
         if k:  # (a slot's first click uploads its meshes)
           out[how].append(time.perf_counter() - start)
           to_server[how].append(arrived[world] - start)
+          if how == "mouse":
+            tab.wait_for_timeout(500)  # (the frame after the text)
+            timing = tab.evaluate("() => window.__mwbxTiming")
+            event = next(e for e in timing["shown"] if e["world"] == world and e["press"] == timing["press"])
+            in_page.append((event["shown"] - event["press"], event["drawn"] - event["press"]))
     start = time.perf_counter()
     playing_fps = tab.evaluate(_FRAME_RATE_JS)
     per_s = sum(1 for t in messages if t >= start) / (time.perf_counter() - start)
     chromium.close()
   ms, server_ms = 1e3 * np.array(out["mouse"]), 1e3 * np.array(to_server["mouse"])
   locator_ms = 1e3 * np.array(out["locator"])
+  shown_ms, drawn_ms = np.array(in_page).T
   return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "clicks": len(ms),
+          "in_page_shown_median": float(np.median(shown_ms)), "in_page_shown_p95": float(np.percentile(shown_ms, 95)),
+          "in_page_drawn_median": float(np.median(drawn_ms)), "in_page_drawn_p95": float(np.percentile(drawn_ms, 95)),
           "click_to_server_median": float(np.median(server_ms)),
           "locator_click_median": float(np.median(locator_ms)), "locator_click_p95": float(np.percentile(locator_ms, 95)),
           "locator_click_to_server_median": float(np.median(1e3 * np.array(to_server["locator"]))),
@@ -289,7 +330,9 @@ def _only_play(args) -> None:
   b = play["browser_click_to_playing_ms"]
   print(f"play on {play['bodies']} bodies: decode + FK {play['decode_fk_ms']:.1f} ms, click -> poses sent"
         f" {play['play_ms']:.1f} ms median (p95 {play['play_p95_ms']:.1f})"
-        + (f"; in Chromium {b['median']:.0f} ms median, p95 {b['p95']:.0f} (click to server"
+        + (f"; in Chromium {b['median']:.0f} ms median, p95 {b['p95']:.0f}; in the page's clock press -> shown"
+           f" {b['in_page_shown_median']:.0f} ms median (p95 {b['in_page_shown_p95']:.0f}), -> next frame drawn"
+           f" {b['in_page_drawn_median']:.0f} (p95 {b['in_page_drawn_p95']:.0f}) (click to server"
            f" {b['click_to_server_median']:.0f} ms); locator clicks {b['locator_click_median']:.0f} ms median; page frames/s idle {b['idle_frames_per_s']:.1f},"
            f" playing {b['playing_frames_per_s']:.1f}; {b['playing_messages_per_s']:.0f} messages/s while playing"
            if b else ""))

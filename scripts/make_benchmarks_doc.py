@@ -365,9 +365,20 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
                 f"waits for two stable animation frames: {b['locator_click_median']:.0f} ms. The page draws "
                 f"{b['idle_frames_per_s']:.1f} frames/s idle and {b['playing_frames_per_s']:.1f} while a world plays "
                 f"({b['playing_messages_per_s']:.0f} websocket messages/s): what is left is WebGL drawing time."
-                + (f" Load average {p['load_average']:.1f} at the start, commit {p['commit']}; goal ≤ 200 ms"
-                   f" ({'met' if b['median'] <= 200 else 'missed'}). On busy cores the same click takes several"
-                   " times as long: software WebGL shares them." if "load_average" in p else "")]
+                + (f" Load average {p['load_average']:.1f} at the start, commit {p['commit']}." if "load_average" in p
+                   else "")]
+      if "in_page_shown_median" in b:
+        drawn = b["in_page_drawn_median"]
+        lines += ["", "Timed in the page, on its own clock (a pointer-press listener, a MutationObserver on the "
+                  "panel's text, and the animation frame after it; Playwright's waits poll at 0, 20, 100, 100, "
+                  "500 ms, so the wall clock above reads in ~100 ms steps): press → \"playing world N\" shown "
+                  f"{b['in_page_shown_median']:.0f} ms median (p95 {b['in_page_shown_p95']:.0f}); press → the "
+                  f"next frame begins (the world drawn) {drawn:.0f} ms (p95 {b['in_page_drawn_p95']:.0f}). "
+                  f"Goal ≤ 200 ms to the world drawn: {'met' if drawn <= 200 else 'missed'}. Software WebGL "
+                  "shares the two cores, so a frame takes ~100 ms and the answer waits for the one in progress."]
+      elif "load_average" in p:
+        lines[-1] += (f" Goal ≤ 200 ms ({'met' if b['median'] <= 200 else 'missed'}). On busy cores the same "
+                      "click takes several times as long: software WebGL shares them.")
       before = d.get("play_before")
       if before:
         lines += ["", f"Before ({before['code']}): mouse click {before['median']:.0f} ms median, locator click "

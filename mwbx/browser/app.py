@@ -141,6 +141,7 @@ class Browser:
       self.server.initial_camera.position = pose.eye
     # Frustums are drawn as deep as the scene is wide, three times over (as in the viewer).
     self.frustum_depth = 3.0 * max(float(np.linalg.norm(extent[1] - extent[0])) / 2, 0.2)
+    self.path_simplifier = display.PathSimplifier(drawing.PATH_TOLERANCE * float(np.linalg.norm(extent[1] - extent[0])))
     self.stage = Stage(self.server, self.model, extent)
 
   def _scene_changed(self) -> None:
@@ -263,7 +264,7 @@ class Browser:
               else np.asarray(bank.select_bodies(list(selection))))
     with self.lock:
       left_out = drawing.draw_paths(self.server, self._handles, bank, bodies, view.match, view.rejected,
-                                    self.only_matches.value)
+                                    self.only_matches.value, simplify=self.path_simplifier)
       drawing.draw_frustums(self.server, self._handles, session.entries, self.frustum_depth)
       self._counts_text(view.counts, left_out)
       self._sorter(view.counts)

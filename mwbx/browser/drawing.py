@@ -18,6 +18,12 @@ from mwbx.viewer import display
 MAX_PATH_SEGMENTS = 60_000
 BUDGET = {name: MAX_PATH_SEGMENTS for name in display.PATH_CLASSES}
 THICKNESS = {"faint": 1.0, "match": 2.0, "exclude": 2.0}
+# Paths are drawn within this fraction of the scene's diagonal of every
+# recorded point (display.simplify_polylines): well under a pixel at the
+# first view, and a body flying straight or lying still costs a segment, not
+# one per frame. Software WebGL redraws every segment whenever a played world
+# moves (20 bodies, 8 worlds: 6 frames/s with every segment, 16 without paths).
+PATH_TOLERANCE = 1e-3
 
 
 def path_rgb(rgba: display.Rgba) -> tuple[int, int, int]:
@@ -27,10 +33,12 @@ def path_rgb(rgba: display.Rgba) -> tuple[int, int, int]:
 
 
 def draw_paths(server, handles: dict, bank, bodies: np.ndarray, match: np.ndarray,
-               exclude: np.ndarray, only_matches: bool = False) -> dict:
+               exclude: np.ndarray, only_matches: bool = False,
+               simplify: display.PathSimplifier | None = None) -> dict:
   """Draws the paths of tracked bodies ``bodies`` (i64[k]) for the worlds in
   ``match`` / ``exclude`` (bool[W]) and the other valid ones (faint, unless
-  ``only_matches``); ``handles`` keeps what was drawn (replaced next time).
+  ``only_matches``), joining the points ``simplify`` keeps (None: every
+  one); ``handles`` keeps what was drawn (replaced next time).
   Returns {class: worlds left out by the segment budget}."""
   valid = np.asarray(bank.valid, bool)
   classes = display.classify_worlds(valid, None, match, exclude)
@@ -38,7 +46,7 @@ def draw_paths(server, handles: dict, bank, bodies: np.ndarray, match: np.ndarra
     empty = np.zeros(0, np.int64)
     classes = classes._replace(faint=empty, exclude=empty)
   left_out = {}
-  for layer in display.path_layers(bank.com, np.asarray(bank.com_count), bodies, classes, BUDGET):
+  for layer in display.path_layers(bank.com, np.asarray(bank.com_count), bodies, classes, BUDGET, simplify):
     left_out[layer.name] = layer.left_out
     old = handles.pop(f"paths/{layer.name}", None)
     if old is not None:

@@ -130,24 +130,88 @@ def _mask(mask, n_worlds: int, name: str) -> np.ndarray:
   return mask.astype(bool)
 
 
-def polyline_segments(com: np.ndarray, count: np.ndarray) -> np.ndarray:
+def polyline_segments(com: np.ndarray, count: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
   """Line segments of COM polylines, zero-length tails and non-finite points dropped.
 
   com: f[N, P, K, 3] points (metres) of N worlds and K bodies, point p at time
     p / query_fps; points at index >= count[n] repeat the last valid point.
   count: i[N] valid points per world.
+  keep: optional bool[N, P, K] points to join (:func:`simplify_polylines`);
+    a segment then joins each kept point to the next kept one.
   Returns f32[S, 2, 3]: the two ends of each segment, world by world.
   """
   com = np.asarray(com, np.float32)
   count = np.asarray(count)
   if com.ndim != 4 or com.shape[-1] != 3 or count.shape != com.shape[:1]:
     raise ViewerError(f"com must be f32[N, P, K, 3] with count i32[N]; got {com.shape} and {count.shape}")
+  if keep is not None:
+    return _kept_segments(com, count, np.asarray(keep, bool))
   starts, ends = com[:, :-1], com[:, 1:]  # [N, P-1, K, 3]
   # Segment p joins points p and p + 1; it exists while p + 1 < count.
-  keep = np.arange(com.shape[1] - 1)[None, :] < (count[:, None] - 1)  # [N, P-1]
-  keep = np.broadcast_to(keep[:, :, None], starts.shape[:3])
-  keep = keep & np.all(np.isfinite(starts) & np.isfinite(ends), axis=-1)
-  return np.ascontiguousarray(np.stack([starts[keep], ends[keep]], axis=1))
+  exists = np.arange(com.shape[1] - 1)[None, :] < (count[:, None] - 1)  # [N, P-1]
+  exists = np.broadcast_to(exists[:, :, None], starts.shape[:3])
+  exists = exists & np.all(np.isfinite(starts) & np.isfinite(ends), axis=-1)
+  return np.ascontiguousarray(np.stack([starts[exists], ends[exists]], axis=1))
+
+
+def _kept_segments(com: np.ndarray, count: np.ndarray, keep: np.ndarray) -> np.ndarray:
+  """:func:`polyline_segments` joining kept points only (keep: bool[N, P, K]);
+  never across a non-finite or missing point."""
+  valid = (np.arange(com.shape[1])[None, :, None] < count[:, None, None]) & np.all(np.isfinite(com), axis=-1)
+  points = np.swapaxes(com, 1, 2).reshape(-1, 3)  # polyline by polyline: [(N K) P, 3]
+  line_valid = np.swapaxes(valid, 1, 2)
+  gaps = np.cumsum(~line_valid, axis=-1).reshape(-1)  # invalid points so far in the polyline
+  index = np.nonzero(np.swapaxes(keep & valid, 1, 2).reshape(-1))[0]
+  line = index // com.shape[1]
+  joined = (line[:-1] == line[1:]) & (gaps[index[:-1]] == gaps[index[1:]])
+  return np.ascontiguousarray(np.stack([points[index[:-1][joined]], points[index[1:][joined]]], axis=1))
+
+
+def simplify_polylines(com: np.ndarray, count: np.ndarray, tolerance: float) -> np.ndarray:
+  """Points of COM polylines worth drawing: bool[N, P, K].
+
+  A body flying straight, or lying at rest, needs two points, not one per
+  frame. Dyadic rounds: round j may drop the points at odd multiples of 2**j
+  whose 2**j neighbours on either side were all dropped, when they lie within
+  ``tolerance / rounds`` of the chord between the points 2**j away; so the
+  drawn line strays less than ``tolerance`` from every point, and the work is
+  about two passes over the points. Invalid points (past ``count``, or
+  non-finite) and the ends of each run of valid points are always kept.
+
+  Args:
+    com: f[N, P, K, 3] polylines as for :func:`polyline_segments`, metres.
+    count: i[N] valid points per world.
+    tolerance: metres.
+
+  Example:
+    >>> line = np.zeros((1, 5, 1, 3)); line[0, :, 0, 0] = np.arange(5)  # straight, along x
+    >>> simplify_polylines(line, np.array([5]), 1e-3)[0, :, 0].tolist()
+    [True, False, False, False, True]
+  """
+  com = np.asarray(com, np.float32)
+  n, p, k = com.shape[:3]
+  valid = (np.arange(p)[None, :, None] < np.asarray(count)[:, None, None]) & np.all(np.isfinite(com), axis=-1)
+  before = np.concatenate([np.zeros((n, 1, k), bool), valid[:, :-1]], axis=1)
+  after = np.concatenate([valid[:, 1:], np.zeros((n, 1, k), bool)], axis=1)
+  droppable = valid & before & after  # not an end of a run of valid points
+  rounds = max(int(np.ceil(np.log2(max(p - 1, 2)))), 1)
+  size = 1 << rounds  # points 0..size, the tail padded with the last one
+  pad = size + 1 - p
+  points = np.concatenate([com, np.repeat(com[:, -1:], pad, axis=1)], axis=1)
+  droppable = np.concatenate([droppable, np.zeros((n, pad, k), bool)], axis=1)
+  keep = np.ones((n, size + 1, k), bool)
+  clear = np.ones((n, size, k), bool)  # blocks [i h, (i + 1) h] whose inner points are all dropped
+  step = np.float32(tolerance / rounds)
+  for j in range(rounds):
+    h = 1 << j
+    a, c, b = points[:, 0:size - h:2 * h], points[:, h:size:2 * h], points[:, 2 * h:size + 1:2 * h]
+    ab = b - a
+    t = np.clip(np.sum((c - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), np.float32(1e-30)), 0, 1)
+    off = np.linalg.norm(c - (a + t[..., None] * ab), axis=-1)
+    drop = (off <= step) & droppable[:, h:size:2 * h] & clear[:, 0::2] & clear[:, 1::2]
+    keep[:, h:size:2 * h] = ~drop
+    clear = clear[:, 0::2] & clear[:, 1::2] & drop
+  return keep[:, :p]
 
 
 def thin(worlds: np.ndarray, per_world: int, budget: int | None) -> tuple[np.ndarray, int]:
@@ -164,13 +228,46 @@ def thin(worlds: np.ndarray, per_world: int, budget: int | None) -> tuple[np.nda
   return kept, int(worlds.size - keep)
 
 
+class PathSimplifier:
+  """:func:`simplify_polylines` of one bank's worlds, each computed once.
+
+  A page redraws the same worlds' paths on every query change (only their
+  classes change), so the points kept are remembered per world, for one
+  ``com`` array and one choice of bodies at a time.
+
+  Args:
+    tolerance: metres a drawn path may stray from a recorded point.
+  """
+
+  def __init__(self, tolerance: float):
+    self.tolerance = float(tolerance)
+    self._com = self._bodies = None
+    self._keep = self._done = None
+
+  def __call__(self, com: np.ndarray, count: np.ndarray, worlds: np.ndarray, bodies: np.ndarray) -> np.ndarray:
+    """bool[len(worlds), P, K]: the points of ``com[worlds][:, :, bodies]`` to join."""
+    bodies = tuple(np.asarray(bodies).reshape(-1).tolist())
+    if com is not self._com or bodies != self._bodies:  # (the array itself is held: its id is never reused)
+      self._com, self._bodies = com, bodies
+      self._keep = np.zeros((com.shape[0], com.shape[1], len(bodies)), bool)
+      self._done = np.zeros(com.shape[0], bool)
+    worlds = np.asarray(worlds, np.int64)
+    todo = np.unique(worlds[~self._done[worlds]])
+    if todo.size:
+      self._keep[todo] = simplify_polylines(np.asarray(com[todo])[:, :, list(bodies)], np.asarray(count)[todo],
+                                            self.tolerance)
+      self._done[todo] = True
+    return self._keep[worlds]
+
+
 def path_layers(com: np.ndarray, count: np.ndarray, bodies: np.ndarray, classes: PathClasses,
-                budget: Mapping[str, int | None]) -> tuple[PathLayer, ...]:
+                budget: Mapping[str, int | None], simplify: PathSimplifier | None = None) -> tuple[PathLayer, ...]:
   """The three path classes of tracked bodies ``bodies``, each thinned to its budget.
 
   com: f32[W, P, B, 3] the bank's COM polylines (metres); count: i32[W];
   bodies: i[K] indices into B; budget: {class name: most segments drawn, or
-  None for all}. Returns one layer per class, in :data:`PATH_CLASSES` order.
+  None for all}; simplify: the points worth joining (:class:`PathSimplifier`;
+  None: every point). Returns one layer per class, in :data:`PATH_CLASSES` order.
   """
   bodies = np.asarray(bodies, np.int64).reshape(-1)
   per_world = max(com.shape[1] - 1, 0) * bodies.size
@@ -178,7 +275,9 @@ def path_layers(com: np.ndarray, count: np.ndarray, bodies: np.ndarray, classes:
   for name, worlds in zip(PATH_CLASSES, classes):
     kept, left_out = thin(worlds, per_world, budget.get(name))
     if kept.size and bodies.size and com.shape[1] >= 2:
-      segments = polyline_segments(np.asarray(com[kept])[:, :, bodies], np.asarray(count)[kept])
+      points, counts = np.asarray(com[kept])[:, :, bodies], np.asarray(count)[kept]
+      keep = None if simplify is None else simplify(com, count, kept, bodies)
+      segments = polyline_segments(points, counts, keep)
     else:
       segments = np.zeros((0, 2, 3), np.float32)
     out.append(PathLayer(name, PATH_RGBA[name], segments, kept, left_out))

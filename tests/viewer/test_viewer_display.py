@@ -44,6 +44,71 @@ def test_polyline_segments_match_loop(data):
   assert got == _segments_reference(com, count)
 
 
+def _distance_to_segments(point, segments):
+  a, b = segments[:, 0].astype(np.float64), segments[:, 1].astype(np.float64)
+  ab = b - a
+  t = np.clip(np.sum((point - a) * ab, -1) / np.maximum(np.sum(ab * ab, -1), 1e-30), 0, 1)
+  return np.linalg.norm(point - (a + t[:, None] * ab), axis=-1).min()
+
+
+@FAST
+@given(st.data())
+def test_simplified_paths_stay_within_tolerance_of_every_point(data):
+  """Against a slow reference: every valid recorded point lies within the
+  tolerance of its own polyline's drawn segments (a point on no segment: an
+  isolated valid point, drawn by none before either); ends are kept, no
+  segment bridges an invalid point, and curves, rests and straight flights
+  lose points."""
+  n, p, k = data.draw(st.integers(1, 3)), data.draw(st.integers(2, 40)), data.draw(st.integers(1, 2))
+  t = np.linspace(0, 1, p, dtype=np.float32)
+  shape = data.draw(st.sampled_from(["parabola", "rest", "noise"]))
+  scale = data.draw(st.floats(0.01, 2.0))
+  tolerance = data.draw(st.sampled_from([1e-4, 1e-3, 1e-2]))
+  com = np.zeros((n, p, k, 3), np.float32)
+  com[..., 0] = t[None, :, None] * scale
+  if shape == "parabola":
+    com[..., 2] = -4.9 * (t[None, :, None] * scale) ** 2
+  elif shape == "rest":
+    com[:, p // 2:] = com[:, p // 2:p // 2 + 1]
+  else:  # jitter about the size of the tolerance: points close to it either way
+    com += tolerance * data.draw(hnp.arrays(np.float32, com.shape, elements=st.floats(-1, 1, width=32)))
+  if data.draw(st.booleans()):
+    com[0, data.draw(st.integers(0, p - 1)), 0, 1] = np.nan
+  count = data.draw(hnp.arrays(np.int32, (n,), elements=st.integers(0, p)))
+  keep = display.simplify_polylines(com, count, tolerance)
+  drawn = display.polyline_segments(com, count, keep)
+  assert len(drawn) <= len(display.polyline_segments(com, count))
+  for w in range(n):
+    for b in range(k):
+      own = display.polyline_segments(com[w:w + 1, :, b:b + 1], count[w:w + 1], keep[w:w + 1, :, b:b + 1])
+      every = display.polyline_segments(com[w:w + 1, :, b:b + 1], count[w:w + 1])
+      for q in range(int(count[w])):
+        point = com[w, q, b].astype(np.float64)
+        if np.all(np.isfinite(point)) and len(every) and _distance_to_segments(point, every) == 0:
+          assert _distance_to_segments(point, own) <= tolerance * 1.001 + 1e-6
+      # No drawn segment has an end outside the valid points, nor spans a non-finite one.
+      for a, c in own:
+        ia = np.nonzero(np.all(com[w, :, b] == a, axis=-1))[0]
+        ic = np.nonzero(np.all(com[w, :, b] == c, axis=-1))[0]
+        assert any(np.all(np.isfinite(com[w, i:j + 1, b])) for i in ia for j in ic if i < j < count[w])
+
+
+def test_simplified_paths_drop_flights_and_rests():
+  p = 33
+  com = np.zeros((1, p, 2, 3), np.float32)
+  com[0, :, 0, 0] = np.linspace(0, 1, p)  # body 0 flies straight
+  com[0, :, 1] = [0.3, 0.2, 0.1]  # body 1 lies still
+  keep = display.simplify_polylines(com, np.array([p]), 1e-4)
+  assert keep[0, :, 0].sum() == 2 and keep[0, :, 1].sum() == 2
+  segments = display.polyline_segments(com, np.array([p]), keep)
+  np.testing.assert_allclose(segments[0], [[0, 0, 0], [1, 0, 0]], atol=1e-6)
+  # A point on the long chord stays while a corner before it does: dropping
+  # it would draw (1, 1) -> (4, 0), 0.63 m from (2, 0).
+  corner = np.array([[0, 0, 0], [1, 1, 0], [2, 0, 0], [3, 0, 0], [4, 0, 0]], np.float32)[None, :, None]
+  np.testing.assert_array_equal(display.simplify_polylines(corner, np.array([5]), 1e-3)[0, :, 0],
+                                [True, True, True, False, True])
+
+
 @FAST
 @given(st.data())
 def test_classify_worlds_partitions(data):
@@ -98,6 +163,27 @@ def test_path_layers_split_colour_and_thin_by_class():
   np.testing.assert_array_equal(match.segments[:4, 0], com[0, :4, 1])  # world 0, body 1, in order
   np.testing.assert_array_equal(match.segments[:4, 1], com[0, 1:, 1])
   assert exclude.segments.shape == (4, 2, 3) and exclude.left_out == 0
+
+
+def test_path_layers_join_the_points_the_simplifier_keeps_and_remember_them():
+  com, count = _bank(n_worlds=6, n_points=9, n_bodies=2)
+  com[:, 4:] = com[:, 4:5]  # every body rests from point 4 on
+  classes = display.classify_worlds(np.ones(6, bool), None, np.array([1, 1, 0, 0, 0, 0], bool),
+                                    np.zeros(6, bool))
+  simplify = display.PathSimplifier(1e-4)
+  layers = display.path_layers(com, count, np.array([1]), classes, {"faint": None, "match": None}, simplify)
+  faint, match, _ = layers
+  # Points 0-4 joined one by one, then one segment over the rest: 5 a world, not 8.
+  assert match.segments.shape == (2 * 5, 2, 3) and faint.segments.shape == (4 * 5, 2, 3)
+  np.testing.assert_array_equal(match.segments[:5, 0], com[0, :5, 1])
+  np.testing.assert_array_equal(match.segments[4, 1], com[0, 8, 1])
+  assert simplify._done.all()
+  simplify._keep[:] = True  # remembered: a second draw recomputes nothing ...
+  again = display.path_layers(com, count, np.array([1]), classes, {"faint": None, "match": None}, simplify)
+  assert again[1].segments.shape == (2 * 8, 2, 3)
+  # ... until the bodies (or the array) change.
+  other = display.path_layers(com, count, np.array([0]), classes, {"faint": None, "match": None}, simplify)
+  assert other[1].segments.shape == (2 * 5, 2, 3)
 
 
 def test_volume_shape_outline_and_rays():
