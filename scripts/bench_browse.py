@@ -111,8 +111,8 @@ _FRAME_RATE_JS = """() => new Promise(done => { let n = 0; const t0 = performanc
 # In-page timing of a click's answer, on the page's own clock: the last
 # pointer press, and the first time the page shows "playing world N" after
 # it (a MutationObserver on the panel's text) and the animation frame that
-# follows (the world drawn). Playwright's own waits poll at 0, 20, 100, 100,
-# 500 ms steps, so a wall clock around them reads in steps of ~100 ms.
+# follows (the world drawn). Playwright's own waits check the page at
+# intervals, from outside it, so a wall clock around them is coarse.
 _CLICK_TIMING_JS = """() => {
   const t = window.__mwbxTiming = {press: 0, shown: []};
   document.addEventListener("pointerdown", () => { t.press = performance.now(); }, true);

@@ -370,8 +370,8 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
       if "in_page_shown_median" in b:
         drawn = b["in_page_drawn_median"]
         lines += ["", "Timed in the page, on its own clock (a pointer-press listener, a MutationObserver on the "
-                  "panel's text, and the animation frame after it; Playwright's waits poll at 0, 20, 100, 100, "
-                  "500 ms, so the wall clock above reads in ~100 ms steps): press → \"playing world N\" shown "
+                  "panel's text, and the animation frame after it; Playwright's waits check the page at intervals "
+                  "from outside it, so the wall clock above is coarse): press → \"playing world N\" shown "
                   f"{b['in_page_shown_median']:.0f} ms median (p95 {b['in_page_shown_p95']:.0f}); press → the "
                   f"next frame begins (the world drawn) {drawn:.0f} ms (p95 {b['in_page_drawn_p95']:.0f}). "
                   f"Goal ≤ 200 ms to the world drawn: {'met' if drawn <= 200 else 'missed'}. Software WebGL "
