@@ -140,8 +140,8 @@ class Browser:
       self.server.initial_camera.look_at = pose.target
       self.server.initial_camera.position = pose.eye
     # Frustums are drawn as deep as the scene is wide, three times over (as in the viewer).
-    self.frustum_depth = 3.0 * max(float(np.linalg.norm(extent[1] - extent[0])) / 2, 0.2)
     diagonal = float(np.linalg.norm(extent[1] - extent[0]))
+    self.frustum_depth = 3.0 * max(diagonal / 2, 0.2)
     self.path_simplifier = display.PathSimplifier(drawing.PATH_TOLERANCE * diagonal)
     self.stage = Stage(self.server, self.model, extent)
 

@@ -154,10 +154,15 @@ def polyline_segments(com: np.ndarray, count: np.ndarray, keep: np.ndarray | Non
   return np.ascontiguousarray(np.stack([starts[exists], ends[exists]], axis=1))
 
 
+def _valid_points(com: np.ndarray, count) -> np.ndarray:
+  """bool[N, P, K]: the finite points of polylines ``com`` f[N, P, K, 3] before ``count`` i[N]."""
+  return (np.arange(com.shape[1])[None, :, None] < np.asarray(count)[:, None, None]) & np.all(np.isfinite(com), axis=-1)
+
+
 def _kept_segments(com: np.ndarray, count: np.ndarray, keep: np.ndarray) -> np.ndarray:
   """:func:`polyline_segments` joining kept points only (keep: bool[N, P, K]);
   never across a non-finite or missing point."""
-  valid = (np.arange(com.shape[1])[None, :, None] < count[:, None, None]) & np.all(np.isfinite(com), axis=-1)
+  valid = _valid_points(com, count)
   points = np.swapaxes(com, 1, 2).reshape(-1, 3)  # polyline by polyline: [(N K) P, 3]
   line_valid = np.swapaxes(valid, 1, 2)
   gaps = np.cumsum(~line_valid, axis=-1).reshape(-1)  # invalid points so far in the polyline
@@ -190,7 +195,7 @@ def simplify_polylines(com: np.ndarray, count: np.ndarray, tolerance: float) -> 
   """
   com = np.asarray(com, np.float32)
   n, p, k = com.shape[:3]
-  valid = (np.arange(p)[None, :, None] < np.asarray(count)[:, None, None]) & np.all(np.isfinite(com), axis=-1)
+  valid = _valid_points(com, count)
   before = np.concatenate([np.zeros((n, 1, k), bool), valid[:, :-1]], axis=1)
   after = np.concatenate([valid[:, 1:], np.zeros((n, 1, k), bool)], axis=1)
   droppable = valid & before & after  # not an end of a run of valid points
