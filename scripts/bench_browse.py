@@ -38,6 +38,7 @@ import numpy as np
 import mwbx
 from mwbx import queries as mq
 from mwbx.browser import Browser, Session
+from mwbx.viewer import display
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -92,10 +93,14 @@ def _play_latency(n_worlds: int, clicks: int, in_browser: bool) -> dict:
       page.server.flush()
       play.append(time.perf_counter() - start)
     assert page.stage.uploads == first_uploads  # no mesh sent again
+    # What the page redraws each frame: the paths' segments as drawn (simplified) and as recorded.
+    drawn_segments = sum(h.points.shape[0] for name, h in page._handles.items() if name.startswith("paths/"))
+    recorded_segments = len(display.polyline_segments(np.asarray(bank.com), np.asarray(bank.com_count)))
     browser_ms = _play_in_browser(page, bank, clicks) if in_browser else None
   finally:
     page.close()
   return {"bodies": len(bank.body_names), "meshes_per_slot": first_uploads, "clicks": clicks,
+          "path_segments_drawn": int(drawn_segments), "path_segments_recorded": int(recorded_segments),
           "decode_fk_ms": float(1e3 * np.median(decode_fk)), "play_ms": float(1e3 * np.median(play)),
           "play_p95_ms": float(1e3 * np.percentile(play, 95)), "browser_click_to_playing_ms": browser_ms}
 

@@ -357,6 +357,9 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
               f"{p['play_ms']:.1f} ms median (p95 {p['play_p95_ms']:.1f}); a slot's {p['meshes_per_slot']} meshes "
               "go to the page once and are reused (before, every click uploaded them again: 28-30 ms on the "
               "server per click, and the client rebuilt every mesh)."]
+    if "path_segments_drawn" in p:
+      lines[-1] += (f" The page redraws the paths' {p['path_segments_drawn']:,} segments every frame (of "
+                    f"{p['path_segments_recorded']:,} recorded; `display.simplify_polylines`).")
     b = p.get("browser_click_to_playing_ms")
     if b and "locator_click_median" in b:
       lines += ["", f"In headless Chromium (software WebGL on the shared CPUs), a mouse click on a sorter row → the "

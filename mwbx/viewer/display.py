@@ -176,12 +176,14 @@ def simplify_polylines(com: np.ndarray, count: np.ndarray, tolerance: float) -> 
   """Points of COM polylines worth drawing: bool[N, P, K].
 
   A body flying straight, or lying at rest, needs two points, not one per
-  frame. Dyadic rounds: round j may drop the points at odd multiples of 2**j
-  whose 2**j neighbours on either side were all dropped, when they lie within
-  ``tolerance / rounds`` of the chord between the points 2**j away; so the
-  drawn line strays less than ``tolerance`` from every point, and the work is
-  about two passes over the points. Invalid points (past ``count``, or
-  non-finite) and the ends of each run of valid points are always kept.
+  frame. Dyadic rounds: round j may drop the point at an odd multiple of 2**j
+  whose 2**j neighbours on either side were all dropped, when every recorded
+  point between the points 2**j away on either side lies within
+  ``tolerance`` of the chord joining them; so the drawn line strays less
+  than ``tolerance`` from every point. Only windows whose inner points are
+  all dropped are measured, so the work is about one pass over the points
+  per round. Invalid points (past ``count``, or non-finite) and the ends of
+  each run of valid points are always kept.
 
   Args:
     com: f[N, P, K, 3] polylines as for :func:`polyline_segments`, metres.
@@ -206,15 +208,21 @@ def simplify_polylines(com: np.ndarray, count: np.ndarray, tolerance: float) -> 
   droppable = np.concatenate([droppable, np.zeros((n, pad, k), bool)], axis=1)
   keep = np.ones((n, size + 1, k), bool)
   clear = np.ones((n, size, k), bool)  # blocks [i h, (i + 1) h] whose inner points are all dropped
-  step = np.float32(tolerance / rounds)
+  tolerance2 = np.float32(tolerance) ** 2
   for j in range(rounds):
     h = 1 << j
-    a, c, b = points[:, 0:size - h:2 * h], points[:, h:size:2 * h], points[:, 2 * h:size + 1:2 * h]
-    ab = b - a
-    t = np.clip(np.sum((c - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), np.float32(1e-30)), 0, 1)
-    off = np.linalg.norm(c - (a + t[..., None] * ab), axis=-1)
-    drop = (off <= step) & droppable[:, h:size:2 * h] & clear[:, 0::2] & clear[:, 1::2]
-    keep[:, h:size:2 * h] = ~drop
+    width = 2 * h
+    candidate = droppable[:, h:size:width] & clear[:, 0::2] & clear[:, 1::2]  # [n, size / width, k]
+    world, window, body = np.nonzero(candidate)
+    drop = np.zeros_like(candidate)
+    if world.size:  # every point of each candidate's window against its chord
+      frames = window[:, None] * width + np.arange(width + 1)[None, :]
+      span = points[world[:, None], frames, body[:, None]]  # [c, width + 1, 3]
+      a, ab = span[:, :1], span[:, -1:] - span[:, :1]
+      t = np.clip(np.sum((span - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), np.float32(1e-30)), 0, 1)
+      off2 = np.sum((span - (a + t[..., None] * ab)) ** 2, axis=-1)
+      drop[world, window, body] = off2.max(axis=1) <= tolerance2
+    keep[:, h:size:width] = ~drop
     clear = clear[:, 0::2] & clear[:, 1::2] & drop
   return keep[:, :p]
 
