@@ -59,6 +59,36 @@ from mwbx.search.objects import involved_objects
 # its objects go wrong: late first (small changes keep more of what works),
 # then earlier (bigger changes).
 RESTART_FRACTIONS = (0.85, 0.6, 0.35, 0.0)
+# A stall fixes a query only where some world meeting it (and the queries
+# fixed already) meets at most this many fewer queries than the best world:
+# fixing one that only worse worlds meet throws the search's progress away.
+FIX_MARGIN = 2
+
+
+def repair_plan(unmet: Sequence[int], attempt: int) -> tuple[list[int], float]:
+  """Which unmet queries attempt ``attempt`` on a world repairs, and from
+  what fraction of the time they go wrong.
+
+  Round r = attempt // n over the world's n unmet queries (farthest first):
+  round 0 repairs each alone from late on (each gets its own try: the
+  farthest is not always the one a small change can fix); later rounds pair
+  each with the next (objects that meet each other, as the paper's user
+  did) from earlier, :data:`RESTART_FRACTIONS` by round. One unmet query:
+  alone, earlier at each attempt.
+
+  Example:
+    >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3)
+    (([2], 0.85), ([5, 2], 0.6))
+  """
+  n = len(unmet)
+  if n == 0:
+    raise MwbxError("solve: repair_plan needs at least one unmet query")
+  attempt = int(attempt)
+  rounds = attempt // n if n > 1 else attempt
+  chosen = [int(unmet[attempt % n])]
+  if rounds >= 1 and n >= 2:
+    chosen.append(int(unmet[(attempt + 1) % n]))
+  return chosen, RESTART_FRACTIONS[min(rounds, len(RESTART_FRACTIONS) - 1)]
 
 
 class KeyStream(enum.IntEnum):
@@ -320,9 +350,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     if not unmet:  # a world guided reseeding just added meets every query
       search.note()
       continue
-    chosen = [unmet[attempt % len(unmet)]]
-    if attempt >= 1 and len(unmet) >= 2:  # pairs, from the second try on
-      chosen.append(unmet[(attempt + 1) % len(unmet)])
+    chosen, fraction = repair_plan(unmet, attempt)
     search.attempts[chosen] += 1
     objects = []
     for q in chosen:
@@ -331,7 +359,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       search.tries[world] = tries_per_world  # nothing to refine for these queries here
       continue
     t_goal = min(_restart_goal(search.bank, row, world, queries[q], search.met[:, q]) for q in chosen)
-    t_min = RESTART_FRACTIONS[min(attempt, len(RESTART_FRACTIONS) - 1)] * t_goal
+    t_min = fraction * t_goal
     try:
       search.refine(world, objects, t_min, samples, keep)
     except MwbxError as err:  # e.g. a restart past the end: this world cannot be repaired so
@@ -412,8 +440,9 @@ class _Search:
       except MwbxError:
         pass  # nothing randomized to guide: fix among the worlds there are
     pool = self.met[:, self.fixed].all(axis=1) & np.asarray(self.bank.valid, bool)
+    good_enough = self.met.sum(axis=1) >= self.met[best_row].sum() - FIX_MARGIN
     for q in blocking:
-      if (pool & self.met[:, q]).any():
+      if (pool & self.met[:, q] & good_enough).any():
         self.fixed.append(int(q))
         break
 

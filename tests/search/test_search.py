@@ -17,7 +17,9 @@ import mwbx
 from mwbx.queries import Query, query_gaps
 from mwbx.search import proposal as proposal_lib
 from mwbx.queries.query import body_radii
-from mwbx.search.solver import DIVERGENCE_TOLERANCE, KeyStream, settle_time, stream_key
+from mwbx.search import solver
+from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, RESTART_FRACTIONS, KeyStream, repair_plan,
+                                settle_time, stream_key)
 
 TESTS = pathlib.Path(__file__).parents[1]
 
@@ -287,3 +289,48 @@ def test_settle_time_is_when_the_bodies_stay_near_where_they_end(tiny_bank):
         moved += 1
         assert not near[frame - 1], (row, chosen, t)
   assert moved > 0  # the striker moves in every world: some settle time is after the start
+
+
+def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
+  unmet = [7, 3, 11]
+  plans = [repair_plan(unmet, k) for k in range(7)]
+  assert plans[:3] == [([7], RESTART_FRACTIONS[0]), ([3], RESTART_FRACTIONS[0]), ([11], RESTART_FRACTIONS[0])]
+  assert plans[3:6] == [([7, 3], RESTART_FRACTIONS[1]), ([3, 11], RESTART_FRACTIONS[1]),
+                        ([11, 7], RESTART_FRACTIONS[1])]
+  assert plans[6] == ([7, 3], RESTART_FRACTIONS[2])
+  # One unmet query: alone, from earlier at each attempt, the last fraction kept.
+  assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * 2]
+  with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
+    repair_plan([], 0)
+
+
+class _Worlds:
+  """The little of a bank that fix_blocking_query reads: rows by world id and validity."""
+
+  def __init__(self, n):
+    self.valid = np.ones(n, bool)
+
+  def row_of(self, world):
+    return int(world)
+
+
+def test_a_stall_fixes_only_a_query_that_a_good_enough_world_meets():
+  # Queries 0-5; world 0 is the best (meets 0-3). Query 4 is met only by
+  # world 1, which meets FIX_MARGIN + 1 fewer queries: fixing it would drop
+  # the search back to worlds that bad. Query 5 is met by world 2, within
+  # the margin of the best.
+  met = np.zeros((3, 6), bool)
+  met[0, :4] = True
+  met[1, 4] = True
+  met[2, [0, 5]] = True
+  met[2, 1:4 - FIX_MARGIN] = True
+  assert met[0].sum() - met[1].sum() > FIX_MARGIN and met[0].sum() - met[2].sum() <= FIX_MARGIN
+  search = object.__new__(solver._Search)
+  search.bank, search.met, search.fixed, search.released = _Worlds(3), met, [], set()
+  search.attempts = np.array([0, 0, 0, 0, 9, 5])  # query 4 blocks the most
+  search.fix_blocking_query(0, reseed_rounds=0, batch=1)
+  assert search.fixed == [5]
+  met[2, 5] = False  # no good-enough world meets either: nothing is fixed
+  search.fixed = []
+  search.fix_blocking_query(0, reseed_rounds=0, batch=1)
+  assert search.fixed == []
