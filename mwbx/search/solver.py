@@ -9,16 +9,17 @@ best-first over the bank's refinement tree:
    unmet ones (:func:`mwbx.queries.query_gaps`, each squashed by a typical
    gap), then the fewest collisions (or another metric).
 2. Take the best world that has been tried fewer than ``tries_per_world``
-   times. Its unmet queries are ordered farthest first; attempt k repairs
-   query ``k mod n`` (from the second round on, together with the next one:
-   pairs of objects, as the paper's user did).
+   times. Its n unmet queries are ordered farthest first; attempt k repairs
+   query ``k mod n``, alone in the first round and together with the next
+   one after (pairs of objects, as the paper's user did):
+   :func:`repair_plan`.
 3. The objects involved (the query's bodies' objects, or the object a joint
    query's joint belongs to) are refined from a time before they go wrong:
    when they leave the nearest path of a world that meets the query
    (:func:`divergence_time`; without such a world, the query's deadline: an
    include query's window start, an exclude query's first entry, a joint
    query's window; an orientation query's bodies: when they settle,
-   :func:`settle_time`), a fraction of it that shrinks at each attempt
+   :func:`settle_time`), a fraction of it that shrinks at each round
    (:data:`RESTART_FRACTIONS`).
 4. The best ``keep`` children join the bank under their parent; the others
    are dropped. A branch that stops improving is abandoned once its worlds'
@@ -28,7 +29,10 @@ best-first over the bank's refinement tree:
    search has aimed at most and still fails is *fixed*: ``reseed_rounds``
    batches of guided sampling aimed at it add worlds where it holds (where
    the initial conditions put a letter in its slot, say), and the search goes
-   on only in worlds that meet it, repairing the other queries there.
+   on only in worlds that meet it, repairing the other queries there. Only
+   a query that some world within :data:`FIX_MARGIN` queries of the best
+   meets is fixed: fixing one that only worse worlds meet would throw the
+   search's progress away.
 
 Every step is an ordinary :func:`mwbx.refine`: the result is an ordinary,
 plausible world with its full lineage, viewable and refinable by hand.
