@@ -19,12 +19,14 @@ Every error a user can cause ends in one line naming the file, field or value
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import pathlib
 import secrets
 import signal
 import sys
+import threading
 import uuid
 
 import jax
@@ -98,7 +100,11 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
         print(f"mwbx: contact budget: {sampler.contact_budget.describe()}", file=sys.stderr)
         record["contact_budget"] = sampler.contact_budget._asdict()
       try:
-        with reporter("sample") as update:
+        with reporter("sample") as report, _interrupt_at_safe_points() as safe_point:
+          def update(p, _report=report, _safe_point=safe_point):
+            _safe_point()
+            _report(p)
+
           for part, stats in sampler.run_chunks(mine.size, jax.random.key(seed), ids=mine, progress=update):
             part.run = {**part.run, "seed": seed}
             # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the
@@ -123,6 +129,38 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
   write_atomic(out / "scene.xml", scene.mjcf_text, "scene MJCF")
   summary.print(out, len(directory.stored_ids()))
   return 0
+
+
+@contextlib.contextmanager
+def _interrupt_at_safe_points():
+  """Ctrl-C while sampling, taken where Python code runs between blocks.
+
+  A KeyboardInterrupt raised inside JAX's tracing can surface as another
+  error (a ValueError from its compilation cache), so the first SIGINT only
+  sets a flag, and the returned callable (called between blocks, with each
+  progress report) raises KeyboardInterrupt then; a run that finishes
+  first just finishes. A second SIGINT interrupts at once. Nothing changes where SIGINT is not Python's default
+  handler (ignored, or handled by the caller)."""
+  pending = []
+
+  def safe_point():
+    if pending:
+      raise KeyboardInterrupt
+
+  def on_sigint(signum, frame):
+    if pending:
+      raise KeyboardInterrupt
+    pending.append(signum)
+
+  previous = signal.getsignal(signal.SIGINT)
+  mine = previous is signal.default_int_handler and threading.current_thread() is threading.main_thread()
+  if mine:
+    signal.signal(signal.SIGINT, on_sigint)
+  try:
+    yield safe_point
+  finally:
+    if mine:
+      signal.signal(signal.SIGINT, previous)
 
 
 # The most worlds one `mwbx sample` run may ask for (ids are 32-bit).
