@@ -139,8 +139,9 @@ def _interrupt_at_safe_points():
   error (a ValueError from its compilation cache), so the first SIGINT only
   sets a flag, and the returned callable (called between blocks, with each
   progress report) raises KeyboardInterrupt then; a run that finishes
-  first just finishes. A second SIGINT interrupts at once. Nothing changes where SIGINT is not Python's default
-  handler (ignored, or handled by the caller)."""
+  first just finishes. A second SIGINT interrupts at once. Nothing changes
+  where SIGINT is not Python's default handler (ignored, or handled by the
+  caller)."""
   pending = []
 
   def safe_point():
@@ -153,13 +154,13 @@ def _interrupt_at_safe_points():
     pending.append(signum)
 
   previous = signal.getsignal(signal.SIGINT)
-  mine = previous is signal.default_int_handler and threading.current_thread() is threading.main_thread()
-  if mine:
+  installed = previous is signal.default_int_handler and threading.current_thread() is threading.main_thread()
+  if installed:
     signal.signal(signal.SIGINT, on_sigint)
   try:
     yield safe_point
   finally:
-    if mine:
+    if installed:
       signal.signal(signal.SIGINT, previous)
 
 
