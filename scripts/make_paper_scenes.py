@@ -57,7 +57,11 @@ STROKES = {
     "R": [_bar(-W + T, 0, T, H), _bar(0, H - T, W, T), _bar(0, 0, W, T),
           _bar(W - T, H / 2, T, H / 2), _diagonal(0, 0, W, -H)],
     "A": [_diagonal(-W, -H, 0, H), _diagonal(0, H, W, -H), _bar(0, -H / 4, W / 2, T)],
-    "P": [_bar(-W + T, 0, T, H), _bar(0, H - T, W, T), _bar(0, 0, W, T), _bar(W - T, H / 2, T, H / 2)],
+    # P stands on a slab foot: on its stem alone its centre of mass (under
+    # the bowl) lies outside its base and it falls flat, so it could never
+    # end upright. With the foot it stands from 0.3 rad either way, as the others do.
+    "P": [_bar(-W + T, 0, T, H), _bar(0, H - T, W, T), _bar(0, 0, W, T), _bar(W - T, H / 2, T, H / 2),
+          _bar(-W + 0.75 * W, -H + T, 0.75 * W, T)],
     "H": [_bar(-W + T, 0, T, H), _bar(W - T, 0, T, H), _bar(0, 0, W, T)],
 }
 LETTER_RGB = ["0.9 0.3 0.3", "0.95 0.6 0.2", "0.9 0.85 0.2", "0.5 0.85 0.3",
