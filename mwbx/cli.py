@@ -100,11 +100,7 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
         print(f"mwbx: contact budget: {sampler.contact_budget.describe()}", file=sys.stderr)
         record["contact_budget"] = sampler.contact_budget._asdict()
       try:
-        with reporter("sample") as report, _interrupt_at_safe_points() as safe_point:
-          def update(p, _report=report, _safe_point=safe_point):
-            _safe_point()
-            _report(p)
-
+        with _reporter_with_safe_points("sample") as update:
           for part, stats in sampler.run_chunks(mine.size, jax.random.key(seed), ids=mine, progress=update):
             part.run = {**part.run, "seed": seed}
             # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the
@@ -162,6 +158,19 @@ def _interrupt_at_safe_points():
   finally:
     if installed:
       signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _reporter_with_safe_points(name: str):
+  """The progress reporter of command ``name``, taking Ctrl-C at its reports
+  (:func:`_interrupt_at_safe_points`): a long command's first SIGINT stops
+  it where Python code runs, never inside JAX's tracing."""
+  with reporter(name) as report, _interrupt_at_safe_points() as safe_point:
+    def update(p):
+      safe_point()
+      report(p)
+
+    yield update
 
 
 # The most worlds one `mwbx sample` run may ask for (ids are 32-bit).
@@ -371,7 +380,7 @@ def _cmd_refine(args) -> int:
   out = pathlib.Path(args.out or args.bank)
   # Without --seed every run draws new worlds; the seed is printed to repeat one.
   seed = secrets.randbits(31) if args.seed is None else args.seed
-  with reporter("refine") as update:
+  with _reporter_with_safe_points("refine") as update:
     done = run_refinement(bank, args.world, args.objects or (), frustum=frustum, t_min=args.time,
                           n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
                           progress=update, scene=args.scene, add=args.add or (), remove=args.remove or ())
@@ -402,7 +411,7 @@ def _cmd_solve(args) -> int:
   queries = mwbx.load_queries(args.queries, bank=bank)
   budget = Budget(refinements=args.budget, seconds=args.time_budget,
                   world_steps=None if args.step_budget is None else int(args.step_budget))
-  with reporter("solve") as update:
+  with _reporter_with_safe_points("solve") as update:
     result = solve(bank, queries, budget=budget, key=jax.random.key(args.seed), samples=args.samples,
                    keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
                    guided_rounds=args.guided_rounds, guided_batch=args.guided_batch,

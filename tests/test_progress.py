@@ -42,3 +42,28 @@ def test_sampler_and_refinement_report_every_phase(tiny_native):
   assert [p.phase for p in refined][-1] == "compressing"
   moving = [p.done for p in refined if p.phase == "refining"]
   assert moving and 0 < max(moving) <= 3 and all(b >= a for a, b in zip(moving, moving[1:]))
+
+
+def test_first_ctrl_c_is_taken_at_the_next_report_and_a_second_at_once():
+  """`mwbx sample`, `refine` and `solve` report through this: a SIGINT inside
+  JAX's tracing could surface as another error, so the first one waits for
+  the next report; a second one interrupts where it lands."""
+  import signal
+
+  import pytest
+
+  from mwbx import cli
+  previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # (the suite may ignore SIGINT)
+  try:
+    with cli._reporter_with_safe_points("solve") as update:
+      update(Progress("solving", 0, 4, 0))
+      signal.raise_signal(signal.SIGINT)  # no KeyboardInterrupt here
+      with pytest.raises(KeyboardInterrupt):
+        update(Progress("solving", 1, 4, 10))
+    with cli._reporter_with_safe_points("refine"):
+      signal.raise_signal(signal.SIGINT)
+      with pytest.raises(KeyboardInterrupt):
+        signal.raise_signal(signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+  finally:
+    signal.signal(signal.SIGINT, previous)
