@@ -94,7 +94,7 @@ def _play_latency(n_worlds: int, clicks: int, in_browser: bool) -> dict:
       play.append(time.perf_counter() - start)
     assert page.stage.uploads == first_uploads  # no mesh sent again
     # What the page redraws each frame: the paths' segments as drawn (simplified) and as recorded.
-    drawn_segments = sum(h.points.shape[0] for name, h in page._handles.items() if name.startswith("paths/"))
+    drawn_segments = sum(page.path_segments.values())
     recorded_segments = len(display.polyline_segments(np.asarray(bank.com), np.asarray(bank.com_count)))
     browser_ms = _play_in_browser(page, bank, clicks) if in_browser else None
   finally:

@@ -121,6 +121,13 @@ class Browser:
   def frame(self) -> int:
     return self.player.frame
 
+  @property
+  def path_segments(self) -> dict:
+    """{path class: segments drawn now} (what the page redraws each frame)."""
+    with self.lock:
+      return {name.split("/", 1)[1]: int(h.points.shape[0]) for name, h in self._handles.items()
+              if name.startswith("paths/")}
+
   # -- scene ------------------------------------------------------------------------------
 
   def _build_stage(self) -> None:

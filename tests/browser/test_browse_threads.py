@@ -52,6 +52,7 @@ def test_gui_callbacks_and_playback_hold_one_lock():
       t.join(timeout=300)
     assert not errors, errors
     assert set(page._handles) <= {"paths/faint", "paths/match", "paths/exclude"}
+    assert set(page.path_segments) <= {"faint", "match", "exclude"} and all(page.path_segments.values())
     assert len(page.player.played) >= 1 and page.playing_world in page.player.played
   finally:
     page.close()
