@@ -334,3 +334,23 @@ def test_a_stall_fixes_only_a_query_that_a_good_enough_world_meets():
   search.fixed = []
   search.fix_blocking_query(0, reseed_rounds=0, batch=1)
   assert search.fixed == []
+
+
+def test_refinement_yield_counts_each_refinement_once_by_its_parent(tiny_bank):
+  """scripts/refinement_yield.py (where a search's refinements paid) against
+  the search's own record: every refinement that kept children is counted
+  once, under what its parent met, and the solved world's line improved."""
+  import importlib.util
+  spec = importlib.util.spec_from_file_location("refinement_yield", TESTS.parent / "scripts" / "refinement_yield.py")
+  script = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(script)
+  result = mwbx.solve(tiny_bank, REACHABLE, budget=12, key=jax.random.key(0), samples=16, backend="native")
+  out = script.refinement_yield(result.bank, REACHABLE)
+  refined = {(s.refined, round(s.t_min, 6), s.objects) for s in result.steps if s.refined >= 0}
+  counted = sum(n for n, _ in out["by_parent_met"].values())
+  assert counted == sum(n for n, _ in out["by_objects"].values()) == out["active"].size
+  assert 1 <= counted <= len(refined)
+  assert set(out["by_parent_met"]) <= {0, 1} and set(out["by_objects"]) <= {1, 2}
+  assert all(0 <= better <= n for n, better in out["by_parent_met"].values())
+  assert sum(better for _, better in out["by_parent_met"].values()) >= 1  # it went from < 2 met to 2
+  assert (out["active"] >= 1).all()

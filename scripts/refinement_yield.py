@@ -1,0 +1,71 @@
+"""What the refinements of a solved (or unsolved) bank bought: per number of
+queries the parent met, how many refinements started there and how many gave
+a kept child meeting more; the same per number of refined objects; and how
+many objects each refinement made active (the others kept their paths).
+
+Reads the lineage the bank stores (``mwbx solve`` or ``scripts/bench_solve.py
+--save-banks`` keep only each refinement's best children, so a refinement
+that kept none is not counted).
+
+  .venv/bin/python scripts/refinement_yield.py out/bench/solve_siggraph_seed0 configs/queries/siggraph.yaml
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+
+import numpy as np
+
+import mwbx
+
+
+def refinement_yield(bank, queries) -> dict:
+  """{"by_parent_met": {met: (refinements, improved)}, "by_objects": {n: (refinements,
+  improved)}, "active": i64[R] objects active per refinement}; a refinement is its
+  (parent, restart time, objects), improved when a kept child meets more queries."""
+  met = mwbx.evaluate_each(bank, queries).sum(axis=1)
+  row = {int(w): r for r, w in enumerate(bank.world_ids)}
+  children = collections.defaultdict(list)
+  for w in bank.world_ids:
+    entry = bank.lineage.get(str(int(w)))
+    if entry and "parent" in entry:  # (sampled and guided worlds have no parent)
+      children[(int(entry["parent"]), float(entry["t_min"]), tuple(entry["objects"]))].append(int(w))
+  by_met = collections.defaultdict(lambda: [0, 0])
+  by_objects = collections.defaultdict(lambda: [0, 0])
+  active = []
+  for (parent, _, objects), kids in children.items():
+    if parent not in row:
+      continue
+    improved = max(met[row[k]] for k in kids) > met[row[parent]]
+    for table, key in ((by_met, int(met[row[parent]])), (by_objects, len(objects))):
+      table[key][0] += 1
+      table[key][1] += int(improved)
+    active.append(len(bank.lineage[str(kids[0])]["active"]))
+  return {"by_parent_met": {k: tuple(v) for k, v in sorted(by_met.items())},
+          "by_objects": {k: tuple(v) for k, v in sorted(by_objects.items())},
+          "active": np.asarray(active, np.int64)}
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+  parser.add_argument("bank")
+  parser.add_argument("queries")
+  args = parser.parse_args()
+  bank = mwbx.Bank.load(args.bank)
+  queries = mwbx.load_queries(args.queries, bank=bank)
+  result = refinement_yield(bank, queries)
+  print(f"{args.bank}: {sum(n for n, _ in result['by_parent_met'].values())} refinements with kept children,"
+        f" {len(queries.queries)} queries")
+  print("parent met  refinements  improved")
+  for met, (n, better) in result["by_parent_met"].items():
+    print(f"{met:>10}  {n:>11}  {better:>8}")
+  print("objects  refinements  improved")
+  for k, (n, better) in result["by_objects"].items():
+    print(f"{k:>7}  {n:>11}  {better:>8}")
+  if result["active"].size:
+    print(f"active objects per refinement: mean {result['active'].mean():.1f}, at most {result['active'].max()}")
+
+
+if __name__ == "__main__":
+  main()
