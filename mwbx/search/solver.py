@@ -11,8 +11,9 @@ best-first over the bank's refinement tree:
 2. Take the best world that has been tried fewer than ``tries_per_world``
    times. Its n unmet queries are ordered farthest first; attempt k repairs
    query ``k mod n``, alone in the first round and together with the next
-   one after (pairs of objects, as the paper's user did):
-   :func:`repair_plan`.
+   one after (pairs of objects, as the paper's user did); the longer the
+   search goes without a better best world, the later the round every
+   world starts at: :func:`repair_plan`.
 3. The objects involved (the query's bodies' objects, or the object a joint
    query's joint belongs to) are refined from a time before they go wrong:
    when they leave the nearest path of a world that meets the query
@@ -67,28 +68,36 @@ RESTART_FRACTIONS = (0.85, 0.6, 0.35, 0.0)
 # fixed already) meets at most this many fewer queries than the best world:
 # fixing one that only worse worlds meet throws the search's progress away.
 FIX_MARGIN = 2
+# On a plateau every repair starts one round later (an earlier restart, in
+# pairs) each STALL_STEP refinements without a better best world. A world
+# with as many unmet queries as tries otherwise only ever gets round 0 (each
+# query alone, late): on SIGGRAPH none of 472 such repairs of a world meeting
+# 12 of 16 met more (scripts/refinement_yield.py), as moving a letter across
+# slots needs an early restart.
+STALL_STEP = 10
 
 
-def repair_plan(unmet: Sequence[int], attempt: int) -> tuple[list[int], float]:
+def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[list[int], float]:
   """Which unmet queries attempt ``attempt`` on a world repairs, and from
   what fraction of the time they go wrong.
 
-  Round r = attempt // n over the world's n unmet queries (farthest first):
-  round 0 repairs each alone from late on (each gets its own try: the
-  farthest is not always the one a small change can fix); later rounds pair
-  each with the next (objects that meet each other, as the paper's user
-  did) from earlier, :data:`RESTART_FRACTIONS` by round. One unmet query:
-  alone, earlier at each attempt.
+  Round r = attempt // n over the world's n unmet queries (farthest first),
+  plus ``stalled`` (the search's plateau, in :data:`STALL_STEP` refinements
+  without a better best world): round 0 repairs each alone from late on
+  (each gets its own try: the farthest is not always the one a small change
+  can fix); later rounds pair each with the next (objects that meet each
+  other, as the paper's user did) from earlier, :data:`RESTART_FRACTIONS` by
+  round. One unmet query: alone, earlier at each attempt.
 
   Example:
-    >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3)
-    (([2], 0.85), ([5, 2], 0.6))
+    >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3), repair_plan([5, 2, 9], 1, stalled=2)
+    (([2], 0.85), ([5, 2], 0.6), ([2, 9], 0.35))
   """
   n = len(unmet)
   if n == 0:
     raise MwbxError("solve: repair_plan needs at least one unmet query")
   attempt = int(attempt)
-  rounds = attempt // n if n > 1 else attempt
+  rounds = (attempt // n if n > 1 else attempt) + max(int(stalled), 0)
   chosen = [int(unmet[attempt % n])]
   if rounds >= 1 and n >= 2:
     chosen.append(int(unmet[(attempt + 1) % n]))
@@ -354,7 +363,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     if not unmet:  # a world guided reseeding just added meets every query
       search.note()
       continue
-    chosen, fraction = repair_plan(unmet, attempt)
+    chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP)
     search.attempts[chosen] += 1
     objects = []
     for q in chosen:

@@ -18,8 +18,8 @@ from mwbx.queries import Query, query_gaps
 from mwbx.search import proposal as proposal_lib
 from mwbx.queries.query import body_radii
 from mwbx.search import solver
-from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, RESTART_FRACTIONS, KeyStream, repair_plan,
-                                settle_time, stream_key)
+from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, RESTART_FRACTIONS, STALL_STEP, KeyStream,
+                                repair_plan, settle_time, stream_key)
 
 TESTS = pathlib.Path(__file__).parents[1]
 
@@ -302,6 +302,19 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
   assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * 2]
   with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
     repair_plan([], 0)
+
+
+def test_a_plateau_moves_every_repair_to_a_later_round():
+  """Four unmet queries and four tries: without a plateau a world only ever
+  gets round 0 (each alone, late); each STALL_STEP refinements without a
+  better world start it a round later (pairs, earlier restarts)."""
+  unmet = [7, 3, 11, 2]
+  assert {repair_plan(unmet, k)[1] for k in range(4)} == {RESTART_FRACTIONS[0]}
+  assert [repair_plan(unmet, k, stalled=1) for k in range(2)] == [([7, 3], RESTART_FRACTIONS[1]),
+                                                                  ([3, 11], RESTART_FRACTIONS[1])]
+  assert repair_plan(unmet, 0, stalled=9) == ([7, 3], RESTART_FRACTIONS[-1])
+  assert repair_plan([4], 1, stalled=1) == ([4], RESTART_FRACTIONS[2])
+  assert STALL_STEP >= 1
 
 
 class _Worlds:
