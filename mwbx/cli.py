@@ -128,21 +128,17 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
 
 
 @contextlib.contextmanager
-def _interrupt_at_safe_points():
-  """Ctrl-C while sampling, taken where Python code runs between blocks.
+def _reporter_with_safe_points(name: str):
+  """The progress reporter of command ``name``, taking Ctrl-C at its reports.
 
   A KeyboardInterrupt raised inside JAX's tracing can surface as another
   error (a ValueError from its compilation cache), so the first SIGINT only
-  sets a flag, and the returned callable (called between blocks, with each
-  progress report) raises KeyboardInterrupt then; a run that finishes
-  first just finishes. A second SIGINT interrupts at once. Nothing changes
-  where SIGINT is not Python's default handler (ignored, or handled by the
+  sets a flag, and the next progress report (made where Python code runs,
+  between blocks) raises KeyboardInterrupt; a command that finishes first
+  just finishes. A second SIGINT interrupts at once. Nothing changes where
+  SIGINT is not Python's default handler (ignored, or handled by the
   caller)."""
   pending = []
-
-  def safe_point():
-    if pending:
-      raise KeyboardInterrupt
 
   def on_sigint(signum, frame):
     if pending:
@@ -154,23 +150,16 @@ def _interrupt_at_safe_points():
   if installed:
     signal.signal(signal.SIGINT, on_sigint)
   try:
-    yield safe_point
+    with reporter(name) as report:
+      def update(p):
+        if pending:
+          raise KeyboardInterrupt
+        report(p)
+
+      yield update
   finally:
     if installed:
       signal.signal(signal.SIGINT, previous)
-
-
-@contextlib.contextmanager
-def _reporter_with_safe_points(name: str):
-  """The progress reporter of command ``name``, taking Ctrl-C at its reports
-  (:func:`_interrupt_at_safe_points`): a long command's first SIGINT stops
-  it where Python code runs, never inside JAX's tracing."""
-  with reporter(name) as report, _interrupt_at_safe_points() as safe_point:
-    def update(p):
-      safe_point()
-      report(p)
-
-    yield update
 
 
 # The most worlds one `mwbx sample` run may ask for (ids are 32-bit).

@@ -25,23 +25,21 @@ def refinement_yield(bank, queries) -> dict:
   improved)}, "active": i64[R] objects active per refinement}; a refinement is its
   (parent, restart time, objects), improved when a kept child meets more queries."""
   met = mwbx.evaluate_each(bank, queries).sum(axis=1)
-  row = {int(w): r for r, w in enumerate(bank.world_ids)}
-  children = collections.defaultdict(list)
-  for w in bank.world_ids:
-    entry = bank.lineage.get(str(int(w)))
-    if entry and "parent" in entry:  # (sampled and guided worlds have no parent)
-      children[(int(entry["parent"]), float(entry["t_min"]), tuple(entry["objects"]))].append(int(w))
+  children = collections.defaultdict(list)  # (parent id, restart time, objects) -> child rows
+  # Refined worlds whose parent the bank holds (sampled and guided worlds have none).
+  for row in np.flatnonzero(np.isin(bank.parent_world, bank.world_ids)):
+    objects = tuple(bank.lineage[str(int(bank.world_ids[row]))]["objects"])
+    children[(int(bank.parent_world[row]), float(bank.refine_time[row]), objects)].append(row)
   by_met = collections.defaultdict(lambda: [0, 0])
   by_objects = collections.defaultdict(lambda: [0, 0])
   active = []
   for (parent, _, objects), kids in children.items():
-    if parent not in row:
-      continue
-    improved = max(met[row[k]] for k in kids) > met[row[parent]]
-    for table, key in ((by_met, int(met[row[parent]])), (by_objects, len(objects))):
+    parent_met = int(met[bank.row_of(parent)])
+    improved = int(met[kids].max() > parent_met)
+    for table, key in ((by_met, parent_met), (by_objects, len(objects))):
       table[key][0] += 1
-      table[key][1] += int(improved)
-    active.append(len(bank.lineage[str(kids[0])]["active"]))
+      table[key][1] += improved
+    active.append(len(bank.lineage[str(int(bank.world_ids[kids[0]]))]["active"]))
   return {"by_parent_met": {k: tuple(v) for k, v in sorted(by_met.items())},
           "by_objects": {k: tuple(v) for k, v in sorted(by_objects.items())},
           "active": np.asarray(active, np.int64)}
