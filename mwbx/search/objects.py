@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Mapping, Sequence
+
 import numpy as np
 
 from mwbx.queries import JointQuery
+from mwbx.queries import Query
 from mwbx.scene import select_bodies
 
 
@@ -28,3 +32,42 @@ def involved_objects(owner, query) -> list[str]:
   rows = select_bodies(list(query.bodies), tuple(owner.body_names), owner.objects, owner.groups)
   chosen = {owner.body_names[b] for b in np.asarray(rows).tolist()}
   return [obj for obj, bodies in owner.objects.items() if chosen & set(bodies)]
+
+
+def alone(owner, query) -> dict[str, Query]:
+  """A ``mode: any`` query over several objects, as each object alone would
+  meet it: {object: the query on that object's bodies only}; {} for any
+  other query.
+
+  Either G may fill either G slot on SIGGRAPH: the search must not refine the
+  G that already fills one slot to fill the other, so it asks which object
+  meets a query by itself (:func:`spare_objects`).
+
+  Example::
+
+    alone(bank, g_in_slot_2)  # {'letter_G1': <query on letter_G1>, 'letter_G2': <query on letter_G2>}
+  """
+  if not isinstance(query, Query) or query.mode != "any" or query.bodies is None:
+    return {}
+  rows = select_bodies(list(query.bodies), tuple(owner.body_names), owner.objects, owner.groups)
+  chosen = [owner.body_names[b] for b in np.asarray(rows).tolist()]
+  per_object = {obj: tuple(f"body:{b}" for b in chosen if b in bodies) for obj, bodies in owner.objects.items()}
+  per_object = {obj: bodies for obj, bodies in per_object.items() if bodies}
+  if len(per_object) < 2:
+    return {}
+  return {obj: dataclasses.replace(query, bodies=bodies, name=f"{query.name or 'query'} [{obj}]")
+          for obj, bodies in per_object.items()}
+
+
+def spare_objects(objects: Sequence[str], holding: Mapping[str, bool]) -> list[str]:
+  """The objects a repair may change: ``objects`` but those that by
+  themselves meet some other ``mode: any`` query the world meets
+  (``holding``: object -> whether it does, from :func:`alone`); all of them
+  when every one does.
+
+  Example:
+    >>> spare_objects(["letter_G1", "letter_G2"], {"letter_G2": True})
+    ['letter_G1']
+  """
+  spare = [o for o in objects if not holding.get(o, False)]
+  return spare or list(objects)

@@ -58,7 +58,9 @@ from mwbx.queries import JointQuery, OrientationQuery, first_entry, metric, quer
 from mwbx.queries.query import as_queries, body_radii, selection_mask
 from mwbx.refinement import refine_run, sampler_for
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
+from mwbx.search.objects import alone
 from mwbx.search.objects import involved_objects
+from mwbx.search.objects import spare_objects
 
 # Restart times of successive attempts on one world, as fractions of the time
 # its objects go wrong: late first (small changes keep more of what works),
@@ -365,13 +367,13 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       continue
     chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP)
     search.attempts[chosen] += 1
-    objects = []
-    for q in chosen:
-      objects += [o for o in involved_objects(search.bank, queries[q]) if o not in objects]
+    objects, targets = [], [search.repair_target(row, q) for q in chosen]
+    for target_objects, _, _ in targets:
+      objects += [o for o in target_objects if o not in objects]
     if not objects:
       search.tries[world] = tries_per_world  # nothing to refine for these queries here
       continue
-    t_goal = min(_restart_goal(search.bank, row, world, queries[q], search.met[:, q]) for q in chosen)
+    t_goal = min(_restart_goal(search.bank, row, world, query, met) for _, query, met in targets)
     t_min = fraction * t_goal
     try:
       search.refine(world, objects, t_min, samples, keep)
@@ -395,6 +397,9 @@ class _Search:
     self.n_queries = len(queries)
     self.gaps = query_gaps(bank, queries)  # f[W, Q]
     self.met = self.gaps == 0  # query_gaps is 0 exactly where evaluate_each holds
+    # mode-any queries over several objects, as each object alone meets them
+    self.alone = [(q, obj, query) for q in range(len(queries)) for obj, query in alone(bank, queries[q]).items()]
+    self.alone_met = self._alone_met(bank)  # bool[W, len(self.alone)]
     self.scale = typical_gaps(self.gaps)
     self.ties = metric(bank, tie_metric)
     self.steps: list[SolveStep] = []
@@ -426,11 +431,40 @@ class _Search:
       total = self.budget.expected_refinements(self.refinements, self.elapsed(), self.spent_steps)
       self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps))
 
+  def _alone_met(self, bank: Bank) -> np.ndarray:
+    if not self.alone:
+      return np.zeros((bank.n_worlds, 0), bool)
+    return query_gaps(bank, [query for _, _, query in self.alone]) == 0
+
   def _add(self, new: Bank, gaps: np.ndarray, ties: np.ndarray) -> None:
     self.bank = self.bank.append(new)
     self.gaps = np.concatenate([self.gaps, gaps])
     self.met = self.gaps == 0
     self.ties = np.concatenate([self.ties, ties])
+    self.alone_met = np.concatenate([self.alone_met, self._alone_met(new)])
+
+  def repair_target(self, row: int, q: int) -> tuple[list[str], object, np.ndarray]:
+    """What repairing query ``q`` in world ``row`` changes: (objects, the
+    query their restart time is judged by, bool[W] the worlds meeting it).
+
+    A ``mode: any`` query over several objects leaves alone each object that
+    is the only one meeting another such query in this world (:func:`spare_objects`):
+    on SIGGRAPH the G in one G slot stays while the other G is moved to the
+    other slot. With one object left, the restart time follows that object
+    alone.
+    """
+    objects = involved_objects(self.bank, self.queries[q])
+    meeting: dict[int, list[str]] = {}  # another query -> the objects meeting it alone here
+    for v, (other, obj, _) in enumerate(self.alone):
+      if other != q and self.alone_met[row, v]:
+        meeting.setdefault(other, []).append(obj)
+    # An object holds a query only as the one object meeting it: of two Gs in one slot, either may move.
+    spare = spare_objects(objects, {objs[0]: True for objs in meeting.values() if len(objs) == 1})
+    if len(spare) == 1 and len(objects) > 1:
+      for v, (other, obj, query) in enumerate(self.alone):
+        if other == q and obj == spare[0]:
+          return spare, query, self.alone_met[:, v]
+    return spare, self.queries[q], self.met[:, q]
 
   def add_guided(self, goal, rounds: int, batch: int, key: jax.Array) -> None:
     """Guided sampling toward ``goal``, its worlds added to the bank."""
