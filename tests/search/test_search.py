@@ -4,6 +4,7 @@ Scene: tests/refine_scenes/tiny (a sphere dropped onto a resting one, a third
 far away, 0.5 s). Goals are region queries on where the spheres end.
 """
 
+import doctest
 import json
 import pathlib
 
@@ -15,6 +16,7 @@ import scipy.stats
 
 import mwbx
 from mwbx.queries import Query, query_gaps
+from mwbx.search import objects as search_objects
 from mwbx.search import proposal as proposal_lib
 from mwbx.queries.query import body_radii
 from mwbx.search import solver
@@ -367,3 +369,42 @@ def test_refinement_yield_counts_each_refinement_once_by_its_parent(tiny_bank):
   assert all(0 <= better <= n for n, better in out["by_parent_met"].values())
   assert sum(better for _, better in out["by_parent_met"].values()) >= 1  # it went from < 2 met to 2
   assert (out["active"] >= 1).all()
+
+
+def test_a_mode_any_repair_leaves_alone_the_object_holding_another_query(tiny_bank):
+  """Either G may fill either G slot on SIGGRAPH: repairing one G slot must
+  not move the G that alone fills the other. Here: query 0 (mode any over
+  striker and target) is met by the target alone, query 1 (the same bodies)
+  by neither, so repairing query 1 refines the striker only, its restart
+  judged by the striker's own variant of query 1."""
+  end = np.asarray(tiny_bank.com)[0, int(tiny_bank.com_count[0]) - 1]
+  names = list(tiny_bank.body_names)
+  target, striker = end[names.index("target")], end[names.index("striker")]
+  assert np.linalg.norm(target - striker) > 0.02  # boxes around one miss the other
+  around_target = Query.region(target - 0.01, target + 0.01, bodies=["striker", "target"], mode="any", name="t")
+  nowhere = Query.region((5.0, 5.0, 5.0), (6.0, 6.0, 6.0), bodies=["striker", "target"], mode="any", name="n")
+  variants = search_objects.alone(tiny_bank, nowhere)
+  assert sorted(variants) == ["striker", "target"]
+  assert variants["striker"].bodies == ("body:striker",) and variants["striker"].mode == "any"
+  assert search_objects.alone(tiny_bank, REACHABLE[0]) == {}  # one object: nothing to choose
+  search = solver._Search(tiny_bank, [around_target, nowhere], solver.Budget(refinements=1), jax.random.key(0),
+                          "collisions", "native", None)
+  assert search.met[0, 0] and not search.met[0, 1]
+  objects, query, met = search.repair_target(0, 1)
+  assert objects == ["striker"] and query.bodies == ("body:striker",)
+  np.testing.assert_array_equal(met, query_gaps(tiny_bank, [variants["striker"]])[:, 0] == 0)
+  # Repairing query 0: no other query is held by one object alone, so both may move.
+  objects, query, _ = search.repair_target(0, 0)
+  assert sorted(objects) == ["striker", "target"] and query is around_target
+  # With both bodies inside query 0's box, either may move: both stay spare.
+  both = Query.region(np.minimum(target, striker) - 0.01, np.maximum(target, striker) + 0.01,
+                      bodies=["striker", "target"], mode="any", name="b")
+  search = solver._Search(tiny_bank, [both, nowhere], solver.Budget(refinements=1), jax.random.key(0),
+                          "collisions", "native", None)
+  assert sorted(search.repair_target(0, 1)[0]) == ["striker", "target"]
+
+
+def test_search_docstring_examples_run():
+  for module in (search_objects, solver):
+    failed, tried = doctest.testmod(module, optionflags=doctest.ELLIPSIS)[:2]
+    assert tried >= 1 and failed == 0, module.__name__
