@@ -301,7 +301,7 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
                         ([11, 7], RESTART_FRACTIONS[1])]
   assert plans[6] == ([7, 3], RESTART_FRACTIONS[2])
   # One unmet query: alone, from earlier at each attempt, the last fraction kept.
-  assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * 2]
+  assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * (6 - len(RESTART_FRACTIONS))]
   with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
     repair_plan([], 0)
 
@@ -364,6 +364,8 @@ def test_refinement_yield_counts_each_refinement_once_by_its_parent(tiny_bank):
   refined = {(s.refined, round(s.t_min, 6), s.objects) for s in result.steps if s.refined >= 0}
   counted = sum(n for n, _ in out["by_parent_met"].values())
   assert counted == sum(n for n, _ in out["by_objects"].values()) == out["active"].size
+  assert counted == sum(n for n, _ in out["by_restart"].values())
+  assert all(t0 < t1 for t0, t1 in out["by_restart"])
   assert 1 <= counted <= len(refined)
   assert set(out["by_parent_met"]) <= {0, 1} and set(out["by_objects"]) <= {1, 2}
   assert all(0 <= better <= n for n, better in out["by_parent_met"].values())
