@@ -54,7 +54,7 @@ import numpy as np
 from mwbx.bank import Bank
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
-from mwbx.queries import JointQuery, OrientationQuery, first_entry, metric, query_gaps
+from mwbx.queries import JointQuery, OrientationQuery, Query, first_entry, metric, query_gaps
 from mwbx.queries.query import as_queries, body_radii, selection_mask
 from mwbx.refinement import refine_run, sampler_for
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
@@ -277,7 +277,13 @@ def _restart_goal(bank, row: int, world: int, query, met: np.ndarray) -> float:
   nearest path of a world that meets it, else the query's deadline. An
   orientation query's bodies go wrong where they settle (how a body lands
   decides how it ends up turned, not the path that brought it there, which
-  may meet other queries): from when they come to their final place."""
+  may meet other queries): from when they come to their final place. So do
+  an include query's bodies that part from every meeting path before they
+  settle: in a crowd (letters through a peg board) paths part early by
+  chance, and restarting there re-rolls every body the crowd touches, while
+  where a body settles is decided by its last bounces (on SIGGRAPH, 2 of 211
+  refinements restarting before 0.5 s met more queries than their parent,
+  against 9 of 110 restarting from 0.5 to 2 s)."""
   if isinstance(query, OrientationQuery):
     return min(settle_time(bank, row, selection_mask(bank, query.bodies)), deadline(bank, world, query))
   if isinstance(query, JointQuery):
@@ -286,7 +292,11 @@ def _restart_goal(bank, row: int, world: int, query, met: np.ndarray) -> float:
   else:
     bodies = selection_mask(bank, query.bodies)
   t = divergence_time(bank, row, np.flatnonzero(met & np.asarray(bank.valid, bool)), bodies)
-  return deadline(bank, world, query) if t is None else min(t, deadline(bank, world, query))
+  if t is None:
+    return deadline(bank, world, query)
+  if isinstance(query, Query) and query.include and bodies.any():
+    t = max(t, settle_time(bank, row, bodies))
+  return min(t, deadline(bank, world, query))
 
 
 def _label(query, index: int) -> str:
