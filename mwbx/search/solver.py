@@ -15,12 +15,14 @@ best-first over the bank's refinement tree:
    search goes without a better best world, the later the round every
    world starts at: :func:`repair_plan`.
 3. The objects involved (the query's bodies' objects, or the object a joint
-   query's joint belongs to) are refined from a time before they go wrong:
-   when they leave the nearest path of a world that meets the query
-   (:func:`divergence_time`; without such a world, the query's deadline: an
-   include query's window start, an exclude query's first entry, a joint
-   query's window; an orientation query's bodies: when they settle,
-   :func:`settle_time`), a fraction of it that shrinks at each round
+   query's joint belongs to; of a ``mode: any`` query, not an object that
+   alone holds another: ``_Search.repair_target``) are refined from a time
+   before they go wrong: when they leave the nearest path of a world that
+   meets the query (:func:`divergence_time`), no earlier than where an
+   include query's bodies settle (:func:`settle_time`); without such a
+   world, the query's deadline: an include query's window start, an exclude
+   query's first entry, a joint query's window; an orientation query's
+   bodies: when they settle. A fraction of it that shrinks at each round
    (:data:`RESTART_FRACTIONS`).
 4. The best ``keep`` children join the bank under their parent; the others
    are dropped. A branch that stops improving is abandoned once its worlds'
@@ -92,13 +94,15 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[l
   plus ``stalled`` (the search's plateau, in :data:`STALL_STEP` refinements
   without a better best world): round 0 repairs each alone from late on
   (each gets its own try: the farthest is not always the one a small change
-  can fix); later rounds pair each with the next (objects that meet each
-  other, as the paper's user did) from earlier, :data:`RESTART_FRACTIONS` by
-  round. One unmet query: alone, earlier at each attempt.
+  can fix); later rounds restart earlier (:data:`RESTART_FRACTIONS` by
+  round) and take turns: one attempt pairs a query with the next (objects
+  that meet each other, as the paper's user did), the next repairs one
+  alone (an early restart of one object moves it farther and disturbs
+  less). One unmet query: alone, earlier at each attempt.
 
   Example:
-    >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3), repair_plan([5, 2, 9], 1, stalled=2)
-    (([2], 0.85), ([5, 2], 0.6), ([2, 9], 0.35))
+    >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3), repair_plan([5, 2, 9], 4)
+    (([2], 0.85), ([5, 2], 0.6), ([2], 0.6))
   """
   n = len(unmet)
   if n == 0:
@@ -106,7 +110,7 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[l
   attempt = int(attempt)
   rounds = (attempt // n if n > 1 else attempt) + max(int(stalled), 0)
   chosen = [int(unmet[attempt % n])]
-  if rounds >= 1 and n >= 2:
+  if rounds >= 1 and n >= 2 and (attempt + attempt // n) % 2 == 0:
     chosen.append(int(unmet[(attempt + 1) % n]))
   return chosen, RESTART_FRACTIONS[min(rounds, len(RESTART_FRACTIONS) - 1)]
 
