@@ -35,9 +35,10 @@ def involved_objects(owner, query) -> list[str]:
 
 
 def alone(owner, query) -> dict[str, Query]:
-  """A ``mode: any`` query over several objects, as each object alone would
-  meet it: {object: the query on that object's bodies only}; {} for any
-  other query.
+  """A ``mode: any`` include query over several objects, as each object
+  alone would meet it: {object: the query on that object's bodies only}; {}
+  for any other query (an exclude query is met by each object that keeps
+  out, so no one object holds it).
 
   Either G may fill either G slot on SIGGRAPH: the search must not refine the
   G that already fills one slot to fill the other, so it asks which object
@@ -47,7 +48,7 @@ def alone(owner, query) -> dict[str, Query]:
 
     alone(bank, g_in_slot_2)  # {'letter_G1': <query on letter_G1>, 'letter_G2': <query on letter_G2>}
   """
-  if not isinstance(query, Query) or query.mode != "any" or query.bodies is None:
+  if not isinstance(query, Query) or not query.include or query.mode != "any" or query.bodies is None:
     return {}
   rows = select_bodies(list(query.bodies), tuple(owner.body_names), owner.objects, owner.groups)
   chosen = [owner.body_names[b] for b in np.asarray(rows).tolist()]

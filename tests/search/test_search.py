@@ -4,6 +4,7 @@ Scene: tests/refine_scenes/tiny (a sphere dropped onto a resting one, a third
 far away, 0.5 s). Goals are region queries on where the spheres end.
 """
 
+import dataclasses
 import doctest
 import json
 import pathlib
@@ -390,6 +391,7 @@ def test_a_mode_any_repair_leaves_alone_the_object_holding_another_query(tiny_ba
   assert sorted(variants) == ["striker", "target"]
   assert variants["striker"].bodies == ("body:striker",) and variants["striker"].mode == "any"
   assert search_objects.alone(tiny_bank, REACHABLE[0]) == {}  # one object: nothing to choose
+  assert search_objects.alone(tiny_bank, dataclasses.replace(nowhere, sign="exclude")) == {}
   search = solver._Search(tiny_bank, [around_target, nowhere], solver.Budget(refinements=1), jax.random.key(0),
                           "collisions", "native", None)
   assert search.met[0, 0] and not search.met[0, 1]
