@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Mapping, Sequence
+from typing import Collection, Sequence
 
 import numpy as np
 
@@ -29,9 +29,14 @@ def involved_objects(owner, query) -> list[str]:
     return [root] if root in owner.objects else []
   if query.bodies is None:
     return list(owner.objects)
-  rows = select_bodies(list(query.bodies), tuple(owner.body_names), owner.objects, owner.groups)
-  chosen = {owner.body_names[b] for b in np.asarray(rows).tolist()}
+  chosen = set(_chosen_bodies(owner, query))
   return [obj for obj, bodies in owner.objects.items() if chosen & set(bodies)]
+
+
+def _chosen_bodies(owner, query) -> list[str]:
+  """The tracked body names a query's ``bodies`` (bodies, objects, groups) select."""
+  rows = select_bodies(list(query.bodies), tuple(owner.body_names), owner.objects, owner.groups)
+  return [owner.body_names[b] for b in np.asarray(rows).tolist()]
 
 
 def alone(owner, query) -> dict[str, Query]:
@@ -50,8 +55,7 @@ def alone(owner, query) -> dict[str, Query]:
   """
   if not isinstance(query, Query) or not query.include or query.mode != "any" or query.bodies is None:
     return {}
-  rows = select_bodies(list(query.bodies), tuple(owner.body_names), owner.objects, owner.groups)
-  chosen = [owner.body_names[b] for b in np.asarray(rows).tolist()]
+  chosen = _chosen_bodies(owner, query)
   per_object = {obj: tuple(f"body:{b}" for b in chosen if b in bodies) for obj, bodies in owner.objects.items()}
   per_object = {obj: bodies for obj, bodies in per_object.items() if bodies}
   if len(per_object) < 2:
@@ -60,15 +64,14 @@ def alone(owner, query) -> dict[str, Query]:
           for obj, bodies in per_object.items()}
 
 
-def spare_objects(objects: Sequence[str], holding: Mapping[str, bool]) -> list[str]:
-  """The objects a repair may change: ``objects`` but those that by
-  themselves meet some other ``mode: any`` query the world meets
-  (``holding``: object -> whether it does, from :func:`alone`); all of them
-  when every one does.
+def spare_objects(objects: Sequence[str], held: Collection[str]) -> list[str]:
+  """The objects a repair may change: ``objects`` but those ``held`` (each
+  the only object meeting another ``mode: any`` query the world meets, by
+  :func:`alone`); all of them when every one is held.
 
   Example:
-    >>> spare_objects(["letter_G1", "letter_G2"], {"letter_G2": True})
+    >>> spare_objects(["letter_G1", "letter_G2"], {"letter_G2"})
     ['letter_G1']
   """
-  spare = [o for o in objects if not holding.get(o, False)]
+  spare = [o for o in objects if o not in held]
   return spare or list(objects)

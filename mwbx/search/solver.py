@@ -10,10 +10,10 @@ best-first over the bank's refinement tree:
    gap), then the fewest collisions (or another metric).
 2. Take the best world that has been tried fewer than ``tries_per_world``
    times. Its n unmet queries are ordered farthest first; attempt k repairs
-   query ``k mod n``, alone in the first round and together with the next
-   one after (pairs of objects, as the paper's user did); the longer the
-   search goes without a better best world, the later the round every
-   world starts at: :func:`repair_plan`.
+   query ``k mod n``, alone in the first round; after, in turn, together
+   with the next one (pairs of objects, as the paper's user did) and alone
+   from earlier; the longer the search goes without a better best world,
+   the later the round every world starts at: :func:`repair_plan`.
 3. The objects involved (the query's bodies' objects, or the object a joint
    query's joint belongs to; of a ``mode: any`` query, not an object that
    alone holds another: ``_Search.repair_target``) are refined from a time
@@ -77,8 +77,8 @@ RESTART_FRACTIONS = (0.85, 0.6, 0.35)
 # fixed already) meets at most this many fewer queries than the best world:
 # fixing one that only worse worlds meet throws the search's progress away.
 FIX_MARGIN = 2
-# On a plateau every repair starts one round later (an earlier restart, in
-# pairs) each STALL_STEP refinements without a better best world. A world
+# On a plateau every repair starts one round later (an earlier restart, pairs
+# and single queries in turn) each STALL_STEP refinements without a better best world. A world
 # with as many unmet queries as tries otherwise only ever gets round 0 (each
 # query alone, late): on SIGGRAPH none of 472 such repairs of a world meeting
 # 12 of 16 met more (scripts/refinement_yield.py), as moving a letter across
@@ -478,7 +478,7 @@ class _Search:
       if other != q and self.alone_met[row, v]:
         meeting.setdefault(other, []).append(obj)
     # An object holds a query only as the one object meeting it: of two Gs in one slot, either may move.
-    spare = spare_objects(objects, {objs[0]: True for objs in meeting.values() if len(objs) == 1})
+    spare = spare_objects(objects, {objs[0] for objs in meeting.values() if len(objs) == 1})
     if len(spare) == 1 and len(objects) > 1:
       for v, (other, obj, query) in enumerate(self.alone):
         if other == q and obj == spare[0]:

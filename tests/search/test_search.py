@@ -303,7 +303,8 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
                         ([11, 7], RESTART_FRACTIONS[1])]
   assert plans[6] == ([7, 3], RESTART_FRACTIONS[2])
   # One unmet query: alone, from earlier at each attempt, the last fraction kept.
-  assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * (6 - len(RESTART_FRACTIONS))]
+  fractions = RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * (6 - len(RESTART_FRACTIONS))
+  assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in fractions]
   with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
     repair_plan([], 0)
 
@@ -311,7 +312,8 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
 def test_a_plateau_moves_every_repair_to_a_later_round():
   """Four unmet queries and four tries: without a plateau a world only ever
   gets round 0 (each alone, late); each STALL_STEP refinements without a
-  better world start it a round later (pairs, earlier restarts)."""
+  better world start it a round later (earlier restarts, pairs and single
+  queries in turn)."""
   unmet = [7, 3, 11, 2]
   assert {repair_plan(unmet, k)[1] for k in range(4)} == {RESTART_FRACTIONS[0]}
   assert [repair_plan(unmet, k, stalled=1) for k in range(2)] == [([7, 3], RESTART_FRACTIONS[1]),
