@@ -111,11 +111,12 @@ def cost_per_world_step(step, d, batch: int) -> dict:
                        else "compute")}
 
 
-def stage_times(backend, d0, repeats: int = 3) -> dict:
-  """Milliseconds per batched step of the parts of mjx:jax's step, each jitted apart
+def stage_times(backend, d0, repeats: int = 3) -> tuple[dict, dict]:
+  """(milliseconds per batched step of the parts of mjx:jax's step, each jitted apart
   on the batch's states: smooth dynamics (kinematics to the mass matrix and
   ``fwd_velocity``/``fwd_acceleration``), collision (broadphase and narrow phase),
-  the constraint rows, the solver, and the whole step."""
+  the constraint rows, the solver, and the whole step; :func:`solver_detail` of the
+  solver's input)."""
   mx = backend.mx
 
   def position(d):
@@ -131,21 +132,43 @@ def stage_times(backend, d0, repeats: int = 3) -> dict:
   stages = [("smooth (position)", position), ("collision", lambda d: mjx_collision.collision(mx, d)),
             ("constraint rows", lambda d: constraint.make_constraint(mx, d)), ("smooth (velocity)", velocity),
             ("solver", lambda d: solver.solve(mx, d))]
-  out, d = {}, d0
+  out, d, solver_input = {}, d0, None
   for name, f in stages:  # each stage from the states the previous ones give
     compiled = jax.jit(jax.vmap(f)).lower(d).compile()
     d_next = jax.block_until_ready(compiled(d))
     best = min(_timed(compiled, d) for _ in range(repeats))
+    solver_input = d if name == "solver" else solver_input
     out[name], d = 1e3 * best, d_next
   compiled = jax.jit(jax.vmap(lambda d: backend.mjx_step(mx, d))).lower(d0).compile()
   jax.block_until_ready(compiled(d0))
   out["whole step"] = 1e3 * min(_timed(compiled, d0) for _ in range(repeats))
-  return out
+  return out, solver_detail(solver_input, repeats)
 
 
-def _timed(compiled, d) -> float:
+def solver_detail(d, repeats: int = 3) -> dict:
+  """What the dense Newton solver works on, from the solver's input states ``d``
+  (batched): its constraint rows per world, how many have a non-zero Jacobian
+  (mean over the batch: the rest are budget slots without a contact), and the
+  milliseconds per batched step of one dense Hessian build (J^T D J over every
+  row) and of one Cholesky factorization of it, the work each solver iteration
+  repeats."""
+  impl = getattr(d, "_impl", d)
+  jac = jnp.asarray(impl.efc_J)  # f32[W, rows, nv]
+  weight = jnp.ones(jac.shape[:2], jac.dtype)
+  hessian = jax.jit(lambda j, w: jnp.einsum("bri,br,brj->bij", j, w, j)).lower(jac, weight).compile()
+  h = jax.block_until_ready(hessian(jac, weight)) + jnp.eye(jac.shape[-1], dtype=jac.dtype)
+  factor = jax.jit(lambda h: jnp.linalg.cholesky(h)).lower(h).compile()
+  jax.block_until_ready(factor(h))
+
+  return {"rows": int(jac.shape[1]), "nv": int(jac.shape[2]),
+          "nonzero_rows_mean": float((np.abs(np.asarray(jac)).sum(-1) > 0).sum(-1).mean()),
+          "hessian_build_ms": 1e3 * min(_timed(hessian, jac, weight) for _ in range(repeats)),
+          "cholesky_ms": 1e3 * min(_timed(factor, h) for _ in range(repeats))}
+
+
+def _timed(compiled, *args) -> float:
   start = time.perf_counter()
-  jax.block_until_ready(compiled(d))
+  jax.block_until_ready(compiled(*args))
   return time.perf_counter() - start
 
 
@@ -236,7 +259,7 @@ def bench_scene(name: str, args) -> dict:
       except Exception as err:  # pylint: disable=broad-except
         row["cost"] = {"error": f"{type(err).__name__}: {err}"[:200]}
     if args.stages and key == "mjx:jax":
-      row["stages_ms"] = stage_times(backends["jax"], d0)
+      row["stages_ms"], row["solver_detail"] = stage_times(backends["jax"], d0)
     rows.append(row)
   by = {r["engine"]: r for r in rows}
   ratios = {k: r["world_steps_per_s"] / rates["native"] for k, r in by.items() if k != "native"}
