@@ -137,7 +137,8 @@ def stage_times(backend, d0, repeats: int = 3) -> tuple[dict, dict]:
     compiled = jax.jit(jax.vmap(f)).lower(d).compile()
     d_next = jax.block_until_ready(compiled(d))
     best = min(_timed(compiled, d) for _ in range(repeats))
-    solver_input = d if name == "solver" else solver_input
+    if name == "solver":
+      solver_input = d
     out[name], d = 1e3 * best, d_next
   compiled = jax.jit(jax.vmap(lambda d: backend.mjx_step(mx, d))).lower(d0).compile()
   jax.block_until_ready(compiled(d0))

@@ -78,11 +78,11 @@ RESTART_FRACTIONS = (0.85, 0.6, 0.35)
 # fixing one that only worse worlds meet throws the search's progress away.
 FIX_MARGIN = 2
 # On a plateau every repair starts one round later (an earlier restart, pairs
-# and single queries in turn) each STALL_STEP refinements without a better best world. A world
-# with as many unmet queries as tries otherwise only ever gets round 0 (each
-# query alone, late): on SIGGRAPH none of 472 such repairs of a world meeting
-# 12 of 16 met more (scripts/refinement_yield.py), as moving a letter across
-# slots needs an early restart.
+# and single queries in turn) each STALL_STEP refinements without a better
+# best world. A world with as many unmet queries as tries otherwise only ever
+# gets round 0 (each query alone, late): on SIGGRAPH none of 472 such repairs
+# of a world meeting 12 of 16 met more (scripts/refinement_yield.py), as
+# moving a letter across slots needs an early restart.
 STALL_STEP = 10
 
 
