@@ -125,7 +125,7 @@ class Browser:
   def path_segments(self) -> dict:
     """{path class: segments drawn now} (what the page redraws each frame)."""
     with self.lock:
-      return {name.split("/", 1)[1]: int(h.points.shape[0]) for name, h in self._handles.items()
+      return {name.split("/", 1)[1]: drawing.segments_drawn(h) for name, h in self._handles.items()
               if name.startswith("paths/")}
 
   # -- scene ------------------------------------------------------------------------------
@@ -339,12 +339,16 @@ class Browser:
     except MwbxError as err:
       self._say(f"error: {err}")
       return
-    with self.lock:
+    # The poses and the text go out as one batch, at once: the page applies a
+    # batch that touches the scene at its next frame, and viser otherwise
+    # sends what is queued at its next window (up to 1/60 s later).
+    with self.lock, self.server.atomic():
       self.player.play(world, add=add)
       self.playing_world = world
       shown = ", ".join(f"world {w}" for w in self.player.played)
       self.playing_md.content = f"playing **{shown}**"
       self.lineage_md.content = "\n".join(f"- {line}" for line in self.session.lineage(world))
+    self.server.flush()
     print(f"mwbx browse: playing world {world}" + (" (added)" if add else ""), flush=True)
 
   def _layout(self) -> None:

@@ -2,7 +2,9 @@
 
 Paths: the selected bodies' COM polylines of every valid world in the three
 classes and colours of :data:`mwbx.viewer.display.PATH_RGBA` (the meshcat
-viewer's too), each thinned to MAX_PATH_SEGMENTS. Volumes: the outline of
+viewer's too), each thinned to MAX_PATH_SEGMENTS. A class a pixel wide (the
+faint one, most of the paths) goes to the page as native WebGL lines
+(:mod:`mwbx.browser.glb`), the others as viser's wider lines. Volumes: the outline of
 every enabled box query, its far face cut to the scene's size, and the rays
 from the camera it was drawn through.
 """
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mwbx.browser import glb
 from mwbx.viewer import display
 
 # Each class of paths (faint, matching, excluded) draws at most this many
@@ -18,6 +21,11 @@ from mwbx.viewer import display
 MAX_PATH_SEGMENTS = 60_000
 BUDGET = {name: MAX_PATH_SEGMENTS for name in display.PATH_CLASSES}
 THICKNESS = {"faint": 1.0, "match": 2.0, "exclude": 2.0}
+# Classes this thin are drawn as native lines (one draw call, always a pixel
+# wide): viser's lines are one instanced quad a segment, which software WebGL
+# pays per segment every frame (20-body play bench: 6.9 frames/s playing with
+# them, 11.2 with the faint class as native lines, 12.8 with no paths).
+NATIVE_THICKNESS = 1.0
 # Paths are drawn within this fraction of the scene's diagonal of every
 # recorded point (display.simplify_polylines): well under a pixel at the
 # first view, and a body flying straight or lying still costs a segment, not
@@ -48,14 +56,31 @@ def draw_paths(server, handles: dict, bank, bodies: np.ndarray, match: np.ndarra
   left_out = {}
   for layer in display.path_layers(bank.com, np.asarray(bank.com_count), bodies, classes, BUDGET, simplify):
     left_out[layer.name] = layer.left_out
-    old = handles.pop(f"paths/{layer.name}", None)
-    if old is not None:
+    key = f"paths/{layer.name}"
+    old = handles.pop(key, None)
+    if THICKNESS[layer.name] <= NATIVE_THICKNESS and layer.segments.shape[0]:
+      data = glb.line_segments(layer.segments, path_rgb(layer.rgba))
+      # The page frees a replaced GLB's meshes but not its lines: an unchanged class is kept.
+      if old is not None and getattr(old, "glb_data", None) == data:
+        handles[key] = old
+        continue
+    if old is not None:  # before adding: a node's removal goes by its name
       old.remove()
-    if layer.segments.shape[0]:
-      handles[f"paths/{layer.name}"] = server.scene.add_line_segments(
-          f"/paths/{layer.name}", layer.segments, path_rgb(layer.rgba),
+    if not layer.segments.shape[0]:
+      continue
+    if THICKNESS[layer.name] <= NATIVE_THICKNESS:
+      handles[key] = server.scene.add_glb(f"/{key}", data, cast_shadow=False, receive_shadow=False)
+    else:
+      handles[key] = server.scene.add_line_segments(
+          f"/{key}", layer.segments, path_rgb(layer.rgba),
           thickness=THICKNESS[layer.name], thickness_units="screen")
   return left_out
+
+
+def segments_drawn(handle) -> int:
+  """Segments a path handle of :func:`draw_paths` draws (native lines or viser's)."""
+  data = getattr(handle, "glb_data", None)
+  return glb.segment_count(data) if data is not None else int(handle.points.shape[0])
 
 
 def draw_frustums(server, handles: dict, entries, max_depth: float | None = None) -> None:

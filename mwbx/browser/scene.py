@@ -6,13 +6,18 @@ used, and reused for every world played in it afterwards: playing a world
 only moves the slot's body frames (poses), relabels it and shows it. The
 scene's static geometry is drawn once; side by side, slot k > 0 gets its own
 copy of it (uploaded once too), and every slot moves to its cell of a grid.
+A plane is drawn as a grid of lines over its declared size, not as a filled
+slab (software WebGL shades every pixel of a floor that fills half the view).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import mujoco
 import numpy as np
 
+from mwbx.browser import glb
 from mwbx.errors import MwbxError
 from mwbx.viewer import geometry as vgeom
 from mwbx.viewer import triangles
@@ -28,6 +33,52 @@ GRID_GAP = 0.15
 # Meshes neither cast nor receive shadows: shadow passes redraw the scene per
 # light for every frame, which software WebGL cannot afford while a world plays.
 NO_SHADOWS = {"cast_shadow": False, "receive_shadow": False}
+# A plane's grid: about this many cells along its longer side, the spacing
+# rounded to 1, 2 or 5 times a power of ten (metres), and the line colour
+# the plane's blended this far towards the page's white background.
+PLANE_GRID_CELLS = 20
+PLANE_GRID_FADE = 0.4
+
+
+class StaticMesh(NamedTuple):
+  """A static geom drawn as a mesh: f32[V, 3] vertices (m), i32[F, 3] faces,
+  sRGB 0-255, its world pose, and its opacity (None: opaque)."""
+
+  name: str
+  vertices: np.ndarray
+  faces: np.ndarray
+  rgb: tuple[int, int, int]
+  wxyz: np.ndarray
+  position: np.ndarray
+  opacity: float | None
+
+
+class StaticLines(NamedTuple):
+  """A static plane drawn as a grid of lines: a GLB of :mod:`mwbx.browser.glb`
+  in the plane's frame, and the plane's world pose."""
+
+  name: str
+  glb_data: bytes
+  wxyz: np.ndarray
+  position: np.ndarray
+
+
+def grid_spacing(length: float, cells: int = PLANE_GRID_CELLS) -> float:
+  """The round spacing (1, 2 or 5 x 10^k metres) nearest above ``length / cells``."""
+  raw = max(float(length) / cells, 1e-6)
+  power = 10.0 ** np.floor(np.log10(raw))
+  return float(next(m * power for m in (1.0, 2.0, 5.0, 10.0) if m * power >= raw * (1 - 1e-9)))
+
+
+def plane_grid(half_x: float, half_y: float) -> np.ndarray:
+  """f32[N, 2, 3] a plane's grid in its own frame (z = 0, the surface): lines
+  at multiples of :func:`grid_spacing` from the centre, and the border, metres."""
+  step = grid_spacing(2 * max(half_x, half_y))
+  xs = np.unique(np.concatenate([np.arange(0, half_x, step), -np.arange(0, half_x, step), [-half_x, half_x]]))
+  ys = np.unique(np.concatenate([np.arange(0, half_y, step), -np.arange(0, half_y, step), [-half_y, half_y]]))
+  along_y = [[[x, -half_y, 0.0], [x, half_y, 0.0]] for x in xs]
+  along_x = [[[-half_x, y, 0.0], [half_x, y, 0.0]] for y in ys]
+  return np.asarray(along_y + along_x, np.float32)
 
 
 def _mesh(geometry) -> tuple[np.ndarray, np.ndarray]:
@@ -60,6 +111,7 @@ class Stage:
 
   Attributes:
     visuals: the model's visuals (:func:`mwbx.viewer.geometry.scene_visuals`).
+    static: the geoms that never move (:class:`StaticMesh`, planes :class:`StaticLines`).
     moving: body id -> [(name, vertices, faces, rgb, wxyz, position)] of its geoms.
     body_ids: i64[B] the moving bodies, in slot order.
     uploads: meshes sent to the clients so far (a replay sends none).
@@ -72,13 +124,16 @@ class Stage:
     self.static: list = []
     self.moving: dict = {}
     for v in self.visuals:
+      if v.static and int(model.geom_type[v.geom_id]) == mujoco.mjtGeom.mjGEOM_PLANE:
+        self.static.append(self._plane(v))
+        continue
       verts, faces = _mesh(v.geometry)
       wxyz, pos = _pose(v.local)
-      item = (v.name, verts, faces, _rgb(v.rgba), wxyz, pos, None if v.rgba.a >= 1 else float(v.rgba.a))
       if v.static:
-        self.static.append(item)
+        self.static.append(StaticMesh(v.name, verts, faces, _rgb(v.rgba), wxyz, pos,
+                                      None if v.rgba.a >= 1 else float(v.rgba.a)))
       else:
-        self.moving.setdefault(int(v.body_id), []).append(item[:6])
+        self.moving.setdefault(int(v.body_id), []).append((v.name, verts, faces, _rgb(v.rgba), wxyz, pos))
     self.body_ids = np.array(sorted(self.moving), np.int64)
     lo, hi = (np.asarray(e, np.float64) for e in extent)
     size = np.maximum(hi - lo, 1e-3)
@@ -87,9 +142,27 @@ class Stage:
     self.uploads = 0
     self._slots: list = []  # per slot: (root frame, {body id: frame}, [mesh handles], label)
     self._copies: dict = {}  # slot -> frame holding a copy of the static scene
-    for name, verts, faces, rgb, wxyz, pos, opacity in self.static:
-      server.scene.add_mesh_simple(f"/scene/{name}", verts, faces, color=rgb, wxyz=wxyz, position=pos,
-                                   opacity=opacity, **NO_SHADOWS)
+    for item in self.static:
+      self._add_static(f"/scene/{item.name}", item)
+
+  @staticmethod
+  def _plane(v) -> StaticLines:
+    """A static plane visual's grid, on its surface (the slab's top face,
+    PLANE_THICKNESS above the slab's centre)."""
+    half_x, half_y = (float(l) / 2 for l in v.geometry.lengths[:2])
+    surface = v.local @ np.block([[np.eye(3), np.array([[0.0], [0.0], [vgeom.PLANE_THICKNESS / 2]])],
+                                  [np.zeros((1, 3)), np.ones((1, 1))]])
+    wxyz, pos = _pose(surface)
+    colour = (1 - PLANE_GRID_FADE) * np.asarray(v.rgba[:3], np.float64) + PLANE_GRID_FADE
+    rgb = tuple(int(round(255 * c)) for c in colour)
+    return StaticLines(v.name, glb.line_segments(plane_grid(half_x, half_y), rgb), wxyz, pos)
+
+  def _add_static(self, path: str, item: StaticMesh | StaticLines) -> None:
+    if isinstance(item, StaticLines):
+      self.server.scene.add_glb(path, item.glb_data, wxyz=item.wxyz, position=item.position, **NO_SHADOWS)
+    else:
+      self.server.scene.add_mesh_simple(path, item.vertices, item.faces, color=item.rgb, wxyz=item.wxyz,
+                                        position=item.position, opacity=item.opacity, **NO_SHADOWS)
 
   def offset(self, slot: int) -> np.ndarray:
     """f64[3] where slot ``slot`` sits: the origin overlaid, its grid cell side by side."""
@@ -150,9 +223,8 @@ class Stage:
     for k in range(1, MAX_SLOTS):
       if on and k not in self._copies and self.static:
         self._copies[k] = scene.add_frame(f"/copies/s{k}", show_axes=False, position=self.offset(k))
-        for name, verts, faces, rgb, wxyz, pos, opacity in self.static:
-          scene.add_mesh_simple(f"/copies/s{k}/{name}", verts, faces, color=rgb, wxyz=wxyz, position=pos,
-                                opacity=opacity, **NO_SHADOWS)
+        for item in self.static:
+          self._add_static(f"/copies/s{k}/{item.name}", item)
           self.uploads += 1
       if k in self._copies:
         self._copies[k].visible = on and k < len(self._slots) and self._slots[k][0].visible

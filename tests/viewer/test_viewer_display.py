@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mwbx import queries as mq
-from mwbx.browser import drawing
+from mwbx.browser import drawing, glb
 from mwbx.viewer import display, frustums, paths
 from mwbx.viewer.errors import ViewerError
 
@@ -245,6 +245,10 @@ class _Scene:
   def add_line_segments(self, name, points, colors, **kwargs):
     self.lines[name] = (np.asarray(points), tuple(int(c) for c in colors))
     return types.SimpleNamespace(remove=lambda: self.lines.pop(name, None))
+
+  def add_glb(self, name, glb_data, **kwargs):  # native lines: read back from the file
+    self.lines[name] = glb.read_line_segments(glb_data)
+    return types.SimpleNamespace(remove=lambda: self.lines.pop(name, None), glb_data=glb_data)
 
 
 def test_meshcat_and_page_draw_paths_in_the_table_colours():
