@@ -28,6 +28,7 @@ from mujoco.mjx._src import collision_driver, constraint, forward as mjx_forward
 from mujoco.mjx._src import solver
 from mujoco.mjx._src.types import IntegratorType
 
+from mwbx.batch_sim import mjx_packed_solve
 from mwbx.errors import MwbxError
 
 # A gap this close to zero counts as overlap (float32 rounding), m.
@@ -92,9 +93,10 @@ def collision(m, d):
   return d.tree_replace({"_impl.contact": contact})
 
 
-def forward(m, d):
-  """``mjx.forward`` (impl jax) with :func:`collision`: the same stages in
-  the same order (``forward.fwd_position`` and ``forward.forward``)."""
+def before_solve(m, d):
+  """``mjx.forward`` (impl jax) up to its constraint solve, with
+  :func:`collision`: the same stages in the same order
+  (``forward.fwd_position`` and ``forward.forward``)."""
   d = smooth.kinematics(m, d)
   d = smooth.com_pos(m, d)
   d = smooth.camlight(m, d)
@@ -109,19 +111,44 @@ def forward(m, d):
   d = mjx_forward.fwd_velocity(m, d)
   d = sensor.sensor_vel(m, d)
   d = mjx_forward.fwd_actuation(m, d)
-  d = mjx_forward.fwd_acceleration(m, d)
+  return mjx_forward.fwd_acceleration(m, d)
+
+
+def forward(m, d):
+  """``mjx.forward`` (impl jax) with :func:`collision`, for one world."""
+  d = before_solve(m, d)
   if d._impl.efc_J.size == 0:  # pylint: disable=protected-access
     return d.replace(qacc=d.qacc_smooth)
   d = solver.solve(m, d)
   return sensor.sensor_acc(m, d)
 
 
-def step(m, d):
-  """``mjx.step`` (impl jax) with :func:`collision`."""
+def _integrator(m):
   # RK4 is left out: MJX's rungekutta4 calls its own forward (and collision) inside.
   integrate = {IntegratorType.EULER: mjx_forward.euler,
                IntegratorType.IMPLICITFAST: mjx_forward.implicit}.get(m.opt.integrator)
   if integrate is None:
     raise MwbxError(f"integrator {IntegratorType(m.opt.integrator).name}: the MJX backend (impl jax) runs"
                     " Euler and implicitfast; use the native backend or mjx_impl: warp")
-  return integrate(m, forward(m, d))
+  return integrate
+
+
+def step(m, d):
+  """``mjx.step`` (impl jax) with :func:`collision`, for one world (the
+  reference :func:`batched_step` is held to)."""
+  return _integrator(m)(m, forward(m, d))
+
+
+def batched_step(m, d):
+  """:func:`step` of a batch (``d``: ``mjx.Data`` with a world axis), its
+  constraint solve over the batch's rows in use
+  (:func:`mjx_packed_solve.solve_batch`: the same accelerations, float32
+  rounding aside); the other stages vmapped as they are."""
+  integrate = _integrator(m)
+  d = jax.vmap(before_solve, in_axes=(None, 0))(m, d)
+  if d._impl.efc_J.shape[-2] == 0:  # pylint: disable=protected-access
+    d = d.replace(qacc=d.qacc_smooth)
+  else:
+    d = mjx_packed_solve.solve_batch(m, d)
+    d = jax.vmap(sensor.sensor_acc, in_axes=(None, 0))(m, d)
+  return jax.vmap(integrate, in_axes=(None, 0))(m, d)

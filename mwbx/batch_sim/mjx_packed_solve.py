@@ -1,0 +1,97 @@
+"""MJX's constraint solve (impl ``jax``) over a batch's rows in use only.
+
+A contact budget gives every world the rows of its most crowded moment (588
+on SIGGRAPH: 147 contact slots, four pyramidal rows each), and MJX's Newton
+solver builds its Hessian from all of them every iteration. A slot without a
+contact has a zero Jacobian row: it adds a constant to the cost and nothing
+to the Hessian, the gradient or the acceleration. Early in a SIGGRAPH run 51
+of 588 rows per world are in use (at most 124 in a world of 64).
+
+:func:`solve_batch` therefore solves each world over its rows packed first
+(:func:`solve_rows`: equality, friction and limit rows kept in place, then
+the contact rows with a non-zero Jacobian, then zero rows up to the cap),
+with the smallest cap of :func:`row_caps` that holds the batch's most rows in
+use, picked per batched step by ``lax.switch`` (one compiled solve per cap).
+A cap that holds every row in use solves the same problem, so the
+accelerations are the full solve's up to float32 rounding
+(``tests/batch_sim/test_mjx_packed_solve.py``, against ``solver.solve`` on
+all rows); the forces of the rows left out are what the full solve gives a
+zero row. Only pyramidal cones are packed (an elliptic cone's rows are
+addressed per contact); other models take MJX's solve unchanged.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+from mujoco.mjx._src import solver
+from mujoco.mjx._src.types import ConeType
+
+# The caps tried, as shares of the budget's rows (the last cap is every row:
+# MJX's own solve). A cap is rounded up to whole groups of ROW_GROUP rows.
+ROW_CAP_SHARES = (0.125, 0.25, 0.5, 0.75)
+ROW_GROUP = 8
+
+
+def _fixed_rows(d) -> int:
+  """Rows before the contacts (equality, friction, limits): never packed."""
+  impl = d._impl  # pylint: disable=protected-access
+  return int(impl.ne + impl.nf + impl.nl)
+
+
+def row_caps(n_rows: int, n_fixed: int) -> tuple[int, ...]:
+  """The caps (rows solved per world) for a budget of ``n_rows`` rows whose
+  first ``n_fixed`` are not contacts: increasing, the last ``n_rows``."""
+  caps = set()
+  for share in ROW_CAP_SHARES:
+    contact_rows = -(-int(share * (n_rows - n_fixed)) // ROW_GROUP) * ROW_GROUP
+    if 0 < n_fixed + contact_rows < n_rows:
+      caps.add(n_fixed + contact_rows)
+  return tuple(sorted(caps)) + (n_rows,)
+
+
+def rows_in_use(d) -> jax.Array:
+  """i32[]: one world's rows the solve needs: the fixed rows and every
+  contact row with a non-zero Jacobian."""
+  impl = d._impl  # pylint: disable=protected-access
+  fixed = _fixed_rows(d)
+  return fixed + jnp.any(impl.efc_J[fixed:] != 0, axis=-1).sum(dtype=jnp.int32)
+
+
+def solve_rows(m, d, cap: int):
+  """``solver.solve`` of one world over ``cap`` rows: the fixed rows, then its
+  contact rows with a non-zero Jacobian first. Exact when ``cap`` >=
+  :func:`rows_in_use`; returns ``d`` with every row (forces scattered back)."""
+  impl = d._impl  # pylint: disable=protected-access
+  n_rows = impl.efc_J.shape[0]
+  if cap >= n_rows:
+    return solver.solve(m, d)
+  fixed = _fixed_rows(d)
+  zero = ~jnp.any(impl.efc_J[fixed:] != 0, axis=-1)
+  order = jnp.concatenate([jnp.arange(fixed), fixed + jnp.argsort(zero, stable=True)[:cap - fixed]])
+  fields = ("efc_J", "efc_D", "efc_aref", "efc_frictionloss", "efc_force")
+  packed = d.replace(_impl=impl.replace(nefc=cap, **{f: getattr(impl, f)[order] for f in fields}))
+  out = solver.solve(m, packed)
+  # A contact row with a zero Jacobian has J qacc - aref = -aref: the full
+  # solve's pyramidal force there is D * aref where that is active (< 0).
+  left_out = jnp.where(impl.efc_aref > 0, impl.efc_D * impl.efc_aref, 0.0)
+  force = left_out.at[order].set(out._impl.efc_force)  # pylint: disable=protected-access
+  return out.replace(_impl=impl.replace(efc_force=force))
+
+
+def solve_batch(m, d):
+  """``jax.vmap(solver.solve)`` of a batch (``d``: batched ``mjx.Data``) over
+  the smallest cap of :func:`row_caps` that holds the batch's most rows in
+  use (one world's rows packed by :func:`solve_rows`)."""
+  impl = d._impl  # pylint: disable=protected-access
+  n_rows = impl.efc_J.shape[-2]
+  if m.opt.cone != ConeType.PYRAMIDAL:
+    return jax.vmap(solver.solve, in_axes=(None, 0))(m, d)
+  caps = row_caps(n_rows, _fixed_rows(d))
+  most = jax.vmap(rows_in_use)(d).max()
+  branch = jnp.searchsorted(jnp.asarray(caps, jnp.int32), most)  # the first cap >= most
+  solves = [functools.partial(lambda cap, x: jax.vmap(solve_rows, in_axes=(None, 0, None))(m, x, cap), cap)
+            for cap in caps]
+  return jax.lax.switch(jnp.minimum(branch, len(caps) - 1), solves, d)

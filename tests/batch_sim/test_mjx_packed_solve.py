@@ -1,0 +1,94 @@
+"""The MJX step's solve over the batch's rows in use (mjx_packed_solve) gives
+the accelerations and forces of MJX's solve over every row, on the SIGGRAPH
+letters in the peg board and piling into the slots."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mwbx
+from conftest import REPO
+from mwbx.batch_sim import mjx_backend, mjx_collision, mjx_packed_solve
+from mwbx.batch_sim.sampler import resolve_contact_budget
+from mujoco.mjx._src import solver
+
+from test_mjx_solver_limits import TIMES, _states
+
+# Packed and full solves agree to this share of the world's largest |qacc|
+# (and |efc_force|): the same problem, summed in another order in float32.
+QACC_TOLERANCE = 1e-4
+# One whole step's velocity, as a share of dt |qacc| + |qvel| (see below).
+STEP_TOLERANCE = 1e-2
+
+
+def test_row_caps():
+  assert mjx_packed_solve.row_caps(588, 0) == (80, 152, 296, 448, 588)
+  assert mjx_packed_solve.row_caps(100, 10) == (26, 34, 58, 82, 100)
+  assert mjx_packed_solve.row_caps(8, 0) == (8,)  # too few rows to pack
+
+
+@pytest.fixture(scope="module")
+def siggraph():
+  config = mwbx.load_config(REPO / "configs" / "siggraph.yaml")
+  scene = mwbx.Scene(config)
+  backend = mjx_backend.backend_for(scene, "jax", resolve_contact_budget(scene, config.sim.mjx))
+  return scene, backend
+
+
+def _scaled_error(a, b):
+  scale = np.abs(b).max(axis=-1, keepdims=True)
+  return float((np.abs(a - b) / np.maximum(scale, 1e-6)).max())
+
+
+@pytest.mark.parametrize("seconds", TIMES)
+def test_packed_step_matches_the_full_step(siggraph, seconds):
+  scene, backend = siggraph
+  mx = backend.mx
+  qpos, qvel = _states(scene.model, seconds)
+  d = backend.make_data(jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32))
+  d = d.replace(xfrc_applied=jnp.zeros_like(d.xfrc_applied))
+  ready = jax.jit(jax.vmap(mjx_collision.before_solve, in_axes=(None, 0)))(mx, d)
+  n_rows = ready._impl.efc_J.shape[-2]
+  used = np.asarray(jax.vmap(mjx_packed_solve.rows_in_use)(ready))
+  caps = mjx_packed_solve.row_caps(n_rows, 0)
+  assert 0 < used.max() <= caps[-2], (used, caps)  # a smaller cap is used: the packed path runs
+  assert seconds > TIMES[0] or used.max() <= caps[1]  # in the peg board: a quarter of the rows or fewer
+  full = jax.jit(jax.vmap(solver.solve, in_axes=(None, 0)))(mx, ready)
+  packed = jax.jit(mjx_packed_solve.solve_batch)(mx, ready)
+  assert _scaled_error(np.asarray(packed.qacc), np.asarray(full.qacc)) <= QACC_TOLERANCE
+  assert _scaled_error(np.asarray(packed._impl.efc_force), np.asarray(full._impl.efc_force)) <= QACC_TOLERANCE
+  assert packed._impl.efc_J.shape == full._impl.efc_J.shape  # every row kept in the data
+  # Each cap that holds the rows in use gives the same answer; the whole step too.
+  for cap in caps:
+    if cap >= used.max():
+      one = jax.jit(jax.vmap(mjx_packed_solve.solve_rows, in_axes=(None, 0, None)), static_argnums=2)(mx, ready, cap)
+      assert _scaled_error(np.asarray(one.qacc), np.asarray(full.qacc)) <= QACC_TOLERANCE, cap
+  stepped = jax.jit(mjx_collision.batched_step)(mx, d)
+  reference = jax.jit(jax.vmap(mjx_collision.step, in_axes=(None, 0)))(mx, d)
+  qacc = np.asarray(reference.qacc)
+  assert _scaled_error(np.asarray(stepped.qacc), qacc) <= QACC_TOLERANCE
+  # The step's velocity: dt times a force. The solver can stop at its 20
+  # iterations short of convergence (a heaped world), and its constraint
+  # force, which Euler's damping uses, then depends on the row order more
+  # than the accelerations do (measured: 4e-3 of the force, 5e-6 of qacc).
+  dt = float(scene.model.opt.timestep)
+  scale = dt * np.abs(qacc).max(axis=1, keepdims=True) + np.abs(np.asarray(reference.qvel)).max(axis=1, keepdims=True)
+  assert (np.abs(np.asarray(stepped.qvel) - np.asarray(reference.qvel)) <= STEP_TOLERANCE * scale).all()
+  assert (np.abs(np.asarray(stepped.qpos) - np.asarray(reference.qpos)) <= STEP_TOLERANCE * dt * scale + 1e-6).all()
+
+
+def test_a_too_small_cap_is_not_chosen(siggraph):
+  """With more rows in use than a cap, the batch takes a larger one (here:
+  a world made to use every row by a Jacobian of ones)."""
+  scene, backend = siggraph
+  mx = backend.mx
+  qpos, qvel = _states(scene.model, TIMES[0])
+  d = backend.make_data(jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32))
+  ready = jax.jit(jax.vmap(mjx_collision.before_solve, in_axes=(None, 0)))(mx, d)
+  dense = ready._impl.efc_J.at[0].set(1e-3)  # world 0: every row non-zero
+  ready = ready.replace(_impl=ready._impl.replace(efc_J=dense))
+  assert int(jax.vmap(mjx_packed_solve.rows_in_use)(ready).max()) == dense.shape[-2]
+  full = jax.jit(jax.vmap(solver.solve, in_axes=(None, 0)))(mx, ready)
+  packed = jax.jit(mjx_packed_solve.solve_batch)(mx, ready)
+  assert _scaled_error(np.asarray(packed.qacc), np.asarray(full.qacc)) <= QACC_TOLERANCE
