@@ -60,13 +60,18 @@ PUBLISHED = [
 ]
 
 
+def _commit() -> str:
+  """HEAD's short hash, with "+changes" where the package differs from it."""
+  git = lambda *a: subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True).stdout.strip()
+  changed = git("status", "--porcelain", "--untracked-files=all", "--", "mwbx")
+  return git("rev-parse", "--short", "HEAD") + ("+changes" if changed else "")
+
+
 def machine() -> dict:
   """Where this ran: platform, cores, JAX device, load average at the start."""
   info = {"platform": platform.platform(), "machine": platform.machine(), "cores": os.cpu_count(),
           "jax": jax.__version__, "jax_backend": jax.default_backend(), "mujoco": mujoco.__version__,
-          "load_average": os.getloadavg()[0],
-          "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
-                                   text=True).stdout.strip()}
+          "load_average": os.getloadavg()[0], "commit": _commit()}
   if jax.default_backend() != "cpu":
     info["device"] = jax.devices()[0].device_kind
   return info

@@ -92,6 +92,10 @@ def solve_batch(m, d):
   caps = row_caps(n_rows, _fixed_rows(d))
   most = jax.vmap(rows_in_use)(d).max()
   branch = jnp.searchsorted(jnp.asarray(caps, jnp.int32), most)  # the first cap >= most
-  solves = [functools.partial(lambda cap, x: jax.vmap(solve_rows, in_axes=(None, 0, None))(m, x, cap), cap)
-            for cap in caps]
-  return jax.lax.switch(jnp.minimum(branch, len(caps) - 1), solves, d)
+
+  def solve(cap, x):  # only what the solve writes leaves the switch (not the whole data)
+    out = jax.vmap(solve_rows, in_axes=(None, 0, None))(m, x, cap)
+    return out.qacc, out.qfrc_constraint, out._impl.efc_force  # pylint: disable=protected-access
+  qacc, qfrc_constraint, efc_force = jax.lax.switch(
+      jnp.minimum(branch, len(caps) - 1), [functools.partial(solve, cap) for cap in caps], d)
+  return d.tree_replace({"qacc": qacc, "qfrc_constraint": qfrc_constraint, "_impl.efc_force": efc_force})
