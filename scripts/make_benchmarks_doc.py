@@ -377,8 +377,10 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
                   "from outside it, so the wall clock above is coarse): press → \"playing world N\" shown "
                   f"{b['in_page_shown_median']:.0f} ms median (p95 {b['in_page_shown_p95']:.0f}); press → the "
                   f"next frame begins (the world drawn) {drawn:.0f} ms (p95 {b['in_page_drawn_p95']:.0f}). "
-                  f"Goal ≤ 200 ms to the world drawn: {'met' if drawn <= 200 else 'missed'}. Software WebGL "
-                  "shares the two cores, so a frame takes ~100 ms and the answer waits for the one in progress."]
+                  f"Goal ≤ 200 ms to the world drawn: {'met' if drawn <= 200 else 'missed'} in this run "
+                  "(runs differ: [browser](browser.md#on-the-page)). Software WebGL shares the two cores, so a "
+                  f"frame takes ~{1e3 / b['playing_frames_per_s']:.0f} ms while a world plays, and the answer "
+                  "waits for the one in progress."]
       elif "load_average" in p:
         lines[-1] += (f" Goal ≤ 200 ms ({'met' if b['median'] <= 200 else 'missed'}). On busy cores the same "
                       "click takes several times as long: software WebGL shares them.")
@@ -555,13 +557,14 @@ def _previous_and_stages(d: dict) -> list[str]:
     stages = (now or {}).get("stages_ms")
     if stages:
       solver = s.get("mjx_solver", {})
-      parts = ", ".join(f"{k} {v:,.1f}" for k, v in stages.items() if k != "whole step")
-      top = max((k for k in stages if k != "whole step"), key=stages.get)
+      apart = {"whole step", "solver (every row)"}  # not parts of the step
+      parts = ", ".join(f"{k} {v:,.1f}" for k, v in stages.items() if k not in apart)
+      top = max((k for k in stages if k not in apart), key=stages.get)
       in_scan = 1e3 * now["batch"] / now["world_steps_per_s"]
       lines += ["", f"Where a {scene} mjx:jax step goes (ms per batched step of {now['batch']}, each part "
                 f"jitted apart on the timed states; solver limits {solver.get('iterations')} / "
                 f"{solver.get('ls_iterations')}): {parts}; together "
-                f"{sum(v for k, v in stages.items() if k != 'whole step'):,.0f}, against {in_scan:,.0f} per "
+                f"{sum(v for k, v in stages.items() if k not in apart):,.0f}, against {in_scan:,.0f} per "
                 f"step in the timed scan. The largest part is the {top}. The whole step jitted alone, "
                 f"outside a scan, took {stages['whole step']:,.0f} ms"
                 + (": far more than in the scan, not understood, and not what a run pays."
@@ -570,30 +573,38 @@ def _previous_and_stages(d: dict) -> list[str]:
       if detail:
         lines[-1] += (f" The solver's input has {detail['rows']} constraint rows per world, of which "
                       f"{detail['nonzero_rows_mean']:.0f} (mean over the batch) have a non-zero Jacobian: "
-                      "the others are budget slots without a contact, and each Newton iteration still "
-                      f"pays for them. One dense Hessian build over all rows ({detail['rows']} × "
-                      f"{detail['nv']}², every world) takes {detail['hessian_build_ms']:.1f} ms and its "
-                      f"Cholesky {detail['cholesky_ms']:.1f} ms per batched step.")
+                      "the others are budget slots without a contact. One dense Hessian build over all "
+                      f"rows ({detail['rows']} × {detail['nv']}², every world) takes "
+                      f"{detail['hessian_build_ms']:.1f} ms and its Cholesky {detail['cholesky_ms']:.1f} ms "
+                      "per batched step.")
+      if "solver (every row)" in stages:
+        lines[-1] += (f" The step solves over the batch's rows in use (`mjx_packed_solve`): "
+                      f"{stages['solver']:,.1f} ms, against {stages['solver (every row)']:,.1f} ms for MJX's "
+                      "solve over every row on the same states.")
   return lines
 
 
 def _what_limits(s: dict, r: dict) -> str:
   """One paragraph: what holds SIGGRAPH's mjx:jax step back, from its budget and stage times."""
   b, stages = s["budget"], r.get("stages_ms") or {}
+  rows = 4 * b["max_contact_points"]
   text = ("What limits it: MJX's arrays have fixed shapes, so every step of every world pays for its whole "
           f"budget, not for the contacts it has: the narrow phase of up to {b['max_geom_pairs']} pairs in each "
-          f"collision-function group (box-box, capsule-box) and a dense Newton solver over "
-          f"{b['max_contact_points']} contact slots × 4 pyramidal rows ({4 * b['max_contact_points']} rows, "
-          f"each iteration building the {'nv' if 'nv' not in s else s['nv']}-square Hessian from all of them), "
-          "while MuJoCo C runs only the contacts present, sparsely.")
+          f"collision-function group (box-box, capsule-box) and the constraint rows of "
+          f"{b['max_contact_points']} contact slots × 4 pyramidal rows ({rows} rows), while MuJoCo C runs "
+          "only the contacts present, sparsely.")
+  if "solver (every row)" in stages:
+    text += (" The dense Newton solver runs over the batch's rows in use, packed first (the smallest of a "
+             f"few compiled caps that holds them, `mjx_packed_solve`): {stages['solver']:,.0f} ms against "
+             f"{stages['solver (every row)']:,.0f} ms over all {rows}; each of its iterations still "
+             f"factors a {s.get('nv', 'nv')}-square Hessian per world.")
   if stages:
     text += (f" Of a {1e3 * r['batch'] / r['world_steps_per_s']:,.0f} ms batched step ({r['batch']} worlds) the solver takes "
              f"{stages.get('solver', 0):,.0f} ms and collision {stages.get('collision', 0):,.0f} ms "
              f"(parts timed apart); at {r['world_steps_per_s']:,.0f} world-steps/s the goal needs the step "
-             f"{1500 / r['world_steps_per_s']:.0f}× cheaper on these {s['machine']['cores']} shared cores. The budget is what the "
+             f"{1500 / r['world_steps_per_s']:.1f}× cheaper on these {s['machine']['cores']} shared cores. The budget is what the "
              "scene needs at its most crowded (letters heaped in the slots at the end), and a smaller one "
-             "flags worlds instead: the step cannot shrink to the contacts present without giving up "
-             "fixed shapes. What was tried and measured, and the active contacts per phase against the "
+             "flags worlds instead. What was tried and measured, and the active contacts per phase against the "
              "budget: [sampling](sampling.md#contact-budgets-mjx).")
   return text
 

@@ -1,8 +1,9 @@
 """The MJX backend: the whole lockstep loop as one jitted ``lax.scan``.
 
 A block of frames runs on device as a scan over frames whose body is a scan
-over the physics steps of one frame (the MJX step vmapped over worlds: on
-impl jax, :func:`mjx_collision.step`, MJX's with a box broadphase), then
+over the physics steps of one frame (the MJX step of the batch: on impl jax,
+:func:`mjx_collision.batched_step`, MJX's with a box broadphase and the
+solve over the batch's rows in use; on warp, ``mjx.step`` vmapped), then
 the bookkeeping kernel on the frame's observations. Finished worlds are frozen with ``jnp.where`` (lockstep);
 the host only copies out the recorded frames after each block. This is the
 path for GPUs and TPUs.
