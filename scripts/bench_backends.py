@@ -138,9 +138,9 @@ def stage_times(backend, d0, repeats: int = 3) -> tuple[dict, dict]:
   stages = [("smooth (position)", each(position)), ("collision", each(lambda d: mjx_collision.collision(mx, d))),
             ("constraint rows", each(lambda d: constraint.make_constraint(mx, d))),
             ("smooth (velocity)", each(velocity)),
-            # The solve the step runs (over the batch's rows in use) and MJX's over every row.
-            ("solver", lambda d: mjx_packed_solve.solve_batch(mx, d)),
-            ("solver (every row)", each(lambda d: solver.solve(mx, d)))]
+            # The solve the step runs (MJX's, over every row) and the opt-in one over the rows in use.
+            ("solver", each(lambda d: solver.solve(mx, d))),
+            ("solver (packed rows)", lambda d: mjx_packed_solve.solve_batch(mx, d))]
   out, d, solver_input = {}, d0, None
   for name, f in stages:  # each stage from the states the previous ones give
     compiled = jax.jit(f).lower(d).compile()
@@ -149,7 +149,7 @@ def stage_times(backend, d0, repeats: int = 3) -> tuple[dict, dict]:
     if name == "solver":
       solver_input = d
     out[name] = 1e3 * best
-    if name != "solver":  # the full solve starts from the same states
+    if name != "solver (packed rows)":  # it starts from the states the solver had
       d = d_next
   compiled = jax.jit(lambda d: backend.batched_step(mx, d)).lower(d0).compile()
   jax.block_until_ready(compiled(d0))
@@ -242,11 +242,11 @@ def bench_scene(name: str, args) -> dict:
         lambda q, v: jax.vmap(lambda q, v: bare_base.replace(qpos=q, qvel=v))(q, v),
         qpos0, qvel0, args.bare_steps)
   backends = {}
-  for impl in ("jax", "warp"):
-    if impl in args.engines:
-      backend = backends[impl] = mjx_backend.backend_for(scene, impl, budget)
-      engines[f"mjx:{impl}"] = mjx_engine(backend.step, backend.make_data, qpos0, qvel0, args.steps,
-                                          backend.overflow)
+  for impl, name, packed in (("jax", "jax", False), ("jax", "packed", True), ("warp", "warp", False)):
+    if name in args.engines:
+      backend = backends[name] = mjx_backend.backend_for(scene, impl, budget, pack_rows=packed)
+      key = "mjx:jax packed" if packed else f"mjx:{impl}"
+      engines[key] = mjx_engine(backend.step, backend.make_data, qpos0, qvel0, args.steps, backend.overflow)
   rates = {"native": 0.0, **{k: 0.0 for k in engines}}
   extra = {k: {} for k in engines}
   for _ in range(args.repeats):  # alternate, keep each one's best: the machine is shared
@@ -262,6 +262,7 @@ def bench_scene(name: str, args) -> dict:
            "ratio_to_native": rates[key] / rates["native"], **extra[key]}
     row["what"] = {"mjx:bare": "jax.vmap(mjx.step), no budget",
                    "mjx:jax": "MJX impl jax, box broadphase, contact budget, solver limits",
+                   "mjx:jax packed": "mjx:jax, the solve over the batch's rows in use (opt-in pack_rows)",
                    "mjx:warp": "MuJoCo Warp via MJX, pools from the budget"}[key]
     if args.cost and key == "mjx:warp":  # its kernels are custom calls: XLA's cost analysis sees nothing
       row["cost"] = {"error": "MuJoCo Warp's kernels are custom calls XLA's cost analysis does not see into"}
@@ -302,7 +303,8 @@ def time_sample(worlds: int) -> dict:
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--scenes", default=",".join(SCENES), help="shipped scene names or config paths")
-  parser.add_argument("--engines", default="bare,jax,warp", help="MJX engines to run besides native")
+  parser.add_argument("--engines", default="bare,jax,warp",
+                      help="MJX engines to run besides native (bare, jax, packed: jax with pack_rows, warp)")
   parser.add_argument("--batch", type=int, default=64, help="worlds per batch (every engine)")
   parser.add_argument("--steps", type=int, default=50, help="steps per timed run of mjx:jax and mjx:warp")
   parser.add_argument("--bare-steps", type=int, default=5, help="steps per timed run of bare MJX (slow)")

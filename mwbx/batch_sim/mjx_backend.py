@@ -1,9 +1,9 @@
 """The MJX backend: the whole lockstep loop as one jitted ``lax.scan``.
 
 A block of frames runs on device as a scan over frames whose body is a scan
-over the physics steps of one frame (the MJX step of the batch: on impl jax,
-:func:`mjx_collision.batched_step`, MJX's with a box broadphase and the
-solve over the batch's rows in use; on warp, ``mjx.step`` vmapped), then
+over the physics steps of one frame (the MJX step vmapped over worlds: on
+impl jax, :func:`mjx_collision.step`, MJX's with a box broadphase; with
+``pack_rows``, :func:`mjx_collision.batched_step`), then
 the bookkeeping kernel on the frame's observations. Finished worlds are frozen with ``jnp.where`` (lockstep);
 the host only copies out the recorded frames after each block. This is the
 path for GPUs and TPUs.
@@ -106,7 +106,8 @@ def _per_world(tree, path) -> bool:
   return warp_types._BATCH_DIM["Data"].get(tree_path_to_attr_str(path), True)  # pylint: disable=protected-access
 
 
-def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=None) -> "MjxBackend":
+def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=None,
+                pack_rows: bool = False) -> "MjxBackend":
   """The MJX backend of a scene under a contact budget (the entry point for
   sampling and benchmarks: ``backend.make_data`` and ``backend.step`` are one
   budgeted batched step, ``backend.overflow`` its flag).
@@ -116,11 +117,11 @@ def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=
     impl: ``jax`` or ``warp``.
     budget: the budget (:func:`mwbx.batch_sim.sampler.resolve_contact_budget`:
       the config's ``sim.mjx`` values, the rest from a native pilot).
-    devices: as for :class:`MjxBackend`.
+    devices, pack_rows: as for :class:`MjxBackend`.
   """
   # impl jax reads its caps from the model's numerics; warp sizes its pools from the budget.
   model = contact_budget.budgeted_model(scene, budget) if impl == "jax" else scene.model
-  return MjxBackend(model, impl, devices, budget=budget)
+  return MjxBackend(model, impl, devices, budget=budget, pack_rows=pack_rows)
 
 
 class MjxBackend:
@@ -133,10 +134,15 @@ class MjxBackend:
     devices: the devices a batch is split over (default: this process's).
     budget: the :class:`contact_budget.ContactBudget` (impl ``warp`` sizes its
       contact and constraint pools from it; None: MuJoCo Warp's defaults).
+    pack_rows: impl ``jax``: solve over the batch's constraint rows in use
+      (:mod:`mwbx.batch_sim.mjx_packed_solve`; faster while few contacts are
+      touching). Off by default: the cap it picks depends on the other
+      worlds of the batch, so a world is then no longer bit-identical across
+      runs that give it other companions (the same to float32 rounding).
   """
 
   def __init__(self, model: mujoco.MjModel, impl: str = "jax", devices=None,
-               budget: contact_budget.ContactBudget | None = None):
+               budget: contact_budget.ContactBudget | None = None, pack_rows: bool = False):
     self.model = model
     self.impl = impl
     self.budget = budget
@@ -148,9 +154,9 @@ class MjxBackend:
     self.mx = self._put(model)
     # impl jax: MJX's step with pairs culled by world bounding boxes (what the budget is sized for).
     self.mjx_step = mjx_collision.step if impl == "jax" else mjx.step
-    # A batch's step: on impl jax the solve runs over the batch's rows in use.
-    self.batched_step = (mjx_collision.batched_step if impl == "jax"
-                         else jax.vmap(mjx.step, in_axes=(None, 0)))
+    # A batch's step (with pack_rows on impl jax: the solve over the batch's rows in use).
+    self.batched_step = (mjx_collision.batched_step if impl == "jax" and pack_rows
+                         else jax.vmap(self.mjx_step, in_axes=(None, 0)))
     # impl jax: flags a step that may have dropped contacts (never misses one).
     self.check = contact_budget.JaxOverflowCheck(model) if impl == "jax" else None
     self._quiet_mx = None

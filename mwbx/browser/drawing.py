@@ -4,9 +4,9 @@ Paths: the selected bodies' COM polylines of every valid world in the three
 classes and colours of :data:`mwbx.viewer.display.PATH_RGBA` (the meshcat
 viewer's too), each thinned to MAX_PATH_SEGMENTS. A class a pixel wide (the
 faint one, most of the paths) goes to the page as native WebGL lines
-(:mod:`mwbx.browser.glb`), the others as viser's wider lines. Volumes: the outline of
-every enabled box query, its far face cut to the scene's size, and the rays
-from the camera it was drawn through.
+(:mod:`mwbx.browser.glb`), the others as viser's wider lines. Volumes: the
+outline of every enabled box query, its far face cut to the scene's size,
+and the rays from the camera it was drawn through.
 """
 
 from __future__ import annotations
