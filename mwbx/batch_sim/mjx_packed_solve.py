@@ -52,25 +52,30 @@ def row_caps(n_rows: int, n_fixed: int) -> tuple[int, ...]:
   return tuple(sorted(caps)) + (n_rows,)
 
 
+def contact_rows_in_use(d) -> jax.Array:
+  """bool[rows - fixed]: one world's contact rows with a non-zero Jacobian."""
+  impl = d._impl  # pylint: disable=protected-access
+  return jnp.any(impl.efc_J[_fixed_rows(d):] != 0, axis=-1)
+
+
 def rows_in_use(d) -> jax.Array:
   """i32[]: one world's rows the solve needs: the fixed rows and every
   contact row with a non-zero Jacobian."""
-  impl = d._impl  # pylint: disable=protected-access
-  fixed = _fixed_rows(d)
-  return fixed + jnp.any(impl.efc_J[fixed:] != 0, axis=-1).sum(dtype=jnp.int32)
+  return _fixed_rows(d) + contact_rows_in_use(d).sum(dtype=jnp.int32)
 
 
-def solve_rows(m, d, cap: int):
+def solve_rows(m, d, cap: int, in_use: jax.Array | None = None):
   """``solver.solve`` of one world over ``cap`` rows: the fixed rows, then its
-  contact rows with a non-zero Jacobian first. Exact when ``cap`` >=
+  contact rows with a non-zero Jacobian first (``in_use``:
+  :func:`contact_rows_in_use`, computed here when None). Exact when ``cap`` >=
   :func:`rows_in_use`; returns ``d`` with every row (forces scattered back)."""
   impl = d._impl  # pylint: disable=protected-access
   n_rows = impl.efc_J.shape[0]
   if cap >= n_rows:
     return solver.solve(m, d)
   fixed = _fixed_rows(d)
-  zero = ~jnp.any(impl.efc_J[fixed:] != 0, axis=-1)
-  order = jnp.concatenate([jnp.arange(fixed), fixed + jnp.argsort(zero, stable=True)[:cap - fixed]])
+  in_use = contact_rows_in_use(d) if in_use is None else in_use
+  order = jnp.concatenate([jnp.arange(fixed), fixed + jnp.argsort(~in_use, stable=True)[:cap - fixed]])
   fields = ("efc_J", "efc_D", "efc_aref", "efc_frictionloss", "efc_force")
   packed = d.replace(_impl=impl.replace(nefc=cap, **{f: getattr(impl, f)[order] for f in fields}))
   out = solver.solve(m, packed)
@@ -89,13 +94,15 @@ def solve_batch(m, d):
   n_rows = impl.efc_J.shape[-2]
   if m.opt.cone != ConeType.PYRAMIDAL:
     return jax.vmap(solver.solve, in_axes=(None, 0))(m, d)
-  caps = row_caps(n_rows, _fixed_rows(d))
-  most = jax.vmap(rows_in_use)(d).max()
+  fixed = _fixed_rows(d)
+  caps = row_caps(n_rows, fixed)
+  in_use = jax.vmap(contact_rows_in_use)(d)  # bool[W, rows - fixed]
+  most = fixed + in_use.sum(axis=-1, dtype=jnp.int32).max()
   branch = jnp.searchsorted(jnp.asarray(caps, jnp.int32), most)  # the first cap >= most
 
-  def solve(cap, x):  # only what the solve writes leaves the switch (not the whole data)
-    out = jax.vmap(solve_rows, in_axes=(None, 0, None))(m, x, cap)
+  def solve(cap, x, in_use):  # only what the solve writes leaves the switch (not the whole data)
+    out = jax.vmap(solve_rows, in_axes=(None, 0, None, 0))(m, x, cap, in_use)
     return out.qacc, out.qfrc_constraint, out._impl.efc_force  # pylint: disable=protected-access
   qacc, qfrc_constraint, efc_force = jax.lax.switch(
-      jnp.minimum(branch, len(caps) - 1), [functools.partial(solve, cap) for cap in caps], d)
+      jnp.minimum(branch, len(caps) - 1), [functools.partial(solve, cap) for cap in caps], d, in_use)
   return d.tree_replace({"qacc": qacc, "qfrc_constraint": qfrc_constraint, "_impl.efc_force": efc_force})

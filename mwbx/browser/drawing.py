@@ -58,19 +58,18 @@ def draw_paths(server, handles: dict, bank, bodies: np.ndarray, match: np.ndarra
     left_out[layer.name] = layer.left_out
     key = f"paths/{layer.name}"
     old = handles.pop(key, None)
+    data = None
     if THICKNESS[layer.name] <= NATIVE_THICKNESS and layer.segments.shape[0]:
       data = glb.line_segments(layer.segments, path_rgb(layer.rgba))
-      # The page frees a replaced GLB's meshes but not its lines: an unchanged class is kept.
-      if old is not None and getattr(old, "glb_data", None) == data:
-        handles[key] = old
-        continue
+    # The page frees a replaced GLB's meshes but not its lines: an unchanged class is kept.
+    if data is not None and old is not None and getattr(old, "glb_data", None) == data:
+      handles[key] = old
+      continue
     if old is not None:  # before adding: a node's removal goes by its name
       old.remove()
-    if not layer.segments.shape[0]:
-      continue
-    if THICKNESS[layer.name] <= NATIVE_THICKNESS:
+    if data is not None:
       handles[key] = server.scene.add_glb(f"/{key}", data, cast_shadow=False, receive_shadow=False)
-    else:
+    elif layer.segments.shape[0]:
       handles[key] = server.scene.add_line_segments(
           f"/{key}", layer.segments, path_rgb(layer.rgba),
           thickness=THICKNESS[layer.name], thickness_units="screen")

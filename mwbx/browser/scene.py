@@ -150,12 +150,10 @@ class Stage:
     """A static plane visual's grid, on its surface (the slab's top face,
     PLANE_THICKNESS above the slab's centre)."""
     half_x, half_y = (float(l) / 2 for l in v.geometry.lengths[:2])
-    surface = v.local @ np.block([[np.eye(3), np.array([[0.0], [0.0], [vgeom.PLANE_THICKNESS / 2]])],
-                                  [np.zeros((1, 3)), np.ones((1, 1))]])
-    wxyz, pos = _pose(surface)
-    colour = (1 - PLANE_GRID_FADE) * np.asarray(v.rgba[:3], np.float64) + PLANE_GRID_FADE
-    rgb = tuple(int(round(255 * c)) for c in colour)
-    return StaticLines(v.name, glb.line_segments(plane_grid(half_x, half_y), rgb), wxyz, pos)
+    wxyz, centre = _pose(v.local)
+    surface = centre + v.local[:3, 2] * (vgeom.PLANE_THICKNESS / 2)  # along the slab's normal
+    rgb = v.rgba._replace(a=1.0 - PLANE_GRID_FADE).over((1.0, 1.0, 1.0))
+    return StaticLines(v.name, glb.line_segments(plane_grid(half_x, half_y), rgb), wxyz, surface)
 
   def _add_static(self, path: str, item: StaticMesh | StaticLines) -> None:
     if isinstance(item, StaticLines):
