@@ -262,7 +262,7 @@ def bench_scene(name: str, args) -> dict:
            "ratio_to_native": rates[key] / rates["native"], **extra[key]}
     row["what"] = {"mjx:bare": "jax.vmap(mjx.step), no budget",
                    "mjx:jax": "MJX impl jax, box broadphase, contact budget, solver limits",
-                   "mjx:jax packed": "mjx:jax, the solve over the batch's rows in use (opt-in pack_rows)",
+                   "mjx:jax packed": "mjx:jax, the solve over the batch's rows in use (opt-in sim.mjx.pack_rows)",
                    "mjx:warp": "MuJoCo Warp via MJX, pools from the budget"}[key]
     if args.cost and key == "mjx:warp":  # its kernels are custom calls: XLA's cost analysis sees nothing
       row["cost"] = {"error": "MuJoCo Warp's kernels are custom calls XLA's cost analysis does not see into"}

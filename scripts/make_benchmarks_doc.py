@@ -578,7 +578,7 @@ def _previous_and_stages(d: dict) -> list[str]:
                       f"{detail['hessian_build_ms']:.1f} ms and its Cholesky {detail['cholesky_ms']:.1f} ms "
                       "per batched step.")
       if "solver (packed rows)" in stages:
-        lines[-1] += (" The opt-in solve over the batch's rows in use (`pack_rows`, `mjx_packed_solve`) "
+        lines[-1] += (" The opt-in solve over the batch's rows in use (`sim.mjx.pack_rows`, `mjx_packed_solve`) "
                       f"takes {stages['solver (packed rows)']:,.1f} ms on the same states.")
   return lines
 
@@ -593,7 +593,7 @@ def _what_limits(s: dict, r: dict) -> str:
           f"{b['max_contact_points']} contact slots × 4 pyramidal rows ({rows} rows), while MuJoCo C runs "
           "only the contacts present, sparsely.")
   if "solver (packed rows)" in stages:
-    text += (" Solving over the batch's rows in use only, packed first (`pack_rows`, off by default: the "
+    text += (" Solving over the batch's rows in use only, packed first (`sim.mjx.pack_rows`, off by default: the "
              "cap depends on the batch, so a world is then bit-identical only among the same companions), "
              f"takes {stages['solver (packed rows)']:,.0f} ms against {stages.get('solver', 0):,.0f} ms; each "
              f"Newton iteration still factors a {s.get('nv', 'nv')}-square Hessian per world.")
@@ -659,7 +659,7 @@ def backends(d: dict) -> tuple[list[str], list[str]]:
                  f"({bare['world_steps_per_s']:,.0f})." if bare else ".")]
     packed = next((x for x in sig["rows"] if x["engine"] == "mjx:jax packed"), None)
     if packed:
-      lines[-1] += (f" With the opt-in solve over the batch's rows in use (`pack_rows`): "
+      lines[-1] += (f" With the opt-in solve over the batch's rows in use (`sim.mjx.pack_rows: true`): "
                     f"{packed['world_steps_per_s']:,.0f} in the same run "
                     f"({packed['world_steps_per_s'] / r['world_steps_per_s']:.2f}× the default step; "
                     f"{'meets' if packed['world_steps_per_s'] >= 1500 else 'misses'} it).")

@@ -10,6 +10,7 @@ from mujoco import mjx
 from scipy import stats
 
 import mwbx
+from mwbx.batch_sim import mjx_collision
 from test_sampler import same_world
 
 # MJX runs in float32 against MuJoCo C's float64: over 0.21 s of falling and the
@@ -145,6 +146,27 @@ def test_mjx_worlds_across_batch_shapes():
   for name in ("path_length", "collisions"):
     a, b = eights.metric(name).sum(1), sixteen.metric(name).sum(1)
     assert stats.ks_2samp(a, b).pvalue > 1e-3, name
+def test_packed_rows_from_the_config():
+  """``sim.mjx.pack_rows``: the sampler's batch solves over its rows in use
+  (mjx_packed_solve), and its worlds are the default step's over the first
+  frames to the batch-shape tolerance (another summation order)."""
+  cfg = CHAIN.model_dump(mode="json")
+  cfg["sim"]["mjx"]["pack_rows"] = True
+  packed_cfg = mwbx.config_from_dict({k: v for k, v in cfg.items() if k != "source"}, source=CHAIN.source)
+  key = jax.random.key(7)
+  with mwbx.Sampler(packed_cfg, backend="mjx", chunk_size=8) as sampler:
+    assert sampler.pack_rows and sampler.backend_label == "mjx:jax (packed rows)"
+    assert sampler.backend.batched_step is mjx_collision.batched_step
+    packed, _ = sampler.run(8, key)
+  with mwbx.Sampler(CHAIN, backend="mjx", chunk_size=8) as sampler:
+    assert not sampler.pack_rows and sampler.backend_label == "mjx:jax"
+    default, _ = sampler.run(8, key)
+  assert packed.perturbations.sum() > 0
+  for w in range(8):
+    np.testing.assert_allclose(packed.qpos_frames(w, 0, _EARLY_FRAMES), default.qpos_frames(w, 0, _EARLY_FRAMES),
+                               atol=_EARLY_TOLERANCE, rtol=0)
+
+
 def test_mjx_shards_worlds_over_devices_bit_identically(tmp_path):
   """Two CPU devices (jax_num_cpu_devices = 2, in a child process): each runs
   half of a batch, and the worlds equal a one-device run of the same
