@@ -75,3 +75,45 @@ def spare_objects(objects: Sequence[str], held: Collection[str]) -> list[str]:
   """
   spare = [o for o in objects if o not in held]
   return spare or list(objects)
+
+
+def is_place_query(query) -> bool:
+  """Whether a query asks where its bodies end up: an include query whose
+  window opens at a time and runs to the end (a letter rests in its slot for
+  the last second). Only one such place can hold a body, and other bodies
+  resting there may keep it out."""
+  return (isinstance(query, Query) and query.include and query.bodies is not None and query.window is not None
+          and query.window[0] is not None and query.window[1] is None)
+
+
+def place_variants(owner, query) -> dict[str, Query]:
+  """A place query (:func:`is_place_query`) as each object alone would meet
+  it, for every object of the scene, involved or not: {object: the query on
+  that object's bodies, mode any}; {} for any other query.
+
+  The search asks which objects rest where a query wants others
+  (:func:`occupants`): on SIGGRAPH a G left in S's slot keeps S out, so
+  repairing S moves that G too.
+
+  Example::
+
+    place_variants(bank, s_in_slot_0)['letter_G2']  # S's slot asked of G2
+  """
+  if not is_place_query(query):
+    return {}
+  return {obj: dataclasses.replace(query, bodies=tuple(f"body:{b}" for b in bodies), mode="any",
+                                   name=f"{query.name or 'query'} [{obj}]")
+          for obj, bodies in owner.objects.items() if bodies}
+
+
+def occupants(involved: Collection[str], here: Collection[str], placed: Collection[str]) -> list[str]:
+  """The objects in the way of a place query: those resting in its place
+  (``here``) that it does not ask for (not ``involved``) and that are not in
+  a place asked of them (not ``placed``: an object where it belongs is not
+  moved for another).
+
+  Example:
+    >>> occupants(["letter_S"], ["letter_G2", "letter_S", "letter_I"], {"letter_I"})
+    ['letter_G2']
+  """
+  return [o for o in here if o not in involved and o not in placed]
