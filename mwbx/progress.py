@@ -23,12 +23,15 @@ class Progress(NamedTuple):
       so it moves while worlds step in lockstep).
     total: worlds in this run.
     world_steps: physics steps run so far, summed over worlds.
+    note: what the phase has reached, shown after the rate (solving: the best
+      world and the queries it meets); empty for none.
   """
 
   phase: str
   done: float
   total: int
   world_steps: int
+  note: str = ""
 
 
 ProgressFn = Callable[[Progress], None]
@@ -76,7 +79,8 @@ class reporter:
     t0, steps0 = self.start
     if p.phase not in STEPPING_PHASES or now <= t0 or p.world_steps <= steps0:
       return ""
-    return f"{(p.world_steps - steps0) / (now - t0) / 1e3:,.0f}k world-steps/s"
+    rate = (p.world_steps - steps0) / (now - t0)
+    return f"{rate / 1e3:,.0f}k world-steps/s" if rate >= 1e4 else f"{rate:,.0f} world-steps/s"
 
   def __call__(self, p: Progress) -> None:
     now = time.perf_counter()
@@ -93,7 +97,7 @@ class reporter:
         bar = self.bars[p.phase] = tqdm(total=p.total, desc=f"{self.label}: {p.phase}", unit=_unit(p.phase),
                                         dynamic_ncols=True, file=self.stream, position=len(self.bars))
       bar.n = round(p.done, 1) if p.done % 1 else int(p.done)
-      bar.set_postfix_str(self._rate(p, now), refresh=False)
+      bar.set_postfix_str(", ".join(x for x in (self._rate(p, now), p.note) if x), refresh=False)
       bar.refresh()
       return
     if changed or frac >= self.next_line.get(p.phase, 0.0):
@@ -106,8 +110,9 @@ class reporter:
     frac = p.done / max(p.total, 1)
     eta = f", ETA {elapsed * (1 - frac) / frac:.0f} s" if 0 < frac < 1 else ""
     rate = self._rate(p, now)
+    note = f"; {p.note}" if p.note else ""
     print(f"{self.label}: {p.phase} {p.done:.0f}/{p.total} {_unit(p.phase)}s ({frac:.0%}), {elapsed:.1f} s"
-          f"{', ' + rate if rate else ''}{eta}", file=self.stream, flush=True)
+          f"{', ' + rate if rate else ''}{eta}{note}", file=self.stream, flush=True)
 
   def close(self, finished: bool = True) -> None:
     """Ends the bars; a finished run shows every phase complete."""

@@ -21,6 +21,20 @@ def test_plain_lines_are_few_and_end_at_100_percent():
   assert "ETA" in lines[3] and "world-steps/s" in lines[3]
 
 
+def test_a_report_note_follows_the_rate():
+  out = io.StringIO()
+  with reporter("solve", stream=out, interactive=False) as report:
+    report(Progress("solving", 0, 10, 0, note="best world 3: 1 of 2 met"))
+    report(Progress("solving", 5, 10, 5000, note="best world 7: 2 of 2 met"))
+  lines = out.getvalue().splitlines()
+  assert lines[0].endswith("; best world 3: 1 of 2 met"), lines
+  assert "refinements (50%)" in lines[1] and lines[1].endswith("; best world 7: 2 of 2 met"), lines
+  out = io.StringIO()
+  with reporter("solve", stream=out, interactive=True) as report:
+    report(Progress("solving", 5, 10, 5000, note="best world 7: 2 of 2 met"))
+  assert "best world 7: 2 of 2 met" in out.getvalue()
+
+
 def test_bar_completes_when_the_last_report_fell_short():
   out = io.StringIO()
   with reporter("refine", stream=out, interactive=True) as report:

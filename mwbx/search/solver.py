@@ -465,7 +465,9 @@ class _Search:
                                 int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min)))
     if self.progress is not None:
       total = self.budget.expected_refinements(self.refinements, self.elapsed(), self.spent_steps)
-      self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps))
+      best = self.steps[-1]
+      self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps,
+                             note=f"best world {best.world}: {best.satisfied} of {self.n_queries} met"))
 
   def _alone_met(self, bank: Bank) -> np.ndarray:
     if not self.alone:
@@ -581,7 +583,9 @@ class _Search:
   def result(self, reason: str, throw: bool) -> SolveResult:
     """What the search found, with one line saying so."""
     if self.progress is not None:  # the bar ends at the refinements made, not the budget's estimate
-      self.progress(Progress(SOLVE_PHASE, self.refinements, max(self.refinements, 1), self.spent_steps))
+      best = self.steps[-1]
+      self.progress(Progress(SOLVE_PHASE, self.refinements, max(self.refinements, 1), self.spent_steps,
+                             note=f"best world {best.world}: {best.satisfied} of {self.n_queries} met"))
     last = self.steps[-1]
     row = self.bank.row_of(last.world)
     unmet = tuple(_label(self.queries[q], q) for q in range(self.n_queries) if not self.met[row, q])

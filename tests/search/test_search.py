@@ -217,10 +217,14 @@ def test_cli_solve_writes_the_bank_and_its_progress(tiny_bank, tmp_path, capsys)
   queries.write_text(QUERY_FILE)
   code = cli.main(["solve", str(bank_dir), str(queries), "--budget", "12", "--samples", "16",
                    "--backend", "native"])
-  out = capsys.readouterr().out
+  captured = capsys.readouterr()
+  out = captured.out
   assert code == 0, out
   assert "solved: world" in out and "lineage" in out
   world = int(out.split("solved: world ")[1].split()[0])
+  # The progress lines say how far the best world is (the last: all met).
+  solving = [line for line in captured.err.splitlines() if "solving" in line]
+  assert solving[-1].endswith(f"; best world {world}: 2 of 2 met"), captured.err
   saved = mwbx.Bank.load(bank_dir)
   goal = mwbx.load_queries(queries, bank=saved)
   assert mwbx.evaluate(saved, goal)[saved.row_of(world)]
