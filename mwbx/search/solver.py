@@ -16,16 +16,13 @@ best-first over the bank's refinement tree:
    the later the round every world starts at: :func:`repair_plan`.
 3. The objects involved (the query's bodies' objects, or the object a joint
    query's joint belongs to; of a ``mode: any`` query, not an object that
-   alone holds another: ``_Search.repair_target``), with the objects in
-   their way (resting where a place query wants them, and not in a place
-   asked of themselves: ``_Search.occupants``), are refined from a time
+   alone holds another: ``_Search.repair_target``) are refined from a time
    before they go wrong: when they leave the nearest path of a world that
    meets the query (:func:`divergence_time`), no earlier than where an
    include query's bodies settle (:func:`settle_time`); without such a
    world, the query's deadline: an include query's window start, an exclude
    query's first entry, a joint query's window; an orientation query's
-   bodies: when they settle; no later than the objects in the way settle
-   there. A fraction of it that shrinks at each round
+   bodies: when they settle. A fraction of it that shrinks at each round
    (:data:`RESTART_FRACTIONS`).
 4. The best ``keep`` children join the bank under their parent; the others
    are dropped. A branch that stops improving is abandoned once its worlds'
@@ -59,14 +56,12 @@ import numpy as np
 from mwbx.bank import Bank
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
-from mwbx.queries import JointQuery, OrientationQuery, Query, evaluate_each, first_entry, metric, query_gaps
+from mwbx.queries import JointQuery, OrientationQuery, Query, first_entry, metric, query_gaps
 from mwbx.queries.query import as_queries, body_radii, selection_mask
 from mwbx.refinement import refine_run, sampler_for
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
 from mwbx.search.objects import alone
 from mwbx.search.objects import involved_objects
-from mwbx.search.objects import occupants
-from mwbx.search.objects import place_variants
 from mwbx.search.objects import spare_objects
 
 # Restart times of successive attempts on one world, as fractions of the time
@@ -398,13 +393,6 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       search.tries[world] = tries_per_world  # nothing to refine for these queries here
       continue
     t_goal = min(_restart_goal(search.bank, row, world, query, met) for _, query, met in targets)
-    # Objects resting in a wanted place keep the repaired ones out (on SIGGRAPH a chain of letters,
-    # each in the next one's slot, where no single move meets more): they move too, from before they
-    # settle there.
-    for obj in [o for q in chosen for o in search.occupants(row, q)]:
-      if obj not in objects:
-        objects.append(obj)
-        t_goal = min(t_goal, settle_time(search.bank, row, selection_mask(search.bank, [obj])))
     t_min = fraction * t_goal
     try:
       search.refine(world, objects, t_min, samples, keep)
@@ -431,11 +419,6 @@ class _Search:
     # mode-any queries over several objects, as each object alone meets them
     self.alone = [(q, obj, query) for q in range(len(queries)) for obj, query in alone(bank, queries[q]).items()]
     self.alone_met = self._alone_met(bank)  # bool[W, len(self.alone)]
-    # place queries, as each object alone would meet them (occupants)
-    self.involved = [set(involved_objects(bank, query)) for query in queries]
-    self.places = [(q, obj, query) for q in range(len(queries))
-                   for obj, query in place_variants(bank, queries[q]).items()]
-    self.place_met = self._place_met(bank)  # bool[W, len(self.places)]
     self.scale = typical_gaps(self.gaps)
     self.ties = metric(bank, tie_metric)
     self.steps: list[SolveStep] = []
@@ -474,27 +457,12 @@ class _Search:
       return np.zeros((bank.n_worlds, 0), bool)
     return query_gaps(bank, [query for _, _, query in self.alone]) == 0
 
-  def _place_met(self, bank: Bank) -> np.ndarray:
-    if not self.places:
-      return np.zeros((bank.n_worlds, 0), bool)
-    return np.asarray(evaluate_each(bank, [query for _, _, query in self.places]), bool)
-
-  def occupants(self, row: int, q: int) -> list[str]:
-    """The objects in the way of query ``q`` in world ``row``: resting in
-    the place it wants its own objects, and not in a place asked of
-    themselves (:func:`~mwbx.search.objects.occupants`); [] unless ``q`` is
-    a place query."""
-    here = [obj for v, (p, obj, _) in enumerate(self.places) if p == q and self.place_met[row, v]]
-    placed = {obj for v, (p, obj, _) in enumerate(self.places) if self.place_met[row, v] and obj in self.involved[p]}
-    return occupants(self.involved[q], here, placed)
-
   def _add(self, new: Bank, gaps: np.ndarray, ties: np.ndarray) -> None:
     self.bank = self.bank.append(new)
     self.gaps = np.concatenate([self.gaps, gaps])
     self.met = self.gaps == 0
     self.ties = np.concatenate([self.ties, ties])
     self.alone_met = np.concatenate([self.alone_met, self._alone_met(new)])
-    self.place_met = np.concatenate([self.place_met, self._place_met(new)])
 
   def repair_target(self, row: int, q: int) -> tuple[list[str], object, np.ndarray]:
     """What repairing query ``q`` in world ``row`` changes: (objects, the

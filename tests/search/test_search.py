@@ -415,42 +415,6 @@ def test_a_mode_any_repair_leaves_alone_the_object_holding_another_query(tiny_ba
   assert sorted(search.repair_target(0, 1)[0]) == ["striker", "target"]
 
 
-def test_a_repair_moves_the_objects_resting_in_the_wanted_place(tiny_bank):
-  """SIGGRAPH's chain (a G in S's slot, H in G's...): a place query's repair
-  also refines the objects resting where it wants its own, unless they are
-  in a place asked of them. Here the striker is asked to end where world 0's
-  target rests."""
-  end = np.asarray(tiny_bank.com)[0, int(tiny_bank.com_count[0]) - 1]
-  names = list(tiny_bank.body_names)
-  target, striker = end[names.index("target")], end[names.index("striker")]
-  assert np.linalg.norm(target - striker) > 0.02
-  wanted = Query.region(target - 0.01, target + 0.01, bodies="striker", window=(0.4, None), name="w")
-  variants = search_objects.place_variants(tiny_bank, wanted)
-  assert sorted(variants) == sorted(tiny_bank.objects) and variants["target"].bodies == ("body:target",)
-  assert search_objects.place_variants(tiny_bank, dataclasses.replace(wanted, window=None)) == {}
-  assert search_objects.place_variants(tiny_bank, dataclasses.replace(wanted, sign="exclude")) == {}
-  search = solver._Search(tiny_bank, [wanted], solver.Budget(refinements=1), jax.random.key(0),
-                          "collisions", "native", None)
-  assert not search.met[0, 0] and search.occupants(0, 0) == ["target"]
-  # The target where a query asks it to be stays: another place is not worth it.
-  held = Query.region(target - 0.01, target + 0.01, bodies="target", window=(0.4, None), name="h")
-  search = solver._Search(tiny_bank, [wanted, held], solver.Budget(refinements=1), jax.random.key(0),
-                          "collisions", "native", None)
-  assert search.met[0, 1] and search.occupants(0, 0) == []
-  # A query that does not ask where bodies end has no one in its way.
-  anytime = dataclasses.replace(wanted, window=None)
-  search = solver._Search(tiny_bank, [anytime], solver.Budget(refinements=1), jax.random.key(0),
-                          "collisions", "native", None)
-  assert search.occupants(0, 0) == []
-  # The solve loop refines the striker and the target in the way, from before the target settles.
-  only_world_0 = tiny_bank.drop(tiny_bank.world_ids[1:])
-  result = mwbx.solve(only_world_0, [wanted], budget=1, samples=4, keep=1)
-  step = result.steps[-1]
-  assert step.refined == int(tiny_bank.world_ids[0]) and sorted(step.objects) == ["striker", "target"]
-  target_settles = settle_time(only_world_0, 0, np.array([n == "target" for n in names]))
-  assert step.t_min <= RESTART_FRACTIONS[0] * target_settles + 1e-9
-
-
 def test_search_docstring_examples_run():
   for module in (search_objects, solver):
     failed, tried = doctest.testmod(module, optionflags=doctest.ELLIPSIS)[:2]
