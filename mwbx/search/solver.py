@@ -448,9 +448,12 @@ class _Search:
                                 int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min)))
     if self.progress is not None:
       total = self.budget.expected_refinements(self.refinements, self.elapsed(), self.spent_steps)
-      best = self.steps[-1]
-      self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps,
-                             note=f"best world {best.world}: {best.satisfied} of {self.n_queries} met"))
+      self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps, self._best_note()))
+
+  def _best_note(self) -> str:
+    """The progress note: the best world and the queries it meets."""
+    best = self.steps[-1]
+    return f"best world {best.world}: {best.satisfied} of {self.n_queries} met"
 
   def _alone_met(self, bank: Bank) -> np.ndarray:
     if not self.alone:
@@ -551,9 +554,8 @@ class _Search:
   def result(self, reason: str, throw: bool) -> SolveResult:
     """What the search found, with one line saying so."""
     if self.progress is not None:  # the bar ends at the refinements made, not the budget's estimate
-      best = self.steps[-1]
       self.progress(Progress(SOLVE_PHASE, self.refinements, max(self.refinements, 1), self.spent_steps,
-                             note=f"best world {best.world}: {best.satisfied} of {self.n_queries} met"))
+                             self._best_note()))
     last = self.steps[-1]
     row = self.bank.row_of(last.world)
     unmet = tuple(_label(self.queries[q], q) for q in range(self.n_queries) if not self.met[row, q])
