@@ -146,13 +146,13 @@ def test_mjx_worlds_across_batch_shapes():
   for name in ("path_length", "collisions"):
     a, b = eights.metric(name).sum(1), sixteen.metric(name).sum(1)
     assert stats.ks_2samp(a, b).pvalue > 1e-3, name
+
+
 def test_packed_rows_from_the_config():
   """``sim.mjx.pack_rows``: the sampler's batch solves over its rows in use
   (mjx_packed_solve), and its worlds are the default step's over the first
   frames to the batch-shape tolerance (another summation order)."""
-  cfg = CHAIN.model_dump(mode="json")
-  cfg["sim"]["mjx"]["pack_rows"] = True
-  packed_cfg = mwbx.config_from_dict({k: v for k, v in cfg.items() if k != "source"}, source=CHAIN.source)
+  packed_cfg = CHAIN.with_overrides(mjx=CHAIN.sim.mjx.model_copy(update={"pack_rows": True}))
   key = jax.random.key(7)
   with mwbx.Sampler(packed_cfg, backend="mjx", chunk_size=8) as sampler:
     assert sampler.pack_rows and sampler.backend_label == "mjx:jax (packed rows)"
