@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
+from mujoco import rollout as mj_rollout
 from mujoco.mjx._src import constraint, forward, smooth, solver
 
 import mwbx
@@ -86,14 +87,22 @@ def initial_states(sampler, n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def advance(model, qpos0: np.ndarray, qvel0: np.ndarray, seconds: float) -> tuple[np.ndarray, np.ndarray]:
   """The states after ``seconds`` of un-perturbed MuJoCo C from (qpos0, qvel0) f64[n, ...]: a
-  timed run from there measures the scene in contact (from t = 0 the bodies may still be falling)."""
-  qpos, qvel = qpos0.copy(), qvel0.copy()
+  timed run from there measures the scene in contact (from t = 0 the bodies may still be falling).
+  ``mujoco.rollout`` on every core, the same steps as ``mj_step`` in a loop."""
+  spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
   data = mujoco.MjData(model)
-  for w in range(len(qpos)):
+  states = np.zeros((len(qpos0), mujoco.mj_stateSize(model, spec)))
+  for w in range(len(qpos0)):
     mujoco.mj_resetData(model, data)
-    data.qpos[:], data.qvel[:] = qpos[w], qvel[w]
-    for _ in range(round(seconds / model.opt.timestep)):
-      mujoco.mj_step(model, data)
+    data.qpos[:], data.qvel[:] = qpos0[w], qvel0[w]
+    mujoco.mj_getState(model, data, states[w], spec)
+  threads = os.cpu_count() or 1
+  with mj_rollout.Rollout(nthread=threads) as pool:
+    trajectory, _ = pool.rollout(model, [mujoco.MjData(model) for _ in range(threads)], states,
+                                 nstep=round(seconds / model.opt.timestep))
+  qpos, qvel = qpos0.copy(), qvel0.copy()
+  for w in range(len(qpos0)):
+    mujoco.mj_setState(model, data, trajectory[w, -1], spec)
     qpos[w], qvel[w] = data.qpos, data.qvel
   return qpos, qvel
 
@@ -259,7 +268,8 @@ def bench_scene(name: str, args) -> dict:
   for key, (_, compile_seconds, _, d0, one) in engines.items():
     row = {"engine": key, "batch": args.batch, "steps": args.bare_steps if key == "mjx:bare" else args.steps,
            "world_steps_per_s": rates[key], "compile_s": compile_seconds,
-           "ratio_to_native": rates[key] / rates["native"], **extra[key]}
+           "ratio_to_native": rates[key] / rates["native"], "native_world_steps_per_s": rates["native"],
+           **extra[key]}
     row["what"] = {"mjx:bare": "jax.vmap(mjx.step), no budget",
                    "mjx:jax": "MJX impl jax, box broadphase, contact budget, solver limits",
                    "mjx:jax packed": "mjx:jax, the solve over the batch's rows in use (opt-in sim.mjx.pack_rows)",
@@ -320,6 +330,9 @@ def main() -> None:
   parser.add_argument("--no-cost", dest="cost", action="store_false", help="skip XLA's cost analysis")
   parser.add_argument("--time-sample", type=int, default=0, metavar="N",
                       help="also time `mwbx sample configs/siggraph.yaml --backend mjx --worlds N` once")
+  parser.add_argument("--keep-engines", action="store_true",
+                      help="keep the rows of engines not run now from --out's earlier run of the same scene"
+                           " (scripts/gpu_check.sh runs each engine in its own process)")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "backends.json"))
   args = parser.parse_args()
   args.engines = args.engines.split(",")
@@ -342,6 +355,11 @@ def main() -> None:
   for name in filter(None, args.scenes.split(",")):
     s = bench_scene(name, args)
     s["machine"] = m
+    earlier = result["scenes"].get(pathlib.Path(name).stem)
+    if args.keep_engines and earlier:  # each kept row's ratio is to the native of its own run
+      ran = {r["engine"] for r in s["rows"]}
+      s["rows"] += [r for r in earlier["rows"] if r["engine"] not in ran]
+      s["ratios"] = {**earlier.get("ratios", {}), **s["ratios"]}
     old = previous.get(pathlib.Path(name).stem)
     if old:  # the same scene's mjx:jax as an earlier commit ran it
       row = next((r for r in old["rows"] if r["engine"] == "mjx:jax"), None)

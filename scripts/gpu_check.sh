@@ -1,34 +1,61 @@
 #!/usr/bin/env bash
 # Measures mwbx's batched engines on one GPU against native MuJoCo on the same
-# machine's cores, in one run: SIGGRAPH and the trebuchet tower at 4096 worlds
-# on mjx:jax (contact budget) and mjx:warp (MuJoCo Warp), with XLA's cost
-# analysis per world-step. Writes out/bench/gpu.json; then
-# `python scripts/make_benchmarks_doc.py` turns it into the GPU rows of
-# docs/benchmarks.md. Needs an NVIDIA GPU with a CUDA 12 driver and the package
-# index (nothing else from the internet); about 5 minutes on one GPU.
+# machine's cores, in one run: SIGGRAPH at 4096 worlds and the trebuchet tower
+# at 512 on mjx:jax (contact budget) and mjx:warp (MuJoCo Warp), each timed
+# from the states after 0.6 s of MuJoCo C (bodies in contact). Writes
+# out/bench/gpu.json; then `python scripts/make_benchmarks_doc.py` turns it
+# into the GPU rows of docs/benchmarks.md. Needs an NVIDIA GPU with a CUDA 12
+# or newer driver, and either the package index or --wheels; about 5 minutes
+# on one GPU.
 #
-#   scripts/gpu_check.sh [--worlds 4096] [--python PY] [--out FILE]
+#   scripts/gpu_check.sh [--worlds 4096] [--python PY | --wheels DIR] [--out FILE]
+#                        [--scenes A,B] [--engines jax,warp] [--timeout S] [--append] [--sample N]
 #   scripts/gpu_check.sh --dry-run [--python PY]   # the same path, a tiny batch on the CPU
 #
-# --python: use this interpreter (mwbx and its gpu extra already installed)
-# instead of making the virtual environment .venv-gpu and installing into it.
+# --scenes: shipped scene names or config paths, each optionally NAME:WORLDS or
+#   NAME:WORLDS:STEPS. The tower runs 512 worlds and 5 steps a timed run: its
+#   dense constraint Jacobian alone is njmax x nv floats per world (7332 x 1185
+#   x 4 bytes = 35 MB), so 4096 worlds would need 142 GB for it.
+# --sample N: also time `mwbx sample configs/siggraph.yaml --backend mjx
+#   --worlds N` as a user first runs it (pilot, compile, recording and
+#   compression included; default 1024, 0 skips it; not in the dry run).
+# --python PY: use this interpreter (mwbx and its gpu extra already installed)
+#   instead of making the virtual environment .venv-gpu and installing into it.
+# --wheels DIR: a machine without the package index (an offline cluster node):
+#   use its own python3 and JAX (with JAX's CUDA plugin) and install only the
+#   packages it lacks (mujoco, mujoco-mjx, warp-lang, pydantic, ...) from the
+#   wheels in DIR into .gpu-site/ (pip --no-index --no-deps).
+# Each scene and engine runs in its own process, under --timeout seconds
+# (default 300; 1800 in the dry run, CPU compiles are slow) including its compile: one that runs long loses its own row,
+# not the others. Rows land in FILE as each finishes; FILE starts empty unless
+# --append (then the rows of engines not run now stay).
 set -euo pipefail
 
 ROOT="$(cd "${BASH_SOURCE[0]%/*}/.." && pwd)"
 DRY=0
 WORLDS=4096
 PY=""
+WHEELS=""
 OUT=""
-SCENES="siggraph,trebuchet_tower"
+SCENES="siggraph,trebuchet_tower:512:5"
+ENGINES="jax,warp"
+TIMEOUT=""
+APPEND=0
+SAMPLE=1024
 fail() { echo "gpu_check: $*" >&2; exit 1; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --dry-run) DRY=1 ;;
     --worlds) WORLDS="$2"; shift ;;
     --python) PY="$2"; shift ;;
+    --wheels) WHEELS="$2"; shift ;;
     --out) OUT="$2"; shift ;;
     --scenes) SCENES="$2"; shift ;;
-    *) fail "unknown argument $1 (use --dry-run, --worlds N, --python PY, --out FILE, --scenes A,B)" ;;
+    --engines) ENGINES="$2"; shift ;;
+    --timeout) TIMEOUT="$2"; shift ;;
+    --append) APPEND=1 ;;
+    --sample) SAMPLE="$2"; shift ;;
+    *) fail "unknown argument $1 (use --dry-run, --worlds N, --python PY, --wheels DIR, --out FILE, --scenes A,B, --engines jax,warp, --timeout S, --append, --sample N)" ;;
   esac
   shift
 done
@@ -37,36 +64,71 @@ done
 [ -n "$OUT" ] || { [ "$DRY" = 1 ] && OUT="$ROOT/out/bench/gpu_dry_run.json" || OUT="$ROOT/out/bench/gpu.json"; }
 
 if [ "$DRY" = 0 ]; then
-  command -v nvidia-smi >/dev/null 2>&1 || fail "no NVIDIA GPU here (nvidia-smi not found); this check needs one GPU with a CUDA 12 driver"
+  command -v nvidia-smi >/dev/null 2>&1 || fail "no NVIDIA GPU here (nvidia-smi not found); this check needs one GPU with a CUDA 12 or newer driver"
   nvidia-smi -L >/dev/null 2>&1 || fail "nvidia-smi finds no GPU (driver not loaded?)"
 fi
 
-if [ -z "$PY" ]; then
+if [ -n "$WHEELS" ]; then
+  [ -d "$WHEELS" ] || fail "--wheels $WHEELS is not a folder of wheels"
+  [ -n "$PY" ] || PY="$(command -v python3 || true)"
+  [ -n "$PY" ] || fail "python3 not found (Python 3.12 needed)"
+  SITE="$ROOT/.gpu-site"
+  "$PY" -m pip install -q --no-index --no-deps --no-compile --upgrade --target "$SITE" "$WHEELS"/*.whl \
+    || fail "pip could not install the wheels in $WHEELS (see above)"
+  export PYTHONPATH="$SITE${PYTHONPATH:+:$PYTHONPATH}"
+elif [ -z "$PY" ]; then
   VENV="$ROOT/.venv-gpu"
   command -v python3 >/dev/null 2>&1 || fail "python3 not found (Python 3.12 needed)"
   [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV" || fail "could not make the virtual environment $VENV"
   PY="$VENV/bin/python"
   # The dry run stays on the CPU: the package and MuJoCo Warp, without JAX's CUDA wheels.
-  EXTRA=".[gpu]"; [ "$DRY" = 1 ] && EXTRA="." 
+  EXTRA=".[gpu]"; [ "$DRY" = 1 ] && EXTRA="."
   "$PY" -m pip install -q --upgrade pip >/dev/null || fail "pip could not reach the package index"
   "$PY" -m pip install -q -e "$ROOT$EXTRA" || fail "pip install -e '$EXTRA' failed (see above)"
   [ "$DRY" = 1 ] && { "$PY" -m pip install -q "warp-lang==1.18.0" || fail "pip install warp-lang failed"; }
 fi
-"$PY" -c "import mwbx, warp" 2>/dev/null || fail "$PY cannot import mwbx and warp (pip install -e '.[gpu]')"
+export PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}"
+NEED="mwbx"; [[ ",$ENGINES," != *,warp,* ]] || NEED="mwbx, warp"
+"$PY" -c "import $NEED" 2>/dev/null || fail "$PY cannot import $NEED (pip install -e '.[gpu]', or --wheels DIR)"
 
 if [ "$DRY" = 1 ]; then
   export JAX_PLATFORMS=cpu
   # A tiny batch and few steps: every part runs, nothing is measured.
-  ARGS=(--batch 8 --steps 2 --native-steps 4 --repeats 1)
+  WORLDS=8 STEPS=2
+  ARGS=(--native-steps 4 --repeats 1)
+  TIMEOUT="${TIMEOUT:-1800}"
 else
-  "$PY" - <<'PY' || fail "JAX sees no GPU (jax.default_backend() is not gpu): the CUDA 12 wheels (pip install -e '.[gpu]') or a CUDA 12 driver are missing"
+  "$PY" - <<'PY' || fail "JAX sees no GPU (jax.default_backend() is not gpu): JAX's CUDA wheels (pip install -e '.[gpu]') or a CUDA 12 or newer driver are missing"
 import jax, sys
 sys.exit(0 if jax.default_backend() == "gpu" else 1)
 PY
-  ARGS=(--batch "$WORLDS" --steps 50 --native-steps 50 --repeats 2)
+  # XLA's cost analysis is left to the CPU benchmark (a second compile per engine).
+  STEPS=50
+  ARGS=(--native-steps 50 --repeats 2 --no-cost --start-time 0.6)
+  TIMEOUT="${TIMEOUT:-300}"
 fi
 
 cd "$ROOT"
-export PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}"
-"$PY" scripts/bench_backends.py --scenes "$SCENES" --engines jax,warp "${ARGS[@]}" --out "$OUT"
+[ "$APPEND" = 1 ] || rm -f "$OUT"
+missing=()
+for engine in ${ENGINES//,/ }; do
+  for spec in ${SCENES//,/ }; do
+    IFS=: read -r scene worlds steps <<< "$spec"
+    [ "$DRY" = 0 ] || worlds="" steps=""  # the dry run: always the tiny batch
+    worlds="${worlds:-$WORLDS}" steps="${steps:-$STEPS}"
+    echo "gpu_check: $scene on mjx:$engine, $worlds worlds, $steps steps a run (at most ${TIMEOUT} s)"
+    status=0
+    timeout "$TIMEOUT" "$PY" scripts/bench_backends.py --scenes "$scene" --engines "$engine" --keep-engines \
+      --batch "$worlds" --steps "$steps" "${ARGS[@]}" --out "$OUT" || status=$?
+    [ "$status" = 0 ] || missing+=("$scene on mjx:$engine (exit $status$([ "$status" = 124 ] && echo ", over ${TIMEOUT} s"))")
+  done
+done
+if [ "$DRY" = 0 ] && [ "$SAMPLE" != 0 ]; then
+  echo "gpu_check: mwbx sample configs/siggraph.yaml --backend mjx --worlds $SAMPLE (at most ${TIMEOUT} s)"
+  status=0
+  timeout "$TIMEOUT" "$PY" scripts/bench_backends.py --scenes "" --time-sample "$SAMPLE" --out "$OUT" || status=$?
+  [ "$status" = 0 ] || missing+=("mwbx sample (exit $status)")
+fi
+[ -f "$OUT" ] || fail "nothing measured; see above"
 echo "gpu_check: wrote $OUT; now: $PY scripts/make_benchmarks_doc.py"
+[ ${#missing[@]} = 0 ] || fail "not measured: ${missing[*]}"

@@ -675,16 +675,33 @@ def backends(d: dict) -> tuple[list[str], list[str]]:
 
 def gpu(d: dict) -> tuple[list[str], list[str]]:
   m = d["machine"]
-  lines = ["## Batched engines (GPU)", "",
-           "`scripts/gpu_check.sh` (`bench_backends.py` at a GPU batch, mjx:jax and mjx:warp against "
-           "native on the same machine's cores). Machine: "
-           f"{m.get('device', m['jax_backend'])}, {m['cores']} CPU cores, JAX {m['jax']}, MuJoCo {m['mujoco']}; "
-           f"commit {m['commit']}.", ""]
   if m["jax_backend"] == "cpu":
     lines = ["## Batched engines (GPU)", "", "Not measured: no GPU was available. `scripts/gpu_check.sh` "
              "measures it on one (see the README)."]
     return lines + [""], []
-  return lines + _engine_table(d) + [""], []
+  lines = ["## Batched engines (GPU)", "",
+           "`scripts/gpu_check.sh` (`bench_backends.py` at a GPU batch, mjx:jax and mjx:warp against "
+           "native on the same machine's cores, each engine in its own process with native measured "
+           "alongside: *vs native* is to that). Machine: "
+           f"{m.get('device', m['jax_backend'])}, {m['cores']} CPU cores, JAX {m['jax']}, MuJoCo {m['mujoco']}; "
+           f"commit {m['commit']}.", ""]
+  lines += _engine_table(d) + [""]
+  for scene, s in d["scenes"].items():
+    b = s["budget"]
+    natives = ", ".join(f"{r['engine']} at {r['batch']} worlds: {r['native_world_steps_per_s']:,.0f}"
+                        for r in s["rows"] if r.get("native_world_steps_per_s"))
+    lines.append(f"* {scene}: timed from t = {s.get('start_time', 0):g} s; budget max_contact_points "
+                 f"{b['max_contact_points']}, max_geom_pairs {b['max_geom_pairs']}, nconmax {b['nconmax']}, "
+                 f"njmax {b['njmax']} ({b['source']}); native alongside each engine ({natives} world-steps/s).")
+  timing = d.get("sample_timing")
+  if timing:
+    lines += ["", f"`{timing['command']}` on this machine: {timing['wall_s']:.0f} s wall for {timing['worlds']} "
+              f"worlds ({timing['valid']} valid, {timing['over_budget']} over the budget)"
+              + (f"; the sampler's summary: {timing['engine']}, {timing['sampler_world_steps_per_s']:,} "
+                 f"world-steps/s over {timing['simulate_s']:.1f} s of stepping, compile {timing['compile_s']:.1f} s, "
+                 f"compression {timing['compression_s']:.1f} s; budget {timing['budget']}"
+                 if "sampler_world_steps_per_s" in timing else "") + "."]
+  return lines + [""], []
 
 
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
