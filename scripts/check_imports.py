@@ -42,7 +42,7 @@ from typing import NamedTuple
 # re-exports the public API) sits on top with the CLI.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("foundation", (
-        "mwbx.errors", "mwbx.files", "mwbx.host_jit", "mwbx.joints",
+        "mwbx.errors", "mwbx.files", "mwbx.host_jit", "mwbx.host_device", "mwbx.joints",
         "mwbx.rotations", "mwbx.progress", "mwbx.yaml_input", "mwbx.distributed",
         "mwbx.world_ids",
     )),

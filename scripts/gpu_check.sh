@@ -129,6 +129,11 @@ if [ "$DRY" = 0 ] && [ "$SAMPLE" != 0 ]; then
   timeout "$TIMEOUT" "$PY" scripts/bench_backends.py --scenes "" --time-sample "$SAMPLE" --out "$OUT" || status=$?
   [ "$status" = 0 ] || missing+=("mwbx sample (exit $status)")
 fi
+echo "gpu_check: the codec's fit on the default device against the host CPU (at most ${TIMEOUT} s)"
+status=0
+CODEC=(--worlds 512 --frames 600); [ "$DRY" = 0 ] || CODEC=(--worlds 8 --frames 60 --repeats 1)
+timeout "$TIMEOUT" "$PY" scripts/bench_codec_device.py "${CODEC[@]}" --out "$OUT" || status=$?
+[ "$status" = 0 ] || missing+=("the codec's fit (exit $status)")
 [ -f "$OUT" ] || fail "nothing measured; see above"
 echo "gpu_check: wrote $OUT; now: $PY scripts/make_benchmarks_doc.py"
 [ ${#missing[@]} = 0 ] || fail "not measured: ${missing[*]}"

@@ -701,6 +701,17 @@ def gpu(d: dict) -> tuple[list[str], list[str]]:
                  f"world-steps/s over {timing['simulate_s']:.1f} s of stepping, compile {timing['compile_s']:.1f} s, "
                  f"compression {timing['compression_s']:.1f} s; budget {timing['budget']}"
                  if "sampler_world_steps_per_s" in timing else "") + "."]
+  codec = d.get("codec_fit")
+  if codec:
+    each = lambda where: ", ".join(f"{r['seconds']:.2f}" for r in codec["runs"] if r["fit_on"] == where)
+    size = lambda where: next(r["bytes"] for r in codec["runs"] if r["fit_on"] == where)
+    lines += ["", f"The codec's fit (`scripts/bench_codec_device.py`: {codec['worlds']} worlds × {codec['frames']} "
+              f"frames of {codec['bodies']} boxes, `encode_batch_checked`, alternating, the first of each with its "
+              f"compile): on JAX's default device ({codec['default_device']}) {each('default')} s; on the host CPU, "
+              f"where mwbx runs it (`mwbx.codec.encode.fit_device`), {each('host cpu')} s. The streams "
+              + ("are the same." if codec["same_streams"] else
+                 f"differ ({size('default'):,} against {size('host cpu'):,} bytes): float32 rounds differently "
+                 "there, so a bank compressed with the fit on the GPU would not equal one compressed on a CPU.")]
   return lines + [""], []
 
 

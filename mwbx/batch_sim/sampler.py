@@ -25,6 +25,7 @@ from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_imp
 from mwbx.batch_sim.native_backend import NativeBackend
 from mwbx.config import Config, MjxSection
 from mwbx.errors import MwbxError
+from mwbx.host_device import host_cpu
 from mwbx.progress import Progress, ProgressFn
 from mwbx.qpos_store import QposStore, RawQposStore
 from mwbx.scene import Scene
@@ -109,14 +110,17 @@ def per_world(fn):
   a partial SIMD vector differently (one world in 30 of a crate pile moved by
   an ulp with the batch size, and its metrics with it); a scan runs one
   world's program for every world. A batch of one runs as two: XLA inlines a
-  one-trip loop and compiles that differently again.
+  one-trip loop and compiles that differently again. It runs on the host's
+  CPU (:func:`mwbx.host_device.host_cpu`): a world's initial state is then
+  the same on a GPU machine as on any other.
   """
   mapped = jax.jit(lambda xs: jax.lax.map(fn, xs))
 
   def call(xs):
-    if len(xs) != 1:
-      return mapped(xs)
-    return jax.tree_util.tree_map(lambda x: x[:1], mapped(xs[np.zeros(2, np.int64)]))
+    with jax.default_device(host_cpu()):
+      if len(xs) != 1:
+        return mapped(xs)
+      return jax.tree_util.tree_map(lambda x: x[:1], mapped(xs[np.zeros(2, np.int64)]))
 
   return call
 

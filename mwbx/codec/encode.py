@@ -13,6 +13,7 @@ import concurrent.futures
 import os
 from typing import NamedTuple
 
+import jax
 import numpy as np
 
 from mwbx.codec import fit as fit_lib
@@ -22,6 +23,7 @@ from mwbx.codec.decode import KIND_ID, decode_code, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
                                initial_steps, parse, quantize_initial, serialize)
+from mwbx.host_device import host_cpu
 
 # Fraction of each bound kept back for float32 rounding inside the fit.
 FIT_MARGIN = 2.0**-6
@@ -68,6 +70,19 @@ def _fit_pool() -> concurrent.futures.ThreadPoolExecutor:
   return _POOL
 
 
+def fit_device() -> jax.Device | None:
+  """The device the fit runs on: :func:`mwbx.host_device.host_cpu`.
+
+  The codec is a host stage: its batches go to a thread per core, and a
+  bank's streams must not depend on the accelerator that simulated it. Left
+  to JAX's default device on an H200 machine, the fit gave other streams
+  than on the CPU (float32 rounds differently there) and compiled for 13.9 s
+  against 1.6 s, each new batch shape again (``scripts/bench_codec_device.py``;
+  tests/test_host_device.py checks the pin).
+  """
+  return host_cpu()
+
+
 def _columns(adrs: tuple[int, ...]) -> np.ndarray:
   return np.asarray(adrs, np.int64).reshape(-1)
 
@@ -91,6 +106,7 @@ def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
     return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, d), np.int64),
             np.zeros(0, bool))
   columns = _columns(adrs)
+  device = fit_device()
 
   def fit_batch(rows):
     m = rows.size
@@ -106,13 +122,14 @@ def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
     n_buf = np.zeros(n_pad, np.int32)
     n_buf[:m] = n[rows]
     e_buf = np.full(n_pad, e, np.float32)
-    if kind == "rot":
-      res = fit_lib.fit_rotation_batch(buf, n_buf, e_buf, np.float32(step), np.int32(coarse))
-      flag = None
-    else:
-      res = fit_lib.fit_linear_batch(buf, n_buf, e_buf, np.float32(step), np.float32(quad),
-                                     np.int32(coarse), np.int32(g_fp), gravity=kind == "pos")
-      flag = res.flag
+    with jax.default_device(device):  # thread-local: set in each of the pool's threads
+      if kind == "rot":
+        res = fit_lib.fit_rotation_batch(buf, n_buf, e_buf, np.float32(step), np.int32(coarse))
+        flag = None
+      else:
+        res = fit_lib.fit_linear_batch(buf, n_buf, e_buf, np.float32(step), np.float32(quad),
+                                       np.int32(coarse), np.int32(g_fp), gravity=kind == "pos")
+        flag = res.flag
     p_idx, f_idx = np.nonzero(np.asarray(res.ends)[:m, :t_fit])
     vel = np.asarray(res.vel)[p_idx, f_idx].astype(np.int64)
     flag = np.zeros(p_idx.size, bool) if flag is None else np.asarray(flag)[p_idx, f_idx]
