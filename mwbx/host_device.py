@@ -13,9 +13,10 @@ import jax
 
 
 def host_cpu() -> jax.Device | None:
-  """The host's first CPU device; None where JAX has no CPU backend (e.g.
-  ``JAX_PLATFORMS=cuda``), which ``jax.default_device(None)`` reads as JAX's
-  default.
+  """This process's first CPU device (a local one: under ``jax.distributed``
+  ``jax.devices("cpu")[0]`` belongs to process 0); None where JAX has no CPU
+  backend (e.g. ``JAX_PLATFORMS=cuda``), which ``jax.default_device(None)``
+  reads as JAX's default.
 
   Example::
 
@@ -23,6 +24,6 @@ def host_cpu() -> jax.Device | None:
       qpos0 = jax.jit(f)(keys)  # runs on the CPU
   """
   try:
-    return jax.devices("cpu")[0]
+    return jax.local_devices(backend="cpu")[0]
   except RuntimeError:
     return None
