@@ -47,7 +47,7 @@ from mwbx.batch_sim.sampler import world_keys
 
 # Run as `python scripts/bench_backends.py`: scripts/ is on sys.path, and the native
 # baseline is bench_sampler's bare `mujoco.rollout`, the same in both benchmarks.
-from bench_sampler import bench_rollout  # noqa: E402
+from bench_sampler import ROLLOUT_STATE, bench_rollout, rollout_states  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 SCENES = ("quickstart", "pachinko", "toss", "siggraph", "spiral_staircase", "refrigerator_toy", "trebuchet_tower")
@@ -89,20 +89,14 @@ def advance(model, qpos0: np.ndarray, qvel0: np.ndarray, seconds: float) -> tupl
   """The states after ``seconds`` of un-perturbed MuJoCo C from (qpos0, qvel0) f64[n, ...]: a
   timed run from there measures the scene in contact (from t = 0 the bodies may still be falling).
   ``mujoco.rollout`` on every core, the same steps as ``mj_step`` in a loop."""
-  spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-  data = mujoco.MjData(model)
-  states = np.zeros((len(qpos0), mujoco.mj_stateSize(model, spec)))
-  for w in range(len(qpos0)):
-    mujoco.mj_resetData(model, data)
-    data.qpos[:], data.qvel[:] = qpos0[w], qvel0[w]
-    mujoco.mj_getState(model, data, states[w], spec)
   threads = os.cpu_count() or 1
   with mj_rollout.Rollout(nthread=threads) as pool:
-    trajectory, _ = pool.rollout(model, [mujoco.MjData(model) for _ in range(threads)], states,
-                                 nstep=round(seconds / model.opt.timestep))
+    trajectory, _ = pool.rollout(model, [mujoco.MjData(model) for _ in range(threads)],
+                                 rollout_states(model, qpos0, qvel0), nstep=round(seconds / model.opt.timestep))
+  data = mujoco.MjData(model)
   qpos, qvel = qpos0.copy(), qvel0.copy()
   for w in range(len(qpos0)):
-    mujoco.mj_setState(model, data, trajectory[w, -1], spec)
+    mujoco.mj_setState(model, data, trajectory[w, -1], ROLLOUT_STATE)
     qpos[w], qvel[w] = data.qpos, data.qvel
   return qpos, qvel
 

@@ -59,14 +59,23 @@ def bench_mj_step(model, qpos0, qvel0, n_steps, n_worlds):
   return n_worlds * n_steps / (time.perf_counter() - start)
 
 
-def bench_rollout(model, qpos0, qvel0, n_steps, threads):
-  spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+ROLLOUT_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+def rollout_states(model, qpos0, qvel0) -> np.ndarray:
+  """f64[n, state]: the ``ROLLOUT_STATE`` of each world reset to (qpos0, qvel0) f64[n, ...],
+  what ``mujoco.rollout`` starts from."""
   data = mujoco.MjData(model)
-  states = np.zeros((len(qpos0), mujoco.mj_stateSize(model, spec)))
+  states = np.zeros((len(qpos0), mujoco.mj_stateSize(model, ROLLOUT_STATE)))
   for w in range(len(qpos0)):
     mujoco.mj_resetData(model, data)
     data.qpos[:], data.qvel[:] = qpos0[w], qvel0[w]
-    mujoco.mj_getState(model, data, states[w], spec)
+    mujoco.mj_getState(model, data, states[w], ROLLOUT_STATE)
+  return states
+
+
+def bench_rollout(model, qpos0, qvel0, n_steps, threads):
+  states = rollout_states(model, qpos0, qvel0)
   datas = [mujoco.MjData(model) for _ in range(threads)]
   with mj_rollout.Rollout(nthread=threads) as pool:
     start = time.perf_counter()

@@ -26,8 +26,8 @@
 #   packages it lacks (mujoco, mujoco-mjx, warp-lang, pydantic, ...) from the
 #   wheels in DIR into .gpu-site/ (pip --no-index --no-deps).
 # Each scene and engine runs in its own process, under --timeout seconds
-# (default 300; 1800 in the dry run, CPU compiles are slow) including its compile: one that runs long loses its own row,
-# not the others. Rows land in FILE as each finishes; FILE starts empty unless
+# (default 300; 1800 in the dry run, CPU compiles are slow) including its
+# compile: one that runs long loses its own row, not the others. Rows land in FILE as each finishes; FILE starts empty unless
 # --append (then the rows of engines not run now stay).
 set -euo pipefail
 
@@ -111,29 +111,32 @@ fi
 cd "$ROOT"
 [ "$APPEND" = 1 ] || rm -f "$OUT"
 missing=()
+# measure LABEL COMMAND...: runs one part under the time limit; a failure is
+# named at the end instead of stopping the others.
+measure() {
+  local label="$1" status=0
+  shift
+  timeout "$TIMEOUT" "$@" || status=$?
+  # (the substitution must succeed: an assignment's status is its substitution's, and set -e)
+  [ "$status" = 0 ] || missing+=("$label (exit $status$([ "$status" != 124 ] || echo ", over ${TIMEOUT} s"))")
+}
 for engine in ${ENGINES//,/ }; do
   for spec in ${SCENES//,/ }; do
     IFS=: read -r scene worlds steps <<< "$spec"
     [ "$DRY" = 0 ] || worlds="" steps=""  # the dry run: always the tiny batch
     worlds="${worlds:-$WORLDS}" steps="${steps:-$STEPS}"
     echo "gpu_check: $scene on mjx:$engine, $worlds worlds, $steps steps a run (at most ${TIMEOUT} s)"
-    status=0
-    timeout "$TIMEOUT" "$PY" scripts/bench_backends.py --scenes "$scene" --engines "$engine" --keep-engines \
-      --batch "$worlds" --steps "$steps" "${ARGS[@]}" --out "$OUT" || status=$?
-    [ "$status" = 0 ] || missing+=("$scene on mjx:$engine (exit $status$([ "$status" = 124 ] && echo ", over ${TIMEOUT} s"))")
+    measure "$scene on mjx:$engine" "$PY" scripts/bench_backends.py --scenes "$scene" --engines "$engine" \
+      --keep-engines --batch "$worlds" --steps "$steps" "${ARGS[@]}" --out "$OUT"
   done
 done
 if [ "$DRY" = 0 ] && [ "$SAMPLE" != 0 ]; then
   echo "gpu_check: mwbx sample configs/siggraph.yaml --backend mjx --worlds $SAMPLE (at most ${TIMEOUT} s)"
-  status=0
-  timeout "$TIMEOUT" "$PY" scripts/bench_backends.py --scenes "" --time-sample "$SAMPLE" --out "$OUT" || status=$?
-  [ "$status" = 0 ] || missing+=("mwbx sample (exit $status)")
+  measure "mwbx sample" "$PY" scripts/bench_backends.py --scenes "" --time-sample "$SAMPLE" --out "$OUT"
 fi
 echo "gpu_check: the codec's fit on the default device against the host CPU (at most ${TIMEOUT} s)"
-status=0
 CODEC=(--worlds 256 --frames 600); [ "$DRY" = 0 ] || CODEC=(--worlds 8 --frames 60 --repeats 1)
-timeout "$TIMEOUT" "$PY" scripts/bench_codec_device.py "${CODEC[@]}" --out "$OUT" || status=$?
-[ "$status" = 0 ] || missing+=("the codec's fit (exit $status)")
+measure "the codec's fit" "$PY" scripts/bench_codec_device.py "${CODEC[@]}" --out "$OUT"
 [ -f "$OUT" ] || fail "nothing measured; see above"
 echo "gpu_check: wrote $OUT; now: $PY scripts/make_benchmarks_doc.py"
 [ ${#missing[@]} = 0 ] || fail "not measured: ${missing[*]}"

@@ -45,6 +45,18 @@ def test_gpu_check_names_a_missing_wheel_folder(tmp_path):
   assert result.stderr.strip() == f"gpu_check: --wheels {missing} is not a folder of wheels"
 
 
+def test_gpu_check_names_a_part_that_failed_and_runs_the_rest(tmp_path):
+  # A scene that cannot load fails its own part; the codec's part still runs and lands in the file.
+  missing, out = tmp_path / "nosuch.yaml", tmp_path / "gpu.json"
+  result = subprocess.run(
+      ["/bin/bash", str(SCRIPT), "--dry-run", "--python", sys.executable, "--engines", "jax",
+       "--scenes", str(missing), "--out", str(out)],
+      capture_output=True, text=True, timeout=900, env={**os.environ, "PYTHONPATH": str(REPO)})
+  assert result.returncode == 1
+  assert result.stderr.strip().splitlines()[-1] == f"gpu_check: not measured: {missing} on mjx:jax (exit 1)"
+  assert set(json.loads(out.read_text())) == {"codec_fit"}
+
+
 @pytest.mark.slow
 def test_gpu_check_dry_run_end_to_end(tmp_path):
   # About a minute of CPU (compiling the jax and warp steps of the tiny scene): 69 s user time on a
