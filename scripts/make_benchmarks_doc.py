@@ -694,14 +694,19 @@ def gpu(d: dict) -> tuple[list[str], list[str]]:
     lines.append(f"* {scene}: timed from t = {s.get('start_time', 0):g} s; budget max_contact_points "
                  f"{b['max_contact_points']}, max_geom_pairs {b['max_geom_pairs']}, nconmax {b['nconmax']}, "
                  f"njmax {b['njmax']} ({b['source']}); native alongside each engine ({natives} world-steps/s).")
-  timing = d.get("sample_timing")
-  if timing:
-    lines += ["", f"`{timing['command']}` on this machine: {timing['wall_s']:.0f} s wall for {timing['worlds']} "
-              f"worlds ({timing['valid']} valid, {timing['over_budget']} over the budget)"
-              + (f"; the sampler's summary: {timing['engine']}, {timing['sampler_world_steps_per_s']:,} "
-                 f"world-steps/s over {timing['simulate_s']:.1f} s of stepping, compile {timing['compile_s']:.1f} s, "
-                 f"compression {timing['compression_s']:.1f} s; budget {timing['budget']}"
-                 if "sampler_world_steps_per_s" in timing else "") + "."]
+  # gpu_check.sh's one timed run, or runs recorded one by one (each with its commit and how it was run)
+  runs = d.get("sample_runs") or ([d["sample_timing"]] if d.get("sample_timing") else [])
+  if runs:
+    lines += ["", "`mwbx sample` on this machine:", ""]
+  for timing in runs:
+    lines.append(f"* `{timing['command']}`" + (f" (commit {timing['commit']})" if timing.get("commit") else "")
+                 + f": {timing['wall_s']:.0f} s wall for {timing['worlds']} worlds ({timing['valid']} valid, "
+                 f"{timing['over_budget']} over the budget)"
+                 + (f"; the sampler's summary: {timing['engine']}, {timing['sampler_world_steps_per_s']:,} "
+                    f"world-steps/s over {timing['simulate_s']:.1f} s of stepping, compile {timing['compile_s']:.1f} s, "
+                    f"compression {timing['compression_s']:.1f} s; budget {timing['budget']}"
+                    if "sampler_world_steps_per_s" in timing else "")
+                 + (f"; {timing['note']}" if timing.get("note") else "") + ".")
   codec = d.get("codec_fit")
   if codec:
     each = lambda where: ", ".join(f"{r['seconds']:.2f}" for r in codec["runs"] if r["fit_on"] == where)
