@@ -178,6 +178,10 @@ class SolveStep(NamedTuple):
     seconds: wall time. satisfied: queries the best world meets.
     world: the best world's id. refined: the world refined in this step (-1: none).
     objects: objects refined. t_min: restart time, s (nan: none).
+    repaired: names (or indices) of the queries the refinement aimed at, and
+      ``attempt``: the refinements from that world before this one. With the
+      search's seed they say why each refinement was made: the path is the
+      same on every run (only ``seconds`` differ).
   """
 
   refinements: int
@@ -188,6 +192,8 @@ class SolveStep(NamedTuple):
   refined: int
   objects: tuple[str, ...]
   t_min: float
+  repaired: tuple[str, ...] = ()
+  attempt: int = -1
 
 
 class SolveResult(NamedTuple):
@@ -400,7 +406,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       search.tries[world] = tries_per_world
       reason = f"world {world}: {err}"
       continue
-    search.note(world, objects, t_min)
+    search.note(world, objects, t_min, tuple(_label(queries[q], q) for q in chosen), attempt)
   return search.result(reason, throw)
 
 
@@ -439,13 +445,14 @@ class _Search:
     f = fitness(self.gaps[rows], self.scale)
     return rows[np.lexsort((self.ties[rows], -f))]
 
-  def note(self, refined: int = -1, objects=(), t_min: float = float("nan")) -> None:
+  def note(self, refined: int = -1, objects=(), t_min: float = float("nan"), repaired=(), attempt: int = -1) -> None:
     """Records a step (the best world now) and reports progress."""
     bank = self.bank
     rows = self.best_rows(np.flatnonzero(bank.valid)) if bank.valid.any() else np.zeros(0, int)
     row = rows[0] if rows.size else 0
     self.steps.append(SolveStep(self.refinements, self.spent_steps, self.elapsed(), int(self.met[row].sum()),
-                                int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min)))
+                                int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min),
+                                tuple(repaired), int(attempt)))
     if self.progress is not None:
       total = self.budget.expected_refinements(self.refinements, self.elapsed(), self.spent_steps)
       self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps, self._best_note()))

@@ -174,6 +174,11 @@ def test_solve_reaches_a_reachable_goal(tiny_bank):
   steps = result.steps
   assert steps[-1].satisfied == 2 and steps[0].refined == -1
   assert all(a.world_steps <= b.world_steps for a, b in zip(steps, steps[1:]))
+  # Each refinement says which queries it aimed at and which try on its world it was.
+  names = {q.name for q in REACHABLE}
+  refined = [s for s in steps if s.refined >= 0]
+  assert refined and all(s.repaired and set(s.repaired) <= names and s.attempt >= 0 for s in refined)
+  assert steps[0].repaired == () and steps[0].attempt == -1
 
 
 def test_solve_out_of_budget_ends_with_the_best_world_and_a_message(tiny_bank):
