@@ -236,6 +236,7 @@ def test_cli_solve_writes_the_bank_and_its_progress(tiny_bank, tmp_path, capsys)
   assert (tmp_path / "tiny-solve.png").stat().st_size > 1000
   history = json.loads((tmp_path / "tiny-solve.json").read_text())
   assert history["solved"] and history["steps"][-1]["satisfied"] == 2
+  assert all(step["repaired"] for step in history["steps"] if step["refined"] >= 0)  # what each refinement aimed at
   # A goal out of reach: exit status 1 with the message, the bank still written.
   far = tmp_path / "far.yaml"
   far.write_text(QUERY_FILE + "  - name: far_flies\n    region: {min: [1, -1, 1], max: [2, 1, 2]}\n"
