@@ -27,8 +27,9 @@
 #   wheels in DIR into .gpu-site/ (pip --no-index --no-deps).
 # Each scene and engine runs in its own process, under --timeout seconds
 # (default 300; 1800 in the dry run, CPU compiles are slow) including its
-# compile: one that runs long loses its own row, not the others. Rows land in FILE as each finishes; FILE starts empty unless
-# --append (then the rows of engines not run now stay).
+# compile: one that runs long loses its own row, not the others. Rows land in
+# FILE as each finishes; FILE starts empty unless --append (then the rows of
+# engines not run now stay).
 set -euo pipefail
 
 ROOT="$(cd "${BASH_SOURCE[0]%/*}/.." && pwd)"
