@@ -387,6 +387,33 @@ def test_refinement_yield_counts_each_refinement_once_by_its_parent(tiny_bank):
   assert (out["active"] >= 1).all()
 
 
+def test_restart_probe_reports_what_each_restart_time_gains_loses_and_activates(tiny_bank):
+  """scripts/restart_probe.py: the striker refined before it hits the target
+  activates the target in every child and never the far sphere; the refined
+  object is active from its restart frame; a query the world meets can only
+  be lost, one it does not only gained."""
+  import importlib.util
+  spec = importlib.util.spec_from_file_location("restart_probe", TESTS.parent / "scripts" / "restart_probe.py")
+  script = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(script)
+  world = int(tiny_bank.world_ids[0])
+  parent = mwbx.evaluate_each(tiny_bank, REACHABLE)[0]
+  fps = tiny_bank.record_fps
+  for t_min in (0.05, 0.4):
+    row = script.probe(tiny_bank, REACHABLE, world, ["striker"], t_min, 8, jax.random.key(3), backend="native")
+    assert row["t_min"] == t_min and 1 <= row["valid"] <= 8
+    assert row["parent_met"] == int(parent.sum())
+    assert 0 <= row["mean_met"] <= row["best_met"] <= len(REACHABLE) and 0 <= row["better"] <= row["valid"]
+    names = [q.name for q in REACHABLE]
+    assert all(not parent[names.index(n)] and 1 <= k <= row["valid"] for n, k in row["gained"].items())
+    assert all(parent[names.index(n)] and 1 <= k <= row["valid"] for n, k in row["lost"].items())
+    count, at = row["activated"]["striker"]
+    assert count == row["valid"] and at == pytest.approx(np.floor(t_min * fps) / fps)
+    assert "far" not in row["activated"] and 1 <= row["active_mean"] <= 2
+    if t_min == 0.05:  # it falls onto the target after 0.2 s
+      assert row["activated"]["target"][0] == row["valid"] and row["activated"]["target"][1] > t_min
+
+
 def test_a_mode_any_repair_leaves_alone_the_object_holding_another_query(tiny_bank):
   """Either G may fill either G slot on SIGGRAPH: repairing one G slot must
   not move the G that alone fills the other. Here: query 0 (mode any over
