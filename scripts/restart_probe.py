@@ -21,14 +21,16 @@ import jax
 import numpy as np
 
 import mwbx
+from mwbx.progress import reporter
 from mwbx.queries.query import as_queries
 from mwbx.refinement import refine_run
 
 
 def probe(bank, queries, world: int, objects, t_min: float, samples: int, key: jax.Array,
-          backend: str | None = None) -> dict:
+          backend: str | None = None, progress=None) -> dict:
   """Refines ``objects`` of ``world`` from ``t_min`` (``samples`` children,
-  drawn from ``key``) and says what the children met against the world.
+  drawn from ``key``; ``progress``: as :func:`mwbx.refinement.refine_run`'s)
+  and says what the children met against the world.
 
   Returns:
     {"t_min": s, "valid": children without a flag, "parent_met": queries the
@@ -42,7 +44,8 @@ def probe(bank, queries, world: int, objects, t_min: float, samples: int, key: j
   queries = as_queries(queries)
   names = [q.name or f"query {i}" for i, q in enumerate(queries)]
   parent = mwbx.evaluate_each(bank, queries)[bank.row_of(world)]
-  children, _ = refine_run(bank, world, list(objects), t_min=t_min, n_samples=samples, key=key, backend=backend)
+  children, _ = refine_run(bank, world, list(objects), t_min=t_min, n_samples=samples, key=key, backend=backend,
+                           progress=progress)
   valid = np.asarray(children.valid, bool)
   met = mwbx.evaluate_each(children, queries)[valid]  # bool[V, Q]
   counts = met.sum(axis=1)
@@ -80,9 +83,11 @@ def main() -> None:
   objects = args.objects.split(",")
   rows = []
   for t in (float(x) for x in args.times.split(",")):
-    row = probe(bank, queries, args.world, objects, t, args.samples, jax.random.key(args.seed), args.backend)
+    with reporter(f"restart at {t:.2f} s") as update:
+      row = probe(bank, queries, args.world, objects, t, args.samples, jax.random.key(args.seed), args.backend,
+                  progress=update)
     rows.append(row)
-    activated = ", ".join(f"{o} {n} at {t:.2f} s" for o, (n, t) in row["activated"].items())
+    activated = ", ".join(f"{o} {n} at {at:.2f} s" for o, (n, at) in row["activated"].items())
     print(f"t_min {row['t_min']:.2f} s: {row['valid']} valid; met {row['best_met']} at most, {row['mean_met']:.1f}"
           f" mean (world: {row['parent_met']}); {row['better']} better\n  gained {row['gained']}\n"
           f"  lost {row['lost']}\n  active {row['active_mean']:.1f} per child: {activated}", flush=True)
