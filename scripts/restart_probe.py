@@ -24,6 +24,7 @@ import mwbx
 from mwbx.progress import reporter
 from mwbx.queries.query import as_queries
 from mwbx.refinement import refine_run
+from mwbx.search.solver import _label  # the names mwbx solve gives queries (its steps' `repaired`)
 
 
 def probe(bank, queries, world: int, objects, t_min: float, samples: int, key: jax.Array,
@@ -42,7 +43,7 @@ def probe(bank, queries, world: int, objects, t_min: float, samples: int, key: j
     time it did, s]}}.
   """
   queries = as_queries(queries)
-  names = [q.name or f"query {i}" for i, q in enumerate(queries)]
+  names = [_label(q, i) for i, q in enumerate(queries)]
   parent = mwbx.evaluate_each(bank, queries)[bank.row_of(world)]
   children, _ = refine_run(bank, world, list(objects), t_min=t_min, n_samples=samples, key=key, backend=backend,
                            progress=progress)

@@ -1,5 +1,6 @@
 """Shared fixtures: tiny scenes and samplers compiled once per test session."""
 
+import importlib.util
 import os
 import pathlib
 import tempfile
@@ -17,6 +18,14 @@ jax.config.update("jax_compilation_cache_dir", os.environ["MWBX_CACHE_DIR"])
 
 TESTS = pathlib.Path(__file__).parent
 REPO = TESTS.parent
+
+
+def load_script(name: str):
+  """``scripts/<name>.py`` as a module (the scripts are not a package)."""
+  spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
+  module = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(module)
+  return module
 
 
 @pytest.fixture(scope="session")

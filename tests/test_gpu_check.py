@@ -1,7 +1,6 @@
 """scripts/gpu_check.sh: its dry run (the GPU path on the CPU, tiny batch) end
 to end into the benchmarks doc, and its one-line failure without a GPU."""
 
-import importlib.util
 import json
 import os
 import subprocess
@@ -9,16 +8,9 @@ import sys
 
 import pytest
 
-from conftest import REPO, TESTS
+from conftest import REPO, TESTS, load_script
 
 SCRIPT = REPO / "scripts" / "gpu_check.sh"
-
-
-def _doc_module():
-  spec = importlib.util.spec_from_file_location("make_benchmarks_doc", REPO / "scripts" / "make_benchmarks_doc.py")
-  module = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(module)
-  return module
 
 
 def test_gpu_check_without_a_gpu_fails_with_one_line(tmp_path):
@@ -86,7 +78,7 @@ def test_gpu_check_dry_run_end_to_end(tmp_path):
   assert cost["roofline_steps_per_s"] == pytest.approx(
       1 / max(cost["flops"] / 67e12, cost["bytes_accessed"] / 4.8e12))
   # The doc generator turns it into rows: the CPU section, and the GPU one says it was not measured on a GPU.
-  doc = _doc_module()
+  doc = load_script("make_benchmarks_doc")
   lines, _ = doc.backends(d)
   assert sum(line.startswith("| tiny |") for line in lines) == 3
   gpu_lines, _ = doc.gpu(d)

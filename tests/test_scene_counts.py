@@ -1,20 +1,11 @@
 """scripts/scene_counts.py's per-backend world counts and horizons, and the
 doc rows made from its JSON (every scene and backend, the numbers used)."""
 
-import importlib.util
-
-from conftest import REPO
-
-
-def _script(name):
-  spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
-  module = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(module)
-  return module
+from conftest import load_script
 
 
 def test_per_backend_values_scene_specific_first():
-  counts = _script("scene_counts")
+  counts = load_script("scene_counts")
   spec = "native=64,mjx:jax=16,trebuchet_tower/mjx:jax=8"
   assert counts.per_backend(spec, "siggraph", "native", 0) == 64
   assert counts.per_backend(spec, "siggraph", "mjx:jax", 0) == 16
@@ -27,7 +18,7 @@ def test_per_backend_values_scene_specific_first():
 
 
 def test_doc_rows_name_counts_horizon_and_missing_runs():
-  doc = _script("make_benchmarks_doc")
+  doc = load_script("make_benchmarks_doc")
   row = dict(worlds=8, end_time=5.0, valid=6, unstable=1, over_budget=1, sim_errors=0, all_met=2,
              per_query={"a": 3}, wall_seconds=12.0, commit="abc")
   d = {"machine": "2-core x86_64, JAX on cpu",

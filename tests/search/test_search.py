@@ -15,6 +15,7 @@ import optax
 import pytest
 import scipy.stats
 
+from conftest import load_script
 import mwbx
 from mwbx.queries import Query, query_gaps
 from mwbx.search import objects as search_objects
@@ -369,10 +370,7 @@ def test_refinement_yield_counts_each_refinement_once_by_its_parent(tiny_bank):
   """scripts/refinement_yield.py (where a search's refinements paid) against
   the search's own record: every refinement that kept children is counted
   once, under what its parent met, and the solved world's line improved."""
-  import importlib.util
-  spec = importlib.util.spec_from_file_location("refinement_yield", TESTS.parent / "scripts" / "refinement_yield.py")
-  script = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(script)
+  script = load_script("refinement_yield")
   result = mwbx.solve(tiny_bank, REACHABLE, budget=12, key=jax.random.key(0), samples=16, backend="native")
   out = script.refinement_yield(result.bank, REACHABLE)
   refined = {(s.refined, round(s.t_min, 6), s.objects) for s in result.steps if s.refined >= 0}
@@ -392,10 +390,7 @@ def test_restart_probe_reports_what_each_restart_time_gains_loses_and_activates(
   activates the target in every child and never the far sphere; the refined
   object is active from its restart frame; a query the world meets can only
   be lost, one it does not only gained."""
-  import importlib.util
-  spec = importlib.util.spec_from_file_location("restart_probe", TESTS.parent / "scripts" / "restart_probe.py")
-  script = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(script)
+  script = load_script("restart_probe")
   world = int(tiny_bank.world_ids[0])
   parent = mwbx.evaluate_each(tiny_bank, REACHABLE)[0]
   fps = tiny_bank.record_fps
