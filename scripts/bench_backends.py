@@ -3,7 +3,10 @@
 For each scene and the same randomized initial states (batch 64 by default):
   native     bare ``mujoco.rollout``, a thread per core (the CPU reference)
   mjx:bare   ``jax.vmap(mjx.step)``, impl jax, no contact budget (dense contacts)
-  mjx:jax    the same with the scene's contact budget (``mjx_backend.backend_for``)
+  mjx:jax    the same with the scene's contact budget (``mjx_backend.backend_for``:
+             mwbx's step, each world's solve over its rows in use)
+  mjx:jax every row  (engine ``every``) the same with MJX's solve over every
+             budget row (``sim.mjx.pack_rows: false``)
   mjx:warp   MuJoCo Warp through MJX, pools sized from the same budget
 each in world-steps/s (compile time apart, best of the repeats, which
 alternate since the machine is shared), with its ratio to native. All step the
@@ -123,8 +126,8 @@ def stage_times(backend, d0, repeats: int = 3) -> tuple[dict, dict]:
   """(milliseconds per batched step of the parts of mjx:jax's step, each jitted apart
   on the batch's states: smooth dynamics (kinematics to the mass matrix and
   ``fwd_velocity``/``fwd_acceleration``), collision (broadphase and narrow phase),
-  the constraint rows, the solver, and the whole step; :func:`solver_detail` of the
-  solver's input)."""
+  the constraint rows, the solver (each world over its rows in use), MJX's solver
+  over every row apart, and the whole step; :func:`solver_detail` of the solver's input)."""
   mx = backend.mx
 
   def position(d):
@@ -141,9 +144,9 @@ def stage_times(backend, d0, repeats: int = 3) -> tuple[dict, dict]:
   stages = [("smooth (position)", each(position)), ("collision", each(lambda d: mjx_collision.collision(mx, d))),
             ("constraint rows", each(lambda d: constraint.make_constraint(mx, d))),
             ("smooth (velocity)", each(velocity)),
-            # The solve the step runs (MJX's, over every row) and the opt-in one over the rows in use.
-            ("solver", each(lambda d: solver.solve(mx, d))),
-            ("solver (packed rows)", lambda d: mjx_packed_solve.solve_batch(mx, d))]
+            # The solve the step runs (each world over its rows in use) and MJX's over every row.
+            ("solver", lambda d: mjx_packed_solve.solve_batch(mx, d)),
+            ("solver (every row)", each(lambda d: solver.solve(mx, d)))]
   out, d, solver_input = {}, d0, None
   for name, f in stages:  # each stage from the states the previous ones give
     compiled = jax.jit(f).lower(d).compile()
@@ -152,7 +155,7 @@ def stage_times(backend, d0, repeats: int = 3) -> tuple[dict, dict]:
     if name == "solver":
       solver_input = d
     out[name] = 1e3 * best
-    if name != "solver (packed rows)":  # it starts from the states the solver had
+    if name != "solver (every row)":  # it starts from the states the solver had
       d = d_next
   compiled = jax.jit(lambda d: backend.batched_step(mx, d)).lower(d0).compile()
   jax.block_until_ready(compiled(d0))
@@ -245,10 +248,10 @@ def bench_scene(name: str, args) -> dict:
         lambda q, v: jax.vmap(lambda q, v: bare_base.replace(qpos=q, qvel=v))(q, v),
         qpos0, qvel0, args.bare_steps)
   backends = {}
-  for impl, name, packed in (("jax", "jax", False), ("jax", "packed", True), ("warp", "warp", False)):
+  for impl, name, packed in (("jax", "jax", None), ("jax", "every", False), ("warp", "warp", False)):
     if name in args.engines:
       backend = backends[name] = mjx_backend.backend_for(scene, impl, budget, pack_rows=packed)
-      key = "mjx:jax packed" if packed else f"mjx:{impl}"
+      key = "mjx:jax every row" if name == "every" else f"mjx:{impl}"
       engines[key] = mjx_engine(backend.step, backend.make_data, qpos0, qvel0, args.steps, backend.overflow)
   rates = {"native": 0.0, **{k: 0.0 for k in engines}}
   extra = {k: {} for k in engines}
@@ -265,9 +268,12 @@ def bench_scene(name: str, args) -> dict:
            "ratio_to_native": rates[key] / rates["native"], "native_world_steps_per_s": rates["native"],
            **extra[key]}
     row["what"] = {"mjx:bare": "jax.vmap(mjx.step), no budget",
-                   "mjx:jax": "MJX impl jax, box broadphase, contact budget, solver limits",
-                   "mjx:jax packed": "mjx:jax, the solve over the batch's rows in use (opt-in sim.mjx.pack_rows)",
+                   "mjx:jax": "MJX impl jax, box broadphase, contact budget, solver limits, each world's"
+                              " solve over its rows in use",
+                   "mjx:jax every row": "mjx:jax with MJX's solve over every budget row (sim.mjx.pack_rows: false)",
                    "mjx:warp": "MuJoCo Warp via MJX, pools from the budget"}[key]
+    if key == "mjx:jax" and not backends["jax"].pack_rows:  # the default off the CPU
+      row["what"] = "MJX impl jax, box broadphase, contact budget, solver limits, solve over every row"
     if args.cost and key == "mjx:warp":  # its kernels are custom calls: XLA's cost analysis sees nothing
       row["cost"] = {"error": "MuJoCo Warp's kernels are custom calls XLA's cost analysis does not see into"}
     elif args.cost:
@@ -308,7 +314,8 @@ def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--scenes", default=",".join(SCENES), help="shipped scene names or config paths")
   parser.add_argument("--engines", default="bare,jax,warp",
-                      help="MJX engines to run besides native (bare, jax, packed: jax with pack_rows, warp)")
+                      help="MJX engines to run besides native (bare, jax, every: jax solving over every"
+                           " budget row, warp)")
   parser.add_argument("--batch", type=int, default=64, help="worlds per batch (every engine)")
   parser.add_argument("--steps", type=int, default=50, help="steps per timed run of mjx:jax and mjx:warp")
   parser.add_argument("--bare-steps", type=int, default=5, help="steps per timed run of bare MJX (slow)")

@@ -558,7 +558,7 @@ def _previous_and_stages(d: dict) -> list[str]:
     stages = (now or {}).get("stages_ms")
     if stages:
       solver = s.get("mjx_solver", {})
-      apart = {"whole step", "solver (packed rows)"}  # not parts of the step
+      apart = {"whole step", "solver (every row)"}  # not parts of the step
       parts = ", ".join(f"{k} {v:,.1f}" for k, v in stages.items() if k not in apart)
       top = max((k for k in stages if k not in apart), key=stages.get)
       in_scan = 1e3 * now["batch"] / now["world_steps_per_s"]
@@ -578,9 +578,10 @@ def _previous_and_stages(d: dict) -> list[str]:
                       f"rows ({detail['rows']} × {detail['nv']}², every world) takes "
                       f"{detail['hessian_build_ms']:.1f} ms and its Cholesky {detail['cholesky_ms']:.1f} ms "
                       "per batched step.")
-      if "solver (packed rows)" in stages:
-        lines[-1] += (" The opt-in solve over the batch's rows in use (`sim.mjx.pack_rows`, `mjx_packed_solve`) "
-                      f"takes {stages['solver (packed rows)']:,.1f} ms on the same states.")
+      if "solver (every row)" in stages:
+        lines[-1] += (" The step solves each world over its own rows in use (`mjx_packed_solve`); MJX's solve "
+                      f"over every row (`sim.mjx.pack_rows: false`) takes {stages['solver (every row)']:,.1f} ms "
+                      "on the same states.")
   return lines
 
 
@@ -593,11 +594,10 @@ def _what_limits(s: dict, r: dict) -> str:
           f"collision-function group (box-box, capsule-box) and the constraint rows of "
           f"{b['max_contact_points']} contact slots × 4 pyramidal rows ({rows} rows), while MuJoCo C runs "
           "only the contacts present, sparsely.")
-  if "solver (packed rows)" in stages:
-    text += (" Solving over the batch's rows in use only, packed first (`sim.mjx.pack_rows`, off by default: the "
-             "cap depends on the batch, so a world is then bit-identical only among the same companions), "
-             f"takes {stages['solver (packed rows)']:,.0f} ms against {stages.get('solver', 0):,.0f} ms; each "
-             f"Newton iteration still factors a {s.get('nv', 'nv')}-square Hessian per world.")
+  if "solver (every row)" in stages:
+    text += (" The step solves each world over its own rows in use only, packed first: "
+             f"{stages.get('solver', 0):,.0f} ms against {stages['solver (every row)']:,.0f} ms over every row; "
+             f"each Newton iteration still factors a {s.get('nv', 'nv')}-square Hessian per world.")
   if stages:
     text += (f" Of a {1e3 * r['batch'] / r['world_steps_per_s']:,.0f} ms batched step ({r['batch']} worlds) the solver takes "
              f"{stages.get('solver', 0):,.0f} ms and collision {stages.get('collision', 0):,.0f} ms "
@@ -658,12 +658,11 @@ def backends(d: dict) -> tuple[list[str], list[str]]:
               f"{r['world_steps_per_s']:,.0f} at batch {r['batch']} ({goal} it)"
               + (f", {r['world_steps_per_s'] / bare['world_steps_per_s']:.0f}× bare MJX "
                  f"({bare['world_steps_per_s']:,.0f})." if bare else ".")]
-    packed = next((x for x in sig["rows"] if x["engine"] == "mjx:jax packed"), None)
-    if packed:
-      lines[-1] += (f" With the opt-in solve over the batch's rows in use (`sim.mjx.pack_rows: true`): "
-                    f"{packed['world_steps_per_s']:,.0f} in the same run "
-                    f"({packed['world_steps_per_s'] / r['world_steps_per_s']:.2f}× the default step; "
-                    f"{'meets' if packed['world_steps_per_s'] >= 1500 else 'misses'} it).")
+    every = next((x for x in sig["rows"] if x["engine"] == "mjx:jax every row"), None)
+    if every:
+      lines[-1] += (f" With MJX's solve over every budget row (`sim.mjx.pack_rows: false`, the step before each "
+                    f"world was solved over its rows in use): {every['world_steps_per_s']:,.0f} in the same run "
+                    f"(the default step is {r['world_steps_per_s'] / every['world_steps_per_s']:.2f}× as fast).")
     if goal == "misses":
       lines += ["", _what_limits(sig, r)]
   timing = d.get("sample_timing")

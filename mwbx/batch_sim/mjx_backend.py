@@ -2,8 +2,8 @@
 
 A block of frames runs on device as a scan over frames whose body is a scan
 over the physics steps of one frame (the MJX step vmapped over worlds: on
-impl jax, :func:`mjx_collision.step`, MJX's with a box broadphase; with
-``pack_rows``, :func:`mjx_collision.batched_step`), then
+impl jax, :func:`mjx_collision.batched_step`: MJX's with a box broadphase,
+each world's constraint solve over its rows in use), then
 the bookkeeping kernel on the frame's observations. Finished worlds are frozen with ``jnp.where`` (lockstep);
 the host only copies out the recorded frames after each block. This is the
 path for GPUs and TPUs.
@@ -107,7 +107,7 @@ def _per_world(tree, path) -> bool:
 
 
 def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=None,
-                pack_rows: bool = False) -> "MjxBackend":
+                pack_rows: bool | None = None) -> "MjxBackend":
   """The MJX backend of a scene under a contact budget (the entry point for
   sampling and benchmarks: ``backend.make_data`` and ``backend.step`` are one
   budgeted batched step, ``backend.overflow`` its flag).
@@ -134,15 +134,17 @@ class MjxBackend:
     devices: the devices a batch is split over (default: this process's).
     budget: the :class:`contact_budget.ContactBudget` (impl ``warp`` sizes its
       contact and constraint pools from it; None: MuJoCo Warp's defaults).
-    pack_rows: impl ``jax``: solve over the batch's constraint rows in use
-      (:mod:`mwbx.batch_sim.mjx_packed_solve`; faster while few contacts are
-      touching). Off by default: the cap it picks depends on the other
-      worlds of the batch, so a world is then no longer bit-identical across
-      runs that give it other companions (the same to float32 rounding).
+    pack_rows: impl ``jax``: solve each world over its own constraint rows in
+      use (:mod:`mwbx.batch_sim.mjx_packed_solve`: 2-3.5x as fast as MJX's
+      solve over every budget row on SIGGRAPH's 2-core CPU runs, a world the
+      same bits in any batch). False: MJX's solve over every row, world by
+      world (the reference the packed solve is tested against). None: on
+      where the devices are CPUs; off on accelerators, where its groups of
+      ``WORLDS_PER_SOLVE`` worlds, solved one after another, are not measured.
   """
 
   def __init__(self, model: mujoco.MjModel, impl: str = "jax", devices=None,
-               budget: contact_budget.ContactBudget | None = None, pack_rows: bool = False):
+               budget: contact_budget.ContactBudget | None = None, pack_rows: bool | None = None):
     self.model = model
     self.impl = impl
     self.budget = budget
@@ -154,8 +156,11 @@ class MjxBackend:
     self.mx = self._put(model)
     # impl jax: MJX's step with pairs culled by world bounding boxes (what the budget is sized for).
     self.mjx_step = mjx_collision.step if impl == "jax" else mjx.step
-    # A batch's step (with pack_rows on impl jax: the solve over the batch's rows in use).
-    self.batched_step = (mjx_collision.batched_step if impl == "jax" and pack_rows
+    if pack_rows is None:
+      pack_rows = all(device.platform == "cpu" for device in self.devices)
+    self.pack_rows = impl == "jax" and pack_rows
+    # A batch's step (with pack_rows on impl jax: each world's solve over its rows in use).
+    self.batched_step = (mjx_collision.batched_step if self.pack_rows
                          else jax.vmap(self.mjx_step, in_axes=(None, 0)))
     # impl jax: flags a step that may have dropped contacts (never misses one).
     self.check = contact_budget.JaxOverflowCheck(model) if impl == "jax" else None

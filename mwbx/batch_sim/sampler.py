@@ -157,7 +157,7 @@ class Sampler:
     self.n_frames = end_frame + 1
     self.params = world.world_params(self.scene, spf, end_frame)
     self.contact_budget = None
-    self.pack_rows = False  # MJX jax: the solve over the batch's rows in use (sim.mjx.pack_rows)
+    self.pack_rows = False  # MJX jax: each world's solve over its rows in use (sim.mjx.pack_rows)
     if self.backend_name == "mjx":
       # Lazy on purpose: both import mujoco.mjx (seconds), which native runs never need.
       from mwbx.batch_sim import contact_budget as budget_lib
@@ -168,10 +168,10 @@ class Sampler:
         budget = budget_lib.ContactBudget.from_dict(budget)
       if budget is None:
         budget = resolve_contact_budget(self.scene, cfg.sim.mjx)
-      self.pack_rows = impl == "jax" and cfg.sim.mjx.pack_rows
-      self.backend = backend_for(self.scene, impl, budget, pack_rows=self.pack_rows)
+      self.backend = backend_for(self.scene, impl, budget, pack_rows=cfg.sim.mjx.pack_rows)
+      self.pack_rows = self.backend.pack_rows
       self.contact_budget = self.backend.budget
-      self.backend_label = f"mjx:{impl}" + (" (packed rows)" if self.pack_rows else "")
+      self.backend_label = f"mjx:{impl}" + (" (every row)" if impl == "jax" and not self.pack_rows else "")
     else:
       self.backend = NativeBackend(model, cfg.sim.threads)
       self.backend_label = "native"

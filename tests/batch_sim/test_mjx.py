@@ -148,18 +148,19 @@ def test_mjx_worlds_across_batch_shapes():
     assert stats.ks_2samp(a, b).pvalue > 1e-3, name
 
 
-def test_packed_rows_from_the_config():
-  """``sim.mjx.pack_rows``: the sampler's batch solves over its rows in use
-  (mjx_packed_solve), and its worlds are the default step's over the first
-  frames to the batch-shape tolerance (another summation order)."""
-  packed_cfg = CHAIN.with_overrides(mjx=CHAIN.sim.mjx.model_copy(update={"pack_rows": True}))
+def test_every_row_from_the_config():
+  """``sim.mjx.pack_rows``: by default the sampler's batch solves each world
+  over its rows in use (mjx_packed_solve); ``false`` takes MJX's solve over
+  every row, and its worlds are the default step's over the first frames to
+  the batch-shape tolerance (another summation order)."""
+  every_cfg = CHAIN.with_overrides(mjx=CHAIN.sim.mjx.model_copy(update={"pack_rows": False}))
   key = jax.random.key(7)
-  with mwbx.Sampler(packed_cfg, backend="mjx", chunk_size=8) as sampler:
-    assert sampler.pack_rows and sampler.backend_label == "mjx:jax (packed rows)"
+  with mwbx.Sampler(CHAIN, backend="mjx", chunk_size=8) as sampler:
+    assert sampler.pack_rows and sampler.backend_label == "mjx:jax"
     assert sampler.backend.batched_step is mjx_collision.batched_step
     packed, _ = sampler.run(8, key)
-  with mwbx.Sampler(CHAIN, backend="mjx", chunk_size=8) as sampler:
-    assert not sampler.pack_rows and sampler.backend_label == "mjx:jax"
+  with mwbx.Sampler(every_cfg, backend="mjx", chunk_size=8) as sampler:
+    assert not sampler.pack_rows and sampler.backend_label == "mjx:jax (every row)"
     default, _ = sampler.run(8, key)
   assert packed.perturbations.sum() > 0
   for w in range(8):

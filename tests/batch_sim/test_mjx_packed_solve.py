@@ -1,6 +1,7 @@
-"""The MJX step's solve over the batch's rows in use (mjx_packed_solve) gives
+"""The MJX step's solve over each world's rows in use (mjx_packed_solve) gives
 the accelerations and forces of MJX's solve over every row, on the SIGGRAPH
-letters in the peg board and piling into the slots."""
+letters in the peg board and piling into the slots, and a world the same bits
+whatever else is in its batch."""
 
 import jax
 import jax.numpy as jnp
@@ -36,11 +37,11 @@ def siggraph():
   return scene, backend
 
 
-def test_packing_is_opt_in(siggraph):
+def test_packing_is_the_default(siggraph):
   scene, backend = siggraph
-  assert backend.batched_step is not mjx_collision.batched_step  # default: MJX's solve, world by world
-  packed = mjx_backend.backend_for(scene, "jax", backend.budget, pack_rows=True)
-  assert packed.batched_step is mjx_collision.batched_step
+  assert backend.batched_step is mjx_collision.batched_step  # default: each world over its rows in use
+  every_row = mjx_backend.backend_for(scene, "jax", backend.budget, pack_rows=False)
+  assert every_row.batched_step is not mjx_collision.batched_step  # MJX's solve, world by world
 
 
 def _scaled_error(a, b):
@@ -102,3 +103,26 @@ def test_a_too_small_cap_is_not_chosen(siggraph):
   full = jax.jit(jax.vmap(solver.solve, in_axes=(None, 0)))(mx, ready)
   packed = jax.jit(mjx_packed_solve.solve_batch)(mx, ready)
   assert _scaled_error(np.asarray(packed.qacc), np.asarray(full.qacc)) <= QACC_TOLERANCE
+
+
+def test_a_world_is_the_same_bits_in_any_batch(siggraph):
+  """Each world's cap is its own and worlds are solved WORLDS_PER_SOLVE at a
+  time, so its solve does not depend on its companions: the batch's worlds
+  solved in another order, among copies of one crowded world, or alone
+  (a batch of one) give the same accelerations and forces bit for bit."""
+  scene, backend = siggraph
+  mx = backend.mx
+  qpos, qvel = _states(scene.model, TIMES[-1])
+  d = backend.make_data(jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32))
+  ready = jax.jit(jax.vmap(mjx_collision.before_solve, in_axes=(None, 0)))(mx, d)
+  n_worlds = ready.qacc.shape[0]
+  used = np.asarray(jax.vmap(mjx_packed_solve.rows_in_use)(ready))
+  caps = mjx_packed_solve.row_caps(ready._impl.efc_J.shape[-2], 0)
+  assert len(set(np.searchsorted(caps, used))) > 1  # worlds of several caps: the groups differ
+  solve = jax.jit(mjx_packed_solve.solve_batch)
+  reference = solve(mx, ready)
+  crowded = int(used.argmax())
+  for order in (np.arange(n_worlds)[::-1], np.array([crowded] * 9 + list(range(n_worlds))), np.array([1])):
+    out = solve(mx, jax.tree_util.tree_map(lambda x, order=order: x[order], ready))
+    np.testing.assert_array_equal(np.asarray(out.qacc), np.asarray(reference.qacc)[order])
+    np.testing.assert_array_equal(np.asarray(out._impl.efc_force), np.asarray(reference._impl.efc_force)[order])
