@@ -141,9 +141,10 @@ def step(m, d):
 
 def batched_step(m, d):
   """:func:`step` of a batch (``d``: ``mjx.Data`` with a world axis), its
-  constraint solve over the batch's rows in use
+  constraint solve over each world's rows in use
   (:func:`mjx_packed_solve.solve_batch`: the same accelerations, float32
-  rounding aside); the other stages vmapped as they are."""
+  rounding aside, and a world the same bits in any batch); the other stages
+  vmapped as they are."""
   integrate = _integrator(m)
   d = jax.vmap(before_solve, in_axes=(None, 0))(m, d)
   if d._impl.efc_J.shape[-2] == 0:  # pylint: disable=protected-access
