@@ -161,10 +161,10 @@ def test_every_row_from_the_config():
     packed, _ = sampler.run(8, key)
   with mwbx.Sampler(every_cfg, backend="mjx", chunk_size=8) as sampler:
     assert not sampler.pack_rows and sampler.backend_label == "mjx:jax (every row)"
-    default, _ = sampler.run(8, key)
+    every_row, _ = sampler.run(8, key)
   assert packed.perturbations.sum() > 0
   for w in range(8):
-    np.testing.assert_allclose(packed.qpos_frames(w, 0, _EARLY_FRAMES), default.qpos_frames(w, 0, _EARLY_FRAMES),
+    np.testing.assert_allclose(packed.qpos_frames(w, 0, _EARLY_FRAMES), every_row.qpos_frames(w, 0, _EARLY_FRAMES),
                                atol=_EARLY_TOLERANCE, rtol=0)
 
 
