@@ -90,8 +90,8 @@ def test_packed_step_matches_the_full_step(siggraph, seconds):
 
 
 def test_a_too_small_cap_is_not_chosen(siggraph):
-  """With more rows in use than a cap, the batch takes a larger one (here:
-  a world made to use every row by a Jacobian of ones)."""
+  """A world with more rows in use than a cap takes a larger one (here: a
+  world made to use every row by a Jacobian of ones), the others their own."""
   scene, backend = siggraph
   mx = backend.mx
   qpos, qvel = _states(scene.model, TIMES[0])
