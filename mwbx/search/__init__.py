@@ -17,5 +17,6 @@ from mwbx.search.proposal import init_proposal
 from mwbx.search.solver import Budget
 from mwbx.search.solver import SolveResult
 from mwbx.search.solver import SolveStep
+from mwbx.search.solver import place_queries
 from mwbx.search.solver import progress_plot
 from mwbx.search.solver import solve

@@ -357,6 +357,7 @@ def test_a_stall_fixes_only_a_query_that_a_good_enough_world_meets():
   assert met[0].sum() - met[1].sum() > FIX_MARGIN and met[0].sum() - met[2].sum() <= FIX_MARGIN
   search = object.__new__(solver._Search)
   search.bank, search.met, search.fixed, search.released = _Worlds(3), met, [], set()
+  search.places = np.ones(6, bool)
   search.attempts = np.array([0, 0, 0, 0, 9, 5])  # query 4 blocks the most
   search.fix_blocking_query(0, reseed_rounds=0, batch=1)
   assert search.fixed == [5]
@@ -364,6 +365,33 @@ def test_a_stall_fixes_only_a_query_that_a_good_enough_world_meets():
   search.fixed = []
   search.fix_blocking_query(0, reseed_rounds=0, batch=1)
   assert search.fixed == []
+
+
+def test_places_rank_and_are_repaired_before_poses():
+  """A world with more places met ranks above one with more queries met in
+  all (SIGGRAPH: letters in their slots beat letters upright elsewhere);
+  among equal places, the fitness of every query, then the tie metric. A
+  world's unmet places are repaired before its unmet poses."""
+  place = Query.region((0, 0, 0), (1, 1, 1), bodies="striker", name="place")
+  pose = mwbx.OrientationQuery(bodies="striker", within_deg=20, axis="z", name="pose")
+  np.testing.assert_array_equal(solver.place_queries([place, pose, place, pose]), [True, False, True, False])
+  np.testing.assert_array_equal(solver.place_queries([pose, pose]), [True, True])  # poses only: all rank alike
+  search = object.__new__(solver._Search)
+  search.places = solver.place_queries([place, place, pose, pose, pose])
+  search.scale = np.ones(5)
+  gaps = np.array([
+      [0.0, 0.0, 0.0, 0.0, 0.0],  # 0: everything
+      [0.0, 5.0, 0.0, 0.0, 0.0],  # 1: one place short, every pose: 4 met
+      [0.0, 0.0, 5.0, 5.0, 5.0],  # 2: every place, no pose: 2 met
+      [0.0, 0.0, 1.0, 5.0, 5.0],  # 3: as 2, nearer a pose
+      [0.0, 0.0, 1.0, 5.0, 5.0],  # 4: as 3, fewer collisions
+  ])
+  ties = np.array([0.0, 0.0, 0.0, 3.0, 1.0])
+  assert list(search.rank_order(gaps, ties)) == [0, 4, 3, 2, 1]
+  search.gaps, search.met = gaps, gaps == 0
+  search.gaps[1] = [2.0, 1.0, 9.0, 0.0, 3.0]
+  search.met = search.gaps == 0
+  assert search.repair_order(1) == [0, 1, 2, 4]  # places, then poses, each farthest first
 
 
 def test_refinement_yield_counts_each_refinement_once_by_its_parent(tiny_bank):
