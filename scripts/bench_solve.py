@@ -104,6 +104,7 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
       "solve_seconds": result.steps[-1].seconds, "wall_seconds": wall,
       "first_all_met_seconds": next((s.seconds for s in result.steps if s.satisfied == result.n_queries), None),
       "curve": [[s.seconds, s.world_steps, s.satisfied] for s in result.steps],
+      "places_curve": [s.places for s in result.steps],
       "plot": pathlib.Path(plot).name,
       "load_average_before": load_before, "load_average_after": load_after,
   }

@@ -35,7 +35,7 @@ best-first over the bank's refinement tree:
    batches of guided sampling aimed at it add worlds where it holds (where
    the initial conditions put a letter in its slot, say), and the search goes
    on only in worlds that meet it, repairing the other queries there. Only
-   a query that some world within :data:`FIX_MARGIN` queries of the best
+   a query that some world within :data:`FIX_MARGIN` places of the best
    meets is fixed: fixing one that only worse worlds meet would throw the
    search's progress away.
 
@@ -76,7 +76,7 @@ from mwbx.search.objects import spare_objects
 # conditions are guided sampling's job (fix_blocking_query).
 RESTART_FRACTIONS = (0.85, 0.6, 0.35)
 # A stall fixes a query only where some world meeting it (and the queries
-# fixed already) meets at most this many fewer queries than the best world:
+# fixed already) meets at most this many fewer places than the best world:
 # fixing one that only worse worlds meet throws the search's progress away.
 FIX_MARGIN = 2
 # On a plateau every repair starts one round later (an earlier restart, pairs
@@ -184,6 +184,9 @@ class SolveStep(NamedTuple):
       ``attempt``: the refinements from that world before this one. With the
       search's seed they say why each refinement was made: the path is the
       same on every run (only ``seconds`` differ).
+    places: places (:func:`place_queries`) the best world meets; the search
+      ranks by them first, so ``satisfied`` may dip when a place is won at
+      the cost of poses (-1: not recorded).
   """
 
   refinements: int
@@ -196,6 +199,7 @@ class SolveStep(NamedTuple):
   t_min: float
   repaired: tuple[str, ...] = ()
   attempt: int = -1
+  places: int = -1
 
 
 class SolveResult(NamedTuple):
@@ -494,7 +498,7 @@ class _Search:
     row = rows[0] if rows.size else 0
     self.steps.append(SolveStep(self.refinements, self.spent_steps, self.elapsed(), int(self.met[row].sum()),
                                 int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min),
-                                tuple(repaired), int(attempt)))
+                                tuple(repaired), int(attempt), int(self.met[row, self.places].sum())))
     if self.progress is not None:
       total = self.budget.expected_refinements(self.refinements, self.elapsed(), self.spent_steps)
       self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps, self._best_note()))
@@ -502,7 +506,10 @@ class _Search:
   def _best_note(self) -> str:
     """The progress note: the best world and the queries it meets."""
     best = self.steps[-1]
-    return f"best world {best.world}: {best.satisfied} of {self.n_queries} met"
+    note = f"best world {best.world}: {best.satisfied} of {self.n_queries} met"
+    if not self.places.all():
+      note += f" ({best.places} of {int(self.places.sum())} places)"
+    return note
 
   def _alone_met(self, bank: Bank) -> np.ndarray:
     if not self.alone:
@@ -623,20 +630,26 @@ class _Search:
 
 def progress_plot(steps: Sequence[SolveStep], path, title: str = "") -> str:
   """Writes the search's curve (queries met by the best world against
-  world-steps and wall time) as a PNG; returns its path."""
+  world-steps and wall time, and the places it meets where the steps record
+  them apart: :attr:`SolveStep.places`) as a PNG; returns its path."""
   import matplotlib
   matplotlib.use("Agg")
   import matplotlib.pyplot as plt
   steps = list(steps)
   met = [s.satisfied for s in steps]
+  places = [s.places for s in steps]
+  show_places = all(p >= 0 for p in places) and places != met
   fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.2), sharey=True)
-  a.step([s.world_steps / 1e6 for s in steps], met, where="post")
-  a.set_xlabel("world-steps (millions)")
-  a.set_ylabel("queries met by the best world")
-  b.step([s.seconds for s in steps], met, where="post")
-  b.set_xlabel("wall time (s)")
-  for ax in (a, b):
+  for ax, x in ((a, [s.world_steps / 1e6 for s in steps]), (b, [s.seconds for s in steps])):
+    ax.step(x, met, where="post", label="queries")
+    if show_places:
+      ax.step(x, places, where="post", label="places (ranked first)")
     ax.grid(alpha=0.3)
+  a.set_xlabel("world-steps (millions)")
+  a.set_ylabel("met by the best world")
+  b.set_xlabel("wall time (s)")
+  if show_places:
+    b.legend(loc="lower right", fontsize=8)
   fig.suptitle(title or f"solve: {len([s for s in steps if s.refined >= 0])} refinements")
   fig.tight_layout()
   fig.savefig(path, dpi=110)

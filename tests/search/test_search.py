@@ -394,6 +394,21 @@ def test_places_rank_and_are_repaired_before_poses():
   assert search.repair_order(1) == [0, 1, 2, 4]  # places, then poses, each farthest first
 
 
+def test_solve_records_and_reports_the_places_its_best_world_meets(tiny_bank, tmp_path):
+  pose = mwbx.OrientationQuery(bodies="striker", within_deg=20, axis="z", name="striker_up")
+  queries = [REACHABLE[0], pose, REACHABLE[1]]
+  notes = []
+  result = mwbx.solve(tiny_bank, queries, budget=2, key=jax.random.key(0), samples=4, backend="native",
+                      progress=lambda p: notes.append(p.note))
+  met = mwbx.evaluate_each(result.bank, queries)
+  for step in result.steps:
+    row = result.bank.row_of(step.world)
+    assert step.places == met[row, [0, 2]].sum() and step.satisfied == met[row].sum()
+  assert notes and all(note.endswith(" of 2 places)") for note in notes)
+  png = mwbx.search.progress_plot(result.steps, tmp_path / "solve.png")
+  assert pathlib.Path(png).stat().st_size > 0
+
+
 def test_refinement_yield_counts_each_refinement_once_by_its_parent(tiny_bank):
   """scripts/refinement_yield.py (where a search's refinements paid) against
   the search's own record: every refinement that kept children is counted
