@@ -323,7 +323,7 @@ def place_queries(queries) -> np.ndarray:
   Where a body ends up among others is decided early, as it passes through
   the crowd, and a repair must restart it there, which re-rolls how it and
   the bodies it touches land. How it is turned is decided where it settles,
-  and a repair restarting there moves that body alone. So a world with more
+  and a repair restarting there moves little but that body. So a world with more
   places met is nearer the goal than one with more poses met: on SIGGRAPH,
   every letter upright with four in the wrong slots is four early restarts
   from the goal, every letter in its slot with four lying is four late ones.

@@ -388,10 +388,9 @@ def test_places_rank_and_are_repaired_before_poses():
   ])
   ties = np.array([0.0, 0.0, 0.0, 3.0, 1.0])
   assert list(search.rank_order(gaps, ties)) == [0, 4, 3, 2, 1]
-  search.gaps, search.met = gaps, gaps == 0
-  search.gaps[1] = [2.0, 1.0, 9.0, 0.0, 3.0]
+  search.gaps = np.array([[2.0, 1.0, 9.0, 0.0, 3.0]])
   search.met = search.gaps == 0
-  assert search.repair_order(1) == [0, 1, 2, 4]  # places, then poses, each farthest first
+  assert search.repair_order(0) == [0, 1, 2, 4]  # places, then poses, each farthest first
 
 
 def test_solve_records_and_reports_the_places_its_best_world_meets(tiny_bank, tmp_path):
