@@ -400,8 +400,8 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     if search.budget_spent():
       reason = "budget spent"
       break
-    if search.progress_of(best.world) > best_met:
-      best_met, last_gain = search.progress_of(best.world), search.refinements
+    if (best.places, best.satisfied) > best_met:  # the search gains when these rise
+      best_met, last_gain = (best.places, best.satisfied), search.refinements
     elif search.refinements - last_gain >= patience:
       search.fix_blocking_query(best.world, reseed_rounds, guided_batch)
       last_gain = search.refinements
@@ -478,12 +478,6 @@ class _Search:
     then the fitness of every query, then the smallest tie metric."""
     places_met = (gaps[:, self.places] == 0).sum(axis=1)
     return np.lexsort((ties, -fitness(gaps, self.scale), -places_met))
-
-  def progress_of(self, world: int) -> tuple[int, int]:
-    """(places met, queries met) of a world: the search has gained when the
-    best world's rises."""
-    row = self.bank.row_of(world)
-    return int(self.met[row, self.places].sum()), int(self.met[row].sum())
 
   def repair_order(self, row: int) -> list[int]:
     """World ``row``'s unmet queries in the order its attempts repair them:
