@@ -65,16 +65,20 @@ class GuidedResult(NamedTuple):
   rounds: tuple[GuidedRound, ...]
 
 
-def fitness(gaps: np.ndarray, gap_scale: np.ndarray) -> np.ndarray:
+def fitness(gaps: np.ndarray, gap_scale: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
   """f32[W] higher is better: queries met (gap 0), minus each unmet query's
-  gap squashed into (0, 1) by ``gap / (gap + gap_scale)``.
+  gap squashed into (0, 1) by ``gap / (gap + gap_scale)``; with ``weights``,
+  each query's term times its weight.
 
   Args:
     gaps: f64[W, Q] (:func:`mwbx.queries.query_gaps`: 0 exactly where met);
     gap_scale: f64[Q] > 0, a typical gap of each query.
+    weights: f64[Q] > 0 (default: 1 each).
   """
   squashed = np.where(np.isfinite(gaps), gaps / (gaps + gap_scale[None, :]), 1.0)
-  return ((gaps == 0).sum(axis=1) - squashed.sum(axis=1)).astype(np.float32)
+  per_query = (gaps == 0) - squashed  # squashed is 0 where met
+  weights = np.ones(gaps.shape[1]) if weights is None else np.asarray(weights, np.float64)
+  return (per_query @ weights).astype(np.float32)
 
 
 def typical_gaps(gaps: np.ndarray) -> np.ndarray:

@@ -8,7 +8,12 @@ best-first over the bank's refinement tree:
 1. Rank the worlds: most places met (every query but the orientations:
    :func:`place_queries`), then most queries met, less the summed gap to the
    unmet ones (:func:`mwbx.queries.query_gaps`, each squashed by a typical
-   gap), then the fewest collisions (or another metric).
+   gap), then the fewest collisions (or another metric). Each query counts
+   by a weight, 1 at first; on a plateau the queries the top world fails
+   weigh more (:meth:`_Search.reweigh`, clause weighting as in breakout local
+   search), until worlds meeting them outrank it: a letter whose slot was
+   decided in the crowd is not won back by late repairs, and a count would
+   keep the search on the plateau (the best world is reported unweighted).
 2. Take the best world that has been tried fewer than ``tries_per_world``
    times. Its n unmet queries are ordered places first, then poses, each
    farthest first; attempt k repairs
@@ -86,6 +91,13 @@ FIX_MARGIN = 2
 # of a world meeting 12 of 16 met more (scripts/refinement_yield.py), as
 # moving a letter across slots needs an early restart.
 STALL_STEP = 10
+# At each STALL_STEP of a plateau the queries the search's top world fails
+# weigh this much more in its ranking (clause weighting, as in breakout local
+# search): a query no late repair wins (a letter whose slot is decided in the
+# crowd, a letter that never lands upright) comes to outweigh one other
+# query, and the search moves to worlds that meet it, which a count of
+# queries met would rank below its plateau forever.
+WEIGHT_STEP = 1.0
 
 
 def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[list[int], float]:
@@ -391,7 +403,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
   if guided_rounds > 0:
     search.add_guided(queries, guided_rounds, guided_batch, stream_key(key, KeyStream.GUIDED))
   search.note()
-  last_gain, best_met = 0, (-1, -1)
+  last_gain, best_met, last_reweigh = 0, (-1, -1), 0
   reason = ""
   while True:
     best = search.steps[-1]
@@ -405,6 +417,9 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     elif search.refinements - last_gain >= patience:
       search.fix_blocking_query(best.world, reseed_rounds, guided_batch)
       last_gain = search.refinements
+    if search.refinements > max(last_gain, last_reweigh) and (search.refinements - last_gain) % STALL_STEP == 0:
+      search.reweigh()
+      last_reweigh = search.refinements
     picked = search.pick(tries_per_world)
     if picked is None and search.fixed:
       search.release_fixed()  # every world meeting them was tried: all worlds again
@@ -454,6 +469,7 @@ class _Search:
     self.alone_met = self._alone_met(bank)  # bool[W, len(self.alone)]
     self.scale = typical_gaps(self.gaps)
     self.places = place_queries(queries)  # bool[Q]: ranked and repaired before the poses
+    self.weights = np.ones(self.n_queries)  # f64[Q]: grow on plateaus (reweigh)
     self.ties = metric(bank, tie_metric)
     self.steps: list[SolveStep] = []
     self.spent_steps, self.refinements = 0, 0
@@ -468,16 +484,28 @@ class _Search:
   def budget_spent(self) -> bool:
     return self.budget.spent(self.refinements, self.elapsed(), self.spent_steps)
 
-  def best_rows(self, rows: np.ndarray) -> np.ndarray:
+  def best_rows(self, rows: np.ndarray, weighted: bool = False) -> np.ndarray:
     """``rows`` best first (:meth:`rank_order`)."""
-    return rows[self.rank_order(self.gaps[rows], self.ties[rows])]
+    return rows[self.rank_order(self.gaps[rows], self.ties[rows], weighted)]
 
-  def rank_order(self, gaps: np.ndarray, ties: np.ndarray) -> np.ndarray:
+  def rank_order(self, gaps: np.ndarray, ties: np.ndarray, weighted: bool = False) -> np.ndarray:
     """i[n] the order of worlds with query gaps ``gaps: f64[n, Q]`` and tie
     metric ``ties: f[n]``, best first: most places met (:func:`place_queries`),
-    then the fitness of every query, then the smallest tie metric."""
-    places_met = (gaps[:, self.places] == 0).sum(axis=1)
-    return np.lexsort((ties, -fitness(gaps, self.scale), -places_met))
+    then the fitness of every query, then the smallest tie metric.
+    ``weighted``: each query counted by its weight (:meth:`reweigh`), as the
+    search picks worlds and keeps children; unweighted, as it reports the
+    best world."""
+    weights = self.weights if weighted else np.ones(gaps.shape[1])
+    places_met = ((gaps == 0) & self.places) @ weights
+    return np.lexsort((ties, -fitness(gaps, self.scale, weights), -places_met))
+
+  def reweigh(self) -> None:
+    """On a plateau: the queries the top world (weighted, meeting the fixed
+    queries) fails weigh :data:`WEIGHT_STEP` more from now on."""
+    eligible = np.asarray(self.bank.valid, bool) & self.met[:, self.fixed].all(axis=1)
+    rows = self.best_rows(np.flatnonzero(eligible), weighted=True)
+    if rows.size:
+      self.weights[~self.met[rows[0]]] += WEIGHT_STEP
 
   def repair_order(self, row: int) -> list[int]:
     """World ``row``'s unmet queries in the order its attempts repair them:
@@ -575,7 +603,7 @@ class _Search:
     """The best world meeting the fixed queries not yet tried ``tries_per_world``
     times: (row, world id, tries so far), counted as tried; None if none."""
     eligible = np.asarray(self.bank.valid, bool) & self.met[:, self.fixed].all(axis=1)
-    rows = [r for r in self.best_rows(np.flatnonzero(eligible))
+    rows = [r for r in self.best_rows(np.flatnonzero(eligible), weighted=True)
             if self.tries.get(int(self.bank.world_ids[r]), 0) < tries_per_world]
     if not rows:
       return None
@@ -594,7 +622,7 @@ class _Search:
     self.spent_steps += int(stats.world_steps)
     c_gaps = query_gaps(children, self.queries)
     c_ties = metric(children, self.tie_metric)
-    order = self.rank_order(c_gaps, c_ties)
+    order = self.rank_order(c_gaps, c_ties, weighted=True)
     kept = np.sort(order[:keep][children.valid[order[:keep]]])
     if kept.size:
       dropped = np.setdiff1d(np.arange(children.n_worlds), kept)

@@ -8,6 +8,7 @@ import dataclasses
 import doctest
 import json
 import pathlib
+import types
 
 import jax
 import numpy as np
@@ -391,6 +392,37 @@ def test_places_rank_and_are_repaired_before_poses():
   search.gaps = np.array([[2.0, 1.0, 9.0, 0.0, 3.0]])
   search.met = search.gaps == 0
   assert search.repair_order(0) == [0, 1, 2, 4]  # places, then poses, each farthest first
+
+
+def test_plateaus_weigh_the_queries_the_top_world_fails():
+  """Each reweigh (a STALL_STEP of a plateau) adds WEIGHT_STEP to the queries
+  the top world fails: a world meeting a place the top world never
+  wins comes to outrank it in the search's (weighted) order, which then turns
+  back as the new top world's own failures gain weight. The unweighted order,
+  which reports the best world, stays the count of places."""
+  search = object.__new__(solver._Search)
+  search.places = np.array([True, True, True, False])
+  search.weights = np.ones(4)
+  search.scale = np.ones(4)
+  search.fixed = []
+  search.gaps = np.array([
+      [0.0, 0.0, 5.0, 0.0],  # 0: places 0 and 1 and the pose
+      [5.0, 5.0, 0.0, 0.0],  # 1: place 2 only (and the pose)
+  ])
+  search.met = search.gaps == 0
+  search.ties = np.zeros(2)
+  search.bank = types.SimpleNamespace(valid=np.ones(2, bool))
+  rows = np.arange(2)
+  assert list(search.best_rows(rows, weighted=True)) == [0, 1]
+  search.reweigh()  # world 0 fails place 2: 2 against 2, fitness still prefers world 0
+  np.testing.assert_array_equal(search.weights, [1, 1, 1 + solver.WEIGHT_STEP, 1])
+  assert list(search.best_rows(rows, weighted=True)) == [0, 1]
+  search.reweigh()
+  assert list(search.best_rows(rows, weighted=True)) == [1, 0]  # place 2 now outweighs places 0 and 1
+  search.reweigh()  # world 1's failures (places 0 and 1) gain weight in turn
+  np.testing.assert_array_equal(search.weights, [2, 2, 3, 1])
+  assert list(search.best_rows(rows, weighted=True)) == [0, 1]
+  assert list(search.best_rows(rows)) == [0, 1]  # unweighted: more places first, whatever the weights
 
 
 def test_solve_records_and_reports_the_places_its_best_world_meets(tiny_bank, tmp_path):
