@@ -502,8 +502,7 @@ class _Search:
   def reweigh(self) -> None:
     """On a plateau: the queries the top world (weighted, meeting the fixed
     queries) fails weigh :data:`WEIGHT_STEP` more from now on."""
-    eligible = np.asarray(self.bank.valid, bool) & self.met[:, self.fixed].all(axis=1)
-    rows = self.best_rows(np.flatnonzero(eligible), weighted=True)
+    rows = self.best_rows(np.flatnonzero(self.eligible()), weighted=True)
     if rows.size:
       self.weights[~self.met[rows[0]]] += WEIGHT_STEP
 
@@ -588,12 +587,16 @@ class _Search:
                         stream_key(self.key, KeyStream.RESEED, self.refinements))
       except MwbxError:
         pass  # nothing randomized to guide: fix among the worlds there are
-    pool = self.met[:, self.fixed].all(axis=1) & np.asarray(self.bank.valid, bool)
+    pool = self.eligible()
     good_enough = self.met[:, self.places].sum(axis=1) >= self.met[best_row, self.places].sum() - FIX_MARGIN
     for q in blocking:
       if (pool & self.met[:, q] & good_enough).any():
         self.fixed.append(int(q))
         break
+
+  def eligible(self) -> np.ndarray:
+    """bool[W]: the valid worlds that meet every fixed query, where the search works."""
+    return np.asarray(self.bank.valid, bool) & self.met[:, self.fixed].all(axis=1)
 
   def release_fixed(self) -> None:
     self.released.update(self.fixed)
@@ -602,8 +605,7 @@ class _Search:
   def pick(self, tries_per_world: int) -> tuple[int, int, int] | None:
     """The best world meeting the fixed queries not yet tried ``tries_per_world``
     times: (row, world id, tries so far), counted as tried; None if none."""
-    eligible = np.asarray(self.bank.valid, bool) & self.met[:, self.fixed].all(axis=1)
-    rows = [r for r in self.best_rows(np.flatnonzero(eligible), weighted=True)
+    rows = [r for r in self.best_rows(np.flatnonzero(self.eligible()), weighted=True)
             if self.tries.get(int(self.bank.world_ids[r]), 0) < tries_per_world]
     if not rows:
       return None
