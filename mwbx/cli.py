@@ -246,10 +246,14 @@ def _budget_line(record: dict) -> str:
 
 
 def _cmd_info(args) -> int:
+  problems = []
   if args.verify:  # read every array of every shard, not only what the summary needs
     problems = shards.verify(args.bank) if shards.has_manifest(pathlib.Path(args.bank)) else []
-    if problems:
-      raise MwbxError("; ".join(problems))
+    if problems and not args.skip_corrupt:
+      raise MwbxError(f"{len(problems)} corrupt shard{'s' * (len(problems) > 1)}: " + "; ".join(problems))
+    if problems:  # every corrupt shard named, then the summary of the others
+      print(f"mwbx: --verify: {len(problems)} corrupt shard{'s' * (len(problems) > 1)}: " + "; ".join(problems),
+            file=sys.stderr)
   bank = _load_bank(args)
   s = bank.summary()
   if args.json:
@@ -258,7 +262,7 @@ def _cmd_info(args) -> int:
                       "cameras": _cameras(bank), "objects": {k: list(v) for k, v in bank.objects.items()},
                       "config": bank.config, "digest": bank.digest, "run": bank.run,
                       "scene_versions": [v["digest"] for v in bank.versions] + [bank.digest]}, indent=2))
-    return 0
+    return 1 if problems else 0
   print(f"bank                {args.bank}")
   errors = f", {s['sim_errors']} of them stopped by MuJoCo errors" if s["sim_errors"] else ""
   overflow = f", {s['contact_overflow']} over the contact budget" if s["contact_overflow"] else ""
@@ -285,7 +289,7 @@ def _cmd_info(args) -> int:
   print(f"rates               record {bank.record_fps:g} fps, query {bank.query_fps:g} fps,"
         f" timestep {bank.timestep:.6g} s")
   print(f"config              {bank.config.get('source') or '-'} (full: mwbx info --json)")
-  return 0
+  return 1 if problems else 0
 
 
 def _load_bank(args):
@@ -493,7 +497,8 @@ def _add_info(sub) -> None:
   p.add_argument("bank")
   p.add_argument("--json", action="store_true")
   p.add_argument("--verify", action="store_true",
-                 help="check every shard's checksums (opening reads only the small arrays)")
+                 help="check every shard's checksums (opening reads only the small arrays); with"
+                      " --skip-corrupt: name every corrupt shard, summarize the rest, exit 1")
   _skip_corrupt(p)
   p.set_defaults(func=_cmd_info)
 

@@ -22,6 +22,7 @@ import hashlib
 import json
 import math
 import pathlib
+import typing
 from typing import Literal
 
 import numpy as np
@@ -41,6 +42,26 @@ class _Strict(pydantic.BaseModel):
   # NaN and infinities are refused in every float field (a scale of .nan made
   # every world unstable; an end_time of .inf overflowed the frame count).
   model_config = pydantic.ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+  @pydantic.field_validator("*", mode="before")
+  @classmethod
+  def _no_booleans_as_numbers(cls, value, info):
+    # Lax pydantic reads `end_time: true` as 1.0 s; YAML's true/false are never numbers here.
+    if _holds_bool(value) and not _admits_bool(cls.model_fields[info.field_name].annotation):
+      raise ValueError("expected a number (true/false are not numbers)")
+    return value
+
+
+def _holds_bool(value) -> bool:
+  """A YAML boolean, alone or in a list of values."""
+  if isinstance(value, (list, tuple)):
+    return any(isinstance(v, bool) for v in value)
+  return isinstance(value, bool)
+
+
+def _admits_bool(annotation) -> bool:
+  """Whether a field's type (or a member of its union) is ``bool``."""
+  return annotation is bool or any(_admits_bool(a) for a in typing.get_args(annotation))
 
 
 class Distribution(_Strict):

@@ -58,7 +58,11 @@ ANG_ACC = SENSOR_OFFSET["ang_acc"]
 
 def find_includes(path: pathlib.Path) -> dict[str, str]:
   """Text of every MJCF file ``path`` includes (recursively), by the name its
-  ``<include file=…>`` gives; MuJoCo resolves them against the main file's folder."""
+  ``<include file=…>`` gives; MuJoCo resolves them against the main file's folder.
+
+  Raises:
+    MwbxError: naming an included file that cannot be read.
+  """
   out: dict[str, str] = {}
   base = path.parent
   pending = [path.read_text()]
@@ -72,16 +76,45 @@ def find_includes(path: pathlib.Path) -> dict[str, str]:
       if name and name not in out:
         try:
           out[name] = (base / name).read_text()
-        except OSError:
-          continue  # MuJoCo names the missing file
+        except OSError as err:
+          raise MwbxError(f"{path}: <include file={name!r}>: cannot read {base / name}: {err.strerror}") from None
         pending.append(out[name])
   return out
 
 
+def stored_includes_only(mjcf_text: str, includes: dict[str, str]) -> None:
+  """MwbxError if the MJCF (or an included text) includes a file not among
+  ``includes``: a model is built only from the texts given with it (a bank's
+  own, stored in it), never from a file a (crafted) MJCF names on disk."""
+  texts = [("the MJCF", mjcf_text)] + [(repr(k), v) for k, v in includes.items()]
+  for where, text in texts:
+    try:
+      root = xml.etree.ElementTree.fromstring(text)
+    except xml.etree.ElementTree.ParseError:
+      continue  # MuJoCo names the syntax error
+    for node in root.iter("include"):
+      name = node.get("file")
+      if name not in includes:
+        raise MwbxError(f"MJCF: {where} includes {name!r}, which is not stored with it; a bank's model is"
+                        f" built only from the MJCF text stored in it")
+
+
+def one_line(err: BaseException) -> str:
+  """MuJoCo's multi-line compiler text as one line ("XML Error: …; Element 'geom', line 3")."""
+  return "; ".join(line.strip() for line in str(err).splitlines() if line.strip())
+
+
 def parse_mjcf(mjcf_text: str, base_dir: str | None = None,
                includes: dict[str, str] | None = None) -> mujoco.MjSpec:
-  """The MjSpec of MJCF text; ``includes`` are the texts of files it includes,
-  ``base_dir`` where meshes and textures are found."""
+  """The MjSpec of MJCF text; ``includes`` are the texts of files it includes
+  (every one: no file is read from disk for an include), ``base_dir`` where
+  meshes and textures are found.
+
+  Raises:
+    MwbxError: an include not among ``includes``.
+    ValueError: MuJoCo's parser error.
+  """
+  stored_includes_only(mjcf_text, includes or {})
   include = {k: v.encode() for k, v in (includes or {}).items()} or None
   spec = mujoco.MjSpec.from_string(mjcf_text, include=include)
   if base_dir is not None:
@@ -194,8 +227,10 @@ class Scene:
     self.mjcf_includes = dict(mjcf_includes or {})
     try:
       plain_model = parse_mjcf(mjcf_text, self.mjcf_dir, self.mjcf_includes).compile()
+    except MwbxError as err:
+      raise MwbxError(f"{source}: scene.mjcf: {err}") from None
     except Exception as err:  # MuJoCo raises ValueError with the parser's text.
-      raise MwbxError(f"{source}: scene.mjcf: MJCF failed to load: {err}") from None
+      raise MwbxError(f"{source}: scene.mjcf: MJCF failed to load: {one_line(err)}") from None
     # The rates follow the physics step (never the reverse): the config from
     # here on states them, and so does its digest.
     timestep = config.sim.timestep if config.sim.timestep is not None else float(plain_model.opt.timestep)

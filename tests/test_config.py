@@ -94,10 +94,28 @@ def test_unknown_names_name_file_and_field(tmp_path, body, field, needle):
   assert str(path) in text and field in text and needle in text
 
 
-def test_mjcf_that_fails_to_load(tmp_path):
-  text, path = scene_error(tmp_path, "scene: {mjcf: model.xml}\n",
-                           "<mujoco><worldbody><body><geom type='sphere'/></worldbody></mujoco>")
+@pytest.mark.parametrize("mjcf", [
+    "<mujoco><worldbody><body><geom type='sphere'/></worldbody></mujoco>",
+    "<mujoco>\n  <worldbody>\n    <body name='a'><freejoint/><geom size='0.1' typo='3'/></body>\n"
+    "  </worldbody>\n</mujoco>",
+    "<mujoco><worldbody><body name='a'><freejoint/><geom type='mesh' mesh='nope'/></body></worldbody></mujoco>",
+])
+def test_mjcf_that_fails_to_load(tmp_path, mjcf):
+  text, path = scene_error(tmp_path, "scene: {mjcf: model.xml}\n", mjcf)
   assert str(path) in text and "scene.mjcf" in text and "MJCF failed to load" in text
+  assert "\n" not in text, text  # MuJoCo's element and line on the same line
+
+
+@pytest.mark.parametrize("body, field", [
+    ("sim: {end_time: true}\n", "sim.end_time"),
+    ("perturb: {alpha: false}\n", "perturb.alpha"),
+    ("randomize: {cube: {position: {scale: [true, 0, 0]}}}\n", "randomize.cube.position.scale"),
+])
+def test_booleans_are_not_numbers(tmp_path, body, field):
+  path = write(tmp_path, "scene: {mjcf: tiny.xml}\n" + body)
+  with pytest.raises(mwbx.MwbxError, match="true/false are not numbers") as err:
+    mwbx.load_config(path)
+  assert str(path) in str(err.value) and field in str(err.value)
 
 
 def test_mjcf_without_moving_bodies(tmp_path):

@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 from typing import Sequence
-import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 
@@ -28,6 +27,7 @@ from mwbx.bank import saving
 from mwbx.bank import shards
 from mwbx.bank import versions
 from mwbx.config import ASSET_DIR
+from mwbx.config import config_from_dict
 from mwbx.errors import MwbxError
 from mwbx.joints import QPOS_WIDTH
 from mwbx.qpos_store import QposStore
@@ -254,15 +254,32 @@ class Bank:
         return str(path.resolve().parent)
     return None
 
+  def scene(self) -> scene_lib.Scene:
+    """The bank's :class:`mwbx.Scene`, built only from the config and MJCF
+    text stored in it (what refinement and solve resample).
+
+    Raises:
+      MwbxError: the stored MJCF includes a file the bank does not store, or
+        its tracked bodies no longer match its own config.
+    """
+    data = dict(self.config)
+    data.pop("source", None)
+    scene = scene_lib.Scene(config_from_dict(data, source="<bank config>"), mjcf_text=self.mjcf_text,
+                            mjcf_includes=self.mjcf_includes, mjcf_dir=self.mjcf_dir())
+    if scene.body_names != tuple(self.body_names):
+      raise MwbxError("bank: the tracked bodies do not match its own config")
+    return scene
+
   def model(self):
     """The scene's ``MjModel`` (with the mwbx observation sensors)."""
     if self._model is None:
-      stored_includes_only(self.mjcf_text, self.mjcf_includes)
       try:
         self._model = scene_lib.build_model(self.mjcf_text, self.body_names, self.mjcf_dir(), self.mjcf_includes)
+      except MwbxError as err:
+        raise MwbxError(f"bank: {err}") from None
       except ValueError as err:
-        raise MwbxError(f"bank: its MJCF does not compile here ({err}); files it names are "
-                        f"looked up relative to {self.mjcf_dir() or 'the working directory'}")
+        raise MwbxError(f"bank: its MJCF does not compile here ({scene_lib.one_line(err)}); files it names are "
+                        f"looked up relative to {self.mjcf_dir() or 'the working directory'}") from None
 
       self._model.opt.timestep = self.timestep
     return self._model
@@ -432,23 +449,6 @@ class Bank:
       raise MwbxError(f"bank: qpos store has {self.qpos_store.n_worlds} worlds, expected {w}")
     if self.com.ndim != 4 or self.com.shape[2] != len(self.body_names):
       raise MwbxError(f"bank: com has shape {self.com.shape}, expected [W, P, {len(self.body_names)}, 3]")
-
-
-def stored_includes_only(mjcf_text: str, includes: dict[str, str]) -> None:
-  """MwbxError if the MJCF (or an included file) includes a file the bank does
-  not store: a bank's model is built only from the text stored in it, never
-  from a file a (crafted) manifest names on disk."""
-  texts = [("the bank's MJCF", mjcf_text)] + [(repr(k), v) for k, v in includes.items()]
-  for where, text in texts:
-    try:
-      root = ElementTree.fromstring(text)
-    except ElementTree.ParseError:
-      continue  # MuJoCo names the syntax error
-    for node in root.iter("include"):
-      name = node.get("file")
-      if name not in includes:
-        raise MwbxError(f"bank: {where} includes {name!r}, which the bank does not store; a bank's model is"
-                        f" built only from the MJCF text stored in it")
 
 
 def rows_of(world_ids: np.ndarray, ids):

@@ -107,6 +107,7 @@ class BankDirectory:
   def __init__(self, path: str | pathlib.Path):
     self.path = pathlib.Path(path).absolute()
     self.manifest = read_manifest(self.path) if has_manifest(self.path) else None
+    self._written: list[str] = []  # shard folders written since the lock was taken, not yet committed
 
   # -- reading the manifest ---------------------------------------------------------
 
@@ -187,9 +188,14 @@ class BankDirectory:
         if has_manifest(self.path):
           self.manifest = read_manifest(self.path)
         # Shards are written only under this lock: a temporary shard folder
-        # here now was left by a process that died writing it.
-        for tmp in (self.path / SHARDS).glob(".tmp-*"):
-          files.remove_quietly(tmp)
+        # here now, or a shard in no manifest (its manifest write failed, or
+        # its writer died before it), was left by a write that did not land.
+        listed = {e["name"] for e in self.manifest["shards"]} if self.manifest is not None else set()
+        if (self.path / SHARDS).is_dir():
+          for folder in (self.path / SHARDS).iterdir():
+            if folder.name.startswith(".tmp-") or (folder.is_dir() and folder.name not in listed):
+              files.remove_quietly(folder)
+        self._written = []
         yield
       finally:
         fcntl.flock(lock, fcntl.LOCK_UN)
@@ -227,6 +233,7 @@ class BankDirectory:
                                  scene_version=np.full(bank.n_worlds, len(history), np.int16))
     if rows.size:
       self.manifest["shards"].append(_write_shard(self.path, bank, rows, self._next_shard_name()))
+      self._written.append(self.manifest["shards"][-1]["name"])
     if run is not None:
       self._put_run(run)
     self.manifest["next_id"] = max(int(self.manifest["next_id"]), bank.next_world_id)
@@ -255,14 +262,21 @@ class BankDirectory:
       self.commit()
 
   def commit(self) -> None:
-    """Replaces the manifest atomically."""
-    files.write_atomic(self.path / MANIFEST, json.dumps(self.manifest, indent=1), "bank manifest")
+    """Replaces the manifest atomically; if that fails (a full disk), the
+    shards written since the lock was taken are removed with it: a shard in no
+    manifest is never left behind."""
+    try:
+      files.write_atomic(self.path / MANIFEST, json.dumps(self.manifest, indent=1), "bank manifest")
+    except BaseException:
+      for name in self._written:
+        files.remove_quietly(self.path / SHARDS / name)
+      self.manifest["shards"] = [e for e in self.manifest["shards"] if e["name"] not in self._written]
+      self._written = []
+      raise
+    self._written = []
 
   def _next_shard_name(self) -> str:
     taken = {e["name"] for e in self.manifest["shards"]}
-    shards = self.path / SHARDS
-    if shards.is_dir():  # shards renamed into place by a process killed before its manifest write
-      taken |= {p.name for p in shards.iterdir()}
     n = len(self.manifest["shards"])
     while f"{n:05d}" in taken:
       n += 1

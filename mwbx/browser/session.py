@@ -342,17 +342,17 @@ class Session:
     if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
         or not 1 <= n_samples <= MAX_REFINE_SAMPLES:
       raise MwbxError(f"refine: samples must be a whole number from 1 to {MAX_REFINE_SAMPLES}, got {n_samples!r}")
+    # Every argument is checked before the job slot is taken: a refused one
+    # never leaves a job that is not done (which would refuse every later one).
+    scene_path = None if scene is None or not str(scene).strip() else query_file_path(self.query_dir, scene)
+    if scene_path is not None and not scene_path.is_file():
+      raise MwbxError(f"refine: scene file {str(scene).strip()!r}: no such file under {self.query_dir}")
     with self._lock:
       running = self.job
       if running is not None and not running.done.is_set():
         raise MwbxError(f"refine: world {running.world} is being refined ({running.n_samples} samples);"
                         " wait for it or cancel it")
       job = self.job = RefineJob(world, n_samples)
-
-    scene_path = None if scene is None or not str(scene).strip() else query_file_path(self.query_dir, scene)
-    if scene_path is not None and not scene_path.is_file():
-      job.done.set()
-      raise MwbxError(f"refine: scene file {str(scene).strip()!r}: no such file under {self.query_dir}")
 
     def work():
       try:

@@ -21,6 +21,10 @@ from mwbx.queries.frustum import Frustum
 
 # Display depth of a frustum without a far plane, metres (viewers clip it).
 _DISPLAY_FAR = 100.0
+# Largest magnitude of a camera coordinate, near/far depth (metres) or screen
+# coordinate: far beyond any scene, and small enough that the view math
+# (cross products, norms) never overflows float64.
+MAX_COORDINATE = 1e9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,8 +43,8 @@ class ScreenBox:
 
   def __post_init__(self):
     values = (self.u0, self.v0, self.u1, self.v1)
-    if not all(math.isfinite(float(x)) for x in values):
-      raise MwbxError(f"box: coordinates must be finite, got {list(values)}")
+    if not all(math.isfinite(float(x)) and abs(float(x)) <= MAX_COORDINATE for x in values):
+      raise MwbxError(f"box: coordinates must be finite numbers within ±{MAX_COORDINATE:g}, got {list(values)}")
     if self.u0 > self.u1 or self.v0 > self.v1:
       raise MwbxError(
           f"box: empty, expected [u0, v0, u1, v1] with u0 <= u1 and v0 <= v1, got {list(values)}")
@@ -81,10 +85,10 @@ class Camera:
             f" aspect={self.aspect:.4g}{kind})")
 
   def __post_init__(self):
-    if not (math.isfinite(self.aspect) and self.aspect > 0):
-      raise MwbxError(f"camera: aspect must be a positive number, got {self.aspect}")
-    limit = math.inf if self.orthographic else 180.0
-    if not (math.isfinite(self.fovy) and 0 < self.fovy < limit):
+    if not (math.isfinite(self.aspect) and 0 < self.aspect <= MAX_COORDINATE):
+      raise MwbxError(f"camera: aspect must be a positive number up to {MAX_COORDINATE:g}, got {self.aspect}")
+    limit = MAX_COORDINATE if self.orthographic else 180.0
+    if not (math.isfinite(self.fovy) and 0 < self.fovy <= limit and (self.orthographic or self.fovy < limit)):
       what = "view height (m) > 0" if self.orthographic else "fovy in (0, 180) degrees"
       raise MwbxError(f"camera: {what} expected, got {self.fovy}")
 
@@ -193,10 +197,10 @@ class Camera:
     Returns:
       Frustum with 4 side planes plus the near/far planes given.
     """
-    if near is not None and not (math.isfinite(near) and near >= 0):
-      raise MwbxError(f"near: must be a number >= 0 (metres), got {near}")
-    if far is not None and not (math.isfinite(far) and far > 0):
-      raise MwbxError(f"far: must be a positive number (metres), got {far}")
+    if near is not None and not (math.isfinite(near) and 0 <= near <= MAX_COORDINATE):
+      raise MwbxError(f"near: must be a number from 0 to {MAX_COORDINATE:g} (metres), got {near}")
+    if far is not None and not (math.isfinite(far) and 0 < far <= MAX_COORDINATE):
+      raise MwbxError(f"far: must be a positive number up to {MAX_COORDINATE:g} (metres), got {far}")
     if near is not None and far is not None and near >= far:
       raise MwbxError(f"near/far: empty frustum, near {near} >= far {far}")
     degenerate = box.u0 == box.u1 or box.v0 == box.v1
@@ -249,6 +253,6 @@ class Camera:
 
 def _vec3(value, field: str) -> np.ndarray:
   v = np.asarray(value, np.float64).reshape(-1)
-  if v.shape != (3,) or not np.all(np.isfinite(v)):
-    raise MwbxError(f"camera: {field} must be 3 finite numbers, got {value!r}")
+  if v.shape != (3,) or not np.all(np.isfinite(v)) or np.any(np.abs(v) > MAX_COORDINATE):
+    raise MwbxError(f"camera: {field} must be 3 finite numbers within ±{MAX_COORDINATE:g} m, got {value!r}")
   return v.copy()

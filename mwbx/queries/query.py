@@ -37,6 +37,7 @@ from mwbx.queries.intervals import checked_interval
 from mwbx.queries import joint as joint_lib
 from mwbx.queries import segments
 from mwbx.queries.camera import Camera
+from mwbx.queries.camera import MAX_COORDINATE
 from mwbx.queries.camera import ScreenBox
 from mwbx.queries.frustum import Frustum
 
@@ -98,8 +99,8 @@ class Query:
         raise MwbxError(f"{label}: radius must be a number of metres or 'auto', got {self.radius!r}")
     else:
       r = float(self.radius)
-      if not (math.isfinite(r) and r >= 0):
-        raise MwbxError(f"{label}: radius must be a finite number >= 0 (metres), got {self.radius!r}")
+      if not (math.isfinite(r) and 0 <= r <= MAX_COORDINATE):
+        raise MwbxError(f"{label}: radius must be a number from 0 to {MAX_COORDINATE:g} (metres), got {self.radius!r}")
       object.__setattr__(self, "radius", r)
     if self.shape not in SHAPES:
       raise MwbxError(f"{label}: shape must be one of {SHAPES}, got {self.shape!r}")

@@ -33,7 +33,7 @@ import jax
 from mwbx import bank as bank_lib
 from mwbx.batch_sim import mujoco_c
 from mwbx.batch_sim.sampler import MAX_WORLD_ID, Sampler, check_chunk_memory
-from mwbx.config import Config, config_from_dict, load_config
+from mwbx.config import Config, load_config
 from mwbx.errors import MwbxError
 from mwbx.queries import first_entry
 from mwbx.refinement import runners
@@ -41,17 +41,6 @@ from mwbx.refinement.plan import RefinePlan, RefineStats, run_plan  # noqa: F401
 from mwbx.scene import Scene, objects_of
 
 DEFAULT_MARGIN = 0.01  # m, contact margin of the interaction test
-
-
-def _scene_of(bank):
-  data = dict(bank.config)
-  data.pop("source", None)
-  scene = Scene(config_from_dict(data, source="<bank config>"), mjcf_text=bank.mjcf_text,
-                mjcf_includes=bank.mjcf_includes,
-                mjcf_dir=bank.mjcf_dir())
-  if scene.body_names != tuple(bank.body_names):
-    raise MwbxError("refine: the bank's tracked bodies do not match its own config")
-  return scene
 
 
 def resolve_objects(bank, objects: str | Sequence[str], field: str = "objects",
@@ -212,7 +201,7 @@ def sampler_for(bank, backend: str | None = None) -> Sampler:
   if cache_key not in _SAMPLERS:
     if len(_SAMPLERS) >= 4:
       _SAMPLERS.pop(next(iter(_SAMPLERS))).close()
-    _SAMPLERS[cache_key] = Sampler(_scene_of(bank), backend, contact_budget=budget)
+    _SAMPLERS[cache_key] = Sampler(bank.scene(), backend, contact_budget=budget)
   return _SAMPLERS[cache_key]
 
 

@@ -25,6 +25,7 @@ import pytest
 
 import mwbx
 from mwbx import cli
+from mwbx.bank import shards
 from mwbx.errors import MwbxError
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -282,6 +283,46 @@ def test_a_full_disk_is_one_line_and_the_next_run_resumes(tmp_path):
   assert sorted(mwbx.Bank.load(out).world_ids.tolist()) == list(range(8))
 
 
+def test_a_failed_manifest_write_leaves_no_shard_behind(tmp_path):
+  # The third chunk's shard was renamed into place, then its manifest write failed (a full disk): the
+  # folder stayed, in no manifest.
+  out = tmp_path / "bank"
+  argv = ["sample", str(TINY), "--worlds", "8", "--chunk-size", "2", "--backend", "native", "--out", str(out)]
+  script = textwrap.dedent(f"""
+      import errno, sys
+      from mwbx import cli, files
+      real, calls = files.write_atomic, [0]
+      def write_atomic(path, data, what="file"):
+        if what == "bank manifest":
+          calls[0] += 1
+          if calls[0] == 4:  # the run's record, two shards, then the third shard's manifest
+            raise files.MwbxError(f"{{path}}: cannot write {{what}} (no space left on device)")
+        return real(path, data, what)
+      files.write_atomic = write_atomic
+      sys.exit(cli.main({argv!r}))
+      """)
+  full = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=1200)
+  assert full.returncode == 2 and "Traceback" not in full.stderr, full.stderr
+  errors = [line for line in full.stderr.splitlines() if "error" in line]
+  assert len(errors) == 1 and "4 worlds of this run are saved" in errors[0], errors
+  manifest = _manifest(out)
+  assert sorted(p.name for p in (out / "shards").iterdir()) == sorted(e["name"] for e in manifest["shards"])
+  assert mwbx.Bank.load(out).n_worlds == 4
+  again = subprocess.run(_mwbx(*argv), capture_output=True, text=True, timeout=1200)
+  assert again.returncode == 0, again.stderr
+  assert "resuming: 4 of 8 worlds done" in again.stderr
+  assert sorted(mwbx.Bank.load(out).world_ids.tolist()) == list(range(8))
+
+
+def test_a_shard_in_no_manifest_is_removed_at_the_next_write(small_bank):
+  # A writer killed between renaming its shard into place and its manifest write.
+  orphan = small_bank / "shards" / "00007"
+  shutil.copytree(small_bank / "shards" / "00001", orphan)
+  shards.BankDirectory(small_bank).append_run({"id": "r", "seed": 0, "id_ranges": [], "finished": True})
+  assert not orphan.exists() and (small_bank / "shards" / "00001").exists()
+  assert mwbx.Bank.load(small_bank).n_worlds == 4
+
+
 def test_commands_open_a_bank_with_a_corrupt_shard_with_skip_corrupt(small_bank, tmp_path, capsys):
   flags = small_bank / "shards" / "00000" / "flags.npy"
   flags.write_bytes(flags.read_bytes()[:20])  # truncated
@@ -302,6 +343,28 @@ def test_commands_open_a_bank_with_a_corrupt_shard_with_skip_corrupt(small_bank,
   assert cli.main(["drop", str(small_bank), "3", "--skip-corrupt"]) == 0
   manifest = _manifest(small_bank)
   assert manifest["dropped"] == [3] and manifest["shards"][0]["id_ranges"] == [[0, 1]]
+
+
+def test_info_verify_skip_corrupt_names_every_corrupt_shard(tiny_native, tmp_path, capsys):
+  # --verify stopped at the first corrupt shard, even with --skip-corrupt.
+  out = tmp_path / "bank"
+  bank, _ = tiny_native.run(6, jax.random.key(0))
+  for n in (2, 4, 6):
+    bank._take(np.arange(n)).save(out)
+  assert sorted(p.name for p in (out / "shards").iterdir()) == ["00000", "00001", "00002"]
+  flags = out / "shards" / "00000" / "flags.npy"
+  flags.write_bytes(flags.read_bytes()[:20])  # truncated: found when the bank opens
+  qpos = out / "shards" / "00002" / "qpos_data.npy"
+  data = bytearray(qpos.read_bytes())
+  data[-1] ^= 0xFF  # one flipped byte: found only by --verify
+  qpos.write_bytes(bytes(data))
+  assert cli.main(["info", str(out), "--verify"]) == 2
+  err = capsys.readouterr().err
+  assert "2 corrupt shards" in err and "00000" in err and "00002" in err and len(err.strip().splitlines()) == 1
+  assert cli.main(["info", str(out), "--verify", "--skip-corrupt"]) == 1
+  captured = capsys.readouterr()
+  assert "2 corrupt shards" in captured.err and "00000" in captured.err and "00002" in captured.err
+  assert "worlds              2 " in captured.out and "world ids           2..3" in captured.out
 
 
 def test_duplicate_world_ids_on_disk_are_named_at_load(small_bank):
@@ -351,16 +414,34 @@ def test_a_bank_sampled_elsewhere_keeps_its_worlds_when_saved_over_the_same_ids(
   np.testing.assert_array_equal(loaded.qpos_frames(0), again.qpos_frames(0))
 
 
-def test_a_bank_model_is_built_only_from_the_text_it_stores(small_bank, tmp_path):
+def _plant_include(small_bank, tmp_path) -> pathlib.Path:
+  """Rewrites the bank's stored MJCF to include a file outside the bank (a crafted manifest)."""
   planted = tmp_path / "planted.xml"
   planted.write_text('<mujoco><worldbody><body name="planted"><geom size="0.1"/></body></worldbody></mujoco>')
   manifest = _manifest(small_bank)
   text = manifest["scene"]["mjcf_text"]
   manifest["scene"]["mjcf_text"] = text.replace("<worldbody>", f'<include file="{planted}"/>\n  <worldbody>', 1)
   (small_bank / "manifest.json").write_text(json.dumps(manifest))
+  return planted
+
+
+def test_a_bank_model_is_built_only_from_the_text_it_stores(small_bank, tmp_path):
+  _plant_include(small_bank, tmp_path)
   bank = mwbx.Bank.load(small_bank)
-  with pytest.raises(MwbxError, match=r"includes '.*planted.xml', which the bank does not store"):
+  with pytest.raises(MwbxError, match=r"includes '.*planted.xml', which is not stored with it"):
     bank.model()
+
+
+def test_refine_never_reads_a_file_a_crafted_bank_includes(small_bank, tmp_path, capsys):
+  # refine built its scene from the stored text without the check Bank.model makes, and opened the file.
+  _plant_include(small_bank, tmp_path)
+  bank = mwbx.Bank.load(small_bank)
+  with pytest.raises(MwbxError, match=r"includes '.*planted.xml', which is not stored with it"):
+    mwbx.refine(bank, 0, "ball", t_min=0.1, n_samples=2, key=jax.random.key(1), backend="native")
+  assert cli.main(["refine", str(small_bank), "--world", "0", "--objects", "ball", "--time", "0.1", "--samples", "2"]) == 2
+  err = capsys.readouterr().err
+  assert "planted.xml" in err and "not stored with it" in err and len(err.strip().splitlines()) == 1, err
+  assert mwbx.Bank.load(small_bank).n_worlds == 4
 
 
 def _torn_reads(path: pathlib.Path, parse: str, stop: pathlib.Path):

@@ -99,3 +99,17 @@ def test_refine_in_the_background_joins_the_bank(tmp_path):
   session.add(include)
   t = session.first_entry_of_last_box(parent, ["ball"])
   assert t == mq.first_entry(session.bank, parent, ["ball"], include.frustum)
+
+
+@pytest.mark.parametrize("scene", ["../x.yaml", "scene.txt", "missing.yaml"])
+def test_a_refused_scene_name_does_not_lock_refinement(tmp_path, scene):
+  # The refused name left a job never marked done: every later refine said "being refined".
+  bank = quickstart_bank(2)
+  bank.save(tmp_path / "bank")
+  session = Session(mwbx.Bank.load(tmp_path / "bank"), tmp_path / "bank")
+  parent = int(bank.world_ids[0])
+  with pytest.raises(mwbx.MwbxError, match="scene file|outside|must end in .yaml"):
+    session.refine(parent, "capsule", t_min=0.9, n_samples=1, scene=scene)
+  assert session.cancel() is None
+  job = session.refine(parent, "capsule", t_min=0.9, n_samples=2, key=jax.random.key(1), wait=True)
+  assert job.error is None and len(job.new_ids) == 2 and session.bank.n_worlds == 4

@@ -1,6 +1,7 @@
 """Queries on a real sampled bank and the `mwbx query` command end to end."""
 
 import json
+import warnings
 import pathlib
 
 import jax
@@ -92,3 +93,24 @@ def test_cli_errors_are_one_line(saved_bank, tmp_path, capsys):
   assert err.count("\n") == 1 and "queries[0].bodies" in err and "wheel" in err and str(path) in err
   code, _, err = run(capsys, saved_bank, EXAMPLE, "--rank", "speed")
   assert code == 2 and "unknown metric 'speed'" in err
+
+
+@pytest.mark.parametrize("camera, query, needle", [
+    ("{eye: [1e300, -3, 1], target: [0, 0, 0.4], up: [0, 0, 1], fovy: 60, aspect: 1}",
+     "{box: [0, 0, 1, 1], bodies: [ball]}", "eye"),
+    ("{eye: [0, -3, 1], target: [0, 0, 0.4], up: [0, 0, 1], fovy: 60, aspect: 1}",
+     "{box: [0, 0, 1e300, 1], bodies: [ball]}", "box"),
+    ("{eye: [0, -3, 1], target: [0, 0, 0.4], up: [0, 0, 1], fovy: 60, aspect: 1}",
+     "{box: [0, 0, 1, 1], bodies: [ball], near: 1, far: 1e300}", "far"),
+    ("{eye: [0, -3, 1], target: [0, 0, 0.4], up: [0, 0, 1], fovy: 1e300, aspect: 1e300, orthographic: true}",
+     "{box: [0, 0, 1, 1], bodies: [ball]}", "aspect"),
+])
+def test_huge_finite_numbers_get_one_line_and_no_warnings(saved_bank, tmp_path, capsys, camera, query, needle):
+  # Numbers near the float64 limit overflowed the view math: numpy's warnings came before the error.
+  path = tmp_path / "huge.yaml"
+  path.write_text(f"camera: {camera}\nqueries:\n  - {query}\n")
+  with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    code, _, err = run(capsys, saved_bank, path)
+  assert code == 2 and not caught, [str(w.message) for w in caught]
+  assert len(err.strip().splitlines()) == 1 and needle in err and "1e+09" in err, err
