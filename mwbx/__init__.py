@@ -35,6 +35,7 @@ from mwbx.queries import OrientationQuery
 from mwbx.queries import Query
 from mwbx.queries import QuerySet
 from mwbx.queries import ScreenBox
+from mwbx.queries import VolumeQuery
 from mwbx.queries import constraints_satisfied
 from mwbx.queries import evaluate
 from mwbx.queries import evaluate_each
@@ -99,6 +100,7 @@ __all__ = [
     "Sampler",
     "Scene",
     "ScreenBox",
+    "VolumeQuery",
     "browse",
     "config_from_dict",
     "constraints_satisfied",

@@ -26,7 +26,7 @@ import numpy as np
 
 from mwbx.queries import Camera, Query, ScreenBox, evaluate, load_queries, rank
 from mwbx.queries import index as index_lib
-from mwbx.queries import query as query_lib
+from mwbx.queries import paths as query_lib
 
 METRIC_NAMES = ("angular_travel", "rest_time", "collisions", "orientation_error",
                 "path_length", "max_height")
@@ -104,7 +104,7 @@ def numpy_hits(bank, query, chunk_worlds: int = 128) -> np.ndarray:
 
 def jax_brute_hits(bank, query) -> np.ndarray:
   normals, offsets, mask, window = query_lib.resolve(bank, query)
-  state = query_lib._state(bank)
+  state = query_lib.bank_state(bank)
   return np.asarray(index_lib.brute_force_hits(state.index, normals, offsets, mask, window))
 
 

@@ -13,7 +13,7 @@ so phases can run at different times):
 - ``tower``: opening that bank and answering its query file
   (configs/queries/trebuchet_tower.yaml), each in a fresh child process: wall
   time and peak memory, opened lazily (the default: indexed whole below
-  ``query.IN_MEMORY_COM_BYTES``), lazily and streamed a shard at a time, and
+  ``paths.IN_MEMORY_COM_BYTES``), lazily and streamed a shard at a time, and
   -- the baseline -- eagerly (``Bank.load(path, lazy=False)``); the answers
   must be equal.
 - ``synthetic``: a pachinko-size bank of 100 k worlds (sampled worlds of
@@ -122,7 +122,7 @@ RESULT = dict(open_seconds=t_open, worlds=bank.n_worlds)
 
 _QUERY = """
 import time, hashlib, mwbx
-from mwbx.queries import query
+from mwbx.queries import paths as query
 if {streamed}:
   query.IN_MEMORY_COM_BYTES = 0  # a shard at a time, whatever the bank's size
 t0 = time.perf_counter(); bank = mwbx.Bank.load({path!r}{lazy}); t_open = time.perf_counter() - t0
@@ -138,7 +138,7 @@ RESULT = dict(open_seconds=t_open, query_seconds=t_first, query_again_seconds=t_
 
 def open_and_query(path: pathlib.Path, queries: pathlib.Path, eager_baseline: bool) -> dict:
   """Opening and querying in fresh processes: lazily (mwbx's default policy:
-  indexed whole up to query.IN_MEMORY_COM_BYTES), lazily and streamed a shard
+  indexed whole up to paths.IN_MEMORY_COM_BYTES), lazily and streamed a shard
   at a time, and (baseline) eagerly."""
   out = {}
   modes = [("lazy", "", False), ("streamed", "", True)]

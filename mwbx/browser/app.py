@@ -282,17 +282,8 @@ class Browser:
     session = self.session
     lines = [f"**{counts.all} of {counts.valid} worlds** satisfy all queries"]
     for i, (e, n) in enumerate(zip(session.entries, counts.per_query)):
-      q = e.query
       state = "" if e.enabled else " (off)"
-      who = ",".join(q.bodies) if getattr(q, "bodies", None) else "any body"
-      if isinstance(q, mq.OrientationQuery):
-        goal = "initial orientation" if q.target is not None else "upright"
-        what = f"{q.sign} {who} within {q.within_deg:g}° of {goal}"
-      elif q.frustum is None:
-        what = f"joint {q.joint} turns {q.turn}"
-      else:
-        what = f"{q.sign} {who}" + (" (geometry)" if getattr(q, "shape", "com") == "geometry" else "")
-      lines.append(f"- q{i} {what}: {n}{state}")
+      lines.append(f"- q{i} {e.query.describe()}: {n}{state}")
     hidden = [f"{n} {name}" for name, n in left_out.items() if n]
     if hidden:
       lines.append(f"(paths not drawn: {', '.join(hidden)} worlds)")

@@ -226,8 +226,9 @@ class Session:
     return View(each, match & ~rejected, rejected & valid, self.counts())
 
   def orientation_query(self):
-    """The last enabled orientation query (the sorter's ``orientation_error``), or None."""
-    found = [q for q in self.enabled if isinstance(q, mq.OrientationQuery)]
+    """The last enabled query with an error to rank by (an orientation query:
+    the sorter's ``orientation_error``), or None."""
+    found = [q for q in self.enabled if q.error_metric is not None]
     return found[-1] if found else None
 
   def match(self) -> np.ndarray:
@@ -259,7 +260,7 @@ class Session:
       query = self.orientation_query()
       if query is None:
         raise MwbxError(f"sorter: {ORIENTATION_ERROR!r} needs an orientation query (add one first)")
-      values = mq.orientation_error(self.bank, query, reduce=reduce)  # over the query's own bodies
+      values = query.error(self.bank, reduce)  # over the query's own bodies
       descending = False  # the most nearly oriented first
     else:
       values = mq.metrics.score(self.bank, [mq.Term(metric, None if not bodies else tuple(bodies), reduce, 1.0)])

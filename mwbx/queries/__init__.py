@@ -11,11 +11,12 @@ from mwbx.queries.metrics import orientation_error
 from mwbx.queries.metrics import rank
 from mwbx.queries.metrics import score
 from mwbx.queries.orientation import OrientationQuery
+from mwbx.queries.paths import body_radii
+from mwbx.queries.paths import first_entry
 from mwbx.queries.query import Query
-from mwbx.queries.query import body_radii
+from mwbx.queries.query import VolumeQuery
 from mwbx.queries.query import constraints_satisfied
 from mwbx.queries.query import evaluate
 from mwbx.queries.query import evaluate_each
-from mwbx.queries.query import first_entry
 from mwbx.queries.query_file import QuerySet
 from mwbx.queries.query_file import load_queries

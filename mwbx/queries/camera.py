@@ -137,6 +137,15 @@ class Camera:
         name=name,
     )
 
+  def to_dict(self) -> dict:
+    """Its entry in a query file: an MJCF camera by name; any other as look-at
+    (its own axes, exactly)."""
+    if self.name:
+      return {"mjcf": self.name, "aspect": float(self.aspect)}
+    return {"eye": [float(x) for x in self.eye], "target": [float(x) for x in self.eye + self.forward],
+            "up": [float(x) for x in self.up], "fovy": float(self.fovy), "aspect": float(self.aspect),
+            "orthographic": bool(self.orthographic)}
+
   @property
   def half_height(self) -> float:
     """Half the image height at depth 1 (perspective) or in metres (ortho)."""

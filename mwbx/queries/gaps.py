@@ -3,7 +3,8 @@
 
 A gap is 0 exactly where ``evaluate_each`` says the query is met and positive
 elsewhere, so a search that drives gaps to 0 solves the queries as the exact
-kernels judge them. Where not met:
+kernels judge them. Each query type grades itself (:meth:`Query.gap`); where
+not met:
 
 * an include query: how far the selected bodies' stored COM points in the
   window stay outside the volume (for a point, the largest signed distance to
@@ -28,57 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mwbx.queries import joint as joint_lib
-from mwbx.queries import orientation as orientation_lib
-from mwbx.queries.query import Query, as_queries, body_radii, evaluate_each, selection_mask
+from mwbx.queries.query import as_queries, evaluate_each
 
 MIN_GAP = 1e-4  # m (or rad): the gap of a failed query the stored points cannot grade
-
-
-def _window_points(bank, window) -> np.ndarray:
-  """bool[P] stored COM points in a window (seconds; the tail repeats the last point)."""
-  n_points = bank.com.shape[1]
-  t = np.arange(n_points) / float(bank.query_fps)
-  t0, t1 = (None, None) if window is None else window
-  inside = np.ones(n_points, bool)
-  if t0 is not None:
-    inside &= t >= t0 - 1e-9
-  if t1 is not None:
-    inside &= t <= t1 + 1e-9
-  if not inside.any():  # a window between two points: the nearest one
-    centre = 0.5 * ((t0 or 0.0) + (t[-1] if t1 is None else t1))
-    inside[np.argmin(np.abs(t - centre))] = True
-  return inside
-
-
-def _frustum_gap(bank, query: Query, com: np.ndarray, radii: np.ndarray) -> np.ndarray:
-  """f64[W] ungated measure of one volume query (see the module docstring)."""
-  mask = selection_mask(bank, query.bodies)
-  if not mask.any():
-    return np.full(len(com), np.inf if query.include else 0.0)
-  if query.radius == "auto" or query.shape == "geometry":
-    radius = radii[mask]
-  else:
-    radius = np.full(int(mask.sum()), float(query.radius))
-  points = com[:, _window_points(bank, query.window)][:, :, mask]  # [W, P, b, 3]
-  # Outside distance per point: the largest plane distance, sphere pushed out.
-  d = query.frustum.distances(points).max(axis=-1) - radius[None, None, :]  # [W, P, b]
-  if query.include:
-    per_body = np.maximum(d.min(axis=1), 0.0)
-    return per_body.min(axis=1) if query.mode == "any" else per_body.max(axis=1)
-  depth = np.maximum(-d.min(axis=1), 0.0)  # the deepest point inside
-  return depth.max(axis=1) if query.mode == "any" else depth.min(axis=1)
-
-
-def _joint_gap(bank, query: joint_lib.JointQuery) -> np.ndarray:
-  turn = joint_lib.joint_turn(bank, query.joint, query.window, query.of)
-  lo, hi = query.turn
-  gap = np.zeros_like(turn)
-  if lo is not None:
-    gap = np.maximum(gap, lo - turn)
-  if hi is not None:
-    gap = np.maximum(gap, turn - hi)
-  return gap
 
 
 def query_gaps(bank, queries) -> np.ndarray:
@@ -104,17 +57,8 @@ def query_gaps(bank, queries) -> np.ndarray:
   gaps = np.zeros((bank.n_worlds, len(queries)))
   if bank.n_worlds == 0 or not queries:
     return gaps
-  com = radii = None
   for i, query in enumerate(queries):
-    if isinstance(query, Query):
-      if com is None:
-        com = np.asarray(bank.com[np.arange(bank.n_worlds)], np.float32)
-        radii = body_radii(bank.model(), bank.body_ids)
-      gaps[:, i] = _frustum_gap(bank, query, com, radii)
-    elif isinstance(query, orientation_lib.OrientationQuery):
-      gaps[:, i] = orientation_lib.orientation_gap(bank, query, selection_mask(bank, query.bodies))
-    else:
-      gaps[:, i] = _joint_gap(bank, query)
+    gaps[:, i] = query.gap(bank)
   gaps = np.where(met, 0.0, np.maximum(np.nan_to_num(gaps, nan=np.inf), MIN_GAP))
   gaps[~np.asarray(bank.valid, bool)] = np.inf
   return gaps

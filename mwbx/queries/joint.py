@@ -27,11 +27,12 @@ import numpy as np
 
 from mwbx.errors import MwbxError
 from mwbx.joints import JNT_HINGE, JNT_SLIDE
+from mwbx.queries.query import Query
 from mwbx.queries.intervals import checked_interval
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class JointQuery:
+class JointQuery(Query):
   """The change of one hinge/slide joint over a window lies in a range.
 
   joint: the joint's MJCF name (a hinge or slide joint).
@@ -49,12 +50,9 @@ class JointQuery:
   window: tuple[float | None, float | None] | None = None
   name: str = ""
   of: str = "change"
-  # Shared with mwbx.queries.Query, so lists of queries mix: a joint query is
-  # a positive constraint on no tracked body's path and draws no volume.
+  # A joint query is a positive constraint on no tracked body's path and draws no volume.
   sign = "include"
-  include = True
   bodies = None
-  frustum = None
 
   def __post_init__(self):
     label = f"query {self.name!r}" if self.name else "query"
@@ -63,6 +61,71 @@ class JointQuery:
       raise MwbxError(f"{label}: of must be one of {MEASURES}, got {self.of!r}")
     if self.window is not None:
       object.__setattr__(self, "window", checked_interval(label, "window", self.window, ("t0", "t1"), "seconds"))
+
+
+  # -- the Query interface -----------------------------------------------------------
+
+  def evaluate(self, bank) -> np.ndarray:
+    return evaluate_joint(bank, self)
+
+  def gap(self, bank) -> np.ndarray:
+    """f64[W] how far the joint's turn lies outside its range, radians or metres."""
+    turn = joint_turn(bank, self.joint, self.window, self.of)
+    lo, hi = self.turn
+    gap = np.zeros_like(turn)
+    if lo is not None:
+      gap = np.maximum(gap, lo - turn)
+    if hi is not None:
+      gap = np.maximum(gap, turn - hi)
+    return gap
+
+  def objects(self, owner) -> list[str]:
+    """The object the joint belongs to (none if its body is no object)."""
+    model = owner.model() if callable(owner.model) else owner.model
+    body = model.jnt_bodyid[model.joint(self.joint).id]
+    root = model.body(int(model.body_rootid[body])).name
+    return [root] if root in owner.objects else []
+
+  def body_mask(self, bank) -> np.ndarray:
+    """bool[B] the tracked bodies of the joint's object (none if it is no object's)."""
+    objects = self.objects(bank)
+    mask = np.zeros(len(bank.body_names), bool)
+    if objects:
+      mask[np.asarray(bank.select_bodies(objects), np.int64)] = True
+    return mask
+
+  def describe(self) -> str:
+    return f"joint {self.joint} turns {self.turn}" + ("" if self.of == "change" else f" ({self.of})")
+
+  def to_dict(self) -> dict:
+    out: dict = {"name": self.name, "joint": self.joint, "turn": list(self.turn), "of": self.of}
+    if self.window is not None:
+      out["window"] = list(self.window)
+    return out
+
+  @classmethod
+  def claims(cls, entry) -> bool:
+    return entry.joint is not None or entry.turn is not None or entry.of is not None
+
+  @classmethod
+  def from_entry(cls, entry, index: int, context) -> JointQuery:
+    where = f"queries[{index}]"
+    spatial = [name for name in ("box", "region", "camera", "near", "far", "bodies")
+               if getattr(entry, name) is not None]
+    wrong = [n for n, bad in (("sign", entry.sign != "include"), ("mode", entry.mode != "any"),
+                              ("radius", entry.radius != 0.0)) if bad]
+    if spatial or wrong:
+      raise MwbxError(f"{context.path}: {where}: a joint query takes joint, turn, of, window and name, not "
+                      f"{', '.join(spatial + wrong)}")
+    if entry.joint is None or entry.turn is None:
+      raise MwbxError(f"{context.path}: {where}: a joint query needs both 'joint' and 'turn' ([lo, hi])")
+    try:
+      query = cls(entry.joint, entry.turn, entry.window, entry.name or where, entry.of or "change")
+      if context.model is not None:
+        joint_column(context.model, entry.joint)
+    except MwbxError as err:
+      raise MwbxError(f"{context.path}: {where}: {err}") from None
+    return query
 
 
 _CACHE: dict = {}

@@ -23,8 +23,8 @@ import jax
 import numpy as np
 
 from mwbx.errors import MwbxError
-from mwbx.queries import orientation as orientation_lib
 from mwbx.queries import query as query_lib
+from mwbx.queries.selection import selection_mask
 
 CONSTRAINTS = "constraints_satisfied"
 REDUCTIONS = ("sum", "max")
@@ -83,7 +83,7 @@ def metric(bank, name: str, bodies=None, reduce: str = "sum") -> np.ndarray:
     raise MwbxError(f"metric: unknown metric {name!r} (known: {', '.join(names + (CONSTRAINTS,))})")
   if reduce not in REDUCTIONS:
     raise MwbxError(f"metric {name!r}: reduce must be one of {REDUCTIONS}, got {reduce!r}")
-  mask = query_lib.selection_mask(bank, bodies)
+  mask = selection_mask(bank, bodies)
   column = np.asarray(bank.metrics[:, :, names.index(name)], np.float64)[:, mask]  # [W, k]
   if reduce == "sum":
     return np.sum(column, axis=1)
@@ -103,13 +103,11 @@ def orientation_error(bank, query, bodies=None, reduce: str = "max") -> np.ndarr
     q = mwbx.OrientationQuery(bodies="S", axis="z", within_deg=15)
     ids, err = mwbx.rank(bank, mwbx.orientation_error(bank, q), descending=False)
   """
-  if not isinstance(query, orientation_lib.OrientationQuery):
+  if getattr(query, "error_metric", None) != "orientation_error":
     raise MwbxError(f"orientation_error: expected an OrientationQuery, got {type(query).__name__}")
   if reduce not in REDUCTIONS:
     raise MwbxError(f"orientation_error: reduce must be one of {REDUCTIONS}, got {reduce!r}")
-  mask = query_lib.selection_mask(bank, query.bodies if bodies is None else bodies)
-  err = orientation_lib.body_errors(bank, query, mask)[:, mask]
-  return np.sum(err, axis=1) if reduce == "sum" else np.max(err, axis=1, initial=-np.inf)
+  return query.error(bank, reduce, bodies)
 
 
 def score(bank, terms, queries=()) -> np.ndarray:
@@ -129,8 +127,8 @@ def score(bank, terms, queries=()) -> np.ndarray:
       raise MwbxError(f"rank: weight of {t.metric!r} must be finite, got {t.weight!r}")
     if t.metric == CONSTRAINTS:
       value = query_lib.constraints_satisfied(bank, queries).astype(np.float64)
-    elif t.query is not None:
-      value = orientation_error(bank, t.query, t.bodies, t.reduce)
+    elif t.query is not None:  # the named query's own error (an orientation query's angle)
+      value = t.query.error(bank, t.reduce, t.bodies)
     else:
       value = metric(bank, t.metric, t.bodies, t.reduce)
     total = total + float(t.weight) * value

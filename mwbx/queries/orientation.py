@@ -38,7 +38,10 @@ import numpy as np
 from mwbx.errors import MwbxError
 from mwbx.joints import QPOS_WIDTH
 from mwbx.queries import poses as poses_lib
+from mwbx.queries.query import Query
+from mwbx.queries.query import who
 from mwbx.queries.intervals import checked_interval
+from mwbx.queries.selection import selection_mask
 
 AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 BLOCK = 128  # worlds decoded at once
@@ -63,7 +66,7 @@ def direction(label: str, field: str, value) -> tuple[float, float, float]:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class OrientationQuery:
+class OrientationQuery(Query):
   """Bodies end (or stay over a window) within an angle of an orientation.
 
   bodies: tracked body, object or group names (None: every tracked body).
@@ -87,9 +90,8 @@ class OrientationQuery:
   sign: str = "include"
   mode: str = "any"
   name: str = ""
-  # Shared with Query and JointQuery, so lists of queries mix: no volume to draw.
-  frustum = None
-  radius = 0.0
+  goal = "pose"  # decided by how the bodies come to rest turned
+  error_metric = "orientation_error"
 
   def __post_init__(self):
     label = f"query {self.name!r}" if self.name else "query"
@@ -126,13 +128,63 @@ class OrientationQuery:
       raise MwbxError(f"{label}: mode must be any or all, got {self.mode!r}")
 
   @property
-  def include(self) -> bool:
-    return self.sign == "include"
-
-  @property
   def within(self) -> float:
     """The angle in radians."""
     return math.radians(self.within_deg)
+
+  # -- the Query interface -----------------------------------------------------------
+
+  def evaluate(self, bank) -> np.ndarray:
+    return evaluate_orientation(bank, self, selection_mask(bank, self.bodies))
+
+  def gap(self, bank) -> np.ndarray:
+    return orientation_gap(bank, self, selection_mask(bank, self.bodies))
+
+  def error(self, bank, reduce: str = "max", bodies=None) -> np.ndarray:
+    """f64[W] the angle to the goal, radians, per body at the world's last
+    frame (no window) or the largest over the window, combined over the
+    query's bodies (or ``bodies``) by ``max`` or ``sum``."""
+    mask = selection_mask(bank, self.bodies if bodies is None else bodies)
+    err = body_errors(bank, self, mask)[:, mask]
+    return np.sum(err, axis=1) if reduce == "sum" else np.max(err, axis=1, initial=-np.inf)
+
+  def describe(self) -> str:
+    goal = "initial orientation" if self.target is not None else "upright"
+    return f"{self.sign} {who(self)} within {self.within_deg:g}° of {goal}"
+
+  @classmethod
+  def claims(cls, entry) -> bool:
+    return entry.upright is not None or entry.orientation is not None or entry.within_deg is not None
+
+  @classmethod
+  def from_entry(cls, entry, index: int, context) -> OrientationQuery:
+    where = f"queries[{index}]"
+    spatial = [name for name in ("box", "region", "camera", "near", "far") if getattr(entry, name) is not None]
+    wrong = [n for n, bad in (("radius", entry.radius != 0.0), ("shape", entry.shape != "com")) if bad]
+    if spatial or wrong:
+      raise MwbxError(f"{context.path}: {where}: an orientation query takes bodies, upright or orientation, "
+                      f"within_deg, window, sign, mode and name, not {', '.join(spatial + wrong)}")
+    if (entry.upright is None) == (entry.orientation is None):
+      raise MwbxError(f"{context.path}: {where}: an orientation query needs exactly one of 'upright' "
+                      f"(a body axis) or 'orientation' (a quaternion or 'initial')")
+    if entry.within_deg is None:
+      raise MwbxError(f"{context.path}: {where}: an orientation query needs 'within_deg' (degrees)")
+    upright = entry.upright
+    if isinstance(upright, (str, tuple)):
+      axis, up = upright, "z"
+    elif upright is not None:
+      axis, up = upright.axis, upright.up
+    fields = dict(bodies=entry.bodies, within_deg=entry.within_deg, window=entry.window, sign=entry.sign,
+                  mode=entry.mode, name=entry.name or where)
+    try:
+      if upright is not None:
+        query = cls(axis=axis, up=up, **fields)
+      else:
+        query = cls(target=entry.orientation, **fields)
+    except MwbxError as err:
+      raise MwbxError(f"{context.path}: {where}: {err}") from None
+    context.check_bodies(query.bodies, where, field=False)
+    return query
 
   def to_dict(self) -> dict:
     """The query's entry in a query file (see :mod:`.query_file`)."""

@@ -1,54 +1,217 @@
-"""Queries over a bank: which worlds' COM paths pass through which volumes.
+"""Queries: the one interface every query type implements, and the paper's volume query.
 
-A Query is a volume (usually a screen box seen through a camera), a sign
+:class:`Query` is one constraint on worlds. Volume queries (:class:`VolumeQuery`,
+below), joint queries (:class:`~mwbx.queries.joint.JointQuery`) and
+orientation queries (:class:`~mwbx.queries.orientation.OrientationQuery`)
+derive from it, and every caller (evaluation, gaps for ``solve``, query
+files, the page, the viewer, the search) goes through it: a new query type is
+a new class plus a line in :data:`mwbx.queries.query_file.QUERY_KINDS`, never
+a switch in a caller.
+
+A VolumeQuery (``mwbx.Query(...)``, ``Query.screen`` and ``Query.region``
+build one) is a volume (usually a screen box seen through a camera), a sign
 (`include`: the path must pass through it; `exclude`: it must not), a
 selection of tracked bodies (body, object or group names) combined with
 `any` or `all`, an optional time window in seconds and an optional swept
 sphere radius; or, with ``shape="geometry"``, about any point of the bodies'
 geoms instead of their COM (:mod:`.geometry`). A list of queries is their
-conjunction (with joint and orientation queries mixed in). Unstable worlds
-never match anything.
+conjunction. Unstable worlds never match anything.
 
 Per world, with `hit[b]` = "body b's path meets the volume in the window":
   include/any: some selected body hits;  include/all: every selected body hits
   exclude/any: no selected body hits;    exclude/all: not every selected one
 (an empty selection: include/any and exclude/all never match, the other two
 always do).
+
+Example::
+
+  q = mwbx.Query.screen(camera, [0.1, 0.2, 0.3, 0.4], bodies="ball")  # a VolumeQuery
+  isinstance(q, mwbx.Query), q.describe()   # (True, "include ball")
+  q.evaluate(bank)                          # bool[W]
 """
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import math
-from typing import Sequence
-import weakref
+from typing import ClassVar, Sequence
 
-import jax
-from jax import numpy as jp
-import mujoco
 import numpy as np
 
 from mwbx.errors import MwbxError
 from mwbx.queries import geometry as geometry_lib
 from mwbx.queries import geometry_query
 from mwbx.queries import index as index_lib
-from mwbx.queries import orientation as orientation_lib
-from mwbx.queries.intervals import checked_interval
-from mwbx.queries import joint as joint_lib
-from mwbx.queries import segments
+from mwbx.queries import paths
+from mwbx.queries import selection
 from mwbx.queries.camera import Camera
 from mwbx.queries.camera import MAX_COORDINATE
 from mwbx.queries.camera import ScreenBox
 from mwbx.queries.frustum import Frustum
+from mwbx.queries.intervals import checked_interval
 
 SIGNS = ("include", "exclude")
 MODES = ("any", "all")
 SHAPES = ("com", "geometry")
 
 
+class Query(abc.ABC):
+  """One constraint on worlds (the interface; concrete types derive from it).
+
+  Like ``pathlib.Path``, calling ``Query(frustum, ...)``, ``Query.screen`` or
+  ``Query.region`` builds the concrete type most people mean, a
+  :class:`VolumeQuery` (the paper's query).
+
+  Attributes every query has:
+    name: label for output (query files name an unnamed one ``q<i>``).
+    sign: ``include`` (the world must meet it) or ``exclude`` (must not).
+    bodies: tracked body, object or group names its answer is about (None:
+      every tracked body, or none for a query not about bodies).
+    window: (t0, t1) seconds, None ends open; None: the whole world.
+    frustum: the volume a viewer draws for it (a
+      :class:`~mwbx.queries.frustum.Frustum` with corners), or None.
+    goal: ``place`` (decided by where bodies go: volumes, joints) or
+      ``pose`` (decided by how they come to rest turned); a search ranks and
+      repairs places first.
+    until_rest: met only if its bodies stay where they end up, not only by
+      the path there (an include volume): a search restarts for it no
+      earlier than they settle.
+    error_metric: the name of a per-world error it can rank by
+      (:meth:`error`, smallest first), or None.
+  """
+
+  name: str = ""
+  sign: str = "include"
+  bodies: tuple[str, ...] | None = None
+  window: tuple[float | None, float | None] | None = None
+  frustum = None
+  goal: ClassVar[str] = "place"
+  error_metric: ClassVar[str | None] = None
+
+  def __new__(cls, *args, **kwargs):
+    if cls is Query:  # Query(frustum, ...): a VolumeQuery, as before the interface existed
+      return object.__new__(VolumeQuery)
+    return object.__new__(cls)
+
+  @classmethod
+  def screen(cls, camera, box, *, near: float | None = None, far: float | None = None, **fields):
+    """A :class:`VolumeQuery` from a screen box [u0, v0, u1, v1] seen through a camera."""
+    return VolumeQuery.screen(camera, box, near=near, far=far, **fields)
+
+  @classmethod
+  def region(cls, lo, hi, **fields):
+    """A :class:`VolumeQuery` on an axis-aligned world box [lo, hi], metres."""
+    return VolumeQuery.region(lo, hi, **fields)
+
+  @property
+  def include(self) -> bool:
+    """Whether a world must meet it (``sign == "include"``)."""
+    return self.sign == "include"
+
+  @property
+  def until_rest(self) -> bool:
+    return False
+
+  # -- answers ---------------------------------------------------------------------
+
+  @abc.abstractmethod
+  def evaluate(self, bank) -> np.ndarray:
+    """bool[W] worlds meeting it (unstable worlds: False)."""
+
+  @classmethod
+  def evaluate_many(cls, bank, queries: Sequence["Query"]) -> np.ndarray:
+    """bool[W, k] answers of several queries of this type: one pass where a
+    type shares work between its queries (volume queries share one bounds
+    hierarchy and one read of each shard); by default each on its own."""
+    out = np.zeros((bank.n_worlds, len(queries)), bool)
+    for i, query in enumerate(queries):
+      out[:, i] = query.evaluate(bank)
+    return out
+
+  @abc.abstractmethod
+  def gap(self, bank) -> np.ndarray:
+    """f64[W] how far each world is from meeting it, ungated (>= 0; metres
+    for volumes, radians or metres for joints, radians for orientations):
+    :func:`mwbx.queries.query_gaps` makes it exactly 0 where met."""
+
+  def error(self, bank, reduce: str = "max", bodies=None) -> np.ndarray:
+    """f64[W] the per-world error named by :attr:`error_metric` (rank smallest
+    first), combined over its bodies (or ``bodies``) by ``max`` or ``sum``."""
+    raise MwbxError(f"query {self.name!r}: {type(self).__name__} has no error to rank by")
+
+  # -- what it is about --------------------------------------------------------------
+
+  def objects(self, owner) -> list[str]:
+    """Objects whose motion decides it, in the owner's order.
+
+    Args:
+      owner: a :class:`~mwbx.Bank` or :class:`~mwbx.Scene` (its tracked
+        bodies, objects, groups and model).
+    """
+    if self.bodies is None:
+      return list(owner.objects)
+    chosen = set(selection.chosen_bodies(owner, self.bodies))
+    return [obj for obj, bodies in owner.objects.items() if chosen & set(bodies)]
+
+  def body_mask(self, bank) -> np.ndarray:
+    """bool[B] the tracked bodies whose motion decides it (its ``bodies``)."""
+    return selection.selection_mask(bank, self.bodies)
+
+  def per_object(self, owner) -> dict[str, "Query"]:
+    """{object: this query as that object alone would meet it} for a query
+    that any one of several objects may meet (an include volume over ``any``
+    body); {} for every other query."""
+    return {}
+
+  def deadline(self, bank, world: int) -> float:
+    """Seconds by which its objects must be right in world ``world``: its
+    window's start (else its end, else the world's end)."""
+    end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
+    window = self.window or (None, None)
+    t = window[0] if window[0] is not None else window[1]
+    return min(end, t) if t is not None else end
+
+  # -- for people and files ----------------------------------------------------------
+
+  @abc.abstractmethod
+  def describe(self) -> str:
+    """One line for people, e.g. ``include ball (geometry)``."""
+
+  @abc.abstractmethod
+  def to_dict(self) -> dict:
+    """Its entry in a query file (:mod:`mwbx.queries.query_file`); read back
+    by the type's :meth:`from_entry`."""
+
+  @classmethod
+  @abc.abstractmethod
+  def claims(cls, entry) -> bool:
+    """Whether a query-file entry (a parsed ``queries[i]``) is of this type."""
+
+  @classmethod
+  @abc.abstractmethod
+  def from_entry(cls, entry, index: int, context) -> "Query":
+    """The query of a query-file entry.
+
+    Args:
+      entry: the parsed entry (``mwbx.queries.query_file`` validates its fields).
+      index: its place in the file's ``queries`` (``queries[i]`` in messages).
+      context: the file's :class:`~mwbx.queries.query_file.FileContext`
+        (its path, default camera, model and bank).
+
+    Raises:
+      MwbxError: naming the file, ``queries[i]`` and the field at fault.
+    """
+
+
+def who(query: Query) -> str:
+  """The bodies a query names, for :meth:`Query.describe` (``any body`` for all)."""
+  return ",".join(query.bodies) if query.bodies else "any body"
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
-class Query:
-  """One spatial constraint on worlds.
+class VolumeQuery(Query):
+  """One spatial constraint on worlds: bodies through (or not through) a volume.
 
   frustum: the volume.
   bodies: names of tracked bodies, objects or groups (mixed freely), or None
@@ -109,214 +272,196 @@ class Query:
                       f"got {self.radius!r}")
 
   @property
-  def include(self) -> bool:
-    return self.sign == "include"
+  def until_rest(self) -> bool:
+    return self.include  # an include volume holds where its bodies end up, not only on the way
 
   @classmethod
   def screen(cls, camera: Camera, box: ScreenBox | Sequence[float], *,
-             near: float | None = None, far: float | None = None, **fields) -> Query:
+             near: float | None = None, far: float | None = None, **fields) -> VolumeQuery:
     """A query from a screen box [u0, v0, u1, v1] seen through a camera."""
     if not isinstance(box, ScreenBox):
       box = ScreenBox(*box)
     return cls(camera.frustum(box, near, far), camera=camera, box=box, near=near, far=far, **fields)
 
   @classmethod
-  def region(cls, lo, hi, **fields) -> Query:
+  def region(cls, lo, hi, **fields) -> VolumeQuery:
     """A query on an axis-aligned world box [lo, hi], metres."""
     return cls(Frustum.box(lo, hi), world_box=(tuple(float(x) for x in lo), tuple(float(x) for x in hi)),
                **fields)
 
+  # -- the Query interface -----------------------------------------------------------
 
-QUERY_TYPES = (Query, joint_lib.JointQuery, orientation_lib.OrientationQuery)
+  def evaluate(self, bank) -> np.ndarray:
+    return self.evaluate_many(bank, [self])[:, 0]
+
+  @classmethod
+  def evaluate_many(cls, bank, queries) -> np.ndarray:
+    """bool[W, k]: COM queries share one bounds hierarchy (and, for a bank
+    streamed from disk, one read of each shard); geometry queries one
+    geometry index."""
+    out = np.zeros((bank.n_worlds, len(queries)), bool)
+    if bank.n_worlds == 0 or not queries:
+      return out
+    valid = np.asarray(bank.valid, bool)
+    com_queries = [i for i, q in enumerate(queries) if q.shape == "com"]
+    for i, query in enumerate(queries):
+      if query.shape == "geometry":
+        mask = selection.selection_mask(bank, query.bodies)
+        hits = geometry_query.geometry_hits(geometry_lib.geometry_index(bank), query.frustum, mask,
+                                            query.window)
+        out[:, i] = paths.combine(hits, mask, query) & valid
+    if not com_queries:
+      return out
+    blocks = paths.blocks(bank, valid) if paths.streams(bank) else [(slice(None), paths.bank_state(bank))]
+    for rows, state in blocks:
+      for i in com_queries:
+        query = queries[i]
+        normals, offsets, mask, window = paths.resolve(bank, query, state)
+        hits = np.asarray(index_lib.path_hits(state.index, normals, offsets, mask, window))
+        out[rows, i] = paths.combine(hits, mask, query) & valid[rows]
+    return out
+
+  def gap(self, bank) -> np.ndarray:
+    """f64[W], metres: an include query, how far the selected bodies' stored
+    COM points in the window stay outside the volume (for a point, the
+    largest signed distance to the volume's planes, swept radius included;
+    over the window the closest point; over the bodies the closest (``any``)
+    or the farthest (``all``)); an exclude query, how deep the offending
+    bodies go inside (the deepest point; ``any``: the deepest body, ``all``:
+    the shallowest). A whole-geometry query is graded on the COM points swept
+    by each body's bounding sphere (the geometry lies in it, so the measure
+    points the same way)."""
+    mask = selection.selection_mask(bank, self.bodies)
+    if not mask.any():
+      return np.full(bank.n_worlds, np.inf if self.include else 0.0)
+    if self.radius == "auto" or self.shape == "geometry":
+      radius = paths.body_radii(bank.model(), np.asarray(bank.body_ids)[mask])
+    else:
+      radius = np.full(int(mask.sum()), float(self.radius))
+    com = np.asarray(bank.com[np.arange(bank.n_worlds)], np.float32)
+    points = com[:, paths.window_points(bank, self.window)][:, :, mask]  # [W, P, b, 3]
+    # Outside distance per point: the largest plane distance, sphere pushed out.
+    d = self.frustum.distances(points).max(axis=-1) - radius[None, None, :]  # [W, P, b]
+    if self.include:
+      per_body = np.maximum(d.min(axis=1), 0.0)
+      return per_body.min(axis=1) if self.mode == "any" else per_body.max(axis=1)
+    depth = np.maximum(-d.min(axis=1), 0.0)  # the deepest point inside
+    return depth.max(axis=1) if self.mode == "any" else depth.min(axis=1)
+
+  def per_object(self, owner) -> dict[str, Query]:
+    """A ``mode: any`` include query over several objects, as each object
+    alone would meet it: {object: the query on that object's bodies only};
+    {} otherwise (an exclude query is met by each object that keeps out, so
+    no one object holds it).
+
+    Example::
+
+      g_in_slot_2.per_object(bank)  # {'letter_G1': <query on letter_G1>, 'letter_G2': <query on letter_G2>}
+    """
+    if not self.include or self.mode != "any" or self.bodies is None:
+      return {}
+    chosen = selection.chosen_bodies(owner, self.bodies)
+    per_object = {obj: tuple(f"body:{b}" for b in chosen if b in bodies) for obj, bodies in owner.objects.items()}
+    per_object = {obj: bodies for obj, bodies in per_object.items() if bodies}
+    if len(per_object) < 2:
+      return {}
+    return {obj: dataclasses.replace(self, bodies=bodies, name=f"{self.name or 'query'} [{obj}]")
+            for obj, bodies in per_object.items()}
+
+  def deadline(self, bank, world: int) -> float:
+    """An include query's window start (else the world's end); an exclude
+    query's first entry (a whole-geometry one's: its bounding sphere's, no later)."""
+    if self.include:
+      return super().deadline(bank, world)
+    end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
+    radius = "auto" if self.shape == "geometry" else self.radius
+    t = paths.first_entry(bank, world, self.bodies, self.frustum, window=self.window, radius=radius)
+    return end if t is None else t
+
+  def describe(self) -> str:
+    return f"{self.sign} {who(self)}" + (" (geometry)" if self.shape == "geometry" else "")
+
+  def to_dict(self) -> dict:
+    out: dict = {"name": self.name}
+    if self.box is not None and self.camera is not None:
+      out["box"] = [float(self.box.u0), float(self.box.v0), float(self.box.u1), float(self.box.v1)]
+      out["camera"] = self.camera.to_dict()
+      if self.near is not None:
+        out["near"] = float(self.near)
+      if self.far is not None:
+        out["far"] = float(self.far)
+    elif self.world_box is not None:
+      out["region"] = {"min": list(self.world_box[0]), "max": list(self.world_box[1])}
+    else:
+      raise MwbxError("a query built from raw planes cannot be saved (build it with Query.screen or Query.region)")
+    out["sign"] = self.sign
+    if self.bodies is not None:
+      out["bodies"] = list(self.bodies)
+    out["mode"] = self.mode
+    if self.window is not None:
+      out["window"] = list(self.window)
+    out["radius"] = self.radius
+    if self.shape != "com":
+      out["shape"] = self.shape
+    return out
+
+  @classmethod
+  def claims(cls, entry) -> bool:
+    return True  # the query file's default kind: what is not another kind is a volume
+
+  @classmethod
+  def from_entry(cls, entry, index: int, context) -> VolumeQuery:
+    where = f"queries[{index}]"
+    if (entry.box is None) == (entry.region is None):
+      raise MwbxError(f"{context.path}: {where}: give exactly one of 'box' (screen) or 'region' (world)")
+    fields = dict(bodies=entry.bodies, sign=entry.sign, mode=entry.mode, window=entry.window,
+                  radius=entry.radius, name=entry.name or f"q{index}",
+                  shape=entry.shape)
+    try:
+      if entry.box is not None:
+        camera = context.default_camera if entry.camera is None else context.camera(entry.camera, f"{where}.camera")
+        if camera is None:
+          raise MwbxError("a screen box needs a camera (top-level 'camera' or the query's own)")
+        query = cls.screen(camera, ScreenBox(*entry.box), near=entry.near, far=entry.far, **fields)
+      else:
+        if entry.near is not None or entry.far is not None or entry.camera is not None:
+          raise MwbxError("'near', 'far' and 'camera' apply to screen boxes, not to a region")
+        query = cls.region(entry.region.lo, entry.region.hi, **fields)
+    except MwbxError as err:
+      if str(err).startswith(context.path):
+        raise
+      raise MwbxError(f"{context.path}: {where}: {err}") from None
+    context.check_bodies(query.bodies, where)
+    return query
 
 
 def as_queries(queries) -> tuple:
-  """A Query (JointQuery, OrientationQuery), a sequence of them or an object
-  with `.queries` -> tuple."""
-  if isinstance(queries, QUERY_TYPES):
+  """A query, a sequence of them or an object with `.queries` (a QuerySet) -> tuple."""
+  if isinstance(queries, Query):
     return (queries,)
   queries = getattr(queries, "queries", queries)
   out = tuple(queries)
   for i, q in enumerate(out):
-    if not isinstance(q, QUERY_TYPES):
-      raise MwbxError(f"queries[{i}]: expected a Query, JointQuery or OrientationQuery, "
+    if not isinstance(q, Query):
+      raise MwbxError(f"queries[{i}]: expected a query (mwbx.Query: a volume, joint or orientation query), "
                       f"got {type(q).__name__}")
   return out
 
 
-# ---------------------------------------------------------------------------
-# Per-bank state: the bounds hierarchy and body radii, built once and cached.
-
-
-@dataclasses.dataclass
-class _BankState:
-  key: tuple
-  index: index_lib.PathIndex
-  radii: np.ndarray | None = None
-
-
-_CACHE: dict[int, tuple[object, _BankState]] = {}
-
-# COM polylines up to this size (decoded, 1 GiB) are indexed whole and the index is
-# cached: browsing asks again and again. A lazily opened bank beyond it is
-# indexed a shard at a time in each evaluation, in the memory of one shard.
-IN_MEMORY_COM_BYTES = 1 << 30
-
-
-def streams(bank) -> bool:
-  """Whether queries on this bank go a shard at a time (see ``IN_MEMORY_COM_BYTES``)."""
-  com = bank.com
-  return _lazy(com) and com.nbytes > IN_MEMORY_COM_BYTES
-
-
-def _lazy(com) -> bool:
-  """A bank's ``com`` read from shards on demand (``mwbx.bank.lazy.LazyRows``)."""
-  return hasattr(com, "blocks") and hasattr(com, "materialized")
-
-
-def _blocks(bank, valid: np.ndarray):
-  """(i64[k] rows, _BankState of those rows) a shard at a time: the whole bank."""
-  radii = None
-  for rows, com in bank.com.blocks():
-    state = _BankState(None, index_lib.build_index(com, valid[rows]), radii)
-    yield rows, state
-    radii = state.radii  # body radii are the bank's: computed once
-
-
-def _state(bank) -> _BankState:
-  com = bank.com
-  if _lazy(com):  # small enough to index whole: read every shard once
-    com = com.materialized()
-  valid = np.asarray(bank.valid, bool)
-  key = (id(com), com.shape, valid.tobytes())
-  entry = _CACHE.get(id(bank))
-  if entry is not None:
-    ref, state = entry
-    alive = ref() if isinstance(ref, weakref.ref) else ref
-    if alive is bank and state.key == key:
-      return state
-  state = _BankState(key, index_lib.build_index(com, valid))
-  try:
-    ref = weakref.ref(bank, lambda _, k=id(bank): _CACHE.pop(k, None))
-  except TypeError:  # not weak-referenceable: keep it, but only the latest
-    ref = bank
-    for k in [k for k, (r, _) in _CACHE.items() if not isinstance(r, weakref.ref)]:
-      del _CACHE[k]
-  _CACHE[id(bank)] = (ref, state)
-  return state
-
-
-def path_index(bank) -> index_lib.PathIndex:
-  """The bank's bounds hierarchy (built on first use, then cached)."""
-  return _state(bank).index
-
-
-def body_radii(model: mujoco.MjModel, body_ids) -> np.ndarray:
-  """Bounding radius of each body about its centre of mass, from its own geoms.
-
-  Args:
-    model: the scene model.
-    body_ids: i[B] MuJoCo body ids.
-
-  Returns:
-    f64[B] max over the body's geoms of |geom centre - COM| + geom bounding
-    radius, metres (0 for a body without geoms).
-  """
-  radii = np.zeros(len(body_ids))
-  for i, body in enumerate(np.asarray(body_ids)):
-    geoms = np.flatnonzero(model.geom_bodyid == body)
-    if geoms.size:
-      reach = np.linalg.norm(model.geom_pos[geoms] - model.body_ipos[body], axis=1)
-      radii[i] = float(np.max(reach + model.geom_rbound[geoms]))
-  return radii
-
-
-def _radii(bank, state: _BankState) -> np.ndarray:
-  if state.radii is None:
-    state.radii = body_radii(bank.model(), bank.body_ids)
-  return state.radii
-
-
-def selection_mask(bank, bodies) -> np.ndarray:
-  """bool[B] of the tracked bodies named by body/object/group names."""
-  n_bodies = len(bank.body_names)
-  if bodies is None:
-    return np.ones(n_bodies, bool)
-  if isinstance(bodies, str):
-    bodies = (bodies,)
-  mask = np.zeros(n_bodies, bool)
-  if len(bodies):
-    mask[np.asarray(bank.select_bodies(list(bodies)), np.int64)] = True
-  return mask
-
-
-def window_units(bank, window, n_segments: int) -> np.ndarray:
-  """A window in seconds -> f64[2] segment units clamped to [0, n_segments]."""
-  t0, t1 = (None, None) if window is None else window
-  fps = float(bank.query_fps)
-  w0 = 0.0 if t0 is None else min(max(t0 * fps, 0.0), float(n_segments))
-  w1 = float(n_segments) if t1 is None else min(max(t1 * fps, 0.0), float(n_segments))
-  return np.array([w0, w1])
-
-
-def plane_offsets(frustum: Frustum, radius: np.ndarray) -> np.ndarray:
-  """f64[B, F] plane offsets with each body's sphere radius added."""
-  return frustum.offsets[None, :] + np.asarray(radius, np.float64)[:, None]
-
-
-def resolve(bank, query: Query, state: _BankState | None = None):
-  """A query's arrays for the kernels on this bank.
-
-  Returns:
-    (normals f32[F, 3], offsets f64[B, F], body_mask bool[B], window f64[2]).
-  """
-  state = state or _state(bank)
-  n_bodies = len(bank.body_names)
-  if query.radius == "auto":
-    radius = _radii(bank, state)
-  else:
-    radius = np.full(n_bodies, float(query.radius))
-  n_segments = int(state.index.n_segments)
-  return (query.frustum.normals, plane_offsets(query.frustum, radius),
-          selection_mask(bank, query.bodies), window_units(bank, query.window, n_segments))
-
-
-def combine(hits: np.ndarray, body_mask: np.ndarray, query: Query) -> np.ndarray:
-  """Per-world answer from per-path hits bool[W, B] -> bool[W]."""
-  if query.mode == "any":
-    met = np.any(hits & body_mask, axis=1)
-  else:
-    met = np.all(hits | ~body_mask, axis=1)
-  return met if query.include else ~met
-
-
 def evaluate_each(bank, queries) -> np.ndarray:
-  """Each query's answer for each world: bool[W, Q]; unstable worlds False."""
+  """Each query's answer for each world: bool[W, Q]; unstable worlds False.
+
+  Queries of one type are answered together (:meth:`Query.evaluate_many`).
+  """
   queries = as_queries(queries)
   out = np.zeros((bank.n_worlds, len(queries)), bool)
   if bank.n_worlds == 0 or not queries:
     return out
-  valid = np.asarray(bank.valid, bool)
-  paths = [i for i, q in enumerate(queries) if isinstance(q, Query) and q.shape == "com"]
+  by_type: dict[type, list[int]] = {}
   for i, query in enumerate(queries):
-    if isinstance(query, joint_lib.JointQuery):
-      out[:, i] = joint_lib.evaluate_joint(bank, query)
-    elif isinstance(query, orientation_lib.OrientationQuery):
-      out[:, i] = orientation_lib.evaluate_orientation(bank, query, selection_mask(bank, query.bodies))
-    elif query.shape == "geometry":
-      mask = selection_mask(bank, query.bodies)
-      hits = geometry_query.geometry_hits(geometry_lib.geometry_index(bank), query.frustum, mask,
-                                          query.window)
-      out[:, i] = combine(hits, mask, query) & valid
-  if not paths:
-    return out
-  blocks = _blocks(bank, valid) if streams(bank) else [(slice(None), _state(bank))]
-  for rows, state in blocks:
-    for i in paths:
-      query = queries[i]
-      normals, offsets, mask, window = resolve(bank, query, state)
-      hits = np.asarray(index_lib.path_hits(state.index, normals, offsets, mask, window))
-      out[rows, i] = combine(hits, mask, query) & valid[rows]
+    by_type.setdefault(type(query), []).append(i)
+  for kind, columns in by_type.items():
+    out[:, columns] = kind.evaluate_many(bank, [queries[i] for i in columns])
   return out
 
 
@@ -330,44 +475,3 @@ def constraints_satisfied(bank, queries) -> np.ndarray:
   """How many of the queries each world satisfies: i32[W] (0 if unstable),
   the paper's ranking for when no world satisfies them all (§4.3)."""
   return np.sum(evaluate_each(bank, queries), axis=1, dtype=np.int32)
-
-
-def first_entry(bank, world: int, bodies, frustum: Frustum, *,
-                window=None, radius: float | str = 0.0) -> float | None:
-  """Earliest time any of the bodies' COM (or swept sphere) is in the volume.
-
-  Args:
-    bank: the bank. world: world id.
-    bodies: body/object/group names, or None for all tracked bodies.
-    frustum: the volume (e.g. `camera.frustum(box)`).
-    window: optional (t0, t1) seconds; entry is searched inside it.
-    radius: swept-sphere radius in metres or "auto".
-
-  Returns:
-    seconds from the start of the world, or None if it never enters.
-  """
-  row = bank.row_of(int(world))
-  query = Query(frustum, bodies=bodies, window=window, radius=radius)
-  if streams(bank):  # index this one world
-    state = _BankState(None, index_lib.build_index(bank.com[row:row + 1], np.ones(1, bool)))
-    row = 0
-  else:
-    state = _state(bank)
-  normals, offsets, mask, win = resolve(bank, query, state)
-  chosen = np.flatnonzero(mask)
-  if chosen.size == 0:
-    return None
-  points = state.index.points[chosen, row]  # [k, P', 3] padded paths
-  with jax.enable_x64(True):
-    t = _first_entry(points, normals, offsets[chosen], win, state.index.n_segments)
-  t = float(t)
-  return None if math.isinf(t) else t / float(bank.query_fps)
-
-
-@jax.jit
-def _first_entry(points, normals, offsets, window, n_segments):
-  def one(p, off):
-    hit, enter = segments.polyline_hits(p, normals, off, window, 0, n_segments)
-    k = jp.arange(p.shape[0] - 1, dtype=jp.float64)
-    return jp.min(jp.where(hit, k + enter, jp.inf))
-  return jp.min(jax.vmap(one)(points, offsets))

@@ -54,12 +54,16 @@ from mwbx.errors import MwbxError
 from mwbx.files import write_atomic
 from mwbx.queries.camera import Camera
 from mwbx.queries.camera import ScreenBox
+from mwbx.queries.query import Query
 from mwbx.queries.metrics import Term
 from mwbx.queries.metrics import parse_term
 from mwbx.queries.joint import JointQuery
-from mwbx.queries.joint import joint_column
 from mwbx.queries.orientation import OrientationQuery
-from mwbx.queries.query import Query
+from mwbx.queries.query import VolumeQuery
+
+# The query types a file may hold, each claiming the entries with its keys; the
+# first that claims an entry reads it (VolumeQuery claims what no other does).
+QUERY_KINDS: tuple[type[Query], ...] = (JointQuery, OrientationQuery, VolumeQuery)
 
 _STRICT = pydantic.ConfigDict(extra="forbid")
 Vec3 = tuple[float, float, float]
@@ -145,7 +149,7 @@ class QuerySet(NamedTuple):
 
   Example::
 
-    qs = QuerySet((Query.screen(camera, [0.1, 0.2, 0.3, 0.4], bodies="ball"),))
+    qs = QuerySet((mwbx.Query.screen(camera, [0.1, 0.2, 0.3, 0.4], bodies="ball"),))
     qs.save("out/my_queries.yaml")        # mwbx query BANK out/my_queries.yaml
   """
 
@@ -157,7 +161,7 @@ class QuerySet(NamedTuple):
 
   def to_dict(self) -> dict:
     """The query file's contents (see this module's docstring)."""
-    out: dict = {"queries": [_query_dict(q, i) for i, q in enumerate(self.queries)]}
+    out: dict = {"queries": [_entry(q, i) for i, q in enumerate(self.queries)]}
     if self.rank:
       out["rank"] = [{"metric": t.metric, "bodies": None if t.bodies is None else list(t.bodies),
                       "reduce": t.reduce, "weight": float(t.weight)}
@@ -177,46 +181,12 @@ class QuerySet(NamedTuple):
     return path
 
 
-def _camera_dict(camera: Camera) -> dict:
-  """An MJCF camera by name; any other as look-at (its own axes, exactly)."""
-  if camera.name:
-    return {"mjcf": camera.name, "aspect": float(camera.aspect)}
-  return {"eye": [float(x) for x in camera.eye], "target": [float(x) for x in camera.eye + camera.forward],
-          "up": [float(x) for x in camera.up], "fovy": float(camera.fovy), "aspect": float(camera.aspect),
-          "orthographic": bool(camera.orthographic)}
-
-
-def _query_dict(q: Query, index: int) -> dict:
-  out: dict = {"name": q.name or f"q{index}"}  # the name load_queries gives an unnamed one
-  if isinstance(q, OrientationQuery):
-    return q.to_dict() | out
-  if isinstance(q, JointQuery):
-    out.update(joint=q.joint, turn=list(q.turn), of=q.of)
-    if q.window is not None:
-      out["window"] = list(q.window)
-    return out
-  if q.box is not None and q.camera is not None:
-    out["box"] = [float(q.box.u0), float(q.box.v0), float(q.box.u1), float(q.box.v1)]
-    out["camera"] = _camera_dict(q.camera)
-    if q.near is not None:
-      out["near"] = float(q.near)
-    if q.far is not None:
-      out["far"] = float(q.far)
-  elif q.world_box is not None:
-    out["region"] = {"min": list(q.world_box[0]), "max": list(q.world_box[1])}
-  else:
-    raise MwbxError(f"queries[{index}]: a query built from raw planes cannot be saved "
-                    f"(build it with Query.screen or Query.region)")
-  out["sign"] = q.sign
-  if q.bodies is not None:
-    out["bodies"] = list(q.bodies)
-  out["mode"] = q.mode
-  if q.window is not None:
-    out["window"] = list(q.window)
-  out["radius"] = q.radius
-  if q.shape != "com":
-    out["shape"] = q.shape
-  return out
+def _entry(query: Query, index: int) -> dict:
+  """A query's file entry, named as load_queries names an unnamed one."""
+  try:
+    return query.to_dict() | {"name": query.name or f"q{index}"}
+  except MwbxError as err:
+    raise MwbxError(f"queries[{index}]: {err}") from None
 
 
 def _location(loc) -> str:
@@ -278,88 +248,42 @@ def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
   if model is None and bank is not None:
     model = bank.model()
   default_camera = None if spec.camera is None else _camera(spec.camera, "camera", path, model)
-  queries = []
-  for i, q in enumerate(spec.queries):
-    queries.append(_query(q, i, path, default_camera, model, bank))
+  context = FileContext(path, default_camera, model, bank)
+  queries = [_query(entry, i, context) for i, entry in enumerate(spec.queries)]
   terms = _terms(spec.rank, path, bank, queries)
   return QuerySet(tuple(queries), terms, spec.order == "desc", spec.top, path)
 
 
-def _query(q: _QuerySpec, i: int, path: str, default_camera, model, bank) -> Query:
-  where = f"queries[{i}]"
-  if q.joint is not None or q.turn is not None or q.of is not None:
-    return _joint_query(q, where, path, model)
-  if q.upright is not None or q.orientation is not None or q.within_deg is not None:
-    return _orientation_query(q, where, path, bank)
-  if (q.box is None) == (q.region is None):
-    raise MwbxError(f"{path}: {where}: give exactly one of 'box' (screen) or 'region' (world)")
-  fields = dict(bodies=q.bodies, sign=q.sign, mode=q.mode, window=q.window,
-                radius=q.radius, name=q.name or f"q{i}", shape=q.shape)
-  try:
-    if q.box is not None:
-      camera = default_camera if q.camera is None else _camera(q.camera, f"{where}.camera",
-                                                               path, model)
-      if camera is None:
-        raise MwbxError("a screen box needs a camera (top-level 'camera' or the query's own)")
-      query = Query.screen(camera, ScreenBox(*q.box), near=q.near, far=q.far, **fields)
-    else:
-      if q.near is not None or q.far is not None or q.camera is not None:
-        raise MwbxError("'near', 'far' and 'camera' apply to screen boxes, not to a region")
-      query = Query.region(q.region.lo, q.region.hi, **fields)
-  except MwbxError as err:
-    if str(err).startswith(path):
-      raise
-    raise MwbxError(f"{path}: {where}: {err}") from None
-  if bank is not None and query.bodies:
+class FileContext(NamedTuple):
+  """What a query type needs to read its entries of one file (:meth:`Query.from_entry`).
+
+  path: the file. default_camera: its top-level camera, or None. model: an
+  MjModel for MJCF cameras and joint names, or None. bank: the bank the
+  queries are for (checks body, object and group names now), or None.
+  """
+
+  path: str
+  default_camera: Camera | None
+  model: object
+  bank: object
+
+  def camera(self, spec, where: str) -> Camera:
+    """The camera of a ``camera:`` entry (MwbxError naming the file and ``where``)."""
+    return _camera(spec, where, self.path, self.model)
+
+  def check_bodies(self, bodies, where: str, field: bool = True) -> None:
+    """MwbxError naming ``where`` (``.bodies`` with ``field``) for a name the bank does not know."""
+    if self.bank is None or not bodies:
+      return
     try:
-      bank.select_bodies(list(query.bodies))
+      self.bank.select_bodies(list(bodies))
     except MwbxError as err:
-      raise MwbxError(f"{path}: {where}.bodies: {err}") from None
-  return query
+      raise MwbxError(f"{self.path}: {where}{'.bodies' if field else ''}: {err}") from None
 
 
-def _joint_query(q: _QuerySpec, where: str, path: str, model) -> JointQuery:
-  spatial = [name for name in ("box", "region", "camera", "near", "far", "bodies") if getattr(q, name) is not None]
-  if spatial or q.sign != "include" or q.mode != "any" or q.radius != 0.0:
-    extra = spatial + [n for n, bad in (("sign", q.sign != "include"), ("mode", q.mode != "any"),
-                                        ("radius", q.radius != 0.0)) if bad]
-    raise MwbxError(f"{path}: {where}: a joint query takes joint, turn, of, window and name, not "
-                    f"{', '.join(extra)}")
-  if q.joint is None or q.turn is None:
-    raise MwbxError(f"{path}: {where}: a joint query needs both 'joint' and 'turn' ([lo, hi])")
-  try:
-    query = JointQuery(q.joint, q.turn, q.window, q.name or where, q.of or "change")
-    if model is not None:
-      joint_column(model, q.joint)
-  except MwbxError as err:
-    raise MwbxError(f"{path}: {where}: {err}") from None
-  return query
-
-
-def _orientation_query(q: _QuerySpec, where: str, path: str, bank) -> OrientationQuery:
-  spatial = [name for name in ("box", "region", "camera", "near", "far") if getattr(q, name) is not None]
-  if spatial or q.radius != 0.0 or q.shape != "com":
-    extra = spatial + [n for n, bad in (("radius", q.radius != 0.0), ("shape", q.shape != "com")) if bad]
-    raise MwbxError(f"{path}: {where}: an orientation query takes bodies, upright or orientation, "
-                    f"within_deg, window, sign, mode and name, not {', '.join(extra)}")
-  if (q.upright is None) == (q.orientation is None):
-    raise MwbxError(f"{path}: {where}: an orientation query needs exactly one of 'upright' "
-                    f"(a body axis) or 'orientation' (a quaternion or 'initial')")
-  if q.within_deg is None:
-    raise MwbxError(f"{path}: {where}: an orientation query needs 'within_deg' (degrees)")
-  upright = _Upright(axis=q.upright) if isinstance(q.upright, (str, tuple)) else q.upright
-  fields = dict(bodies=q.bodies, within_deg=q.within_deg, window=q.window, sign=q.sign, mode=q.mode,
-                name=q.name or where)
-  try:
-    if upright is not None:
-      query = OrientationQuery(axis=upright.axis, up=upright.up, **fields)
-    else:
-      query = OrientationQuery(target=q.orientation, **fields)
-    if bank is not None and query.bodies:
-      bank.select_bodies(list(query.bodies))
-  except MwbxError as err:
-    raise MwbxError(f"{path}: {where}: {err}") from None
-  return query
+def _query(entry: _QuerySpec, index: int, context: FileContext) -> Query:
+  kind = next(k for k in QUERY_KINDS if k.claims(entry))
+  return kind.from_entry(entry, index, context)
 
 
 def _terms(rank, path: str, bank, queries=()) -> tuple[Term, ...]:
@@ -388,15 +312,17 @@ def _terms(rank, path: str, bank, queries=()) -> tuple[Term, ...]:
   return tuple(terms)
 
 
-def _named_orientation(term: _TermSpec, queries) -> OrientationQuery | None:
-  """The orientation query a rank term names (its error is the metric), or None."""
+def _named_orientation(term: _TermSpec, queries) -> Query | None:
+  """The query whose error a rank term ranks by (an orientation query's, for
+  metric orientation_error), or None."""
   if term.query is None:
     return None
-  if term.metric != "orientation_error":
-    raise MwbxError(f"'query' names an orientation query for metric orientation_error, not {term.metric!r}")
-  named = [q for q in queries if isinstance(q, OrientationQuery) and q.name == term.query]
+  metrics = [k.error_metric for k in QUERY_KINDS if k.error_metric]
+  if term.metric not in metrics:
+    raise MwbxError(f"'query' names an orientation query for metric {' or '.join(metrics)}, not {term.metric!r}")
+  ranking = [q for q in queries if q.error_metric == term.metric]
+  named = [q for q in ranking if q.name == term.query]
   if not named:
-    known = [q.name for q in queries if isinstance(q, OrientationQuery)]
     raise MwbxError(f"no orientation query named {term.query!r} (orientation queries: "
-                    f"{', '.join(known) or 'none'})")
+                    f"{', '.join(q.name for q in ranking) or 'none'})")
   return named[0]

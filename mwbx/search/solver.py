@@ -63,12 +63,12 @@ import numpy as np
 from mwbx.bank import Bank
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
-from mwbx.queries import JointQuery, OrientationQuery, Query, first_entry, metric, query_gaps
-from mwbx.queries.query import as_queries, body_radii, selection_mask
+from mwbx.queries import metric, query_gaps
+from mwbx.queries.paths import body_radii
+from mwbx.queries.query import as_queries
+from mwbx.queries.selection import selection_mask
 from mwbx.refinement import refine_run, sampler_for
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
-from mwbx.search.objects import alone
-from mwbx.search.objects import involved_objects
 from mwbx.search.objects import spare_objects
 
 # Restart times of successive attempts on one world, as fractions of the time
@@ -238,18 +238,12 @@ class SolveResult(NamedTuple):
 
 
 def deadline(bank, world: int, query) -> float:
-  """Seconds by which a query's objects must be right, in one world: an
-  include query's window start (else the world's end), an exclude query's
-  first entry (a whole-geometry one's: its bounding sphere's, no later), a
-  joint or orientation query's window start (else its end)."""
-  end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
-  if isinstance(query, (JointQuery, OrientationQuery)) or query.include:
-    window = query.window or (None, None)
-    t = window[0] if window[0] is not None else window[1]
-    return min(end, t) if t is not None else end
-  radius = "auto" if query.shape == "geometry" else query.radius
-  t = first_entry(bank, world, query.bodies, query.frustum, window=query.window, radius=radius)
-  return end if t is None else t
+  """Seconds by which a query's objects must be right, in one world
+  (:meth:`mwbx.Query.deadline`): an include query's window start (else the
+  world's end), an exclude query's first entry (a whole-geometry one's: its
+  bounding sphere's, no later), a joint or orientation query's window start
+  (else its end)."""
+  return query.deadline(bank, world)
 
 
 def _apart(bank, bodies: np.ndarray, com: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -312,17 +306,13 @@ def _restart_goal(bank, row: int, world: int, query, met: np.ndarray) -> float:
   where a body settles is decided by its last bounces (on SIGGRAPH, 2 of 211
   refinements restarting before 0.5 s met more queries than their parent,
   against 9 of 110 restarting from 0.5 to 2 s)."""
-  if isinstance(query, OrientationQuery):
+  if query.goal == "pose":
     return min(settle_time(bank, row, selection_mask(bank, query.bodies)), deadline(bank, world, query))
-  if isinstance(query, JointQuery):
-    objects = involved_objects(bank, query)
-    bodies = selection_mask(bank, objects) if objects else np.zeros(len(bank.body_names), bool)
-  else:
-    bodies = selection_mask(bank, query.bodies)
+  bodies = query.body_mask(bank)
   t = divergence_time(bank, row, np.flatnonzero(met & np.asarray(bank.valid, bool)), bodies)
   if t is None:
     return deadline(bank, world, query)
-  if isinstance(query, Query) and query.include and bodies.any():
+  if query.until_rest and bodies.any():
     t = max(t, settle_time(bank, row, bodies))
   return min(t, deadline(bank, world, query))
 
@@ -344,7 +334,7 @@ def place_queries(queries) -> np.ndarray:
 
     place_queries(mwbx.load_queries("configs/queries/siggraph.yaml", bank=bank))  # the 8 slots
   """
-  places = np.array([not isinstance(q, OrientationQuery) for q in as_queries(queries)], bool)
+  places = np.array([q.goal == "place" for q in as_queries(queries)], bool)
   return places if places.any() else np.ones_like(places)
 
 
@@ -465,7 +455,7 @@ class _Search:
     self.gaps = query_gaps(bank, queries)  # f[W, Q]
     self.met = self.gaps == 0  # query_gaps is 0 exactly where evaluate_each holds
     # mode-any queries over several objects, as each object alone meets them
-    self.alone = [(q, obj, query) for q in range(len(queries)) for obj, query in alone(bank, queries[q]).items()]
+    self.alone = [(q, obj, query) for q in range(len(queries)) for obj, query in queries[q].per_object(bank).items()]
     self.alone_met = self._alone_met(bank)  # bool[W, len(self.alone)]
     self.scale = typical_gaps(self.gaps)
     self.places = place_queries(queries)  # bool[Q]: ranked and repaired before the poses
@@ -554,7 +544,7 @@ class _Search:
     other slot. With one object left, the restart time follows that object
     alone.
     """
-    objects = involved_objects(self.bank, self.queries[q])
+    objects = self.queries[q].objects(self.bank)
     meeting: dict[int, list[str]] = {}  # another query -> the objects meeting it alone here
     for v, (other, obj, _) in enumerate(self.alone):
       if other != q and self.alone_met[row, v]:

@@ -19,6 +19,7 @@ import meshcat
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.queries.query import Query
 from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS, QueryVolume, as_volume, classify_worlds
 from mwbx.viewer.framing import place_camera, scene_bounds, view_spec
@@ -172,8 +173,8 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
 
 
 def _volumeless(query: Any) -> bool:
-  """A mwbx.queries.JointQuery: a constraint with no volume to draw."""
-  return hasattr(query, "frustum") and query.frustum is None
+  """A query with no volume to draw (a joint or orientation query)."""
+  return isinstance(query, Query) and query.frustum is None
 
 
 def as_query_list(queries: Any) -> list:

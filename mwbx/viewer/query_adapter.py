@@ -15,13 +15,12 @@ from mwbx import queries as mq
 
 
 def is_query(q: Any) -> bool:
-  return isinstance(q, (mq.Query, mq.JointQuery, mq.OrientationQuery))
+  """A query of any type (:class:`mwbx.Query`), not a plain volume to draw."""
+  return isinstance(q, mq.Query)
 
 
 def is_negative(q: Any) -> bool:
-  """An exclude query (frustum queries say ``include``, orientation queries ``sign``)."""
-  if isinstance(q, mq.OrientationQuery):
-    return q.sign == "exclude"
+  """An exclude query."""
   return not q.include
 
 

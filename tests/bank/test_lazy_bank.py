@@ -14,7 +14,7 @@ import pytest
 import mwbx
 from mwbx import cli
 from mwbx.bank import lazy, shards
-from mwbx.queries import query as query_lib
+from mwbx.queries import paths as query_lib
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 TINY = REPO / "tests" / "refine_scenes" / "tiny.yaml"

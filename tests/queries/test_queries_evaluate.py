@@ -8,7 +8,7 @@ import pytest
 from mwbx.errors import MwbxError
 from mwbx.queries import Camera, Frustum, Query, ScreenBox
 from mwbx.queries import constraints_satisfied, evaluate, evaluate_each, first_entry
-from mwbx.queries import query as query_lib
+from mwbx.queries import paths as query_lib
 
 import queries_bank
 import queries_reference as ref

@@ -21,7 +21,7 @@ import mwbx
 from mwbx.queries import Query, query_gaps
 from mwbx.search import objects as search_objects
 from mwbx.search import proposal as proposal_lib
-from mwbx.queries.query import body_radii
+from mwbx.queries.paths import body_radii
 from mwbx.search import solver
 from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, RESTART_FRACTIONS, STALL_STEP, KeyStream,
                                 repair_plan, settle_time, stream_key)
@@ -496,11 +496,11 @@ def test_a_mode_any_repair_leaves_alone_the_object_holding_another_query(tiny_ba
   assert np.linalg.norm(target - striker) > 0.02  # boxes around one miss the other
   around_target = Query.region(target - 0.01, target + 0.01, bodies=["striker", "target"], mode="any", name="t")
   nowhere = Query.region((5.0, 5.0, 5.0), (6.0, 6.0, 6.0), bodies=["striker", "target"], mode="any", name="n")
-  variants = search_objects.alone(tiny_bank, nowhere)
+  variants = nowhere.per_object(tiny_bank)
   assert sorted(variants) == ["striker", "target"]
   assert variants["striker"].bodies == ("body:striker",) and variants["striker"].mode == "any"
-  assert search_objects.alone(tiny_bank, REACHABLE[0]) == {}  # one object: nothing to choose
-  assert search_objects.alone(tiny_bank, dataclasses.replace(nowhere, sign="exclude")) == {}
+  assert REACHABLE[0].per_object(tiny_bank) == {}  # one object: nothing to choose
+  assert dataclasses.replace(nowhere, sign="exclude").per_object(tiny_bank) == {}
   search = solver._Search(tiny_bank, [around_target, nowhere], solver.Budget(refinements=1), jax.random.key(0),
                           "collisions", "native", None)
   assert search.met[0, 0] and not search.met[0, 1]
