@@ -398,12 +398,24 @@ def _cmd_refine(args) -> int:
   return 0
 
 
+DEFAULT_SOLVE_REFINEMENTS = 100  # `mwbx solve` without --budget, --time-budget or --step-budget
+
+
+def _solve_budget(args, budget_type):
+  """The search's budget from ``mwbx solve``'s flags: a time or step budget
+  given alone is the limit (no default refinement count cuts it short)."""
+  refinements = args.budget
+  if refinements is None and args.time_budget is None and args.step_budget is None:
+    refinements = DEFAULT_SOLVE_REFINEMENTS
+  return budget_type(refinements=refinements, seconds=args.time_budget,
+                     world_steps=None if args.step_budget is None else int(args.step_budget))
+
+
 def _cmd_solve(args) -> int:
   from mwbx.search import Budget, progress_plot, solve  # lazy: optax
   bank = _load_bank(args)
   queries = mwbx.load_queries(args.queries, bank=bank)
-  budget = Budget(refinements=args.budget, seconds=args.time_budget,
-                  world_steps=None if args.step_budget is None else int(args.step_budget))
+  budget = _solve_budget(args, Budget)
   with _reporter_with_safe_points("solve") as update:
     result = solve(bank, queries, budget=budget, key=jax.random.key(args.seed), samples=args.samples,
                    keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
@@ -563,8 +575,10 @@ def _add_solve(sub) -> None:
   p = sub.add_parser("solve", help="search refinements for a world that meets every query, unattended")
   p.add_argument("bank", help="bank directory")
   p.add_argument("queries", help="query YAML: the goal (every query met)")
-  p.add_argument("--budget", type=int, default=100, metavar="N", help="refinements at most (default 100)")
-  p.add_argument("--time-budget", type=float, default=None, metavar="S", help="wall seconds at most")
+  p.add_argument("--budget", type=int, default=None, metavar="N",
+                 help="refinements at most (default 100 when no other budget is given)")
+  p.add_argument("--time-budget", type=float, default=None, metavar="S",
+                 help="wall seconds at most (alone: no refinement limit)")
   p.add_argument("--step-budget", type=float, default=None, metavar="N", help="world-steps at most")
   p.add_argument("--samples", type=int, default=32, help="refined worlds per refinement (default 32)")
   p.add_argument("--keep", type=int, default=4, help="best children kept per refinement (default 4)")

@@ -18,6 +18,7 @@ import scipy.stats
 
 from conftest import load_script
 import mwbx
+from mwbx import cli as mwbx_cli
 from mwbx.queries import Query, query_gaps
 from mwbx.search import objects as search_objects
 from mwbx.search import proposal as proposal_lib
@@ -522,3 +523,15 @@ def test_search_docstring_examples_run():
   for module in (search_objects, solver):
     failed, tried = doctest.testmod(module, optionflags=doctest.ELLIPSIS)[:2]
     assert tried >= 1 and failed == 0, module.__name__
+
+
+@pytest.mark.parametrize("flags, expected", [
+    ([], (100, None, None)),
+    (["--time-budget", "600"], (None, 600.0, None)),  # the README's command: the time is the limit
+    (["--step-budget", "1e6"], (None, None, 1_000_000)),
+    (["--budget", "7", "--time-budget", "60"], (7, 60.0, None)),
+])
+def test_a_time_budget_alone_is_not_cut_short_by_a_refinement_count(flags, expected):
+  args = mwbx_cli.build_parser().parse_args(["solve", "BANK", "Q.yaml", *flags])
+  budget = mwbx_cli._solve_budget(args, solver.Budget)
+  assert (budget.refinements, budget.seconds, budget.world_steps) == expected
