@@ -99,6 +99,9 @@ def _sample_share(args, out, scene, config, directory, record, mine, seed, group
       if sampler.contact_budget is not None:
         print(f"mwbx: contact budget: {sampler.contact_budget.describe()}", file=sys.stderr)
         record["contact_budget"] = sampler.contact_budget._asdict()
+      if sampler.warp_solver is not None:
+        print(f"mwbx: warp solver: {sampler.warp_solver.describe()}", file=sys.stderr)
+        record["warp_solver"] = sampler.warp_solver._asdict()
       try:
         with _reporter_with_safe_points("sample") as update:
           for part, stats in sampler.run_chunks(mine.size, jax.random.key(seed), ids=mine, progress=update):
@@ -210,11 +213,13 @@ class _RunSummary:
     self.errors_shown = 0
     self.stats = None
     self.budget = None  # the MJX contact budget record, if any
+    self.warp_solver = None  # mjx:warp's solver settings record, if any
 
   def add(self, part) -> None:
     self.worlds += part.n_worlds
     self.overflow += int(((part.flags & FLAG_CONTACT_OVERFLOW) != 0).sum())
     self.budget = part.run.get("contact_budget", self.budget)
+    self.warp_solver = part.run.get("warp_solver", self.warp_solver)
     self.valid += int(part.valid.sum())
     self.at_rest += int(part.at_rest.sum())
     self.perturbations += int(part.perturbations.sum())
@@ -232,6 +237,10 @@ class _RunSummary:
       st = self.stats
       if self.budget:
         print(f"contact budget      {_budget_line(self.budget)}")
+      if self.warp_solver:
+        w = self.warp_solver
+        print(f"warp solver         {w['solver']}, tolerance {w['tolerance']:g}, {w['iterations']} iterations"
+              f" ({w['reason']})")
       print(f"world-steps/s       {st.world_steps_per_second:,.0f} ({st.backend};"
             f" {st.world_steps:,} steps in {st.run_seconds:.2f} s, compile {st.compile_seconds:.1f} s,"
             f" compression {st.codec_seconds:.1f} s)")

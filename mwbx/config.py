@@ -121,6 +121,8 @@ class MjxSection(_Strict):
   """Contact budgets of the batched engines (``backend: mjx``); see
   :mod:`mwbx.batch_sim.contact_budget`. A value left out is sized by a short
   native pilot run: ``headroom`` × the most that any pilot frame needed.
+  Also MuJoCo Warp's solver settings (``solver``, ``tolerance``,
+  ``iterations``; :mod:`mwbx.batch_sim.warp_solver`).
 
   Attributes:
     max_contact_points: impl jax: contacts kept per condim group per world.
@@ -135,6 +137,17 @@ class MjxSection(_Strict):
       row (the same accelerations to float32 rounding); null (default): on
       where MJX runs on CPU devices, off on GPUs (not measured there). No
       effect on impl warp.
+    solver: impl warp: MuJoCo Warp's constraint solver. ``auto`` (default):
+      CG above ``warp_solver.NEWTON_MAX_NV`` degrees of freedom (Newton keeps
+      a dense nv x nv Hessian per world), Newton at or below it;
+      ``newton`` or ``cg`` forces one (:mod:`mwbx.batch_sim.warp_solver`).
+      No effect on impl jax.
+    tolerance: impl warp: the solver's tolerance (positive, below 1). Null
+      (default): the model's ``opt.tolerance``, raised to 1e-6 where it is
+      smaller (float32 does not reach MuJoCo's default 1e-8: the solver
+      would run every iteration of every step). No effect on impl jax.
+    iterations: impl warp: the solver's iteration limit per step. Null
+      (default): the model's ``opt.iterations``. No effect on impl jax.
   """
 
   max_contact_points: int | None = pydantic.Field(None, gt=0)
@@ -144,6 +157,9 @@ class MjxSection(_Strict):
   headroom: float = pydantic.Field(1.5, ge=1.0)
   pilot_worlds: int = pydantic.Field(8, gt=0)
   pack_rows: bool | None = None
+  solver: Literal["auto", "newton", "cg"] = "auto"
+  tolerance: float | None = pydantic.Field(None, gt=0, lt=1)
+  iterations: int | None = pydantic.Field(None, gt=0, le=100_000)
 
 
 class SimSection(_Strict):

@@ -7,7 +7,12 @@ For each scene and the same randomized initial states (batch 64 by default):
              mwbx's step, each world's solve over its rows in use)
   mjx:jax every row  (engine ``every``) the same with MJX's solve over every
              budget row (``sim.mjx.pack_rows: false``)
-  mjx:warp   MuJoCo Warp through MJX, pools sized from the same budget
+  mjx:warp   MuJoCo Warp through MJX, pools sized from the same budget, under
+             mwbx's solver settings (``warp_solver.warp_solver_settings``);
+             ``--warp-variants`` adds other settings of the same engine as rows
+             of their own (``mjx:warp shipped``, ``clamped``, ``capped``, ``cg``;
+             see WARP_VARIANTS), ``--warp-solver/--warp-tolerance/
+             --warp-iterations`` one chosen on the command line
 each in world-steps/s (compile time apart, best of the repeats, which
 alternate since the machine is shared), with its ratio to native. All step the
 scene's model with mwbx's sensors, un-perturbed, from the same states.
@@ -19,6 +24,7 @@ XLA's CPU cost model is not the GPU's, and MuJoCo Warp's kernels are custom
 calls XLA does not see into.
 
   .venv/bin/python scripts/bench_backends.py [--scenes siggraph,trebuchet_tower] [--batch 64]
+      [--warp-variants shipped,clamped,capped,cg | --warp-solver cg --warp-tolerance 1e-6 --warp-iterations N]
 
 Writes out/bench/backends.json (docs/benchmarks.md is generated from it).
 """
@@ -44,7 +50,8 @@ from mujoco import rollout as mj_rollout
 from mujoco.mjx._src import constraint, forward, smooth, solver
 
 import mwbx
-from mwbx.batch_sim import contact_budget, mjx_backend, mjx_collision, mjx_packed_solve
+from mwbx.batch_sim import contact_budget, mjx_backend, mjx_collision, mjx_packed_solve, warp_solver
+from mwbx.config import MjxSection
 from mwbx.batch_sim.sampler import resolve_contact_budget
 from mwbx.batch_sim.sampler import world_keys
 
@@ -62,6 +69,48 @@ PUBLISHED = [
     {"what": "MuJoCo Warp (nightly), humanoid", "device": "NVIDIA RTX 6000 Ada", "steps_per_s": 5.7e6,
      "source": "published figure, quoted for scale, not measured here"},
 ]
+
+
+# mjx:warp's solver variants by name (``--warp-variants``), each the config
+# overrides it stands for (``shipped``: the model's own options, unchanged).
+# ``capped``'s 10 Newton iterations: MuJoCo C takes 1-2 a step on the tower
+# (docs: ECOSYSTEM notes), so 10 leaves room; not tuned on a GPU.
+CAPPED_ITERATIONS = 10
+WARP_VARIANTS = {
+    "auto": {},  # mwbx's choice: CG above warp_solver.NEWTON_MAX_NV, tolerance raised to 1e-6
+    "shipped": None,  # the model's solver, tolerance and iterations as its MJCF has them
+    "clamped": {"solver": "newton"},  # Newton with the tolerance raised to float32's 1e-6
+    "capped": {"solver": "newton", "iterations": CAPPED_ITERATIONS},
+    "cg": {"solver": "cg"},
+}
+
+
+def warp_variants(args, model, config) -> list[tuple[str, warp_solver.WarpSolverSettings]]:
+  """(row label, settings) of each mjx:warp variant asked for: ``--warp-variants``
+  by name, else the one of ``--warp-solver/--warp-tolerance/--warp-iterations``,
+  else mwbx's choice (``mjx:warp``)."""
+  out = []
+  for name in args.warp_variants:
+    if name not in WARP_VARIANTS:
+      raise SystemExit(f"bench_backends: --warp-variants: unknown variant {name!r} (use {', '.join(WARP_VARIANTS)})")
+    label = "mjx:warp" if name == "auto" else f"mjx:warp {name}"
+    overrides = WARP_VARIANTS[name]
+    settings = (warp_solver.as_shipped(model) if overrides is None
+                else warp_solver.warp_solver_settings(model, config.sim.mjx.model_copy(update=overrides)))
+    out.append((label, settings))
+  if out:
+    return out
+  if args.warp_solver is None and args.warp_tolerance is None and args.warp_iterations is None:
+    return [("mjx:warp", warp_solver.warp_solver_settings(model, config.sim.mjx))]
+  if args.warp_solver == "shipped":
+    settings = warp_solver.as_shipped(model)
+    settings = settings._replace(
+        tolerance=settings.tolerance if args.warp_tolerance is None else args.warp_tolerance,
+        iterations=settings.iterations if args.warp_iterations is None else args.warp_iterations)
+  else:
+    settings = warp_solver.warp_solver_settings(model, MjxSection(
+        solver=args.warp_solver or "auto", tolerance=args.warp_tolerance, iterations=args.warp_iterations))
+  return [(f"mjx:warp {settings.solver} tol {settings.tolerance:g} it {settings.iterations}", settings)]
 
 
 def _commit() -> str:
@@ -229,12 +278,16 @@ def mjx_engine(backend_step, make_data, qpos0, qvel0, n_steps: int, overflow=Non
 def bench_scene(name: str, args) -> dict:
   path = pathlib.Path(name) if name.endswith(".yaml") else REPO / "configs" / f"{name}.yaml"
   config = mwbx.load_config(path)
+  distinct = min(args.distinct_states or args.batch, args.batch)
   with mwbx.Sampler(config, backend="native", chunk_size=args.batch) as sampler:
     scene = sampler.scene
-    qpos0, qvel0 = initial_states(sampler, args.batch)
+    qpos0, qvel0 = initial_states(sampler, distinct)
   model = scene.model
   if args.start_time > 0:
     qpos0, qvel0 = advance(model, qpos0, qvel0, args.start_time)
+  # --distinct-states: the batch repeats the first N worlds (N worlds' advance, not the batch's).
+  repeat = lambda x: np.tile(x, (-(-args.batch // distinct), 1))[:args.batch]
+  qpos0, qvel0 = repeat(qpos0), repeat(qvel0)
   threads = os.cpu_count()
   start = time.perf_counter()
   budget = resolve_contact_budget(scene, config.sim.mjx)
@@ -248,10 +301,20 @@ def bench_scene(name: str, args) -> dict:
         lambda q, v: jax.vmap(lambda q, v: bare_base.replace(qpos=q, qvel=v))(q, v),
         qpos0, qvel0, args.bare_steps)
   backends = {}
-  for impl, name, packed in (("jax", "jax", None), ("jax", "every", False), ("warp", "warp", False)):
+  for impl, name, packed in (("jax", "jax", None), ("jax", "every", False)):
     if name in args.engines:
       backend = backends[name] = mjx_backend.backend_for(scene, impl, budget, pack_rows=packed)
       key = "mjx:jax every row" if name == "every" else f"mjx:{impl}"
+      engines[key] = mjx_engine(backend.step, backend.make_data, qpos0, qvel0, args.steps, backend.overflow)
+  settings_of, same_as = {}, {}  # mjx:warp variants: settings per row; a variant equal to an earlier one is not rerun
+  if "warp" in args.engines:
+    for key, settings in warp_variants(args, model, config):
+      earlier = next((k for k, s in settings_of.items() if s[:3] == settings[:3]), None)
+      settings_of[key] = settings
+      if earlier is not None:
+        same_as[key] = earlier
+        continue
+      backend = backends[key] = mjx_backend.backend_for(scene, "warp", budget, warp_solver=settings)
       engines[key] = mjx_engine(backend.step, backend.make_data, qpos0, qvel0, args.steps, backend.overflow)
   rates = {"native": 0.0, **{k: 0.0 for k in engines}}
   extra = {k: {} for k in engines}
@@ -271,10 +334,13 @@ def bench_scene(name: str, args) -> dict:
                    "mjx:jax": "MJX impl jax, box broadphase, contact budget, solver limits, each world's"
                               " solve over its rows in use",
                    "mjx:jax every row": "mjx:jax with MJX's solve over every budget row (sim.mjx.pack_rows: false)",
-                   "mjx:warp": "MuJoCo Warp via MJX, pools from the budget"}[key]
+                   }.get(key, "MuJoCo Warp via MJX, pools from the budget")
+    if key in settings_of:
+      row["what"] += f"; solver {settings_of[key].describe()}"
+      row["warp_solver"] = settings_of[key]._asdict()
     if key == "mjx:jax" and not backends["jax"].pack_rows:  # the default off the CPU
       row["what"] = "MJX impl jax, box broadphase, contact budget, solver limits, solve over every row"
-    if args.cost and key == "mjx:warp":  # its kernels are custom calls: XLA's cost analysis sees nothing
+    if args.cost and key.startswith("mjx:warp"):  # its kernels are custom calls: XLA's cost analysis sees nothing
       row["cost"] = {"error": "MuJoCo Warp's kernels are custom calls XLA's cost analysis does not see into"}
     elif args.cost:
       try:
@@ -284,12 +350,16 @@ def bench_scene(name: str, args) -> dict:
     if args.stages and key == "mjx:jax":
       row["stages_ms"], row["solver_detail"] = stage_times(backends["jax"], d0)
     rows.append(row)
+  for key, earlier in same_as.items():  # the same settings as a row run above: its figures, under this name too
+    row = dict(next(r for r in rows if r["engine"] == earlier), engine=key, same_as=earlier)
+    row["what"] = f"{row['what']} (the same settings as {earlier}: not run again)"
+    rows.append(row)
   by = {r["engine"]: r for r in rows}
   ratios = {k: r["world_steps_per_s"] / rates["native"] for k, r in by.items() if k != "native"}
   if "mjx:bare" in by and "mjx:jax" in by:
     ratios["jax_over_bare"] = by["mjx:jax"]["world_steps_per_s"] / by["mjx:bare"]["world_steps_per_s"]
   return {"rows": rows, "ratios": ratios, "budget": budget._asdict(), "pilot_s": pilot_seconds,
-          "start_time": args.start_time,
+          "start_time": args.start_time, "distinct_states": distinct,
           "mjx_solver": {"iterations": min(int(model.opt.iterations), mjx_backend.SOLVER_ITERATIONS),
                          "ls_iterations": min(int(model.opt.ls_iterations), mjx_backend.LS_ITERATIONS)},
           "nbody": model.nbody, "nv": model.nv, "ngeom": model.ngeom, "timestep": model.opt.timestep}
@@ -334,9 +404,22 @@ def main() -> None:
   parser.add_argument("--keep-engines", action="store_true",
                       help="keep the rows of engines not run now from --out's earlier run of the same scene"
                            " (scripts/gpu_check.sh runs each engine in its own process)")
+  parser.add_argument("--warp-solver", choices=("auto", "newton", "cg", "shipped"),
+                      help="mjx:warp under this solver (shipped: the model's own options) instead of mwbx's choice")
+  parser.add_argument("--warp-tolerance", type=float, help="mjx:warp's solver tolerance (default: mwbx's choice)")
+  parser.add_argument("--warp-iterations", type=int, help="mjx:warp's solver iterations (default: the model's)")
+  parser.add_argument("--warp-variants", default="", metavar="A,B",
+                      help=f"run mjx:warp under each of these named settings, a row each, in one process"
+                           f" ({', '.join(WARP_VARIANTS)}; overrides the three options above)")
+  parser.add_argument("--distinct-states", type=int, default=0, metavar="N",
+                      help="draw (and advance to --start-time) only N worlds; the batch repeats them")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "backends.json"))
   args = parser.parse_args()
   args.engines = args.engines.split(",")
+  args.warp_variants = [v for v in args.warp_variants.split(",") if v]
+  if (args.warp_tolerance is not None and not 0 < args.warp_tolerance < 1) or (
+      args.warp_iterations is not None and args.warp_iterations < 1):
+    parser.error("--warp-tolerance must be in (0, 1) and --warp-iterations at least 1")
   out = pathlib.Path(args.out)
   result = {"machine": machine(), "batch": args.batch, "gpu_roofline": GPU, "published": PUBLISHED, "scenes": {}}
   if out.exists():  # scenes not run now stay as they were measured (each names its machine)
@@ -358,8 +441,8 @@ def main() -> None:
     s["machine"] = m
     earlier = result["scenes"].get(pathlib.Path(name).stem)
     if args.keep_engines and earlier:  # each kept row's ratio is to the native of its own run
-      ran = {r["engine"] for r in s["rows"]}
-      s["rows"] += [r for r in earlier["rows"] if r["engine"] not in ran]
+      ran = {(r["engine"], r["batch"]) for r in s["rows"]}  # a row per engine and batch (the tower at 512 and 2048)
+      s["rows"] += [r for r in earlier["rows"] if (r["engine"], r["batch"]) not in ran]
       s["ratios"] = {**earlier.get("ratios", {}), **s["ratios"]}
     old = previous.get(pathlib.Path(name).stem)
     if old:  # the same scene's mjx:jax as an earlier commit ran it
@@ -370,12 +453,12 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     print(f"\n{name} (budget: {contact_budget.ContactBudget(**s['budget']).describe()})")
-    print(f"  {'engine':10}{'steps':>6}{'world-steps/s':>15}{'vs native':>11}{'compile s':>11}"
+    print(f"  {'engine':20}{'batch':>6}{'steps':>6}{'world-steps/s':>15}{'vs native':>11}{'compile s':>11}"
           f"{'flagged':>9}{'flops/step':>12}{'bytes/step':>12}{'H200 bound':>12}")
     for r in s["rows"]:
       cost = r.get("cost") or {}
       bound = cost.get("roofline_steps_per_s")
-      print(f"  {r['engine']:10}{r['steps']:>6}{r['world_steps_per_s']:>15,.0f}"
+      print(f"  {r['engine']:20}{r['batch']:>6}{r['steps']:>6}{r['world_steps_per_s']:>15,.0f}"
             f"{r.get('ratio_to_native', 1.0):>10.3f}x{(r['compile_s'] or 0):>11.1f}"
             f"{r.get('flagged', 0):>9}{cost.get('flops', 0):>12.3g}{cost.get('bytes_accessed', 0):>12.3g}"
             f"{(f'{bound:,.0f}' if bound else '-'):>12}", flush=True)

@@ -48,11 +48,11 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     )),
     ("scene and kernels", (
         "mwbx.config", "mwbx.rates", "mwbx.scene", "mwbx.controls", "mwbx.perturb",
-        "mwbx.codec", "mwbx.queries",
+        "mwbx.codec", "mwbx.events", "mwbx.queries",
     )),
     ("bank", ("mwbx.qpos_store", "mwbx.bank")),
     ("simulation", ("mwbx.batch_sim", "mwbx.refinement")),
-    ("front ends", ("mwbx.viewer", "mwbx.browser", "mwbx.search")),
+    ("front ends", ("mwbx.viewer", "mwbx.browser", "mwbx.search", "mwbx.export")),
     ("command", ("mwbx.cli", "mwbx")),
 )
 

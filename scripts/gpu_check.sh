@@ -2,14 +2,23 @@
 # Measures mwbx's batched engines on one GPU against native MuJoCo on the same
 # machine's cores, in one run: SIGGRAPH at 4096 worlds and the trebuchet tower
 # at 512 on mjx:jax (contact budget) and mjx:warp (MuJoCo Warp), each timed
-# from the states after 0.6 s of MuJoCo C (bodies in contact). Writes
+# from the states after 0.6 s of MuJoCo C (bodies in contact); then the tower
+# on mjx:warp at 512 and 2048 worlds under MuJoCo Warp's solver variants
+# (mwbx's choice, as shipped, tolerance clamped, Newton capped, CG). Writes
 # out/bench/gpu.json; then `python scripts/make_benchmarks_doc.py` turns it
 # into the GPU rows of docs/benchmarks.md. Needs an NVIDIA GPU with a CUDA 12
-# or newer driver, and either the package index or --wheels; about 9 minutes
-# on one H200 (measured in parts: the engines 7 min, mwbx sample 1 min).
+# or newer driver, and either the package index or --wheels. Time on one
+# H200: the engines and mwbx sample took about 9 minutes before the variants
+# (measured in parts: the engines 7 min, mwbx sample 1 min); the variants are
+# NOT measured yet. To stay within 8 minutes the tower's 2048-world run repeats
+# 512 advanced states (--distinct-states: no 2048-world advance on the CPU)
+# and each world count's variants share one process (one pilot, one advance,
+# one native baseline, the tower's mjx:warp row included); if a run still goes
+# over, drop parts: --sample 0 (1 min), --variant-worlds 512, --variants "".
 #
 #   scripts/gpu_check.sh [--worlds 4096] [--python PY | --wheels DIR] [--out FILE]
 #                        [--scenes A,B] [--engines jax,warp] [--timeout S] [--append] [--sample N]
+#                        [--variants shipped,clamped,capped,cg] [--variant-scene NAME] [--variant-worlds 512,2048]
 #   scripts/gpu_check.sh --dry-run [--python PY]   # the same path, a tiny batch on the CPU
 #
 # --scenes: shipped scene names or config paths, each optionally NAME:WORLDS or
@@ -25,6 +34,13 @@
 #   use its own python3 and JAX (with JAX's CUDA plugin) and install only the
 #   packages it lacks (mujoco, mujoco-mjx, warp-lang, pydantic, ...) from the
 #   wheels in DIR into .gpu-site/ (pip --no-index --no-deps).
+# --variants: mjx:warp's solver variants (scripts/bench_backends.py
+#   WARP_VARIANTS: shipped = the model's own options, clamped = Newton with the
+#   tolerance raised to 1e-6, capped = that with 10 iterations, cg = CG), run
+#   with mwbx's own choice (the mjx:warp row) on --variant-scene (default
+#   trebuchet_tower; the dry run: the first of --scenes) at each of
+#   --variant-worlds, 5 steps a timed run; "" skips them. Only with warp among
+#   --engines; the main loop then leaves that scene's mjx:warp row to them.
 # Each scene and engine runs in its own process, under --timeout seconds
 # (default 300; 1800 in the dry run, CPU compiles are slow) including its
 # compile: one that runs long loses its own row, not the others. Rows land in
@@ -43,6 +59,9 @@ ENGINES="jax,warp"
 TIMEOUT=""
 APPEND=0
 SAMPLE=1024
+VARIANTS="shipped,clamped,capped,cg"
+VARIANT_SCENE=""
+VARIANT_WORLDS="512,2048"
 fail() { echo "gpu_check: $*" >&2; exit 1; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -56,7 +75,10 @@ while [ $# -gt 0 ]; do
     --timeout) TIMEOUT="$2"; shift ;;
     --append) APPEND=1 ;;
     --sample) SAMPLE="$2"; shift ;;
-    *) fail "unknown argument $1 (use --dry-run, --worlds N, --python PY, --wheels DIR, --out FILE, --scenes A,B, --engines jax,warp, --timeout S, --append, --sample N)" ;;
+    --variants) VARIANTS="$2"; shift ;;
+    --variant-scene) VARIANT_SCENE="$2"; shift ;;
+    --variant-worlds) VARIANT_WORLDS="$2"; shift ;;
+    *) fail "unknown argument $1 (use --dry-run, --worlds N, --python PY, --wheels DIR, --out FILE, --scenes A,B, --engines jax,warp, --timeout S, --append, --sample N, --variants A,B, --variant-scene NAME, --variant-worlds N,M)" ;;
   esac
   shift
 done
@@ -109,6 +131,12 @@ PY
   TIMEOUT="${TIMEOUT:-300}"
 fi
 
+# The solver variants run where mjx:warp does, on the tower (the dry run: its first scene, tiny batch).
+if [[ ",$ENGINES," != *,warp,* ]]; then VARIANTS=""; fi
+FIRST_SCENE="${SCENES%%,*}"; FIRST_SCENE="${FIRST_SCENE%%:*}"
+[ -n "$VARIANT_SCENE" ] || { [ "$DRY" = 1 ] && VARIANT_SCENE="$FIRST_SCENE" || VARIANT_SCENE="trebuchet_tower"; }
+[ "$DRY" = 0 ] || VARIANT_WORLDS="$WORLDS"
+
 cd "$ROOT"
 [ "$APPEND" = 1 ] || rm -f "$OUT"
 missing=()
@@ -126,11 +154,24 @@ for engine in ${ENGINES//,/ }; do
     IFS=: read -r scene worlds steps <<< "$spec"
     [ "$DRY" = 0 ] || worlds="" steps=""  # the dry run: always the tiny batch
     worlds="${worlds:-$WORLDS}" steps="${steps:-$STEPS}"
+    if [ "$engine" = warp ] && [ -n "$VARIANTS" ] && [ "$scene" = "$VARIANT_SCENE" ]; then
+      continue  # its mjx:warp row comes with the solver variants below
+    fi
     echo "gpu_check: $scene on mjx:$engine, $worlds worlds, $steps steps a run (at most ${TIMEOUT} s)"
     measure "$scene on mjx:$engine" "$PY" scripts/bench_backends.py --scenes "$scene" --engines "$engine" \
       --keep-engines --batch "$worlds" --steps "$steps" "${ARGS[@]}" --out "$OUT"
   done
 done
+if [ -n "$VARIANTS" ]; then
+  for worlds in ${VARIANT_WORLDS//,/ }; do
+    # 5 timed steps as the tower's other rows; native timed over 10 steps (at 2048 worlds, 50 would cost ~30 s).
+    vsteps=5 vnative=(--native-steps 10); [ "$DRY" = 0 ] || { vsteps="$STEPS"; vnative=(); }
+    echo "gpu_check: $VARIANT_SCENE on mjx:warp, solver variants auto,$VARIANTS, $worlds worlds, $vsteps steps a run (at most ${TIMEOUT} s)"
+    measure "$VARIANT_SCENE on mjx:warp at $worlds worlds (solver variants)" "$PY" scripts/bench_backends.py \
+      --scenes "$VARIANT_SCENE" --engines warp --warp-variants "auto,$VARIANTS" --keep-engines --batch "$worlds" \
+      --steps "$vsteps" --distinct-states 512 "${ARGS[@]}" "${vnative[@]}" --out "$OUT"
+  done
+fi
 if [ "$DRY" = 0 ] && [ "$SAMPLE" != 0 ]; then
   echo "gpu_check: mwbx sample configs/siggraph.yaml --backend mjx --worlds $SAMPLE (at most ${TIMEOUT} s)"
   measure "mwbx sample" "$PY" scripts/bench_backends.py --scenes "" --time-sample "$SAMPLE" --out "$OUT"

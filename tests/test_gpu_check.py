@@ -51,8 +51,9 @@ def test_gpu_check_names_a_part_that_failed_and_runs_the_rest(tmp_path):
 
 @pytest.mark.slow
 def test_gpu_check_dry_run_end_to_end(tmp_path):
-  # About a minute of CPU (compiling the jax and warp steps of the tiny scene): 69 s user time on a
-  # 2-core machine, though 12 min wall there under a load average of 15-20.
+  # Minutes of CPU (compiling the jax step and the warp steps of each solver variant of the tiny scene):
+  # 69 s user time on a 2-core machine before the variants, though 12 min wall there under a load average
+  # of 15-20.
   pytest.importorskip("warp")
   out = tmp_path / "gpu.json"
   result = subprocess.run(
@@ -63,10 +64,17 @@ def test_gpu_check_dry_run_end_to_end(tmp_path):
   d = json.loads(out.read_text())
   assert d["machine"]["jax_backend"] == "cpu" and d["batch"] == 8
   rows = {r["engine"]: r for r in d["scenes"]["tiny"]["rows"]}
-  assert set(rows) == {"native", "mjx:jax", "mjx:warp"}
+  # mjx:warp (mwbx's solver choice) and its solver variants came from one process (the dry run's first scene).
+  variants = {"mjx:warp shipped", "mjx:warp clamped", "mjx:warp capped", "mjx:warp cg"}
+  assert set(rows) == {"native", "mjx:jax", "mjx:warp"} | variants
   for engine, r in rows.items():
     assert r["world_steps_per_s"] > 0, engine
-  for engine in ("mjx:jax", "mjx:warp"):
+  solvers = {engine: rows[engine]["warp_solver"] for engine in variants | {"mjx:warp"}}
+  assert solvers["mjx:warp shipped"]["tolerance"] == 1e-8 and solvers["mjx:warp"]["tolerance"] == 1e-6
+  assert solvers["mjx:warp cg"]["solver"] == "cg" and solvers["mjx:warp capped"]["iterations"] == 10
+  # tiny's nv (12) takes Newton: "clamped" is mwbx's own choice, reported without a second run.
+  assert solvers["mjx:warp"]["solver"] == "newton" and rows["mjx:warp clamped"]["same_as"] == "mjx:warp"
+  for engine in ("mjx:jax", "mjx:warp", "mjx:warp cg"):
     assert rows[engine]["finite"] and rows[engine]["compile_s"] > 0
     # Each engine ran in its own process: its ratio is to the native rate measured there.
     assert rows[engine]["ratio_to_native"] == pytest.approx(
@@ -80,12 +88,12 @@ def test_gpu_check_dry_run_end_to_end(tmp_path):
   # The doc generator turns it into rows: the CPU section, and the GPU one says it was not measured on a GPU.
   doc = load_script("make_benchmarks_doc")
   lines, _ = doc.backends(d)
-  assert sum(line.startswith("| tiny |") for line in lines) == 3
+  assert sum(line.startswith("| tiny |") for line in lines) == len(rows)
   gpu_lines, _ = doc.gpu(d)
   assert any("Not measured: no GPU" in line for line in gpu_lines)
   on_gpu = {**d, "machine": {**d["machine"], "jax_backend": "gpu", "device": "NVIDIA H200"}}
   gpu_lines, _ = doc.gpu(on_gpu)
-  assert sum(line.startswith("| tiny |") for line in gpu_lines) == 3 and "NVIDIA H200" in gpu_lines[2]
+  assert sum(line.startswith("| tiny |") for line in gpu_lines) == len(rows) and "NVIDIA H200" in gpu_lines[2]
   # The codec's fit, on the default device and on the host CPU (one device here: the same streams).
   codec = d["codec_fit"]
   assert {r["fit_on"] for r in codec["runs"]} == {"default", "host cpu"} and codec["same_streams"]

@@ -29,6 +29,8 @@ from mwbx.bank import versions
 from mwbx.config import ASSET_DIR
 from mwbx.config import config_from_dict
 from mwbx.errors import MwbxError
+from mwbx.events import record as events_lib
+from mwbx.events.record import EventRecord
 from mwbx.joints import QPOS_WIDTH
 from mwbx.qpos_store import QposStore
 
@@ -75,6 +77,10 @@ class Bank:
       objects), oldest first.
     next_id: the smallest id never given to a world of this bank.
     run: how the worlds were drawn (e.g. ``{"seed": 0}``).
+    events: each world's contact episodes (:class:`mwbx.events.EventRecord`),
+      or None for a bank saved before they were recorded.
+    event_actors: the actor names the events' indices refer to (objects, then
+      named static geoms, :mod:`mwbx.events.actors`).
   """
 
   world_ids: np.ndarray
@@ -106,6 +112,8 @@ class Bank:
   next_id: int = 0
   scene_version: np.ndarray | None = None
   versions: list = dataclasses.field(default_factory=list)
+  events: EventRecord | None = None
+  event_actors: tuple[str, ...] = ()
   _model: object = dataclasses.field(default=None, repr=False, compare=False)
   # Where the bank was loaded from or last saved to, with the ids it held
   # there (mwbx.bank.shards.Origin): what a save into that directory adds and drops.
@@ -199,7 +207,8 @@ class Bank:
   def _take(self, rows: np.ndarray, **changes) -> "Bank":
     """The bank of ``rows`` (i64[k], in that order); the store is copied."""
     arrays = {name: lazy.take_rows(getattr(self, name), rows) for name in self._ARRAYS}
-    return dataclasses.replace(self, **arrays, qpos_store=self.qpos_store.take(rows),
+    events = None if self.events is None else self.events.take(rows)
+    return dataclasses.replace(self, **arrays, qpos_store=self.qpos_store.take(rows), events=events,
                                next_id=self.next_world_id, **changes)
 
   def qpos_frames(self, world: int, start: int = 0, stop: int | None = None, *,
@@ -321,7 +330,8 @@ class Bank:
     arrays = (self.world_ids, self.keys, self.flags, self.frame_count, self.com, self.com_count,
               self.metrics, self.perturbations, self.steps, self.parent_world, self.refine_time,
               self.scene_version)
-    return int(sum(a.nbytes for a in arrays) + self.qpos_store.nbytes)
+    events = 0 if self.events is None else self.events.nbytes
+    return int(sum(a.nbytes for a in arrays) + self.qpos_store.nbytes + events)
 
   # -- growth -------------------------------------------------------------------
 
@@ -359,8 +369,9 @@ class Bank:
     store = lazy.concat_stores([b.qpos_store for b in banks])
     arrays = {name: lazy.concat_rows([getattr(b, name) for b in banks]) for name in cls._ARRAYS}
     lineage = {k: v for b in banks for k, v in b.lineage.items()}
-    return dataclasses.replace(first, **arrays, qpos_store=store, lineage=lineage,
-                               next_id=max(b.next_world_id for b in banks))
+    actors, events = events_lib.merge([(b.event_actors, b.events) for b in banks])
+    return dataclasses.replace(first, **arrays, qpos_store=store, lineage=lineage, events=events,
+                               event_actors=actors, next_id=max(b.next_world_id for b in banks))
 
   def _renumbered_after(self, first: "Bank") -> "Bank":
     """This bank with new ids from ``first.next_world_id`` on if any of its ids is
@@ -447,6 +458,8 @@ class Bank:
         raise MwbxError(f"bank: {name} has {len(getattr(self, name))} rows, expected {w}")
     if self.qpos_store.n_worlds != w:
       raise MwbxError(f"bank: qpos store has {self.qpos_store.n_worlds} worlds, expected {w}")
+    if self.events is not None and self.events.n_worlds != w:
+      raise MwbxError(f"bank: contact events of {self.events.n_worlds} worlds, expected {w}")
     if self.com.ndim != 4 or self.com.shape[2] != len(self.body_names):
       raise MwbxError(f"bank: com has shape {self.com.shape}, expected [W, P, {len(self.body_names)}, 3]")
 

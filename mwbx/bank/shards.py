@@ -48,6 +48,7 @@ from mwbx.bank import lazy as lazy_lib
 from mwbx.bank import runs
 from mwbx.bank.stores import store_class
 from mwbx.codec import polyline
+from mwbx.events import record as events_lib
 from mwbx.errors import MwbxError
 from mwbx.yaml_input import short_repr
 
@@ -290,6 +291,8 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   arrays = {n: np.ascontiguousarray(getattr(part, n)) for n in bank._ARRAYS if n != "com"}
   arrays["com_grid"] = polyline.encode(part.com, com_step(bank.config))
   arrays.update({f"qpos_{k}": np.ascontiguousarray(v) for k, v in store_arrays.items()})
+  if part.events is not None:
+    arrays.update(part.events.arrays())
   lineage = {str(int(i)): bank.lineage[str(int(i))] for i in part.world_ids if str(int(i)) in bank.lineage}
   lineage_bytes = json.dumps(lineage).encode()
   shards = path / SHARDS
@@ -310,10 +313,13 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
     files.remove_quietly(tmp)
     raise MwbxError(f"{shards / name}: cannot write this shard of {int(part.n_worlds)} worlds ({files.why(err)});"
                     f" nothing of it was kept, the worlds saved before stay") from None
-  return {"name": name, "worlds": int(part.n_worlds), "id_ranges": runs.id_ranges(part.world_ids),
+  entry = {"name": name, "worlds": int(part.n_worlds), "id_ranges": runs.id_ranges(part.world_ids),
           "com_row_shape": [int(x) for x in part.com.shape[1:]],
           "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
           "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8))}
+  if part.events is not None:  # the names the events' actor indices refer to
+    entry["events"] = {"version": events_lib.EVENTS_VERSION, "actors": list(part.event_actors)}
+  return entry
 
 
 def read_manifest(path: pathlib.Path) -> dict:
@@ -381,6 +387,16 @@ def _read_small(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
     return arrays, json.loads(lineage_bytes)
   except ValueError as err:
     raise MwbxError(f"{where}: corrupt lineage.json ({checks.first_line(err)})") from None
+
+
+def _shard_events(path: pathlib.Path, entry: dict, arrays: dict):
+  """(actor names, EventRecord) of one shard; ((), None) for a shard written
+  before contact events were recorded (or of a later events version)."""
+  meta = entry.get("events")
+  if not meta or meta.get("version") != events_lib.EVENTS_VERSION or "events_rows" not in arrays:
+    return (), None
+  record = events_lib.EventRecord.from_arrays(arrays, int(entry["worlds"]), str(path / SHARDS / entry["name"]))
+  return tuple(meta["actors"]), record
 
 
 def _read_com(path: pathlib.Path, entry: dict) -> np.ndarray:
@@ -462,6 +478,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   small_names = [n for n in cls._ARRAYS if n != "com"]
   for arrays, _ in smalls:  # shards written before scene versions: all of version 0
     arrays.setdefault("scene_version", np.zeros(len(arrays["world_ids"]), np.int16))
+  event_actors, events = events_lib.merge([_shard_events(path, e, arrays) for e, (arrays, _) in zip(entries, smalls)])
   bank = cls(
       **{name: np.concatenate([arrays[name] for arrays, _ in smalls]) for name in small_names},
       com=com, qpos_store=store, body_names=tuple(scene["body_names"]),
@@ -472,7 +489,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       query_fps=scene["query_fps"], timestep=scene["timestep"], config=scene["config"],
       mjcf_text=scene["mjcf_text"], mjcf_includes=scene.get("mjcf_includes", {}),
       digest=scene["digest"], lineage=lineage, run=run, next_id=int(manifest["next_id"]),
-      versions=list(scene.get("versions", [])))
+      versions=list(scene.get("versions", [])), events=events, event_actors=event_actors)
   ids, counts = np.unique(bank.world_ids, return_counts=True)
   if (counts > 1).any():
     twice = ids[counts > 1]

@@ -23,6 +23,7 @@ from mwbx import controls
 from mwbx.batch_sim import contact_budget
 from mwbx.batch_sim import mjx_collision
 from mwbx.batch_sim import free_bodies as free_bodies_lib
+from mwbx.batch_sim import warp_solver as warp_solver_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 
@@ -107,7 +108,7 @@ def _per_world(tree, path) -> bool:
 
 
 def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=None,
-                pack_rows: bool | None = None) -> "MjxBackend":
+                pack_rows: bool | None = None, warp_solver=None) -> "MjxBackend":
   """The MJX backend of a scene under a contact budget (the entry point for
   sampling and benchmarks: ``backend.make_data`` and ``backend.step`` are one
   budgeted batched step, ``backend.overflow`` its flag).
@@ -118,10 +119,15 @@ def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=
     budget: the budget (:func:`mwbx.batch_sim.sampler.resolve_contact_budget`:
       the config's ``sim.mjx`` values, the rest from a native pilot).
     devices, pack_rows: as for :class:`MjxBackend`.
+    warp_solver: impl warp: the :class:`warp_solver.WarpSolverSettings` (or
+      its dict, as a bank's ``run`` stores it) to use; None: chosen from the
+      model and the config's ``sim.mjx`` (:func:`warp_solver.warp_solver_settings`).
   """
   # impl jax reads its caps from the model's numerics; warp sizes its pools from the budget.
   model = contact_budget.budgeted_model(scene, budget) if impl == "jax" else scene.model
-  return MjxBackend(model, impl, devices, budget=budget, pack_rows=pack_rows)
+  if impl == "warp" and warp_solver is None:
+    warp_solver = warp_solver_lib.warp_solver_settings(model, scene.config.sim.mjx)
+  return MjxBackend(model, impl, devices, budget=budget, pack_rows=pack_rows, warp_solver=warp_solver)
 
 
 class MjxBackend:
@@ -141,10 +147,22 @@ class MjxBackend:
       world (the reference the packed solve is tested against). None: on
       where the devices are CPUs; off on accelerators, where its groups of
       ``WORLDS_PER_SOLVE`` worlds, solved one after another, are not measured.
+    warp_solver: impl ``warp``: MuJoCo Warp's solver settings
+      (:class:`warp_solver.WarpSolverSettings` or its dict), applied to a copy
+      of ``model`` before it is put on the device; None: chosen from the model
+      alone (:func:`warp_solver.warp_solver_settings`). Ignored on impl ``jax``.
   """
 
   def __init__(self, model: mujoco.MjModel, impl: str = "jax", devices=None,
-               budget: contact_budget.ContactBudget | None = None, pack_rows: bool | None = None):
+               budget: contact_budget.ContactBudget | None = None, pack_rows: bool | None = None,
+               warp_solver=None):
+    # impl warp: the solver settings in a copy of the model (the scene's model is shared).
+    self.warp_solver = None
+    if impl == "warp":
+      if isinstance(warp_solver, dict):
+        warp_solver = warp_solver_lib.WarpSolverSettings.from_dict(warp_solver)
+      self.warp_solver = warp_solver or warp_solver_lib.warp_solver_settings(model)
+      model = warp_solver_lib.solver_model(model, self.warp_solver)
     self.model = model
     self.impl = impl
     self.budget = budget

@@ -19,12 +19,14 @@ import numpy as np
 from mwbx import bank as bank_lib
 from mwbx import rates as rates_lib
 from mwbx.bank.stores import store_for
-from mwbx.batch_sim import memory, world
+from mwbx.batch_sim import engine_probe, memory, world
 from mwbx.batch_sim import rows as rows_lib
 from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_impl
 from mwbx.batch_sim.native_backend import NativeBackend
 from mwbx.config import Config, MjxSection
+from mwbx import events as events_lib
 from mwbx.errors import MwbxError
+from mwbx.events import EventRecord
 from mwbx.host_device import host_cpu
 from mwbx.progress import Progress, ProgressFn
 from mwbx.qpos_store import QposStore, RawQposStore
@@ -41,6 +43,7 @@ class SampleStats:
     run_seconds: stepping time, s.
     compile_seconds: compilation time, s.
     codec_seconds: compressing recorded qpos, s.
+    events_seconds: finding the contact events in the stored worlds, s.
     physics_seconds: inside the physics engine (native backend; NaN on mjx), s.
     wall_seconds: everything, s.
     sim_errors: (world id, MuJoCo's message) of each world a MuJoCo error
@@ -52,6 +55,7 @@ class SampleStats:
   run_seconds: float = 0.0
   compile_seconds: float = 0.0
   codec_seconds: float = 0.0
+  events_seconds: float = 0.0
   physics_seconds: float = 0.0
   wall_seconds: float = 0.0
   sim_errors: list = dataclasses.field(default_factory=list)
@@ -130,7 +134,11 @@ class Sampler:
 
   Args:
     scene: the loaded scene (or a config, loaded here).
-    backend: ``auto``, ``mjx`` or ``native`` (default: the config's).
+    backend: ``auto``, ``mjx`` or ``native`` (default: the config's). ``auto``
+      where JAX sees a GPU: the engine a short timed probe finds fastest
+      (:mod:`mwbx.batch_sim.engine_probe`, after the contact-budget pilot;
+      never one slower than native), kept in ``probe``; otherwise ``mjx`` on a
+      TPU, ``native`` on CPUs, without probing.
     chunk_size: worlds per chunk, simulated and compressed together (default: the
       config's).
     store: an empty :class:`~mwbx.qpos_store.QposStore` the runs' stores are made
@@ -139,14 +147,24 @@ class Sampler:
     contact_budget: MJX: the :class:`~mwbx.batch_sim.contact_budget.ContactBudget`
       (or its dict, as a bank's ``run`` stores it) to use; default: the
       config's ``sim.mjx`` values, the rest sized by a native pilot.
+    warp_solver: mjx:warp: the
+      :class:`~mwbx.batch_sim.warp_solver.WarpSolverSettings` (or its dict, as
+      a bank's ``run`` stores it) to use; default: chosen from the model and
+      the config's ``sim.mjx`` (:func:`~mwbx.batch_sim.warp_solver.warp_solver_settings`).
   """
 
   def __init__(self, scene: Scene | Config, backend: str | None = None, chunk_size: int | None = None,
-               store: QposStore | None = None, contact_budget=None):
+               store: QposStore | None = None, contact_budget=None, warp_solver=None):
     self.scene = scene if isinstance(scene, Scene) else Scene(scene)
     self.store = store if store is not None else store_for(self.scene)
     cfg = self.scene.config
-    self.backend_name = resolve_backend(backend or cfg.sim.backend)
+    requested, impl = backend or cfg.sim.backend, None
+    self.probe = None  # backend auto with a GPU visible: the engine_probe.ProbeResult
+    if requested == "auto" and engine_probe.gpu_visible():
+      contact_budget = self._budget(contact_budget)  # the pilot first: the MJX engines run under it
+      self.probe = engine_probe.probe_scene(Sampler, self.scene, contact_budget, warp_solver)
+      requested, _, impl = self.probe.choice.partition(":")
+    self.backend_name = resolve_backend(requested)
     self.chunk_size = int(chunk_size or cfg.sim.chunk_size)
     if self.chunk_size < 1:
       raise MwbxError(f"chunk_size: must be a positive number of worlds, got {self.chunk_size}")
@@ -157,26 +175,32 @@ class Sampler:
     self.n_frames = end_frame + 1
     self.params = world.world_params(self.scene, spf, end_frame)
     self.contact_budget = None
+    self.warp_solver = None  # mjx:warp: the WarpSolverSettings it runs with
     self.pack_rows = False  # MJX jax: each world's solve over its rows in use (sim.mjx.pack_rows)
     if self.backend_name == "mjx":
-      # Lazy on purpose: both import mujoco.mjx (seconds), which native runs never need.
-      from mwbx.batch_sim import contact_budget as budget_lib
+      # Lazy on purpose: imports mujoco.mjx (seconds), which native runs never need.
       from mwbx.batch_sim.mjx_backend import backend_for
-      impl = resolve_mjx_impl(cfg.sim.mjx_impl)
-      budget = contact_budget
-      if isinstance(budget, dict):
-        budget = budget_lib.ContactBudget.from_dict(budget)
-      if budget is None:
-        budget = resolve_contact_budget(self.scene, cfg.sim.mjx)
-      self.backend = backend_for(self.scene, impl, budget, pack_rows=cfg.sim.mjx.pack_rows)
+      impl = impl or resolve_mjx_impl(cfg.sim.mjx_impl)
+      self.backend = backend_for(self.scene, impl, self._budget(contact_budget), pack_rows=cfg.sim.mjx.pack_rows,
+                                 warp_solver=warp_solver)
       self.pack_rows = self.backend.pack_rows
       self.contact_budget = self.backend.budget
+      self.warp_solver = self.backend.warp_solver
       self.backend_label = f"mjx:{impl}" + (" (every row)" if impl == "jax" and not self.pack_rows else "")
     else:
       self.backend = NativeBackend(model, cfg.sim.threads)
       self.backend_label = "native"
+    self.event_actors = events_lib.actors_of(self.scene.model, self.scene.object_names)
     self._init = per_world(self.scene.initial_state)
     self._init_from_noise = per_world(self.scene.initial_state_from_noise)
+
+  def _budget(self, given):
+    """The MJX contact budget: ``given`` (a ContactBudget or its dict), else
+    the config's values with the rest from a native pilot."""
+    from mwbx.batch_sim import contact_budget as budget_lib  # lazy: imports mujoco.mjx
+    if isinstance(given, dict):
+      return budget_lib.ContactBudget.from_dict(given)
+    return given if given is not None else resolve_contact_budget(self.scene, self.scene.config.sim.mjx)
 
   def close(self) -> None:
     self.backend.close()
@@ -290,12 +314,17 @@ class Sampler:
       stats.codec_seconds += time.perf_counter() - codec_start
       if progress is not None:
         progress(Progress("compressing", done_worlds + n, n_worlds, chunk_steps))
+      events_start = time.perf_counter()
+      events = self.events_of(store, progress=progress and (
+          lambda p, _done=done_worlds, _steps=chunk_steps: progress(p._replace(
+              done=_done + p.done, total=n_worlds, world_steps=_steps))))
+      stats.events_seconds += time.perf_counter() - events_start
       stats.world_steps += int(result.steps.sum())
       stats.run_seconds += result.run_seconds
       stats.compile_seconds += result.compile_seconds
       stats.physics_seconds += result.physics_seconds
       done_worlds += n
-      part = self._assemble(ids[lo:lo + n], keys[lo:lo + n], [result], store)
+      part = self._assemble(ids[lo:lo + n], keys[lo:lo + n], [result], store, events)
       stats.wall_seconds = time.perf_counter() - start_wall
       yield part, stats
 
@@ -314,7 +343,23 @@ class Sampler:
     n_worlds = max(int(n_worlds), 1)
     check_chunk_memory(self.scene, self.batch_size(n_worlds), n_worlds if in_memory else 0)
 
-  def _assemble(self, ids, keys, results: list[ChunkResult], store) -> bank_lib.Bank:
+  def events_of(self, store: QposStore, progress=None) -> EventRecord:
+    """The contact events of stored worlds (:mod:`mwbx.events.detect`).
+
+    Args:
+      store: their stored qpos.
+      progress: optional callback (phase ``contact events``).
+    """
+    return self.events_of_frames(stored_frames(store), progress=progress)
+
+  def events_of_frames(self, frames, first_frame=0, progress=None) -> EventRecord:
+    """The contact events of worlds' stored frames (each f32[T, nq], from
+    ``first_frame``: one for all or one per world)."""
+    return events_lib.detect_events(self.scene.model, self.event_actors, frames,
+                                    events_lib.touch_margin(self.scene.config.codec.e_pos),
+                                    progress=progress, total=len(frames), first_frame=first_frame)
+
+  def _assemble(self, ids, keys, results: list[ChunkResult], store, events: EventRecord) -> bank_lib.Bank:
     scene = self.scene
     rows = rows_lib.rows_from_chunks(results, self.query_stride, scene.config.codec.com_step())
     cfg = scene.config
@@ -326,8 +371,19 @@ class Sampler:
         record_fps=cfg.sim.record_fps, query_fps=cfg.sim.query_fps, timestep=float(scene.model.opt.timestep),
         config=cfg.resolved(), mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes),
         digest=scene.digest,
-        run={} if self.contact_budget is None else {"contact_budget": self.contact_budget._asdict()},
+        run=self.run_record(), events=events, event_actors=self.event_actors.names,
     )
+
+  def run_record(self) -> dict:
+    """What a bank's ``run`` keeps of this sampler's engine settings so that
+    refinement replays them: the MJX contact budget and mjx:warp's solver
+    settings (each only where used)."""
+    run = {}
+    if self.contact_budget is not None:
+      run["contact_budget"] = self.contact_budget._asdict()
+    if self.warp_solver is not None:
+      run["warp_solver"] = self.warp_solver._asdict()
+    return run
 
 
 def check_chunk_memory(scene: Scene, batch: int, n_in_memory: int = 0) -> None:
@@ -403,6 +459,13 @@ def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str
   return bank
 
 
+def stored_frames(store: QposStore) -> list:
+  """Every world's decoded frames, f32[T, nq] each (one pass where the store can)."""
+  if hasattr(store, "frames_of_rows"):
+    return store.frames_of_rows(None)
+  return [store.row_frames(r) for r in range(store.n_worlds)]
+
+
 def empty_bank(scene: Scene, store: QposStore | None = None) -> bank_lib.Bank:
   """A bank of ``scene`` with no worlds (what a :class:`Sampler` of it would
   write, e.g. to start a bank directory's manifest before its first shard)."""
@@ -419,7 +482,8 @@ def empty_bank(scene: Scene, store: QposStore | None = None) -> bank_lib.Bank:
       body_names=scene.body_names, body_ids=scene.body_ids, objects=dict(scene.objects),
       groups=dict(scene.groups), metric_names=world.METRIC_NAMES, record_fps=cfg.sim.record_fps,
       query_fps=cfg.sim.query_fps, timestep=float(timestep), config=cfg.resolved(),
-      mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes), digest=scene.digest)
+      mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes), digest=scene.digest,
+      events=EventRecord.empty(0), event_actors=events_lib.actors_of(scene.model, scene.object_names).names)
 
 
 def pilot_counts(scene: Scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None):

@@ -23,8 +23,10 @@ from mwbx.bank.versions import parked_columns, parked_qpos
 from mwbx import controls
 from mwbx.batch_sim import rows as rows_lib
 from mwbx.batch_sim import world as world_lib
-from mwbx.batch_sim.sampler import SampleStats, world_keys
+from mwbx.batch_sim.sampler import SampleStats, stored_frames, world_keys
 from mwbx.codec import CodecBounds
+from mwbx.events import detect as events_lib
+from mwbx.events.record import EventRecord
 from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
 from mwbx.progress import Progress
 from mwbx.refinement import interactions, stored_motion
@@ -235,6 +237,7 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -
   qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
   keep_qpos = (~active).astype(np.float32) @ parent.qpos_object.astype(np.float32) > 0.5
   store = bank.qpos_store.refined(qpos, count, row, parent.frames, keep_qpos)
+  events, event_actors = _events(bank, row, f0, store, sampler)
 
   # Inactive bodies keep the parent's polylines; a removed object keeps the
   # parent's metrics too (what it did while it was there).
@@ -262,7 +265,35 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -
       keys=np.asarray(jax.random.key_data(keys)), **rows._asdict(),
       parent_world=np.full(w, plan.world, np.int64), refine_time=np.full(w, t0, np.float32),
       qpos_store=store, lineage=lineage, next_id=first_id + w,
-      scene_version=np.full(w, plan.scene_version, np.int16), _model=None)
+      scene_version=np.full(w, plan.scene_version, np.int16), events=events, event_actors=event_actors,
+      _model=None)
+
+
+def _events(bank, row: int, first_frame: int, store, sampler):
+  """(EventRecord, actor names) of the refined worlds: the parent's episodes
+  before ``first_frame`` (the frames they share with it), their own after; (None, ())
+  for a bank without events."""
+  if bank.events is None:
+    return None, ()
+  actors = sampler.event_actors.names
+  frames = stored_frames(store)
+  if tuple(bank.event_actors) != actors:  # a later scene version: other actors, found afresh
+    return sampler.events_of_frames(frames), actors
+  # The frames a refined world shares with its parent exactly (before
+  # first_frame, less those the codec fitted anew) keep the parent's episodes.
+  shared = bank.qpos_frames(int(bank.world_ids[row]), 0, first_frame)
+  starts = np.array([_shared_frames(shared, f) for f in frames], np.int64)
+  after = sampler.events_of_frames([f[s:] for f, s in zip(frames, starts)], first_frame=starts)
+  parent = bank.events.world(row)
+  worlds = [events_lib.spliced(parent, after.world(i), int(s)) for i, s in enumerate(starts)]
+  return EventRecord.from_worlds(worlds), actors
+
+
+def _shared_frames(parent: np.ndarray, frames: np.ndarray) -> int:
+  """How many leading frames of ``frames`` equal ``parent``'s bit for bit."""
+  n = min(len(parent), len(frames))
+  differs = np.flatnonzero((parent[:n] != frames[:n]).any(axis=1))
+  return int(differs[0]) if differs.size else n
 
 
 def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, removed, keys):

@@ -195,13 +195,14 @@ _SAMPLERS: dict = {}
 def sampler_for(bank, backend: str | None = None) -> Sampler:
   """A sampler for the bank's scene, kept for later refinements of that scene
   (its thread pool and compiled kernels are reused)."""
-  # MJX refines under the contact budget its bank was sampled with, if any.
-  budget = bank.run.get("contact_budget")
-  cache_key = (bank.digest, backend, None if budget is None else tuple(sorted(budget.items())))
+  # MJX refines under the contact budget and mjx:warp's solver settings its bank was sampled with, if any.
+  budget, warp_solver = bank.run.get("contact_budget"), bank.run.get("warp_solver")
+  frozen = lambda record: None if record is None else tuple(sorted(record.items()))
+  cache_key = (bank.digest, backend, frozen(budget), frozen(warp_solver))
   if cache_key not in _SAMPLERS:
     if len(_SAMPLERS) >= 4:
       _SAMPLERS.pop(next(iter(_SAMPLERS))).close()
-    _SAMPLERS[cache_key] = Sampler(bank.scene(), backend, contact_budget=budget)
+    _SAMPLERS[cache_key] = Sampler(bank.scene(), backend, contact_budget=budget, warp_solver=warp_solver)
   return _SAMPLERS[cache_key]
 
 

@@ -1,0 +1,165 @@
+"""Contact events found on the stored worlds.
+
+At every recorded frame of a world, MuJoCo's own collision detection
+(``mj_kinematics`` then ``mj_collision``, as in a physics step) runs on the
+stored state (the decoded ``qpos``: what every query sees) and two actors
+(:mod:`mwbx.events.actors`) **touch** when it reports a contact between a geom
+of each at a distance of at most the touch margin. The margin is
+:data:`TOUCH_MARGIN_PER_E_POS` times the codec's position bound ``e_pos``: the
+stored state is within ``e_pos`` of the simulated one, so a contact in the
+simulation is within the margin in the stored state (a body resting on the
+floor does not flicker in and out of touch). Runs of consecutive touching
+frames are episodes (:mod:`mwbx.events.record`).
+
+Sampling and refinement find the events of every new world this way, on
+every engine, before the worlds join a bank.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Iterable
+
+import mujoco
+import numpy as np
+
+from mwbx.events.actors import Actors
+from mwbx.events.record import EventRecord
+from mwbx.progress import Progress
+
+TOUCH_MARGIN_PER_E_POS = 2.0
+
+
+def touch_margin(e_pos: float) -> float:
+  """The touch margin, metres, of a scene whose codec bounds positions by ``e_pos`` metres."""
+  return TOUCH_MARGIN_PER_E_POS * float(e_pos)
+
+
+def margin_model(model: mujoco.MjModel, margin: float) -> mujoco.MjModel:
+  """A copy of ``model`` whose collision reports contacts up to ``margin`` apart."""
+  out = copy.copy(model)
+  out.geom_margin[:] = np.maximum(out.geom_margin, margin)
+  return out
+
+
+def world_episodes(model: mujoco.MjModel, data: mujoco.MjData, actors: Actors, frames: np.ndarray,
+                   margin: float) -> np.ndarray:
+  """The contact episodes of one world.
+
+  Args:
+    model: :func:`margin_model` of the scene. data: scratch ``MjData`` of it.
+    actors: the scene's actors.
+    frames: f32[T, nq] the world's stored qpos frames.
+    margin: touch margin, m.
+
+  Returns:
+    i32[n, 4] ``(a, b, first, last)`` sorted by ``(a, b, first)``.
+  """
+  kinematics, collision = mujoco.mj_kinematics, mujoco.mj_collision
+  found_frames, found_geoms, found_dist = [], [], []
+  qpos = data.qpos
+  for f, frame in enumerate(np.asarray(frames, np.float64)):  # the per-frame loop stays minimal
+    qpos[:] = frame
+    kinematics(model, data)
+    collision(model, data)
+    n = data.ncon
+    if n:
+      contact = data.contact
+      found_geoms.append(contact.geom[:n].copy())
+      found_dist.append(contact.dist[:n].copy())
+      found_frames.append(np.full(n, f, np.int64))
+  return episodes(actors, np.concatenate(found_frames) if found_frames else np.zeros(0, np.int64),
+                  np.concatenate(found_geoms) if found_geoms else np.zeros((0, 2), np.int64),
+                  np.concatenate(found_dist) if found_dist else np.zeros(0), margin)
+
+
+def episodes(actors: Actors, frame: np.ndarray, geoms: np.ndarray, dist: np.ndarray, margin: float) -> np.ndarray:
+  """Episodes from one world's contacts.
+
+  Args:
+    actors: the scene's actors.
+    frame: i64[K] the frame of each contact. geoms: i[K, 2] its geoms.
+    dist: f64[K] its distance, m. margin: touch margin, m.
+
+  Returns:
+    i32[n, 4] ``(a, b, first, last)``: maximal runs of consecutive frames in
+    which actors a < b touch, sorted by ``(a, b, first)``.
+  """
+  n_actors = len(actors.names)
+  a = actors.geom_actor[geoms[:, 0]].astype(np.int64)
+  b = actors.geom_actor[geoms[:, 1]].astype(np.int64)
+  keep = (a != b) & (dist <= margin)
+  pair = np.minimum(a, b)[keep] * n_actors + np.maximum(a, b)[keep]
+  frame = frame[keep]
+  if not pair.size:
+    return np.zeros((0, 4), np.int32)
+  code = np.unique(pair * (int(frame.max()) + 2) + frame)  # sorted by (pair, frame), once each
+  pair, frame = np.divmod(code, int(frame.max()) + 2)
+  # A run starts where the pair changes or the frame is not the next one.
+  start = np.ones(len(code), bool)
+  start[1:] = (pair[1:] != pair[:-1]) | (frame[1:] != frame[:-1] + 1)
+  first = np.flatnonzero(start)
+  last = np.append(first[1:], len(code)) - 1
+  p = pair[first]
+  return np.stack([p // n_actors, p % n_actors, frame[first], frame[last]], axis=1).astype(np.int32)
+
+
+def detect_events(model: mujoco.MjModel, actors: Actors, frames: Iterable[np.ndarray], margin: float,
+                  progress=None, total: int | None = None, first_frame=0) -> EventRecord:
+  """The contact events of worlds from their stored frames.
+
+  Args:
+    model: the scene's model (not changed).
+    actors: its actors (:func:`mwbx.events.actors_of`).
+    frames: each world's f32[T, nq] stored qpos frames from ``first_frame``
+      on, in bank row order.
+    margin: touch margin, m (:func:`touch_margin`).
+    progress: optional callback taking a :class:`mwbx.progress.Progress`
+      (phase ``contact events``).
+    total: how many worlds ``frames`` holds (for progress).
+    first_frame: the frame number of the first frame given: one for every
+      world, or i64[W] one per world.
+
+  Example::
+
+    actors = actors_of(bank.model(), list(bank.objects))
+    record = detect_events(bank.model(), actors, bank.qpos_store.frames_of_rows(None), touch_margin(1e-3))
+  """
+  model = margin_model(model, margin)
+  data = mujoco.MjData(model)
+  worlds = []
+  for w, world_frames in enumerate(frames):
+    rows = world_episodes(model, data, actors, world_frames, margin)
+    rows[:, 2:] += int(first_frame if np.ndim(first_frame) == 0 else first_frame[w])
+    worlds.append(rows)
+    if progress is not None and total:
+      progress(Progress("contact events", w + 1, total, 0))
+  return EventRecord.from_worlds(worlds)
+
+
+def spliced(parent: np.ndarray, after: np.ndarray, first_frame: int) -> np.ndarray:
+  """A refined world's episodes: its parent's before ``first_frame`` (the
+  frames it shares with its parent), its own from there on.
+
+  Args:
+    parent: i32[n, 4] the parent's episodes.
+    after: i32[m, 4] the refined world's episodes found from ``first_frame`` on.
+    first_frame: the first frame the refined world does not share.
+
+  Returns:
+    i32[k, 4] sorted by ``(a, b, first)``; an episode of the parent still on
+    at ``first_frame - 1`` ends there, or goes on as the refined world's
+    episode of that pair starting at ``first_frame``.
+  """
+  before = parent[parent[:, 2] < first_frame].copy()
+  before[:, 3] = np.minimum(before[:, 3], first_frame - 1)
+  after = after.copy()
+  open_pairs = {(int(a), int(b)): i for i, (a, b, _, last) in enumerate(before) if last == first_frame - 1}
+  joined = np.zeros(len(after), bool)
+  for j, (a, b, first, _) in enumerate(after):
+    i = open_pairs.get((int(a), int(b)))
+    if i is not None and first == first_frame:
+      before[i, 3] = after[j, 3]
+      joined[j] = True
+  rows = np.concatenate([before, after[~joined]]).astype(np.int32)
+  return rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
