@@ -31,10 +31,12 @@ from mwbx.errors import MwbxError
 from mwbx.queries import Camera
 from mwbx.queries import Frustum
 from mwbx.queries import JointQuery
+from mwbx.queries import OrderQuery
 from mwbx.queries import OrientationQuery
 from mwbx.queries import Query
 from mwbx.queries import QuerySet
 from mwbx.queries import ScreenBox
+from mwbx.queries import TouchQuery
 from mwbx.queries import VolumeQuery
 from mwbx.queries import constraints_satisfied
 from mwbx.queries import evaluate
@@ -88,6 +90,7 @@ __all__ = [
     "FLAG_UNSTABLE",
     "Frustum",
     "JointQuery",
+    "OrderQuery",
     "OrientationQuery",
     "METRIC_NAMES",
     "MwbxError",
@@ -100,6 +103,7 @@ __all__ = [
     "Sampler",
     "Scene",
     "ScreenBox",
+    "TouchQuery",
     "VolumeQuery",
     "browse",
     "config_from_dict",

@@ -2,6 +2,8 @@
 
 from mwbx.queries.camera import Camera
 from mwbx.queries.camera import ScreenBox
+from mwbx.queries.event import OrderQuery
+from mwbx.queries.event import TouchQuery
 from mwbx.queries.frustum import Frustum
 from mwbx.queries.gaps import query_gaps
 from mwbx.queries.joint import JointQuery

@@ -33,6 +33,15 @@ queries:
     bodies: [ball]
     orientation: initial           # or a quaternion [w, x, y, z]
     within_deg: 10
+  - name: ball_hits_box
+    touch: [ball, box_a]           # two sides touch (mwbx.queries.event): objects, groups or
+    #   named static geoms; a side may be a list (any of them)
+    sign: include                  # include | exclude (never touch)
+    window: [0.0, 2.0]             # optional
+  - name: ball_then_floor
+    then:                          # touches in order: each first happens after the one before
+      - [ball, box_a]
+      - [ball, floor]
 rank:                              # optional default ranking
   - {metric: angular_travel, bodies: [ball], reduce: sum, weight: 1.0}
   - {metric: orientation_error, query: ball_ends_upright}   # an orientation query's error
@@ -54,6 +63,8 @@ from mwbx.errors import MwbxError
 from mwbx.files import write_atomic
 from mwbx.queries.camera import Camera
 from mwbx.queries.camera import ScreenBox
+from mwbx.queries.event import OrderQuery
+from mwbx.queries.event import TouchQuery
 from mwbx.queries.query import Query
 from mwbx.queries.metrics import Term
 from mwbx.queries.metrics import parse_term
@@ -63,7 +74,7 @@ from mwbx.queries.query import VolumeQuery
 
 # The query types a file may hold, each claiming the entries with its keys; the
 # first that claims an entry reads it (VolumeQuery claims what no other does).
-QUERY_KINDS: tuple[type[Query], ...] = (JointQuery, OrientationQuery, VolumeQuery)
+QUERY_KINDS: tuple[type[Query], ...] = (TouchQuery, OrderQuery, JointQuery, OrientationQuery, VolumeQuery)
 
 _STRICT = pydantic.ConfigDict(extra="forbid")
 Vec3 = tuple[float, float, float]
@@ -120,6 +131,8 @@ class _QuerySpec(pydantic.BaseModel):
   upright: str | Vec3 | _Upright | None = None
   orientation: Literal["initial"] | tuple[float, float, float, float] | None = None
   within_deg: float | None = None
+  touch: list[str | list[str]] | None = None  # two sides, checked by TouchQuery
+  then: list[list[str | list[str]]] | None = None
 
 
 class _TermSpec(pydantic.BaseModel):

@@ -20,7 +20,7 @@ from mwbx.viewer import query_adapter
 import geometry_reference as ref
 
 PACKAGE = pathlib.Path(mwbx.__file__).parent
-QUERY_CLASSES = {"Query", "VolumeQuery", "JointQuery", "OrientationQuery"}
+QUERY_CLASSES = {"Query", "VolumeQuery", "JointQuery", "OrientationQuery", "TouchQuery", "OrderQuery"}
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,8 @@ class HighCrate(mq.Query):
 
 
 def test_every_shipped_query_type_implements_the_interface():
-  assert set(query_file.QUERY_KINDS) == {mq.VolumeQuery, mq.JointQuery, mq.OrientationQuery}
+  assert set(query_file.QUERY_KINDS) == {mq.VolumeQuery, mq.JointQuery, mq.OrientationQuery, mq.TouchQuery,
+                                         mq.OrderQuery}
   for kind in query_file.QUERY_KINDS:
     assert issubclass(kind, mq.Query) and not kind.__abstractmethods__, kind
   assert mq.Query is mwbx.Query

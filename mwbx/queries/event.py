@@ -1,0 +1,404 @@
+"""Event queries: what touches what, and in which order.
+
+They read a bank's contact events (:mod:`mwbx.events`: at every stored frame,
+which actors touch) and never simulate. An **actor** is an object, a named
+static geom (a floor, a bin), or ``world`` for the unnamed static geoms; a
+group name stands for its objects ("any of a group").
+
+* :class:`TouchQuery`: two sides touch (``include``) or never touch
+  (``exclude``), inside an optional time window. A side is one name or a list
+  (any of them).
+* :class:`OrderQuery`: several touches, in order: each first happens
+  (within the window) strictly after the one before it first happened.
+
+Touches are known at the stored frames (``frame / record_fps`` seconds): a
+window holds the frames whose times lie in it, and past a world's last frame
+that frame holds (it came to rest), so a touch on at the end goes on.
+
+Example::
+
+  hit = mwbx.TouchQuery("rock", "tower", window=(0.0, 2.0))
+  chain = mwbx.OrderQuery([("ball", "domino_0"), ("domino_4", "lever"), ("lever", "cup")])
+  mwbx.evaluate(bank, [hit, chain])
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence
+
+import mujoco
+import numpy as np
+
+from mwbx.errors import MwbxError
+from mwbx.events.record import ROW
+from mwbx.queries import paths
+from mwbx.queries import selection
+from mwbx.queries.intervals import checked_interval
+from mwbx.queries.query import Query
+
+Side = tuple[str, ...]  # actor, object or group names: any of them
+FRAME_SLACK = 1e-9  # s: window ends compare with frame times exactly, less float noise
+
+
+def _side(label: str, field: str, value) -> Side:
+  names = (value,) if isinstance(value, str) else tuple(value)
+  if not names or not all(isinstance(n, str) and n for n in names):
+    raise MwbxError(f"{label}: {field} must be an actor name or a non-empty list of names, got {value!r}")
+  return names
+
+
+def _pair(label: str, field: str, pair) -> tuple[Side, Side]:
+  if isinstance(pair, str) or len(pair) != 2:
+    raise MwbxError(f"{label}: {field} must be two sides [A, B] (each a name or a list of names), got {pair!r}")
+  return _side(label, field, pair[0]), _side(label, field, pair[1])
+
+
+def _window(label: str, window):
+  return None if window is None else checked_interval(label, "window", window, ("t0", "t1"), "seconds")
+
+
+def actor_mask(bank, side: Side, label: str = "query") -> np.ndarray:
+  """bool[A] the bank's actors a side names (objects, groups, static geoms)."""
+  actors = tuple(bank.event_actors)
+  mask = np.zeros(len(actors), bool)
+  for name in side:
+    if name in bank.groups:
+      members = bank.groups[name]
+    elif name.startswith("group:") and name[6:] in bank.groups:
+      members = bank.groups[name[6:]]
+    else:
+      members = (name.split(":", 1)[1] if name.startswith("object:") else name,)
+    for member in members:
+      if member not in actors:
+        raise MwbxError(f"{label}: unknown actor {name!r} (objects, groups and named static geoms: "
+                        f"{', '.join(actors + tuple(bank.groups))})")
+      mask[actors.index(member)] = True
+  return mask
+
+
+def _events(bank, label: str):
+  if bank.events is None:
+    raise MwbxError(f"{label}: this bank has no contact events (it was saved before mwbx recorded them);"
+                    f" sample it again to ask event queries")
+  return bank.events
+
+
+def first_touch(bank, a: Side, b: Side, window=None, label: str = "query") -> np.ndarray:
+  """f64[W] the first stored frame time inside ``window`` at which sides ``a``
+  and ``b`` touch, seconds; inf where there is none. Past a world's last
+  frame that frame holds (at the frame times that follow).
+
+  Args:
+    bank: a bank with contact events.
+    a, b: the sides (names; any of each).
+    window: (t0, t1) seconds, None ends open; None: the whole world.
+  """
+  record = _events(bank, label)
+  ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
+  rows = record.rows
+  out = np.full(bank.n_worlds, np.inf)
+  if not len(rows):
+    return out
+  world = record.world_of_rows()
+  ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
+  pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
+  fps = float(bank.record_fps)
+  first = rows[:, ROW["first"]].astype(np.int64)
+  last = rows[:, ROW["last"]].astype(np.int64)
+  ends = np.asarray(bank.frame_count, np.int64)[world] - 1
+  last = np.where(last >= ends, np.iinfo(np.int64).max, last)  # on at the last frame: it goes on
+  t0, t1 = (None, None) if window is None else window
+  frame = first if t0 is None else np.maximum(first, math.ceil(t0 * fps - FRAME_SLACK * fps))
+  inside = pair & (frame <= last)
+  if t1 is not None:
+    inside &= frame <= math.floor(t1 * fps + FRAME_SLACK * fps)
+  np.minimum.at(out, world[inside], frame[inside] / fps)
+  return out
+
+
+def touch_seconds(bank, a: Side, b: Side, window=None, label: str = "query") -> np.ndarray:
+  """f64[W] how long sides ``a`` and ``b`` touch inside ``window``, seconds
+  (stored frames touching / record_fps; a touch on at a world's end counts to it)."""
+  record = _events(bank, label)
+  ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
+  rows = record.rows
+  out = np.zeros(bank.n_worlds)
+  if not len(rows):
+    return out
+  world = record.world_of_rows()
+  ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
+  pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
+  fps = float(bank.record_fps)
+  t0, t1 = (None, None) if window is None else window
+  lo = rows[:, ROW["first"]].astype(np.float64)
+  hi = rows[:, ROW["last"]].astype(np.float64) + 1
+  if t0 is not None:
+    lo = np.maximum(lo, math.ceil(t0 * fps - FRAME_SLACK * fps))
+  if t1 is not None:
+    hi = np.minimum(hi, math.floor(t1 * fps + FRAME_SLACK * fps) + 1)
+  frames = np.where(pair, np.maximum(hi - lo, 0.0), 0.0)
+  np.add.at(out, world, frames / fps)
+  return out
+
+
+def side_objects(owner, side: Side) -> list[str]:
+  """The objects among a side's names (groups expanded; static geoms left out)."""
+  out = []
+  for name in side:
+    bare = name.split(":", 1)[1] if name.startswith(("group:", "object:")) else name
+    members = owner.groups.get(bare, (bare,)) if not name.startswith("object:") else (bare,)
+    out.extend(m for m in members if m in owner.objects and m not in out)
+  return out
+
+
+def approach_gap(bank, a: Side, b: Side, window=None) -> np.ndarray:
+  """f64[W], metres: how near the sides come inside the window: over the
+  stored COM points of a side's objects, the least distance to the other
+  side's objects (less both bounding radii) or static geoms (a plane's
+  distance, else to its bounding sphere), less the object's bounding radius;
+  >= 0. 0 where neither side has an object."""
+  model = bank.model()
+  radii = paths.body_radii(model, np.asarray(bank.body_ids))
+  com = np.asarray(bank.com[np.arange(bank.n_worlds)], np.float32)[:, paths.window_points(bank, window)]
+  best = np.full(bank.n_worlds, np.inf)
+  for mine, other in ((a, b), (b, a)):
+    objects = side_objects(bank, mine)
+    if not objects:
+      continue
+    mask = selection.selection_mask(bank, objects)
+    points = com[:, :, mask].astype(np.float64)  # [W, P, k, 3]
+    reach = radii[mask]
+    others = side_objects(bank, other)
+    if others:
+      omask = selection.selection_mask(bank, others)
+      d = np.linalg.norm(points[:, :, :, None] - com[:, :, omask][:, :, None].astype(np.float64), axis=-1)
+      d = d - reach[None, None, :, None] - radii[omask][None, None, None, :]
+      best = np.minimum(best, d.reshape(bank.n_worlds, -1).min(axis=1))
+    for geom in _static_geoms(bank, model, other):
+      d = _geom_distance(model, geom, points) - reach[None, None, :]
+      best = np.minimum(best, d.reshape(bank.n_worlds, -1).min(axis=1))
+  return np.where(np.isfinite(best), np.maximum(best, 0.0), 0.0)
+
+
+def _static_geoms(bank, model, side: Side) -> list[int]:
+  """Ids of the static geoms a side names (``world``: every unnamed one)."""
+  objects = set(side_objects(bank, side))
+  out = []
+  for name in side:
+    if name in objects or name in bank.groups:
+      continue
+    if name == "world":
+      out.extend(g for g in range(model.ngeom)
+                 if not mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
+                 and model.body(int(model.body_rootid[model.geom_bodyid[g]])).name not in bank.objects)
+    else:
+      g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name)
+      if g >= 0:
+        out.append(g)
+  return out
+
+
+def _geom_distance(model, geom: int, points: np.ndarray) -> np.ndarray:
+  """f64[...] distance from points (f[..., 3], m) to a static geom at its
+  model pose: a plane's (its +z side), else to its bounding sphere (>= 0)."""
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  centre = data.geom_xpos[geom]
+  if int(model.geom_type[geom]) == int(mujoco.mjtGeom.mjGEOM_PLANE):
+    normal = data.geom_xmat[geom].reshape(3, 3)[:, 2]
+    return np.abs((points - centre) @ normal)
+  return np.maximum(np.linalg.norm(points - centre, axis=-1) - float(model.geom_rbound[geom]), 0.0)
+
+
+def _names(side: Side):
+  return side[0] if len(side) == 1 else list(side)
+
+
+def _say(side: Side) -> str:
+  return side[0] if len(side) == 1 else "any of " + ",".join(side)
+
+
+def _check_actors(context, sides, where: str) -> None:
+  if context.bank is None or context.bank.events is None:
+    return
+  for side in sides:
+    try:
+      actor_mask(context.bank, side)
+    except MwbxError as err:
+      raise MwbxError(f"{context.path}: {where}: {str(err).removeprefix('query: ')}") from None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TouchQuery(Query):
+  """Two sides touch (include) or never touch (exclude) inside a window.
+
+  a, b: the sides: an actor (object, named static geom), a group, or a list
+    of them (any of them).
+  window: (t0, t1) seconds, None ends open; None: the whole world.
+  sign: include (they touch) or exclude (they never touch).
+  name: label for output.
+  """
+
+  a: Side
+  b: Side
+  window: tuple[float | None, float | None] | None = None
+  sign: str = "include"
+  name: str = ""
+
+  def __post_init__(self):
+    label = f"query {self.name!r}" if self.name else "query"
+    object.__setattr__(self, "a", _side(label, "touch", self.a))
+    object.__setattr__(self, "b", _side(label, "touch", self.b))
+    object.__setattr__(self, "window", _window(label, self.window))
+    if self.sign not in ("include", "exclude"):
+      raise MwbxError(f"{label}: sign must be include or exclude, got {self.sign!r}")
+
+  @property
+  def bodies(self) -> tuple[str, ...]:
+    """The objects of both sides (what a search refines for it)."""
+    return tuple(dict.fromkeys(self.a + self.b))
+
+  @property
+  def label(self) -> str:
+    return f"query {self.name!r}" if self.name else "query"
+
+  def evaluate(self, bank) -> np.ndarray:
+    touched = np.isfinite(first_touch(bank, self.a, self.b, self.window, self.label))
+    return (touched if self.include else ~touched) & np.asarray(bank.valid, bool)
+
+  def gap(self, bank) -> np.ndarray:
+    """Include: how near the sides' objects come (metres, :func:`approach_gap`);
+    exclude: how long they touch (seconds)."""
+    if self.include:
+      return approach_gap(bank, self.a, self.b, self.window)
+    return touch_seconds(bank, self.a, self.b, self.window, self.label)
+
+  def objects(self, owner) -> list[str]:
+    return side_objects(owner, self.a + self.b)
+
+  def body_mask(self, bank) -> np.ndarray:
+    objects = self.objects(bank)
+    return selection.selection_mask(bank, objects) if objects else np.zeros(len(bank.body_names), bool)
+
+  def describe(self) -> str:
+    verb = "touches" if self.include else "never touches"
+    return f"{_say(self.a)} {verb} {_say(self.b)}"
+
+  def to_dict(self) -> dict:
+    out: dict = {"name": self.name, "touch": [_names(self.a), _names(self.b)], "sign": self.sign}
+    if self.window is not None:
+      out["window"] = list(self.window)
+    return out
+
+  @classmethod
+  def claims(cls, entry) -> bool:
+    return entry.touch is not None
+
+  @classmethod
+  def from_entry(cls, entry, index: int, context) -> TouchQuery:
+    where = f"queries[{index}]"
+    _only(entry, where, context, "touch", ("touch", "sign", "window", "name"))
+    try:
+      a, b = _pair(f"{context.path}: {where}", "touch", entry.touch)
+      query = cls(a, b, entry.window, entry.sign, entry.name or f"q{index}")
+    except MwbxError as err:
+      raise MwbxError(str(err) if str(err).startswith(context.path) else f"{context.path}: {where}: {err}") from None
+    _check_actors(context, (query.a, query.b), where)
+    return query
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class OrderQuery(Query):
+  """Touches in order: each pair first touches (inside the window) strictly
+  after the pair before it first touched.
+
+  events: two or more (a, b) pairs of sides (as :class:`TouchQuery`'s).
+  window: (t0, t1) seconds every touch must happen in; None: the whole world.
+  name: label for output.
+  """
+
+  events: tuple[tuple[Side, Side], ...]
+  window: tuple[float | None, float | None] | None = None
+  name: str = ""
+  sign = "include"
+
+  def __post_init__(self):
+    label = f"query {self.name!r}" if self.name else "query"
+    events = tuple(_pair(label, f"then[{i}]", pair) for i, pair in enumerate(self.events))
+    if len(events) < 2:
+      raise MwbxError(f"{label}: then needs at least two touches in order, got {len(events)}")
+    object.__setattr__(self, "events", events)
+    object.__setattr__(self, "window", _window(label, self.window))
+
+  @property
+  def bodies(self) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(n for a, b in self.events for n in a + b))
+
+  @property
+  def label(self) -> str:
+    return f"query {self.name!r}" if self.name else "query"
+
+  def times(self, bank) -> np.ndarray:
+    """f64[W, E] each touch's first time inside the window, seconds (inf: never)."""
+    return np.stack([first_touch(bank, a, b, self.window, self.label) for a, b in self.events], axis=1)
+
+  def evaluate(self, bank) -> np.ndarray:
+    t = self.times(bank)
+    met = np.all(np.isfinite(t), axis=1) & np.all(t[:, 1:] > t[:, :-1], axis=1)
+    return met & np.asarray(bank.valid, bool)
+
+  def gap(self, bank) -> np.ndarray:
+    """Per touch that never happens, how near its objects come (metres); per
+    touch that comes no later than the one before, by how much (seconds, plus
+    one frame)."""
+    t = self.times(bank)
+    gap = np.zeros(bank.n_worlds)
+    for i, (a, b) in enumerate(self.events):
+      missing = ~np.isfinite(t[:, i])
+      if missing.any():
+        gap = gap + np.where(missing, approach_gap(bank, a, b, self.window), 0.0)
+    frame = 1.0 / float(bank.record_fps)
+    both = np.isfinite(t[:, 1:]) & np.isfinite(t[:, :-1])
+    late = np.where(both, np.maximum(t[:, :-1] - t[:, 1:] + frame, 0.0), 0.0)
+    return gap + late.sum(axis=1)
+
+  def objects(self, owner) -> list[str]:
+    return side_objects(owner, tuple(n for a, b in self.events for n in a + b))
+
+  def body_mask(self, bank) -> np.ndarray:
+    objects = self.objects(bank)
+    return selection.selection_mask(bank, objects) if objects else np.zeros(len(bank.body_names), bool)
+
+  def describe(self) -> str:
+    return " then ".join(f"{_say(a)} touches {_say(b)}" for a, b in self.events)
+
+  def to_dict(self) -> dict:
+    out: dict = {"name": self.name, "then": [[_names(a), _names(b)] for a, b in self.events]}
+    if self.window is not None:
+      out["window"] = list(self.window)
+    return out
+
+  @classmethod
+  def claims(cls, entry) -> bool:
+    return entry.then is not None
+
+  @classmethod
+  def from_entry(cls, entry, index: int, context) -> OrderQuery:
+    where = f"queries[{index}]"
+    _only(entry, where, context, "then", ("then", "window", "name"))
+    try:
+      query = cls(tuple(entry.then), entry.window, entry.name or f"q{index}")
+    except MwbxError as err:
+      raise MwbxError(f"{context.path}: {where}: {str(err).removeprefix('query: ')}") from None
+    _check_actors(context, [side for pair in query.events for side in pair], where)
+    return query
+
+
+def _only(entry, where: str, context, kind: str, allowed: Sequence[str]) -> None:
+  """MwbxError naming the fields an event entry does not take."""
+  defaults = {"sign": "include", "mode": "any", "radius": 0.0, "shape": "com", "name": ""}
+  given = [f for f, v in entry if f not in allowed and v is not None and v != defaults.get(f, None)]
+  if given:
+    raise MwbxError(f"{context.path}: {where}: a '{kind}' query takes {', '.join(allowed)}, not {', '.join(given)}")
