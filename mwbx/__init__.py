@@ -52,11 +52,15 @@ from mwbx.refinement import RefineStats
 
 __version__ = "0.1.0"
 
-# The viewer (meshcat), the page (viser) and search (optax) load on first use:
+# The viewer (meshcat), the page (viser), search (optax) and the exports (USD,
+# mp4, npz; usd-core and imageio-ffmpeg on first call) load on first use:
 # `import mwbx` and every CLI command that needs none of them stay fast.
 _LAZY = {
     "browse": ("mwbx.browser", "browse"),
     "export_html": ("mwbx.viewer", "export_html"),
+    "export_npz": ("mwbx.export", "export_npz"),
+    "export_usd": ("mwbx.export", "export_usd"),
+    "render_video": ("mwbx.export", "render_video"),
     "search": ("mwbx.search", None),
     "solve": ("mwbx.search", "solve"),
     "view": ("mwbx.viewer", "view"),
@@ -111,12 +115,15 @@ __all__ = [
     "evaluate",
     "evaluate_each",
     "export_html",
+    "export_npz",
+    "export_usd",
     "first_entry",
     "load_config",
     "load_queries",
     "orientation_error",
     "rank",
     "refine",
+    "render_video",
     "sample",
     "search",
     "solve",

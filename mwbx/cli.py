@@ -9,6 +9,8 @@
               [--scene NEW.yaml --add NAMES] [--remove NAMES]
   mwbx drop BANK IDS [--out DIR]
   mwbx browse BANK [--port P] [--host 127.0.0.1] [--workdir DIR] [--autosave] [--no-browser]
+  mwbx export BANK --world ID [--usd FILE] [--mp4 FILE] [--npz FILE] [--fps F] [--start S] [--stop S]
+              [--camera NAME | --look-at EX EY EZ TX TY TZ] [--width 1280] [--height 720]
 
 Worlds are named by their ids everywhere (what `query` lists).
 
@@ -470,6 +472,69 @@ def _cmd_browse(args) -> int:
   return 0
 
 
+def _cmd_export(args) -> int:
+  # lazy: mwbx.export brings the viewer's kinematics and framing, and usd-core / imageio-ffmpeg on first call
+  from mwbx.export import export_npz, export_usd, render_video
+  from mwbx.export.poses import clip_frames  # lazy: with mwbx.export above
+  from mwbx.export.usd import USD_SUFFIXES  # lazy: with mwbx.export above
+  from mwbx.export.video import free_camera  # lazy: with mwbx.export above
+  # Every flag checked before anything is written: a bad one leaves no file behind.
+  if not (args.usd or args.mp4 or args.npz):
+    raise MwbxError("export: name at least one file to write: --usd FILE, --mp4 FILE or --npz FILE")
+  if args.camera is not None and args.look_at is not None:
+    raise MwbxError("export: give --camera or --look-at, not both")
+  if not args.mp4 and (args.camera is not None or args.look_at is not None):
+    raise MwbxError(f"{'--camera' if args.camera is not None else '--look-at'}: places the video's camera;"
+                    f" give it with --mp4 FILE")
+  if args.usd and pathlib.Path(args.usd).suffix.lower() not in USD_SUFFIXES:
+    raise MwbxError(f"--usd: {args.usd}: a USD file name ends in {', '.join(USD_SUFFIXES)}")
+  for flag, value in (("--width", args.width), ("--height", args.height)):
+    if args.mp4 and (value < 2 or value % 2):
+      raise MwbxError(f"{flag}: must be an even number of pixels >= 2 (H.264, yuv420p), got {value}")
+  look_at = None
+  if args.look_at is not None:
+    look_at = (args.look_at[:3], args.look_at[3:])
+    try:
+      free_camera(*look_at)
+    except MwbxError as err:
+      raise MwbxError(f"--look-at: {str(err).split(': ', 1)[-1]}") from None
+  bank = _load_bank(args)
+  n_frames = int(bank.frame_count[bank.row_of(args.world)])  # names an id the bank does not hold
+  if args.camera is not None and mujoco.mj_name2id(bank.model(), mujoco.mjtObj.mjOBJ_CAMERA, args.camera) < 0:
+    model = bank.model()
+    names = [model.camera(c).name for c in range(model.ncam) if model.camera(c).name]
+    raise MwbxError(f"--camera: no camera {args.camera!r} in the MJCF (have: {', '.join(names) or 'none'})")
+  video_fps = 30.0 if args.fps is None else args.fps
+  # Each file's clip (recorded frames shown), which also checks --fps, --start and --stop.
+  rates = {"npz": None, "usd": args.fps, "mp4": video_fps}
+  try:
+    clips = {kind: clip_frames(max(n_frames, 1), float(bank.record_fps), rates[kind], args.start, args.stop)[0]
+             for kind in rates if getattr(args, kind)}
+  except MwbxError as err:  # named as the flags are
+    raise MwbxError(f"--{err}" if str(err).startswith(("fps:", "start:", "stop:")) else str(err)) from None
+  with _reporter_with_safe_points("export") as update:
+    for kind in ("npz", "usd", "mp4"):
+      if not getattr(args, kind):
+        continue
+      if kind == "npz":
+        path = export_npz(bank, args.world, args.npz, start=args.start, stop=args.stop)
+      elif kind == "usd":
+        path = export_usd(bank, args.world, args.usd, fps=args.fps, start=args.start, stop=args.stop,
+                          progress=update)
+      else:
+        path = render_video(bank, args.world, args.mp4, camera=args.camera, look_at=look_at, width=args.width,
+                            height=args.height, fps=video_fps, start=args.start, stop=args.stop, progress=update)
+      fps = bank.record_fps if rates[kind] is None else rates[kind]
+      size = pathlib.Path(path).stat().st_size
+      print(f"wrote {path} (world {args.world}, {len(clips[kind])} frames at {fps:g} fps, {_file_size(size)})")
+  return 0
+
+
+def _file_size(n: int) -> str:
+  """A file's size for people: kB below a megabyte, else MB."""
+  return f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB"
+
+
 def build_parser() -> argparse.ArgumentParser:
   parser = argparse.ArgumentParser(prog="mwbx", description="Many-Worlds Browsing on JAX and MuJoCo.")
   parser.add_argument("--version", action="version", version=f"mwbx {__version__}")
@@ -482,6 +547,7 @@ def build_parser() -> argparse.ArgumentParser:
   _add_solve(sub)
   _add_drop(sub)
   _add_browse(sub)
+  _add_export(sub)
   return parser
 
 
@@ -629,6 +695,31 @@ def _add_browse(sub) -> None:
   p.add_argument("--no-browser", action="store_true", help="only print the URL")
   _skip_corrupt(p)
   p.set_defaults(func=_cmd_browse)
+
+
+def _add_export(sub) -> None:
+  """`mwbx export BANK --world ID`: one world as USD, mp4 and/or npz (docs/export.md)."""
+  p = sub.add_parser("export", help="write one world as a USD stage, an mp4 or an npz (docs/export.md)")
+  p.add_argument("bank", help="bank directory")
+  p.add_argument("--world", type=int, required=True, metavar="ID", help="id of the world to export")
+  p.add_argument("--usd", default=None, metavar="FILE",
+                 help="USD stage with time-sampled body poses: .usda (text), .usd or .usdc (binary)")
+  p.add_argument("--mp4", default=None, metavar="FILE", help="H.264 video (MuJoCo's offscreen renderer)")
+  p.add_argument("--npz", default=None, metavar="FILE",
+                 help="decoded qpos and every body's pose, every recorded frame")
+  p.add_argument("--fps", type=float, default=None, metavar="F",
+                 help="USD samples and video frames per second (default: USD every recorded frame, video 30);"
+                      " the npz keeps every recorded frame")
+  p.add_argument("--start", type=float, default=0.0, metavar="S", help="from this time on, s (default 0)")
+  p.add_argument("--stop", type=float, default=None, metavar="S", help="up to this time, s (default: the end)")
+  p.add_argument("--camera", default=None, metavar="NAME", help="MJCF camera the video is rendered from")
+  p.add_argument("--look-at", type=float, nargs=6, default=None, metavar=("EX", "EY", "EZ", "TX", "TY", "TZ"),
+                 help="video camera at eye EX EY EZ looking at target TX TY TZ, m (instead of --camera;"
+                      " neither: the viewer's first view)")
+  p.add_argument("--width", type=int, default=1280, help="video width, pixels, even (default 1280)")
+  p.add_argument("--height", type=int, default=720, help="video height, pixels, even (default 720)")
+  _skip_corrupt(p)
+  p.set_defaults(func=_cmd_export)
 
 
 def _enable_compilation_cache() -> None:
