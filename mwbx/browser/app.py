@@ -260,6 +260,23 @@ class Browser:
           f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
           f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}", flush=True)
 
+  def _add_touch(self, include: bool) -> None:
+    a, b = self.touch_a.value, self.touch_b.value
+    self._report(lambda: self._added(self.session.add(mq.TouchQuery(
+        a, b, window=self._window(), sign="include" if include else "exclude",
+        name=f"q{len(self.session.entries)}"))))
+
+  def _added(self, index: int) -> str:
+    count = self.session.counts()
+    return f"q{index} {self.session.entries[index].query.describe()}: {count.per_query[index]} worlds"
+
+  def _export(self) -> None:
+    world = self.playing_world
+    if world is None:
+      self._say("export: play a world first (click one in the sorter)")
+      return
+    self._report(lambda: f"world {world} written to {self.session.export(world, self.export_file.value)}")
+
   # -- refresh ----------------------------------------------------------------------------
 
   def refresh(self):

@@ -1,9 +1,10 @@
 """The page's widgets (viser GUI), wired to the :class:`~mwbx.browser.app.Browser` callbacks.
 
 Folders: Queries (bodies, several bodies, mode, whole geometry, window, draw
-buttons, the stack, query files), Orientation, Sorter (metric, rows, overlay
-or side by side), Playback (what plays, its lineage, pause, time) and Refine
-(objects, start, samples, scene changes, cancel, parent, save).
+buttons, the stack, query files), Orientation, Contacts (two sides that touch
+or never do), Sorter (metric, rows, overlay or side by side), Playback (what
+plays, its lineage, pause, time, export) and Refine (objects, start, samples,
+scene changes, cancel, parent, save).
 """
 
 from __future__ import annotations
@@ -74,6 +75,15 @@ def build(page) -> None:
     initial = gui.add_button("Near its initial orientation")
     upright.on_click(lambda _: page._add_orientation(upright=True))
     initial.on_click(lambda _: page._add_orientation(upright=False))
+  with gui.add_folder("Contacts"):
+    gui.add_markdown("two sides that touch, or never touch, in the time window above")
+    actors = tuple(bank.event_actors) + tuple(bank.groups) or ("(no contact events in this bank)",)
+    page.touch_a = gui.add_dropdown("This", actors, initial_value=actors[0])
+    page.touch_b = gui.add_dropdown("touches", actors, initial_value=actors[min(1, len(actors) - 1)])
+    touches = gui.add_button("Add: they touch")
+    never = gui.add_button("Add: they never touch")
+    touches.on_click(lambda _: page._add_touch(include=True))
+    never.on_click(lambda _: page._add_touch(include=False))
   with gui.add_folder("Sorter"):
     page.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS, ORIENTATION_ERROR),
                                    initial_value=bank.metric_names[0])
@@ -97,6 +107,10 @@ def build(page) -> None:
     page.paused = gui.add_checkbox("Pause", False)
     page.time_slider = gui.add_slider("Time (s)", 0.0, max(end, 1e-3), 1.0 / bank.record_fps, 0.0)
     page.time_slider.on_update(lambda _: page._seek())
+    page.export_file = gui.add_text("Export file", "world.usd", hint="a .usd, .mp4 or .npz file under "
+                                    f"{page.session.query_dir}")
+    export = gui.add_button("Export playing world")
+    export.on_click(lambda _: page._export())
   with gui.add_folder("Refine"):
     page.objects = gui.add_dropdown("Objects", tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,),
                                     initial_value=next(iter(bank.objects)))

@@ -28,6 +28,7 @@ SORTER_ROWS = 20
 # checked here: a client can send any number).
 MAX_REFINE_SAMPLES = 4096
 QUERY_SUFFIXES = (".yaml", ".yml")
+EXPORT_SUFFIXES = (".usd", ".usda", ".usdc", ".mp4", ".npz")  # what the page's Export writes
 # The sorter metric ranking by the last enabled orientation query's error (radians, smallest first);
 # not the stored metric orientation_error (the angle from the initial orientation).
 ORIENTATION_ERROR = "error of the orientation query"
@@ -106,21 +107,21 @@ class RefineJob:
     self.progress = progress
 
 
-def query_file_path(workdir, name) -> pathlib.Path:
+def query_file_path(workdir, name, suffixes=QUERY_SUFFIXES, what: str = "query file") -> pathlib.Path:
   """The query file ``name`` (relative to ``workdir``, or absolute) as an
-  absolute path, refused unless it is a .yaml/.yml file under ``workdir``
-  (symbolic links followed)."""
+  absolute path, refused unless it is a .yaml/.yml file (or one of
+  ``suffixes``) under ``workdir`` (symbolic links followed)."""
   if workdir is None:
-    raise MwbxError("query files: this session has no directory to keep them in (pass path= or workdir=)")
+    raise MwbxError(f"{what}s: this session has no directory to keep them in (pass path= or workdir=)")
   root = pathlib.Path(workdir).resolve()
   raw = str(name).strip()
   if not raw:
-    raise MwbxError("query file: give a file name, e.g. queries.yaml")
+    raise MwbxError(f"{what}: give a file name, e.g. {'queries' if what == 'query file' else 'world'}{suffixes[0]}")
   full = (root / raw).resolve()
   if full == root or not full.is_relative_to(root):
-    raise MwbxError(f"query file {raw!r}: outside {root}; query files stay under that directory")
-  if full.suffix.lower() not in QUERY_SUFFIXES:
-    raise MwbxError(f"query file {raw!r}: the name must end in .yaml or .yml")
+    raise MwbxError(f"{what} {raw!r}: outside {root}; {what}s stay under that directory")
+  if full.suffix.lower() not in suffixes:
+    raise MwbxError(f"{what} {raw!r}: the name must end in {' or '.join(suffixes)}")
   return full
 
 
@@ -161,8 +162,7 @@ class Session:
 
   def add(self, query: mq.Query) -> int:
     """Puts a query on the stack; returns its index."""
-    if query.bodies:
-      self.bank.select_bodies(list(query.bodies))  # an unknown name fails now, naming it
+    query.check(self.bank)  # an unknown name fails now, naming it
     self._push()
     self.entries.append(Entry(query))
     return len(self.entries) - 1
@@ -282,6 +282,22 @@ class Session:
   def query_dir(self) -> pathlib.Path | None:
     """Where query files are kept (``workdir``, else the bank directory)."""
     return self.workdir if self.workdir is not None else self.path
+
+  def export(self, world: int, name, progress=None) -> str:
+    """Writes world ``world`` to file ``name`` under :attr:`query_dir`: USD
+    (``.usd``/``.usda``/``.usdc``), an mp4 video or an npz of its decoded qpos
+    and body poses (:mod:`mwbx.export`); returns the path written."""
+    from mwbx import export  # lazy: usd-core and imageio-ffmpeg load on first export
+    full = query_file_path(self.query_dir, name, EXPORT_SUFFIXES, "export file")
+    world = int(world)
+    suffix = full.suffix.lower()
+    if suffix == ".mp4":
+      export.render_video(self.bank, world, full, progress=progress)
+    elif suffix == ".npz":
+      export.export_npz(self.bank, world, full)
+    else:
+      export.export_usd(self.bank, world, full, progress=progress)
+    return str(full)
 
   def save_queries(self, name) -> str:
     """Writes the enabled queries to ``name`` under :attr:`query_dir`; returns its path."""

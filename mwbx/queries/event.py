@@ -246,6 +246,11 @@ class TouchQuery(Query):
   window: tuple[float | None, float | None] | None = None
   sign: str = "include"
   name: str = ""
+  bodies = None  # about actors, not tracked bodies: objects() and body_mask() say which
+
+  def check(self, bank) -> None:
+    for side in (self.a, self.b):
+      actor_mask(bank, side, self.label)
 
   def __post_init__(self):
     label = f"query {self.name!r}" if self.name else "query"
@@ -254,11 +259,6 @@ class TouchQuery(Query):
     object.__setattr__(self, "window", _window(label, self.window))
     if self.sign not in ("include", "exclude"):
       raise MwbxError(f"{label}: sign must be include or exclude, got {self.sign!r}")
-
-  @property
-  def bodies(self) -> tuple[str, ...]:
-    """The objects of both sides (what a search refines for it)."""
-    return tuple(dict.fromkeys(self.a + self.b))
 
   @property
   def label(self) -> str:
@@ -323,6 +323,12 @@ class OrderQuery(Query):
   window: tuple[float | None, float | None] | None = None
   name: str = ""
   sign = "include"
+  bodies = None  # about actors, not tracked bodies: objects() and body_mask() say which
+
+  def check(self, bank) -> None:
+    for pair in self.events:
+      for side in pair:
+        actor_mask(bank, side, self.label)
 
   def __post_init__(self):
     label = f"query {self.name!r}" if self.name else "query"
@@ -331,10 +337,6 @@ class OrderQuery(Query):
       raise MwbxError(f"{label}: then needs at least two touches in order, got {len(events)}")
     object.__setattr__(self, "events", events)
     object.__setattr__(self, "window", _window(label, self.window))
-
-  @property
-  def bodies(self) -> tuple[str, ...]:
-    return tuple(dict.fromkeys(n for a, b in self.events for n in a + b))
 
   @property
   def label(self) -> str:

@@ -94,6 +94,9 @@ class JointQuery(Query):
       mask[np.asarray(bank.select_bodies(objects), np.int64)] = True
     return mask
 
+  def check(self, bank) -> None:
+    joint_column(bank.model(), self.joint)
+
   def describe(self) -> str:
     return f"joint {self.joint} turns {self.turn}" + ("" if self.of == "change" else f" ({self.of})")
 

@@ -115,6 +115,12 @@ class Query(abc.ABC):
 
   # -- answers ---------------------------------------------------------------------
 
+  def check(self, bank) -> None:
+    """MwbxError naming what the bank does not know (a body, object, group,
+    joint or actor name), before any answer is asked for."""
+    if self.bodies:
+      bank.select_bodies(list(self.bodies))
+
   @abc.abstractmethod
   def evaluate(self, bank) -> np.ndarray:
     """bool[W] worlds meeting it (unstable worlds: False)."""

@@ -113,3 +113,22 @@ def test_a_refused_scene_name_does_not_lock_refinement(tmp_path, scene):
   assert session.cancel() is None
   job = session.refine(parent, "capsule", t_min=0.9, n_samples=2, key=jax.random.key(1), wait=True)
   assert job.error is None and len(job.new_ids) == 2 and session.bank.n_worlds == 4
+
+
+def test_touch_queries_and_export_from_the_session(tmp_path):
+  bank = quickstart_bank(4)
+  bank.save(tmp_path / "bank")
+  session = Session(mwbx.Bank.load(tmp_path / "bank"), tmp_path / "bank")
+  touch = mwbx.TouchQuery("ball", "floor")
+  never = mwbx.TouchQuery("round", ["wall_left", "wall_right"], sign="exclude")
+  session.add(touch)
+  session.add(never)
+  each = mwbx.evaluate_each(session.bank, [touch, never])
+  assert session.counts().per_query == tuple(int(n) for n in each.sum(axis=0))
+  world = int(session.bank.world_ids[1])
+  written = session.export(world, "exports/w1.npz")
+  with np.load(written) as f:
+    np.testing.assert_array_equal(f["qpos"], session.bank.qpos_frames(world))
+  for name, message in (("../w.npz", "outside"), ("w.txt", "must end in"), ("", "give a file name")):
+    with pytest.raises(mwbx.MwbxError, match=message):
+      session.export(world, name)
