@@ -3,6 +3,7 @@ PYTHON ?= $(shell for p in python3.12 $$HOME/.pyenv/versions/3.12*/bin/python3.1
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+DEV_STAMP := $(VENV)/.installed-dev
 
 .PHONY: run test venv bench clean
 
@@ -10,24 +11,30 @@ $(PY):
 	@test -n "$(PYTHON)" || { echo "python3.12 not found: install Python 3.12 or pass PYTHON=/path/to/python3.12"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 
+# What running needs; the tests' extras (browser, property tests, Warp, linter) only for `make test`.
 $(STAMP): $(PY) pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[dev]"
+	$(PY) -m pip install -q -e .
 	@touch $(STAMP)
 
-venv: $(STAMP)
+$(DEV_STAMP): $(STAMP) pyproject.toml
+	$(PY) -m pip install -q -e ".[dev]"
+	@touch $(DEV_STAMP)
+
+venv: $(DEV_STAMP)
 
 # Sample the default scene and print a summary.
 run: $(STAMP)
 	$(VENV)/bin/mwbx sample configs/quickstart.yaml --worlds 256 --out out/quickstart
 
-# The whole test suite (the browser test installs Debian's chromium when it can).
-test: $(STAMP)
+# The linter, then the whole test suite (the browser test installs Debian's chromium when it can).
+test: $(DEV_STAMP)
 	-@bash scripts/ensure_chromium.sh
+	$(PY) -m ruff check mwbx scripts tests
 	$(PY) -m pytest -q tests
 
 # Every benchmark: tables on stdout, JSON (and plots) in out/bench/, then docs/benchmarks.md from them.
-bench: $(STAMP)
+bench: $(DEV_STAMP)
 	$(PY) -m pip install -q -e ".[dev,bench]"
 	$(PY) scripts/bench_sampler.py
 	$(PY) scripts/bench_codec.py

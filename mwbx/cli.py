@@ -5,8 +5,10 @@
   mwbx info DIR [--json]
   mwbx query BANK QUERIES.yaml [--rank METRIC[:sum|max]] [--top K] [--under ID] [--json]
   mwbx view BANK [--worlds 3,17 | --top K --rank METRIC] [--queries Q.yaml] [--html OUT.html] [--no-browser]
-  mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N [--seed S] [--out DIR]
-              [--scene NEW.yaml --add NAMES] [--remove NAMES]
+  mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N
+              [--seed S] [--out DIR] [--scene NEW.yaml --add NAMES] [--remove NAMES]
+  mwbx solve BANK QUERIES.yaml [--budget N] [--time-budget S] [--step-budget N] [--samples N] [--seed S]
+              [--out DIR] [--plot PNG]
   mwbx drop BANK IDS [--out DIR]
   mwbx browse BANK [--port P] [--host 127.0.0.1] [--workdir DIR] [--autosave] [--no-browser]
   mwbx export BANK --world ID [--usd FILE] [--mp4 FILE] [--npz FILE] [--fps F] [--start S] [--stop S]

@@ -62,7 +62,6 @@ from mwbx import yaml_input
 from mwbx.errors import MwbxError
 from mwbx.files import write_atomic
 from mwbx.queries.camera import Camera
-from mwbx.queries.camera import ScreenBox
 from mwbx.queries.event import OrderQuery
 from mwbx.queries.event import TouchQuery
 from mwbx.queries.query import Query

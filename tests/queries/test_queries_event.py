@@ -5,7 +5,6 @@ force over per-frame sets of touching pairs)."""
 
 import json
 import math
-import pathlib
 
 import jax
 import mujoco

@@ -6,7 +6,6 @@ from __future__ import annotations
 import types
 
 import hypothesis.extra.numpy as hnp
-import meshcat
 import numpy as np
 import pytest
 from hypothesis import given, settings
