@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from typing import NamedTuple, Sequence
 
+import zlib
+
 import numpy as np
 
 from mwbx.errors import MwbxError
@@ -84,22 +86,51 @@ class EventRecord(NamedTuple):
                np.concatenate([r.counts for r in records]).astype(np.int32, copy=False))
 
   def arrays(self) -> dict[str, np.ndarray]:
-    """The arrays a shard stores (checksummed with the others); rows in the
-    smallest type that holds them (2 bytes a number for records under 65,536 frames)."""
-    return {"events_rows": np.ascontiguousarray(compact(self.rows)),
-            "events_counts": np.ascontiguousarray(self.counts, np.int32)}
+    """The arrays a shard stores (checksummed with the others): ``events_rows``
+    packed (:func:`pack`), ``events_counts`` as they are."""
+    return {"events_rows": pack(self.rows), "events_counts": np.ascontiguousarray(self.counts, np.int32)}
 
   @classmethod
   def from_arrays(cls, arrays: dict, n_worlds: int, where: str = "bank") -> "EventRecord":
     """A shard's record, checked (MwbxError naming ``where`` if the arrays disagree)."""
-    rows = np.asarray(arrays["events_rows"])
     counts = np.asarray(arrays["events_counts"])
-    if rows.ndim != 2 or rows.shape[1] != 4 or counts.shape != (n_worlds,) \
-        or int(counts.sum(dtype=np.int64)) != len(rows) or (counts < 0).any() \
+    n_rows = int(counts.sum(dtype=np.int64)) if counts.ndim == 1 else -1
+    try:
+      rows = unpack(np.asarray(arrays["events_rows"]), n_rows)
+    except (ValueError, zlib.error) as err:
+      raise MwbxError(f"{where}: corrupt contact events ({err})") from None
+    if counts.shape != (n_worlds,) or (counts < 0).any() \
         or (rows.size and (rows[:, ROW["a"]] >= rows[:, ROW["b"]]).any()):
       raise MwbxError(f"{where}: corrupt contact events (rows {rows.shape}, counts {counts.shape} for"
                       f" {n_worlds} worlds)")
-    return cls(rows.astype(np.int32, copy=False), counts.astype(np.int32, copy=False))
+    return cls(rows, counts.astype(np.int32, copy=False))
+
+
+def pack(rows: np.ndarray) -> np.ndarray:
+  """u8[n] episode rows as a shard keeps them: one byte giving the width of
+  a number (2 bytes below 65,536, else 4), then zlib of the columns one after
+  the other, the last frame kept as the run's length (``last - first``), so
+  alike numbers sit together: about 2.4 bytes an episode on quickstart."""
+  rows = np.asarray(rows, np.int64).reshape(-1, 4)
+  columns = rows.T.copy()
+  columns[ROW["last"]] -= columns[ROW["first"]]
+  wide = columns.size and int(columns.max()) >= (1 << 16)
+  data = columns.astype(np.int32 if wide else np.uint16)
+  return np.frombuffer(bytes([data.itemsize]) + zlib.compress(data.tobytes(), 6), np.uint8).copy()
+
+
+def unpack(blob: np.ndarray, n_rows: int) -> np.ndarray:
+  """i32[n_rows, 4] episode rows from :func:`pack`'s bytes (ValueError if they do not hold that many)."""
+  blob = np.asarray(blob, np.uint8).reshape(-1)
+  if blob.size < 1 or int(blob[0]) not in (2, 4) or n_rows < 0:
+    raise ValueError("unknown packing")
+  dtype = np.uint16 if int(blob[0]) == 2 else np.int32
+  columns = np.frombuffer(zlib.decompress(blob[1:].tobytes()), dtype)
+  if columns.size != 4 * n_rows:
+    raise ValueError(f"{columns.size // 4} episodes stored, {n_rows} counted")
+  rows = columns.reshape(4, n_rows).T.astype(np.int32)
+  rows[:, ROW["last"]] += rows[:, ROW["first"]]
+  return np.ascontiguousarray(rows)
 
 
 def merge(parts: Sequence[tuple[tuple[str, ...], "EventRecord | None"]]):
@@ -131,9 +162,3 @@ def merge(parts: Sequence[tuple[tuple[str, ...], "EventRecord | None"]]):
     order = np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0], world))
     records.append(EventRecord(rows[order], record.counts))
   return tuple(names), EventRecord.concat(records)
-
-
-def compact(rows: np.ndarray) -> np.ndarray:
-  """``rows`` in the smallest unsigned type holding them (what a shard stores)."""
-  rows = np.asarray(rows)
-  return rows.astype(np.uint16) if rows.size == 0 or int(rows.max()) < (1 << 16) else rows.astype(np.int32)

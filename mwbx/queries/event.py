@@ -101,20 +101,21 @@ def first_touch(bank, a: Side, b: Side, window=None, label: str = "query") -> np
   out = np.full(bank.n_worlds, np.inf)
   if not len(rows):
     return out
-  world = record.world_of_rows()
   ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
   pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
   fps = float(bank.record_fps)
   first = rows[:, ROW["first"]].astype(np.int64)
   last = rows[:, ROW["last"]].astype(np.int64)
-  ends = np.asarray(bank.frame_count, np.int64)[world] - 1
+  ends = np.repeat(np.asarray(bank.frame_count, np.int64) - 1, record.counts)
   last = np.where(last >= ends, np.iinfo(np.int64).max, last)  # on at the last frame: it goes on
   t0, t1 = (None, None) if window is None else window
   frame = first if t0 is None else np.maximum(first, math.ceil(t0 * fps - FRAME_SLACK * fps))
   inside = pair & (frame <= last)
   if t1 is not None:
     inside &= frame <= math.floor(t1 * fps + FRAME_SLACK * fps)
-  np.minimum.at(out, world[inside], frame[inside] / fps)
+  # Each world's rows are contiguous: the least per world in one reduction.
+  has = record.counts > 0
+  out[has] = np.minimum.reduceat(np.where(inside, frame / fps, np.inf), record.offsets[:-1][has])
   return out
 
 
