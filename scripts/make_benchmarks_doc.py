@@ -720,10 +720,38 @@ def gpu(d: dict) -> tuple[list[str], list[str]]:
   return lines + [""], []
 
 
+def events(d: dict) -> tuple[list[str], list[str]]:
+  c, lat = d["cost"], d["latency"]
+  lines = ["## Contact events", "",
+           "`scripts/bench_events.py`: finding the contact events of sampled worlds (MuJoCo collision on "
+           "every stored frame) against the same run's simulation time; the bytes they add to the bank's "
+           "shards; event queries against a COM screen box on the same bank (the baseline). "
+           f"Machine: {d['machine']}, MuJoCo {d['mujoco']}.", "",
+           "| scene | worlds | episodes | events s | simulation s | ratio | event bytes | of shard bytes |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|",
+           f"| {c['scene']} | {c['worlds']} | {c['episodes']:,} | {c['events_seconds']:.2f} | "
+           f"{c['simulation_seconds']:.2f} | {c['events_over_simulation']:.2f}× | {c['event_bytes']:,} | "
+           f"{c['event_fraction']:.1%} |", "",
+           f"Query latency on {lat['worlds']} worlds (the event records of {lat['distinct_worlds']} sampled "
+           "worlds repeated), median:", "",
+           "| query | ms | vs COM box | worlds met |", "|---|---:|---:|---:|"]
+  for name, r in lat["queries"].items():
+    lines.append(f"| {name} | {r['ms']:.2f} | {r['vs_baseline']:.2f}× | {r['matches']} |")
+  head: list[str] = []  # (the README's front page is full)
+  t = d.get("tower")
+  if t:
+    lines += ["", f"Trebuchet tower, {t['worlds']} worlds ({t['valid']} valid): `rock_hits_tower` (the rock's "
+              f"bounding sphere enters the tower's box) {t['box']}, `rock_touches_tower` (a contact event) "
+              f"{t['event']}, both {t['both']}; `rock_then_blocks_hit_bystander_0` (in order) "
+              f"{t['order_rock_then_bystander_0']}. Events {t['events_seconds']:.1f} s against simulation "
+              f"{t['simulation_seconds']:.1f} s."]
+  return lines, head
+
+
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
             ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry), ("scale", scale),
             ("scenes", scenes), ("backends", backends), ("gpu", gpu),
-            ("solve", solve))
+            ("solve", solve), ("events", events))
 
 
 def main() -> None:
