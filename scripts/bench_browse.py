@@ -47,7 +47,7 @@ def _in_browser(page, camera) -> dict:
   """Page load time (to the GUI shown, scene and paths sent) and websocket bytes
   the page receives for one box update, in headless Chromium."""
   from playwright.sync_api import sync_playwright
-  from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
+  from mwbx.testing.headless import CHROMIUM_BINARY, WEBGL_ARGS
   received = []
   with sync_playwright() as pw:
     chromium = pw.chromium.launch(executable_path=CHROMIUM_BINARY, args=list(WEBGL_ARGS))
@@ -151,7 +151,7 @@ def _play_in_browser(page, bank, clicks: int) -> dict:
   also timed in the page (:data:`_CLICK_TIMING_JS`): press → text shown, and
   → the next frame drawn."""
   from playwright.sync_api import sync_playwright
-  from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
+  from mwbx.testing.headless import CHROMIUM_BINARY, WEBGL_ARGS
   arrived = {}
   play = page.play
 

@@ -143,7 +143,7 @@ FRAME_JS = """() => {
 
 def browser_frame(html: str, workdir: pathlib.Path, name: str) -> dict:
   from playwright.sync_api import sync_playwright
-  from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
+  from mwbx.testing.headless import CHROMIUM_BINARY, WEBGL_ARGS
 
   page_file = workdir / f"{name}.html"
   page_file.write_text(html)
@@ -169,7 +169,7 @@ def load_bank():
 
     cfg = mwbx.load_config(str(ROOT / "configs/quickstart.yaml"))
     return "quickstart", mwbx.sample(cfg, n_worlds=128, key=jax.random.key(0))
-  from mwbx.viewer.standin import make_standin_bank
+  from mwbx.testing.standin import make_standin_bank
 
   return "viewer stand-in", make_standin_bank(n_worlds=128)
 
@@ -223,7 +223,7 @@ def main() -> None:
                                        / results["browser"]["mwbx"]["ms_per_frame"])
     if args.screenshot:
       from PIL import Image
-      from mwbx.viewer.headless import screenshot
+      from mwbx.testing.headless import screenshot
 
       Image.fromarray(screenshot(out.as_uri(), seek_s=0.6)).save(args.screenshot)
 

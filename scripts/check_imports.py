@@ -52,7 +52,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     )),
     ("bank", ("mwbx.qpos_store", "mwbx.bank")),
     ("simulation", ("mwbx.batch_sim", "mwbx.refinement")),
-    ("front ends", ("mwbx.viewer", "mwbx.browser", "mwbx.search", "mwbx.export")),
+    ("front ends", ("mwbx.viewer", "mwbx.browser", "mwbx.search", "mwbx.export", "mwbx.testing")),
     ("command", ("mwbx.cli", "mwbx")),
 )
 

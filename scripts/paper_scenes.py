@@ -95,7 +95,7 @@ def picture(bank: mwbx.Bank, world: int, scene: str, path: pathlib.Path) -> None
   """A PNG of ``world`` at its last frame through the viewer (HTML export,
   screenshotted by headless Chromium)."""
   from PIL import Image
-  from mwbx.viewer.headless import screenshot
+  from mwbx.testing.headless import screenshot
 
   with tempfile.TemporaryDirectory() as tmp:
     page = mwbx.export_html(bank, pathlib.Path(tmp) / "scene.html", worlds=[world],

@@ -54,7 +54,7 @@ def tiny_native_bank(tiny_native):
 def browser():
   """Skips a real-browser test, saying why, where Chromium or Playwright is missing."""
   import sys
-  from mwbx.viewer.headless import chromium_unavailable_reason
+  from mwbx.testing.headless import chromium_unavailable_reason
   reason = chromium_unavailable_reason()
   if reason is not None:
     print(f"skipping a real-browser test: {reason}", file=sys.stderr)

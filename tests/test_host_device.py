@@ -17,7 +17,7 @@ _CODEC_CHILD = """
 import jax
 jax.config.update("jax_num_cpu_devices", 2)
 import numpy as np
-from mwbx.codec import testing
+from mwbx.testing import codec_data as testing
 from mwbx.codec import ChannelLayout, CodecBounds, encode_batch_checked
 from mwbx.codec import encode
 from mwbx.codec import fit as fit_lib

@@ -25,7 +25,7 @@ from mwbx import queries as mq
 from mwbx.browser.app import free_port
 
 from viewer_banks import quickstart_bank
-from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
+from mwbx.testing.headless import CHROMIUM_BINARY, WEBGL_ARGS
 
 QUERY_LINE = re.compile(r"mwbx browse: query (\d+) (\w+) box=(\[[^\]]*\]) bodies=(\S+) mode=(\w+) "
                         r"window=(\S+) camera eye=(\[[^\]]*\]) right=(\[[^\]]*\]) up=(\[[^\]]*\]) "

@@ -21,7 +21,7 @@ from mwbx.browser import Browser, Session
 from mwbx.browser.session import ORIENTATION_ERROR
 
 from test_browse import QUERY_LINE, WAIT, Server, _arm, _camera, _drag
-from mwbx.viewer.headless import CHROMIUM_BINARY, WEBGL_ARGS
+from mwbx.testing.headless import CHROMIUM_BINARY, WEBGL_ARGS
 
 ORIENTATION_LINE = re.compile(r"mwbx browse: query (\d+) orientation upright axis=(\S+) within_deg=(\S+) "
                               r"bodies=(.+) mode=(\w+) window=(\S+) -> (\d+) worlds, all queries (\d+) of (\d+)")

@@ -165,7 +165,7 @@ def test_prefix_metrics_match_plain_loops():
 @pytest.mark.parametrize("child_frames", [40, 31, 52])
 def test_splice_keeps_parent_channels_bit_for_bit(child_frames):
   from mwbx.codec import CodecBounds, CompressedQposStore
-  from mwbx.codec.testing import boxes_model, record
+  from mwbx.testing.codec_data import boxes_model, record
   model = boxes_model(3)
   store = CompressedQposStore.from_model(model, CodecBounds(), 120.0)
   parent = record(model, 40, seed=1)

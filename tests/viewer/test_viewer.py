@@ -22,7 +22,7 @@ with warnings.catch_warnings():
 import mwbx.viewer as mv
 from mwbx.viewer import display, geometry, hull, kinematics, playback
 from viewer_banks import quickstart_bank
-from mwbx.viewer.standin import STANDIN_XML, make_standin_bank
+from mwbx.testing.standin import STANDIN_XML, make_standin_bank
 
 FAST = settings(max_examples=int(__import__("os").environ.get("VIEWER_EXAMPLES", 40)), deadline=None)
 

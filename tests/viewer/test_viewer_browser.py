@@ -15,7 +15,7 @@ import pytest
 import mwbx.viewer as mv
 from mwbx.viewer import display
 from viewer_banks import quickstart_bank
-from mwbx.viewer.headless import colour_fraction, hue_fraction, hue_of, screenshot, screenshots
+from mwbx.testing.headless import colour_fraction, hue_fraction, hue_of, screenshot, screenshots
 
 # Thresholds as fractions of an 800 x 600 screenshot.
 MIN_OBJECT_FRACTION = 0.0008  # ~380 px of one object colour
