@@ -22,6 +22,7 @@ paths and volumes :mod:`mwbx.browser.drawing`; this module is the GUI.
 
 from __future__ import annotations
 
+import logging
 import pathlib
 import socket
 import sys
@@ -40,6 +41,20 @@ from mwbx.browser.scene import Stage
 from mwbx.browser.session import ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
 from mwbx.viewer import display, framing
+
+# The page's log: what each action did, one line each (``mwbx browse: ...`` on
+# stdout once :func:`browse` serves; research code configures it as it likes).
+LOG = logging.getLogger("mwbx.browse")
+
+
+def log_to_stdout() -> None:
+  """Sends the page's log to stdout as ``mwbx browse: ...`` lines (once)."""
+  if not LOG.handlers:
+    handler = logging.StreamHandler(sys.stdout)
+    handler.setFormatter(logging.Formatter("mwbx browse: %(message)s"))
+    LOG.addHandler(handler)
+    LOG.setLevel(logging.INFO)
+    LOG.propagate = False
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -199,8 +214,7 @@ class Browser:
       self.refresh()
     except MwbxError as err:
       message = f"error: {err}"
-    self.status_md.content = f"{message}"
-    print(f"mwbx browse: {message}", flush=True)
+    self._say(message)
 
   def _with_pick(self, action) -> None:
     label = self.query_pick.value
@@ -236,11 +250,11 @@ class Browser:
       return
     count = self.refresh()
     self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
-    print(f"mwbx browse: query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
+    LOG.info(f"query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
           f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
           f" camera eye={camera.eye.tolist()} right={camera.right.tolist()} up={camera.up.tolist()}"
           f" forward={camera.forward.tolist()} fovy={camera.fovy} aspect={camera.aspect}"
-          f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={shape}", flush=True)
+          f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={shape}")
 
   def _add_orientation(self, upright: bool) -> None:
     bodies = self._selection()
@@ -256,9 +270,9 @@ class Browser:
     count = self.refresh()
     self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
     what = f"upright axis={self.axis.value}" if upright else "initial"
-    print(f"mwbx browse: query {index} orientation {what} within_deg={query.within_deg}"
+    LOG.info(f"query {index} orientation {what} within_deg={query.within_deg}"
           f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
-          f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}", flush=True)
+          f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}")
 
   def _add_touch(self, include: bool) -> None:
     a, b = self.touch_a.value, self.touch_b.value
@@ -357,13 +371,13 @@ class Browser:
       self.playing_md.content = f"playing **{shown}**"
       self.lineage_md.content = "\n".join(f"- {line}" for line in self.session.lineage(world))
     self.server.flush()
-    print(f"mwbx browse: playing world {world}" + (" (added)" if add else ""), flush=True)
+    LOG.info(f"playing world {world}" + (" (added)" if add else ""))
 
   def _layout(self) -> None:
     with self.lock:
       self.stage.set_side_by_side(self.side_by_side.value)
-    print(f"mwbx browse: layout {'side by side' if self.side_by_side.value else 'overlay'}"
-          f" of {list(self.player.played)}", flush=True)
+    LOG.info(f"layout {'side by side' if self.side_by_side.value else 'overlay'}"
+          f" of {list(self.player.played)}")
 
   def _compare(self) -> None:
     """Plays the worlds typed in *Worlds to compare* side by side, from the start."""
@@ -421,8 +435,8 @@ class Browser:
       return
     self.progress.visible = True
     changes = "".join(f", {k} {','.join(v)}" for k, v in (("adding", add), ("removing", remove)) if v)
-    print(f"mwbx browse: refining {objects or 'no objects'} of world {world} from {t_min:.4f} s, {n} samples"
-          f"{changes}", flush=True)
+    LOG.info(f"refining {objects or 'no objects'} of world {world} from {t_min:.4f} s, {n} samples"
+          f"{changes}")
 
     def watch():
       while not job.done.wait(0.1):
@@ -438,8 +452,7 @@ class Browser:
         message = f"refined world {world}: new worlds {int(ids[0])}..{int(ids[-1])} (parent {world})"
         self._scene_changed()
         self.refresh()
-      self.status_md.content = message
-      print(f"mwbx browse: {message}", flush=True)
+      self._say(message)
 
     threading.Thread(target=watch, daemon=True, name="mwbx-refine-watch").start()
 
@@ -448,8 +461,9 @@ class Browser:
     self._say("no refinement is running" if job is None else f"cancelling the refinement of world {job.world}")
 
   def _say(self, message: str) -> None:
+    """The page's one way to report: its status line, and the log (``mwbx browse:`` lines)."""
     self.status_md.content = message
-    print(f"mwbx browse: {message}", flush=True)
+    LOG.info(message)
 
   def _parent(self) -> None:
     world = self.playing_world
@@ -506,6 +520,7 @@ def browse(bank, *, path=None, host: str = "127.0.0.1", port: int | None = None,
     mwbx.browse(mwbx.Bank.load("out/quickstart"), path="out/quickstart")
   """
   path = None if path is None else pathlib.Path(path)
+  log_to_stdout()
   session = Session(bank, path, None if workdir is None else pathlib.Path(workdir))
   page = Browser(session, host=host, port=port)
   if not page.loopback:
