@@ -36,12 +36,12 @@ full separating-axis test. The index is built by :mod:`.kept_poses`.
 from __future__ import annotations
 
 import dataclasses
-import weakref
 
 import numpy as np
 
 from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
 from mwbx.queries import geometry_cull
+from mwbx.queries.bank_cache import PerBank
 from mwbx.queries import kept_poses
 from mwbx.queries import poses as poses_lib
 from mwbx.queries import shapes as shapes_lib
@@ -211,25 +211,11 @@ def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK
 # Per-bank cache
 
 
-_CACHE: dict[int, tuple[object, tuple, GeometryIndex]] = {}
+_CACHE = PerBank()
 
 
 def geometry_index(bank) -> GeometryIndex:
   """The bank's geometry index (built on first use, then cached per bank)."""
   valid = np.asarray(bank.valid, bool)
   key = (bank.n_worlds, valid.tobytes(), id(bank.qpos_store))
-  entry = _CACHE.get(id(bank))
-  if entry is not None:
-    ref, old_key, index = entry
-    alive = ref() if isinstance(ref, weakref.ref) else ref
-    if alive is bank and old_key == key:
-      return index
-  index = build(bank, valid)
-  try:
-    ref = weakref.ref(bank, lambda _, k=id(bank): _CACHE.pop(k, None))
-  except TypeError:
-    ref = bank
-    for k in [k for k, (r, _, _) in _CACHE.items() if not isinstance(r, weakref.ref)]:
-      del _CACHE[k]
-  _CACHE[id(bank)] = (ref, key, index)
-  return index
+  return _CACHE.get(bank, "geometry", key, lambda: build(bank, valid))

@@ -20,13 +20,13 @@ Example::
 from __future__ import annotations
 
 import dataclasses
-import weakref
 
 import mujoco
 import numpy as np
 
 from mwbx.errors import MwbxError
 from mwbx.joints import JNT_HINGE, JNT_SLIDE
+from mwbx.queries.bank_cache import PerBank
 from mwbx.queries.query import Query
 from mwbx.queries.intervals import checked_interval
 
@@ -131,7 +131,7 @@ class JointQuery(Query):
     return query
 
 
-_CACHE: dict = {}
+_CACHE = PerBank()
 MEASURES = ("change", "max", "min")
 
 
@@ -152,10 +152,10 @@ def joint_paths(bank, joint: str) -> np.ndarray:
   """f32[W, F] the joint's decoded value at every recorded frame (tails hold
   the last frame), cached per bank and joint."""
   column = joint_column(bank.model(), joint)
-  key = (id(bank), joint)
-  entry = _CACHE.get(key)
-  if entry is not None and entry[0]() is bank and entry[1].shape[0] == bank.n_worlds:
-    return entry[1]
+  return _CACHE.get(bank, joint, (bank.n_worlds, id(bank.qpos_store)), lambda: _decoded(bank, column))
+
+
+def _decoded(bank, column: int) -> np.ndarray:
   n = bank.n_worlds
   counts = np.asarray(bank.frame_count, np.int64)
   out = np.zeros((n, max(int(counts.max(initial=1)), 1)), np.float32)
@@ -169,10 +169,6 @@ def joint_paths(bank, joint: str) -> np.ndarray:
     if len(f):
       out[w, :len(f)] = f[:, column]
       out[w, len(f):] = f[-1, column]
-  try:
-    _CACHE[key] = (weakref.ref(bank, lambda _, k=key: _CACHE.pop(k, None)), out)
-  except TypeError:
-    pass
   return out
 
 

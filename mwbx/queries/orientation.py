@@ -31,13 +31,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import weakref
 
 import numpy as np
 
 from mwbx.errors import MwbxError
 from mwbx.joints import QPOS_WIDTH
 from mwbx.queries import poses as poses_lib
+from mwbx.queries.bank_cache import PerBank
 from mwbx.queries.query import Query
 from mwbx.queries.query import who
 from mwbx.queries.intervals import checked_interval
@@ -205,7 +205,7 @@ class OrientationQuery(Query):
 # ---------------------------------------------------------------------------
 # Orientations at every stored frame, per body, cached per bank.
 
-_CACHE: dict = {}
+_CACHE = PerBank()
 
 
 def body_quats(bank, body: int) -> np.ndarray:
@@ -224,9 +224,9 @@ def all_quats(bank, bodies) -> dict:
   state = (bank.n_worlds, id(bank.qpos_store))
   out, missing = {}, []
   for body in bodies:
-    entry = _CACHE.get((id(bank), int(body)))
-    if entry is not None and entry[0]() is bank and entry[1] == state:
-      out[int(body)] = entry[2]
+    kept = _CACHE.peek(bank, int(body), state)
+    if kept is not None:
+      out[int(body)] = kept
     else:
       missing.append(int(body))
   if not missing:
@@ -243,12 +243,8 @@ def all_quats(bank, bodies) -> dict:
     _, quat = poses_lib.body_poses(model, qpos.reshape(len(rows) * n_frames, -1), body_ids)
     fresh[:, rows] = np.moveaxis(quat.reshape(len(rows), n_frames, len(body_ids), 4), 2, 0)
   for i, body in enumerate(missing):
-    key = (id(bank), body)
     out[body] = fresh[i]
-    try:
-      _CACHE[key] = (weakref.ref(bank, lambda _, k=key: _CACHE.pop(k, None)), state, fresh[i])
-    except TypeError:
-      pass
+    _CACHE.put(bank, body, state, fresh[i])
   return out
 
 

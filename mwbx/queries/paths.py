@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from typing import NamedTuple
-import weakref
 
 import jax
 from jax import numpy as jp
@@ -20,6 +19,7 @@ import numpy as np
 
 from mwbx.queries import index as index_lib
 from mwbx.queries import segments
+from mwbx.queries.bank_cache import PerBank
 from mwbx.queries.frustum import Frustum
 from mwbx.queries.selection import selection_mask
 
@@ -47,7 +47,7 @@ class _BankState:
   radii: np.ndarray | None = None
 
 
-_CACHE: dict[int, tuple[object, _BankState]] = {}
+_CACHE = PerBank()
 
 # COM polylines up to this size (decoded, 1 GiB) are indexed whole and the index is
 # cached: browsing asks again and again. A lazily opened bank beyond it is
@@ -82,21 +82,7 @@ def bank_state(bank) -> _BankState:
     com = com.materialized()
   valid = np.asarray(bank.valid, bool)
   key = (id(com), com.shape, valid.tobytes())
-  entry = _CACHE.get(id(bank))
-  if entry is not None:
-    ref, state = entry
-    alive = ref() if isinstance(ref, weakref.ref) else ref
-    if alive is bank and state.key == key:
-      return state
-  state = _BankState(key, index_lib.build_index(com, valid))
-  try:
-    ref = weakref.ref(bank, lambda _, k=id(bank): _CACHE.pop(k, None))
-  except TypeError:  # not weak-referenceable: keep it, but only the latest
-    ref = bank
-    for k in [k for k, (r, _) in _CACHE.items() if not isinstance(r, weakref.ref)]:
-      del _CACHE[k]
-  _CACHE[id(bank)] = (ref, state)
-  return state
+  return _CACHE.get(bank, "index", key, lambda: _BankState(key, index_lib.build_index(com, valid)))
 
 
 def path_index(bank) -> index_lib.PathIndex:
