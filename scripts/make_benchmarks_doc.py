@@ -294,6 +294,7 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
     head.append("guided sampling finds " + " and ".join(f"{g['ratio']:.1f}× (`{g['query']}`)"
                                                       for g in guided.values())
                 + " as many matching worlds per world-step as plain sampling")
+  lines += _chain(d)
   return lines, ([f"**solve**: {'; '.join(head)}"] if head else [])
 
 
@@ -718,6 +719,27 @@ def gpu(d: dict) -> tuple[list[str], list[str]]:
                  f"differ ({size('default'):,} against {size('host cpu'):,} bytes): float32 rounds differently "
                  "there, so a bank compressed with the fit on the GPU would not equal one compressed on a CPU.")]
   return lines + [""], []
+
+
+def _chain(d: dict) -> list[str]:
+  """The chain-reaction solves (bench_solve part chain), if measured."""
+  c = d.get("chain")
+  if not c:
+    return []
+  m = c["machine"]
+  solved = sum(r["solved"] for r in c["runs"])
+  lines = ["", "### Chain reaction (contact events in order)", "",
+           f"`configs/chain_reaction.yaml` with `configs/queries/chain_reaction.yaml` (the seven touches in "
+           "order, two touch queries, the cup as a region): 16 worlds sampled per seed, the worlds already "
+           f"meeting every query dropped, then `mwbx.solve` within {c['budget_seconds']:.0f} s. Machine: "
+           f"{m['cpus']}-core {m['machine']} CPU, commit {m['commit']}. Solved in {solved} of {len(c['runs'])} seeds.",
+           "", "| seed | sampled worlds meeting all (dropped) | result | refinements | world-steps | solve s |",
+           "|---:|---:|---|---:|---:|---:|"]
+  for r in c["runs"]:
+    result = "all met" if r["solved"] else f"{r['satisfied']} of {r['n_queries']} met"
+    lines.append(f"| {r['seed']} | {r['dropped_before_solving']} | {result} | {r['refinements']} | "
+                 f"{r['world_steps']:,} | {r['solve_seconds']:.0f} |")
+  return lines
 
 
 def events(d: dict) -> tuple[list[str], list[str]]:
