@@ -48,7 +48,7 @@ from mwbx.files import write_atomic
 from mwbx.progress import reporter
 from mwbx.queries import Camera, ScreenBox, load_queries
 from mwbx.queries.report import run_query_file
-from mwbx.refinement import run_refinement
+from mwbx.refinement import RefineRequest, refinement
 from mwbx.world_ids import parse_world_ids
 
 # The viewer (meshcat), the page (viser), search (optax) and the MJX contact
@@ -387,9 +387,10 @@ def _cmd_refine(args) -> int:
   # Without --seed every run draws new worlds; the seed is printed to repeat one.
   seed = secrets.randbits(31) if args.seed is None else args.seed
   with _reporter_with_safe_points("refine") as update:
-    done = run_refinement(bank, args.world, args.objects or (), frustum=frustum, t_min=args.time,
-                          n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
-                          progress=update, scene=args.scene, add=args.add or (), remove=args.remove or ())
+    done = refinement(bank, RefineRequest(args.world, args.objects or (), frustum=frustum, t_min=args.time,
+                                          n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
+                                          scene=args.scene, add=args.add or (), remove=args.remove or ()),
+                      progress=update)
   total, new, stats = done.bank, done.new, done.stats
   if done.scene_version is not None:
     print(f"mwbx: bank moved to scene version {done.scene_version} ({args.scene})", file=sys.stderr)

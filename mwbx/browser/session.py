@@ -18,8 +18,8 @@ import numpy as np
 from mwbx import queries as mq
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
-from mwbx.refinement import refine_run
-from mwbx.refinement.refine import as_scene
+from mwbx.refinement import RefineRequest
+from mwbx.refinement import refinement
 
 REDUCTIONS = ("sum", "max")
 # The sorter lists at most this many worlds.
@@ -373,15 +373,14 @@ class Session:
 
     def work():
       try:
-        bank = self.bank
-        if scene_path is not None:
-          bank = bank.with_scene(as_scene(scene_path))
-        new, _ = refine_run(bank, world, objects, t_min=t_min, n_samples=int(n_samples), key=key,
-                            backend=backend, progress=job._report, add=add, remove=remove)
+        done = refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=int(n_samples), key=key,
+                                                   backend=backend, scene=scene_path, add=add, remove=remove),
+                          progress=job._report)
+        new = done.new
         if job._cancel.is_set():
           raise RefineCancelled
         with self._lock:
-          self.bank = bank.append(new)
+          self.bank = done.bank
           self.unsaved.extend(int(i) for i in np.asarray(new.world_ids))
         job.new_ids = np.asarray(new.world_ids)
       except RefineCancelled:

@@ -8,7 +8,10 @@ never writes the codec's format itself (``QposStore.refined`` does).
 from mwbx.refinement.refine import DEFAULT_MARGIN
 from mwbx.refinement.refine import RefineStats
 from mwbx.refinement.refine import refine
-from mwbx.refinement.refine import refine_run
-from mwbx.refinement.refine import Refinement, RefinePlan, plan_refinement, run_refinement
+from mwbx.refinement.refine import RefinePlan
+from mwbx.refinement.refine import RefineRequest
+from mwbx.refinement.refine import Refinement
+from mwbx.refinement.refine import plan_refinement
+from mwbx.refinement.refine import refinement
 from mwbx.refinement.refine import sampler_for
 from mwbx.refinement.exact_activation import exact_active

@@ -281,7 +281,7 @@ def _events(bank, row: int, first_frame: int, store, sampler):
     return sampler.events_of_frames(frames), actors
   # The frames a refined world shares with its parent exactly (before
   # first_frame, less those the codec fitted anew) keep the parent's episodes.
-  shared = bank.qpos_frames(int(bank.world_ids[row]), 0, first_frame)
+  shared = bank.qpos_store.row_frames(row, 0, first_frame)
   starts = np.array([_shared_frames(shared, f) for f in frames], np.int64)
   after = sampler.events_of_frames([f[s:] for f, s in zip(frames, starts)], first_frame=starts)
   parent = bank.events.world(row)

@@ -23,6 +23,7 @@ used to touch become active.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import secrets
 import time
@@ -108,15 +109,64 @@ def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_mi
   return t_min
 
 
-def plan_refinement(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
-                    key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-                    margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto",
-                    add=(), remove=()) -> RefinePlan:
-  """Resolves and checks a refinement of ``bank`` (arguments as :func:`refine_run`).
+class RefineRequest(NamedTuple):
+  """What to refine: the one argument of :func:`refinement` (and of :func:`refine`).
+
+  Attributes:
+    world: the parent's world id.
+    objects: object or group names (a list, or one comma-separated string);
+      may be empty when objects are added or removed.
+    t_min: the restart time in seconds (rounded down to a recorded frame); or
+    frustum: a :class:`mwbx.queries.Frustum` (e.g. ``camera.frustum(box)``):
+      t_min is the first time any of the objects' COM is inside it.
+    n_samples: refined worlds to make.
+    key: run key; refined world i draws from ``fold_in(key, i)``. None: a fresh
+      random key, so repeating a refinement gives new worlds.
+    backend: ``auto`` | ``native`` | ``mjx`` (default: the config's).
+    chunk_size: worlds per lockstep batch.
+    margin: contact margin of the interaction test, m (larger is safer).
+    playback: native backend only: ``step`` (default) puts inactive objects
+      on their stored path before every physics step; ``frame`` only at every
+      frame boundary (a few per cent cheaper; inside a frame they move freely
+      from the stored state, touching nothing). MJX always does it every step.
+    loop: native backend, ``playback="step"``: ``auto`` | ``compiled`` (each
+      refined world in compiled calls, the fast path) | ``lockstep``
+      (``mujoco.rollout`` a step at a time).
+    scene: a later version of the bank's scene (a :class:`mwbx.Scene`, a
+      :class:`mwbx.config.Config` or a config file path) holding the objects
+      to ``add``; the bank moves to it first, every world kept.
+    add: objects (of ``scene``) inserted into the active set at t_min, at
+      their configured initial state (randomized per refined world).
+    remove: objects taken out at t_min: parked, colliding with nothing; their
+      ghosts stay, so the objects they used to touch are resimulated.
+  """
+
+  world: int
+  objects: str | Sequence[str] = ()
+  t_min: float | None = None
+  frustum: object = None
+  n_samples: int = 32
+  key: jax.Array | None = None
+  backend: str | None = None
+  chunk_size: int | None = None
+  margin: float = DEFAULT_MARGIN
+  playback: str = "step"
+  loop: str = "auto"
+  scene: object = None
+  add: str | Sequence[str] = ()
+  remove: str | Sequence[str] = ()
+
+
+def plan_refinement(bank, request: RefineRequest) -> RefinePlan:
+  """Resolves and checks a refinement of ``bank`` (its ``scene`` already moved to, if any).
 
   Raises:
     MwbxError: naming the argument or value that cannot be refined.
   """
+  world, objects, frustum, t_min, n_samples, key, backend, chunk_size, margin, playback, loop, add, remove = (
+      request.world, request.objects, request.frustum, request.t_min, request.n_samples, request.key,
+      request.backend, request.chunk_size, request.margin, request.playback, request.loop, request.add,
+      request.remove)
   world = int(world)
   try:
     row = bank.row_of(world)
@@ -167,28 +217,6 @@ def plan_refinement(bank, world: int, objects, *, frustum=None, t_min: float | N
       contact_budget=bank.run.get("contact_budget"))
 
 
-def refine_run(bank, world: int, objects, *, frustum=None, t_min: float | None = None, n_samples: int,
-               key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-               margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None,
-               add=(), remove=()):
-  """:func:`refine` that also returns :class:`RefineStats` and only the new worlds.
-
-  The bank must already be in the scene version holding objects to ``add``
-  (:meth:`mwbx.Bank.with_scene`; :func:`refine` does that from ``scene=``).
-
-  ``loop`` (native backend, ``playback="step"``): ``compiled`` runs each
-  refined world in compiled calls (:mod:`mwbx.refinement.compiled_refinement`),
-  ``lockstep`` steps the batch through ``mujoco.rollout`` a step at a time
-  (:func:`mwbx.refinement.loop.run_native`), ``auto`` the first where
-  MuJoCo's C library can be bound.
-  """
-  start_wall = time.perf_counter()
-  plan = plan_refinement(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
-                         backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
-                         add=add, remove=remove)
-  return run_plan(bank, plan, sampler_for(bank, plan.backend), progress, start_wall)
-
-
 _SAMPLERS: dict = {}
 
 
@@ -206,44 +234,17 @@ def sampler_for(bank, backend: str | None = None) -> Sampler:
   return _SAMPLERS[cache_key]
 
 
-def refine(bank, world: int, objects=(), *, frustum=None, t_min: float | None = None, n_samples: int,
-           key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-           margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None,
-           scene=None, add=(), remove=()):
+def refine(bank, world, objects=(), *, progress=None, **fields):
   """Resamples the marked objects of one world from t_min on (paper §5).
 
   Args:
     bank: the bank holding the parent world.
-    world: the parent's world id.
-    objects: object or group names (a list, or one comma-separated string);
-      may be empty when objects are added or removed.
-    frustum: a :class:`mwbx.queries.Frustum` (e.g. ``camera.frustum(box)``):
-      t_min is the first time any of the objects' COM is inside it; or
-    t_min: the restart time in seconds (rounded down to a recorded frame).
-    n_samples: refined worlds to make.
-    key: run key; refined world i draws from ``fold_in(key, i)``. None: a fresh
-      random key, so repeating a refinement gives new worlds.
-    backend: ``auto`` | ``native`` | ``mjx`` (default: the config's).
-    chunk_size: worlds per lockstep batch.
-    margin: contact margin of the interaction test, m (larger is safer).
-    playback: native backend only: ``step`` (default) puts inactive objects
-      on their stored path before every physics step (S one-step rollout
-      calls per frame); ``frame`` only at every frame boundary (one call per
-      frame, a few per cent cheaper; inside a frame they move freely from the
-      stored state, touching nothing, and report their stored motion). The
-      MJX backend always does it every step.
-    loop: native backend, ``playback="step"``: ``auto`` | ``compiled`` (each
-      refined world in compiled calls, the fast path) | ``lockstep``
-      (``mujoco.rollout`` a step at a time).
+    world: the parent's world id, or a whole :class:`RefineRequest`.
+    objects: object or group names (a list, or one comma-separated string).
     progress: optional callback taking a :class:`mwbx.progress.Progress`.
-    scene: a later version of the bank's scene (a :class:`mwbx.Scene`, a
-      :class:`mwbx.config.Config` or a config file path) holding the objects
-      to ``add``, appended after the bank's own (:mod:`mwbx.bank.versions`);
-      the bank moves to it first, every world kept.
-    add: objects (of ``scene``) inserted into the active set at t_min, at
-      their configured initial state (randomized per refined world).
-    remove: objects taken out at t_min: parked, colliding with nothing; their
-      ghosts stay, so the objects they used to touch are resimulated.
+    **fields: the other :class:`RefineRequest` fields (``t_min`` or
+      ``frustum``, ``n_samples``, ``key``, ``backend``, ``scene``, ``add``,
+      ``remove``, ...).
 
   Returns:
     ``bank`` (in ``scene``'s version if given) with the refined worlds
@@ -259,51 +260,58 @@ def refine(bank, world: int, objects=(), *, frustum=None, t_min: float | None = 
       later version of the bank's.
 
   Example:
+    >>> bank = mwbx.refine(bank, 4, "ball", t_min=1.0, n_samples=16)
     >>> bank = mwbx.refine(bank, 4, scene="configs/refrigerator_toy_block.yaml", add="block", t_min=0.0,
     ...                    n_samples=16)
-    >>> bank = mwbx.refine(bank, 4, remove="bucket_top", t_min=1.0, n_samples=16)
   """
-  return run_refinement(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
-                        backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
-                        progress=progress, scene=scene, add=add, remove=remove).bank
+  request = world if isinstance(world, RefineRequest) else RefineRequest(world, objects, **fields)
+  return refinement(bank, request, progress).bank
 
 
-class Refinement(NamedTuple):
-  """What one refinement made (:func:`run_refinement`; what ``mwbx refine`` reports).
+@dataclasses.dataclass(frozen=True)
+class Refinement:
+  """What one refinement made (:func:`refinement`; what ``mwbx refine`` reports).
 
   Attributes:
-    bank: the bank with the refined worlds appended (in ``scene``'s version if given).
+    parent_bank: the bank refined (in ``scene``'s version if given).
     new: the refined worlds alone (ids from the bank's ``next_world_id`` on).
     stats: timing and perturbation audit.
-    plan: the refinement as resolved (objects, t_min, frame, key, …).
-    scene_version: the scene version the bank moved to for ``scene=``; None:
+    plan: the refinement as resolved (objects, t_min, frame, key, ...).
+    scene_version: the scene version the bank moved to for ``scene``; None:
       it stayed in its own.
   """
 
-  bank: bank_lib.Bank
+  parent_bank: bank_lib.Bank
   new: bank_lib.Bank
   stats: RefineStats
   plan: RefinePlan
   scene_version: int | None
 
+  @property
+  def bank(self) -> bank_lib.Bank:
+    """The bank with the refined worlds appended (made on each access)."""
+    return self.parent_bank.append(self.new)
 
-def run_refinement(bank, world: int, objects=(), *, frustum=None, t_min: float | None = None, n_samples: int,
-                   key: jax.Array | None = None, backend: str | None = None, chunk_size: int | None = None,
-                   margin: float = DEFAULT_MARGIN, playback: str = "step", loop: str = "auto", progress=None,
-                   scene=None, add=(), remove=()) -> Refinement:
-  """:func:`refine`, returning the new worlds and stats beside the grown bank
-  (arguments as :func:`refine`)."""
+
+def refinement(bank, request: RefineRequest, progress=None) -> Refinement:
+  """The one refinement entry: moves the bank to ``request.scene`` if given,
+  resolves and checks the request (:func:`plan_refinement`), runs it on the
+  bank scene's sampler and returns what it made.
+
+  Example::
+
+    done = refinement(bank, RefineRequest(4, "ball", t_min=1.0, n_samples=16))
+    done.new.world_ids, done.stats.world_steps
+  """
   start_wall = time.perf_counter()
   moved = None
-  if scene is not None:
+  if request.scene is not None:
     before = bank.digest
-    bank = bank.with_scene(as_scene(scene), progress)
+    bank = bank.with_scene(as_scene(request.scene), progress)
     moved = len(bank.versions) if bank.digest != before else None
-  plan = plan_refinement(bank, world, objects, frustum=frustum, t_min=t_min, n_samples=n_samples, key=key,
-                         backend=backend, chunk_size=chunk_size, margin=margin, playback=playback, loop=loop,
-                         add=add, remove=remove)
+  plan = plan_refinement(bank, request)
   new, stats = run_plan(bank, plan, sampler_for(bank, plan.backend), progress, start_wall)
-  return Refinement(bank=bank.append(new), new=new, stats=stats, plan=plan, scene_version=moved)
+  return Refinement(parent_bank=bank, new=new, stats=stats, plan=plan, scene_version=moved)
 
 
 def as_scene(scene):

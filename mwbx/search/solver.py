@@ -67,7 +67,7 @@ from mwbx.queries import metric, query_gaps
 from mwbx.queries.paths import body_radii
 from mwbx.queries.query import as_queries
 from mwbx.queries.selection import selection_mask
-from mwbx.refinement import refine_run, sampler_for
+from mwbx.refinement import RefineRequest, refinement, sampler_for
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
 from mwbx.search.objects import spare_objects
 
@@ -608,8 +608,9 @@ class _Search:
   def refine(self, world: int, objects, t_min: float, samples: int, keep: int) -> None:
     """Refines ``objects`` of ``world`` from ``t_min``; keeps its ``keep`` best
     valid children in the bank."""
-    children, stats = refine_run(self.bank, world, objects, t_min=t_min, n_samples=samples,
-                                 key=stream_key(self.key, KeyStream.REFINE, self.refinements), backend=self.backend)
+    done = refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=samples, backend=self.backend,
+                                               key=stream_key(self.key, KeyStream.REFINE, self.refinements)))
+    children, stats = done.new, done.stats
     self.refinements += 1
     self.spent_steps += int(stats.world_steps)
     c_gaps = query_gaps(children, self.queries)

@@ -12,8 +12,14 @@ import pytest
 import mwbx
 from mwbx.bank.core import Bank
 from mwbx.errors import MwbxError
-from mwbx.refinement import plan_refinement, refine_run, run_refinement, runners, sampler_for
+from mwbx.refinement import RefineRequest, plan_refinement, refinement, runners, sampler_for
 from mwbx.refinement.plan import run_plan
+
+
+def refine_run(bank, world, objects=(), *, progress=None, **fields):
+  """The refined worlds alone and their stats (through the one entry, :func:`mwbx.refinement.refinement`)."""
+  done = refinement(bank, RefineRequest(world, objects, **fields), progress)
+  return done.new, done.stats
 
 TINY = pathlib.Path(__file__).parents[1] / "scenes" / "tiny.yaml"
 ARRAYS = ("world_ids", "keys", "flags", "frame_count", "com", "com_count", "metrics", "perturbations", "steps",
@@ -35,8 +41,8 @@ def _same(a, b):
 
 
 def test_the_plan_holds_the_resolved_refinement(bank):
-  plan = plan_refinement(bank, 2, "ball", t_min=0.31, n_samples=3, key=jax.random.key(1), backend="native",
-                         chunk_size=2, remove="cube")
+  plan = plan_refinement(bank, RefineRequest(2, "ball", t_min=0.31, n_samples=3, key=jax.random.key(1),
+                                             backend="native", chunk_size=2, remove="cube"))
   assert (plan.world, plan.row, plan.objects, plan.removed, plan.added) == (2, 2, ("ball",), ("cube",), ())
   assert plan.first_frame == int(0.31 * bank.record_fps) and plan.t_min == pytest.approx(0.31)
   assert (plan.n_samples, plan.chunk, plan.first_id, plan.scene_version) == (3, 2, bank.next_world_id, 0)
@@ -76,15 +82,17 @@ def test_each_backend_has_its_runner(bank):
   mjx.check(sampler.scene.model, (), ())
 
 
-def test_run_refinement_returns_what_the_command_reports(bank):
-  done = run_refinement(bank, 2, "ball", t_min=0.3, n_samples=2, key=jax.random.key(4), backend="native")
+def test_refinement_returns_what_the_command_reports(bank):
+  request = RefineRequest(2, "ball", t_min=0.3, n_samples=2, key=jax.random.key(4), backend="native")
+  done = refinement(bank, request)
   assert done.scene_version is None and done.plan.objects == ("ball",)
   assert done.bank.n_worlds == bank.n_worlds + 2 and done.new.n_worlds == 2
   assert done.stats.world_steps == int(done.new.steps.sum()) > 0
   _same(done.bank, mwbx.refine(bank, 2, "ball", t_min=0.3, n_samples=2, key=jax.random.key(4),
                                backend="native"))
+  _same(done.bank, mwbx.refine(bank, request))  # the request itself, as refinement takes it
 
 
 def test_an_object_to_add_that_the_scene_lacks_names_the_scene_argument(bank):
   with pytest.raises(MwbxError, match=r"refine: add: unknown object or group 'ramp'.*scene=, mwbx refine --scene"):
-    run_refinement(bank, 2, add="ramp", t_min=0.3, n_samples=1, backend="native")
+    refinement(bank, RefineRequest(2, add="ramp", t_min=0.3, n_samples=1, backend="native"))
