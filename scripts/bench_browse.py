@@ -258,14 +258,14 @@ def main() -> None:
       if len(page.session.entries) > 3:  # keep a stack of a few queries, as a person would
         page.session.remove(0)
       start = time.perf_counter()
-      page.metric.value = bank.metric_names[k % len(bank.metric_names)]
+      page.ui.metric.value = bank.metric_names[k % len(bank.metric_names)]
       page.refresh()
       page.server.flush()
       sort_s.append(time.perf_counter() - start)
     geometry_s = []
     while page.session.entries:
       page.session.remove(0)
-    page.geometry.value = True
+    page.ui.geometry.value = True
     for k in range(args.geometry_boxes + 1):
       u0, v0 = rng.uniform(0.1, 0.7, 2)
       box = mq.ScreenBox(u0, v0, u0 + rng.uniform(0.05, 0.25), v0 + rng.uniform(0.05, 0.25))

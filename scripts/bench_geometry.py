@@ -63,7 +63,7 @@ def _page_updates(bank, camera, rng, n_boxes: int) -> dict:
       for shape in ("com", "geometry"):
         while page.session.entries:
           page.session.remove(0)
-        page.geometry.value = shape == "geometry"
+        page.ui.geometry.value = shape == "geometry"
         _page_round(page, camera, rng, shape, min(PAGE_ROUND, n_boxes - start_box), times[shape])
   finally:
     page.close()

@@ -116,7 +116,7 @@ class Browser:
     self.server.scene.configure_default_lights(True, cast_shadow=False)
     self._build_stage()
     self._build_gui()
-    self.player = Player(session, self.stage, paused=lambda: bool(self.paused.value), lock=self.lock)
+    self.player = Player(session, self.stage, paused=lambda: bool(self.ui.paused.value), lock=self.lock)
     self.refresh()
 
   @property
@@ -177,38 +177,38 @@ class Browser:
       self.player.forget()
       self.stage.remove()
       self._build_stage()
-      self.stage.set_side_by_side(self.side_by_side.value)
+      self.stage.set_side_by_side(self.ui.side_by_side.value)
       self.player.stage = self.stage
       self.playing_world = None
-    names = self._body_names()
-    self.bodies.options = names
-    self.objects.options = tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,)
-    with self.several_folder:
+    names = self.body_names()
+    self.ui.bodies.options = names
+    self.ui.objects.options = tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,)
+    with self.ui.several_folder:
       for name in names[1:]:
-        if name not in self.several:
-          self.several[name] = self.server.gui.add_checkbox(name, False)
-          self.several[name].on_update(lambda _: self.refresh())
-    self.playing_md.content = "no world playing (the scene changed)"
+        if name not in self.ui.several:
+          self.ui.several[name] = self.server.gui.add_checkbox(name, False)
+          self.ui.several[name].on_update(lambda _: self.refresh())
+    self.ui.playing_md.content = "no world playing (the scene changed)"
 
   # -- GUI --------------------------------------------------------------------------------
 
-  def _body_names(self) -> tuple[str, ...]:
+  def body_names(self) -> tuple[str, ...]:
     bank = self.session.bank
     return tuple([ALL_BODIES] + list(bank.groups) + list(bank.objects) + [
         f"body:{b}" for b in bank.body_names if b not in bank.objects])
 
   def _build_gui(self) -> None:
-    gui.build(self)
+    self.ui = gui.build(self)
 
   def _selection(self) -> tuple[str, ...] | None:
     """The bodies queries are about: the ticked *Several bodies*, else the
     *Bodies* choice (None: every tracked body)."""
-    ticked = tuple(name for name, box in self.several.items() if box.value)
+    ticked = tuple(name for name, box in self.ui.several.items() if box.value)
     if ticked:
       return ticked
-    return None if self.bodies.value == ALL_BODIES else (self.bodies.value,)
+    return None if self.ui.bodies.value == ALL_BODIES else (self.ui.bodies.value,)
 
-  def _report(self, action) -> None:
+  def report(self, action) -> None:
     try:
       message = action()
       self.refresh()
@@ -216,16 +216,16 @@ class Browser:
       message = f"error: {err}"
     self._say(message)
 
-  def _with_pick(self, action) -> None:
-    label = self.query_pick.value
+  def with_pick(self, action) -> None:
+    label = self.ui.query_pick.value
     if label.startswith("q"):
-      self._report(lambda: action(int(label[1:].split(" ")[0])) or f"{label}: done")
+      self.report(lambda: action(int(label[1:].split(" ")[0])) or f"{label}: done")
 
   def _window(self):
-    lo, hi = self.window.value
-    return None if (lo <= 0.0 and hi >= self.end_time) else (float(lo), float(hi))
+    lo, hi = self.ui.window.value
+    return None if (lo <= 0.0 and hi >= self.ui.end_time) else (float(lo), float(hi))
 
-  def _arm_box(self, sign: str, client) -> None:
+  def arm_box(self, sign: str, client) -> None:
     scene = self.server.scene
 
     @scene.on_rect_select()
@@ -233,50 +233,50 @@ class Browser:
       scene.remove_rect_select_callback(_)
       self._add_box(sign, event)
 
-    self.status_md.content = f"drag a box in the view for an {sign} query"
+    self.ui.status_md.content = f"drag a box in the view for an {sign} query"
 
   def _add_box(self, sign: str, event) -> None:
     camera = camera_from_client(event.client.camera)
     box = mq.ScreenBox.from_corners(event.screen_min, event.screen_max)
     bodies = self._selection()
     window = self._window()
-    shape = "geometry" if self.geometry.value else "com"
+    shape = "geometry" if self.ui.geometry.value else "com"
     try:
-      query = mq.Query.screen(camera, box, sign=sign, bodies=bodies, mode=self.mode.value, window=window,
+      query = mq.Query.screen(camera, box, sign=sign, bodies=bodies, mode=self.ui.mode.value, window=window,
                               name=f"q{len(self.session.entries)}", shape=shape)
       index = self.session.add(query)
     except MwbxError as err:
-      self.status_md.content = f"error: {err}"
+      self.ui.status_md.content = f"error: {err}"
       return
     count = self.refresh()
-    self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
+    self.ui.status_md.content = f"q{index}: {count.per_query[index]} worlds"
     LOG.info(f"query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
-          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
+          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.ui.mode.value} window={window}"
           f" camera eye={camera.eye.tolist()} right={camera.right.tolist()} up={camera.up.tolist()}"
           f" forward={camera.forward.tolist()} fovy={camera.fovy} aspect={camera.aspect}"
           f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={shape}")
 
-  def _add_orientation(self, upright: bool) -> None:
+  def add_orientation(self, upright: bool) -> None:
     bodies = self._selection()
     window = self._window()
-    goal = dict(axis=self.axis.value) if upright else dict(target="initial")
+    goal = dict(axis=self.ui.axis.value) if upright else dict(target="initial")
     try:
-      query = mq.OrientationQuery(bodies=bodies, within_deg=self.within.value, window=window, mode=self.mode.value,
+      query = mq.OrientationQuery(bodies=bodies, within_deg=self.ui.within.value, window=window, mode=self.ui.mode.value,
                                   name=f"q{len(self.session.entries)}", **goal)
       index = self.session.add(query)
     except MwbxError as err:
       self._say(f"error: {err}")
       return
     count = self.refresh()
-    self.status_md.content = f"q{index}: {count.per_query[index]} worlds"
-    what = f"upright axis={self.axis.value}" if upright else "initial"
+    self.ui.status_md.content = f"q{index}: {count.per_query[index]} worlds"
+    what = f"upright axis={self.ui.axis.value}" if upright else "initial"
     LOG.info(f"query {index} orientation {what} within_deg={query.within_deg}"
-          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.mode.value} window={window}"
+          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.ui.mode.value} window={window}"
           f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}")
 
-  def _add_touch(self, include: bool) -> None:
-    a, b = self.touch_a.value, self.touch_b.value
-    self._report(lambda: self._added(self.session.add(mq.TouchQuery(
+  def add_touch(self, include: bool) -> None:
+    a, b = self.ui.touch_a.value, self.ui.touch_b.value
+    self.report(lambda: self._added(self.session.add(mq.TouchQuery(
         a, b, window=self._window(), sign="include" if include else "exclude",
         name=f"q{len(self.session.entries)}"))))
 
@@ -284,12 +284,12 @@ class Browser:
     count = self.session.counts()
     return f"q{index} {self.session.entries[index].query.describe()}: {count.per_query[index]} worlds"
 
-  def _export(self) -> None:
+  def export(self) -> None:
     world = self.playing_world
     if world is None:
       self._say("export: play a world first (click one in the sorter)")
       return
-    self._report(lambda: f"world {world} written to {self.session.export(world, self.export_file.value)}")
+    self.report(lambda: f"world {world} written to {self.session.export(world, self.ui.export_file.value)}")
 
   # -- refresh ----------------------------------------------------------------------------
 
@@ -303,10 +303,10 @@ class Browser:
               else np.asarray(bank.select_bodies(list(selection))))
     with self.lock:
       left_out = drawing.draw_paths(self.server, self._handles, bank, bodies, view.match, view.rejected,
-                                    self.only_matches.value, simplify=self.path_simplifier)
+                                    self.ui.only_matches.value, simplify=self.path_simplifier)
       drawing.draw_frustums(self.server, self._handles, session.entries, self.frustum_depth)
       self._counts_text(view.counts, left_out)
-      self._sorter(view.counts)
+      self.sorter(view.counts)
     return view.counts
 
   def _counts_text(self, counts, left_out: dict) -> None:
@@ -318,36 +318,36 @@ class Browser:
     hidden = [f"{n} {name}" for name, n in left_out.items() if n]
     if hidden:
       lines.append(f"(paths not drawn: {', '.join(hidden)} worlds)")
-    self.counts_md.content = "\n".join(lines)
+    self.ui.counts_md.content = "\n".join(lines)
     labels = tuple(f"q{i} {e.query.sign}{'' if e.enabled else ' (off)'}" for i, e in enumerate(session.entries))
-    self.query_pick.options = labels or ("(none)",)
+    self.ui.query_pick.options = labels or ("(none)",)
 
-  def _sorter(self, counts=None) -> None:
+  def sorter(self, counts=None) -> None:
     session = self.session
     counts = session.counts() if counts is None else counts
     selection = self._selection()
     bodies = None if selection is None else list(selection)
     try:
-      rows = session.sorted_rows(self.metric.value, self.reduce.value, bodies=bodies)
+      rows = session.sorted_rows(self.ui.metric.value, self.ui.reduce.value, bodies=bodies)
     except MwbxError as err:
-      self.sorter_md.content = f"error: {err}"
+      self.ui.sorter_md.content = f"error: {err}"
       return
     closest = not counts.all and session.entries
     over = "every tracked body" if bodies is None else ", ".join(bodies)
-    if self.metric.value == ORIENTATION_ERROR:
+    if self.ui.metric.value == ORIENTATION_ERROR:
       over = f"the bodies of {session.orientation_query().name or 'the last orientation query'} (rad, smallest first)"
-    self.sorter_md.content = (f"{'closest worlds: ' if closest else ''}world · queries satisfied · "
-                              f"{self.metric.value}:{self.reduce.value} over {over} · parent")
-    with self.lock, self.sorter:
-      for button in self.row_buttons:
+    self.ui.sorter_md.content = (f"{'closest worlds: ' if closest else ''}world · queries satisfied · "
+                              f"{self.ui.metric.value}:{self.ui.reduce.value} over {over} · parent")
+    with self.lock, self.ui.sorter:
+      for button in self.ui.row_buttons:
         button.remove()
-      self.row_buttons = []
+      self.ui.row_buttons = []
       for r in rows:
         label = (f"world {r.world} · {r.satisfied} · {r.value:.4g}"
                  + ("" if r.parent < 0 else f" · from {r.parent}"))
         button = self.server.gui.add_button(label)
-        button.on_click(lambda _, world=r.world: self.play(world, add=self.compare.value))
-        self.row_buttons.append(button)
+        button.on_click(lambda _, world=r.world: self.play(world, add=self.ui.compare.value))
+        self.ui.row_buttons.append(button)
 
   # -- playback ---------------------------------------------------------------------------
 
@@ -368,23 +368,23 @@ class Browser:
       self.player.play(world, add=add)
       self.playing_world = world
       shown = ", ".join(f"world {w}" for w in self.player.played)
-      self.playing_md.content = f"playing **{shown}**"
-      self.lineage_md.content = "\n".join(f"- {line}" for line in self.session.lineage(world))
+      self.ui.playing_md.content = f"playing **{shown}**"
+      self.ui.lineage_md.content = "\n".join(f"- {line}" for line in self.session.lineage(world))
     self.server.flush()
     LOG.info(f"playing world {world}" + (" (added)" if add else ""))
 
-  def _layout(self) -> None:
+  def layout(self) -> None:
     with self.lock:
-      self.stage.set_side_by_side(self.side_by_side.value)
-    LOG.info(f"layout {'side by side' if self.side_by_side.value else 'overlay'}"
+      self.stage.set_side_by_side(self.ui.side_by_side.value)
+    LOG.info(f"layout {'side by side' if self.ui.side_by_side.value else 'overlay'}"
           f" of {list(self.player.played)}")
 
-  def _compare(self) -> None:
+  def compare(self) -> None:
     """Plays the worlds typed in *Worlds to compare* side by side, from the start."""
     try:
-      worlds = [int(w) for w in _names(self.chosen.value)]
+      worlds = [int(w) for w in _names(self.ui.chosen.value)]
     except ValueError:
-      self._say(f"error: worlds to compare: give 2 to {MAX_PLAYED} world ids, got {self.chosen.value!r}")
+      self._say(f"error: worlds to compare: give 2 to {MAX_PLAYED} world ids, got {self.ui.chosen.value!r}")
       return
     if not 2 <= len(worlds) <= MAX_PLAYED or len(set(worlds)) != len(worlds):
       self._say(f"error: worlds to compare: give 2 to {MAX_PLAYED} different world ids, got {worlds}")
@@ -395,45 +395,45 @@ class Browser:
       except MwbxError as err:
         self._say(f"error: worlds to compare: {err}")
         return
-    self.side_by_side.value = True  # (its callback lays the grid out)
+    self.ui.side_by_side.value = True  # (its callback lays the grid out)
     with self.lock:
       self.stage.set_side_by_side(True)
       for i, w in enumerate(worlds):
         self.play(w, add=i > 0)
     self._say(f"side by side: {', '.join(f'world {w}' for w in worlds)}")
 
-  def _seek(self) -> None:
-    self.player.seek(int(round(self.time_slider.value * self.session.bank.record_fps)))
+  def seek(self) -> None:
+    self.player.seek(int(round(self.ui.time_slider.value * self.session.bank.record_fps)))
 
   # -- refinement ---------------------------------------------------------------------------
 
-  def _refine(self) -> None:
+  def refine(self) -> None:
     with self.lock:
       world, frame = self.playing_world, self.player.frame
     if world is None:
-      self.status_md.content = "play a world first (the one to refine)"
+      self.ui.status_md.content = "play a world first (the one to refine)"
       return
-    objects = () if self.objects.value == NO_OBJECTS else self.objects.value
-    add, remove = _names(self.add_objects.value), _names(self.remove_objects.value)
+    objects = () if self.ui.objects.value == NO_OBJECTS else self.ui.objects.value
+    add, remove = _names(self.ui.add_objects.value), _names(self.ui.remove_objects.value)
     try:
       entering = [objects] if objects else list(add + remove)
-      t_min = (self.session.first_entry_of_last_box(world, entering) if self.start.value == FIRST_ENTRY
+      t_min = (self.session.first_entry_of_last_box(world, entering) if self.ui.start.value == FIRST_ENTRY
                else frame / self.session.bank.record_fps)
     except MwbxError as err:
-      self.status_md.content = f"error: {err}"
+      self.ui.status_md.content = f"error: {err}"
       return
-    n = self.samples.value  # any number a client sends: the session checks it
+    n = self.ui.samples.value  # any number a client sends: the session checks it
     try:
       n = int(n) if float(n) == int(n) else n
     except (TypeError, ValueError, OverflowError):
       pass
     try:
       job = self.session.refine(world, objects, t_min=t_min, n_samples=n, add=add, remove=remove,
-                                scene=self.scene_file.value)
+                                scene=self.ui.scene_file.value)
     except MwbxError as err:
       self._say(f"error: {err}")
       return
-    self.progress.visible = True
+    self.ui.progress.visible = True
     changes = "".join(f", {k} {','.join(v)}" for k, v in (("adding", add), ("removing", remove)) if v)
     LOG.info(f"refining {objects or 'no objects'} of world {world} from {t_min:.4f} s, {n} samples"
           f"{changes}")
@@ -441,8 +441,8 @@ class Browser:
     def watch():
       while not job.done.wait(0.1):
         if job.progress is not None:
-          self.progress.value = 100.0 * job.progress.done / max(1, job.progress.total)
-      self.progress.visible = False
+          self.ui.progress.value = 100.0 * job.progress.done / max(1, job.progress.total)
+      self.ui.progress.visible = False
       if job.cancelled:
         message = f"refinement of world {world} cancelled; nothing added"
       elif job.error:
@@ -456,22 +456,22 @@ class Browser:
 
     threading.Thread(target=watch, daemon=True, name="mwbx-refine-watch").start()
 
-  def _cancel(self) -> None:
+  def cancel(self) -> None:
     job = self.session.cancel()
     self._say("no refinement is running" if job is None else f"cancelling the refinement of world {job.world}")
 
   def _say(self, message: str) -> None:
     """The page's one way to report: its status line, and the log (``mwbx browse:`` lines)."""
-    self.status_md.content = message
+    self.ui.status_md.content = message
     LOG.info(message)
 
-  def _parent(self) -> None:
+  def parent(self) -> None:
     world = self.playing_world
     if world is None:
       return
     parent = self.session.parent(world)
     if parent is None:
-      self.status_md.content = f"world {world} was sampled: it has no parent"
+      self.ui.status_md.content = f"world {world} was sampled: it has no parent"
     else:
       self.play(parent)
 

@@ -9,6 +9,8 @@ scene changes, cancel, parent, save).
 
 from __future__ import annotations
 
+import types
+
 from mwbx import queries as mq
 from mwbx.browser.scene import MAX_SLOTS
 from mwbx.browser.session import MAX_REFINE_SAMPLES, ORIENTATION_ERROR, REDUCTIONS
@@ -21,113 +23,123 @@ BODY_AXES = ("z", "y", "x", "-z", "-y", "-x")
 MAX_PLAYED = MAX_SLOTS
 
 
-def build(page) -> None:
-  """Adds the widgets to ``page.server.gui`` and keeps the ones read later as
-  attributes of ``page`` (``bodies``, ``several``, ``geometry``, ``metric``, ...)."""
+class Widgets(types.SimpleNamespace):
+  """The page's widgets that the :class:`~mwbx.browser.app.Browser` reads or
+  updates (``bodies``, ``several``, ``geometry``, ``window``, ``metric``,
+  ``sorter``, ``time_slider``, ``status_md``, ...), and ``end_time``, the
+  time sliders' span (s)."""
+
+
+def build(page) -> Widgets:
+  """Adds the widgets to ``page.server.gui``, each wired to the page's
+  actions (``page.refresh``, ``page.arm_box``, ``page.refine``, ...), and
+  returns the ones read later."""
+  w = Widgets()
   gui = page.server.gui
   bank = page.session.bank
-  names = page._body_names()
+  names = page.body_names()
   end = float((int(bank.frame_count.max()) - 1) / bank.record_fps) if bank.n_worlds else 1.0
-  page.end_time = end
+  w.end_time = end
   with gui.add_folder("Queries"):
-    page.counts_md = gui.add_markdown("")
-    page.bodies = gui.add_dropdown("Bodies", names, initial_value=ALL_BODIES)
-    page.several_folder = gui.add_folder("Several bodies", expand_by_default=False)
-    with page.several_folder:
+    w.counts_md = gui.add_markdown("")
+    w.bodies = gui.add_dropdown("Bodies", names, initial_value=ALL_BODIES)
+    w.several_folder = gui.add_folder("Several bodies", expand_by_default=False)
+    with w.several_folder:
       gui.add_markdown("tick any number: they replace *Bodies*")
-      page.several = {}
+      w.several = {}
       for name in names[1:]:
-        page.several[name] = gui.add_checkbox(name, False)
-        page.several[name].on_update(lambda _: page.refresh())
-    page.mode = gui.add_dropdown("Mode", ("any", "all"), initial_value="any")
-    page.geometry = gui.add_checkbox("Whole geometry", False,
+        w.several[name] = gui.add_checkbox(name, False)
+        w.several[name].on_update(lambda _: page.refresh())
+    w.mode = gui.add_dropdown("Mode", ("any", "all"), initial_value="any")
+    w.geometry = gui.add_checkbox("Whole geometry", False,
                                      hint="a box asks about any point of the bodies' geoms, not their COM")
-    page.only_matches = gui.add_checkbox("Only matching paths", False)
-    page.only_matches.on_update(lambda _: page.refresh())
-    page.bodies.on_update(lambda _: page.refresh())
-    page.window = gui.add_multi_slider("Time window (s)", 0.0, max(end, 1e-3), max(end, 1e-3) / 100,
+    w.only_matches = gui.add_checkbox("Only matching paths", False)
+    w.only_matches.on_update(lambda _: page.refresh())
+    w.bodies.on_update(lambda _: page.refresh())
+    w.window = gui.add_multi_slider("Time window (s)", 0.0, max(end, 1e-3), max(end, 1e-3) / 100,
                                        (0.0, max(end, 1e-3)))
     include = gui.add_button("Draw include box")
     exclude = gui.add_button("Draw exclude box")
-    include.on_click(lambda event: page._arm_box("include", event.client))
-    exclude.on_click(lambda event: page._arm_box("exclude", event.client))
-    page.query_pick = gui.add_dropdown("Query", ("(none)",), initial_value="(none)")
+    include.on_click(lambda event: page.arm_box("include", event.client))
+    exclude.on_click(lambda event: page.arm_box("exclude", event.client))
+    w.query_pick = gui.add_dropdown("Query", ("(none)",), initial_value="(none)")
     toggle = gui.add_button("Toggle query")
     remove = gui.add_button("Remove query")
-    toggle.on_click(lambda _: page._with_pick(page.session.toggle))
-    remove.on_click(lambda _: page._with_pick(page.session.remove))
+    toggle.on_click(lambda _: page.with_pick(page.session.toggle))
+    remove.on_click(lambda _: page.with_pick(page.session.remove))
     undo = gui.add_button("Undo")
     redo = gui.add_button("Redo")
     undo.on_click(lambda _: page.session.undo() and page.refresh())
     redo.on_click(lambda _: page.session.redo() and page.refresh())
-    page.query_file = gui.add_text("Query file", "queries.yaml",
+    w.query_file = gui.add_text("Query file", "queries.yaml",
                                    hint=f"a .yaml file under {page.session.query_dir}")
     save_q = gui.add_button("Save queries")
     open_q = gui.add_button("Open queries")
-    save_q.on_click(lambda _: page._report(lambda: f"saved {page.session.save_queries(page.query_file.value)}"))
-    open_q.on_click(lambda _: page._report(lambda: page.session.open_queries(page.query_file.value)
-                                           or f"opened {page.query_file.value.strip()}"))
+    save_q.on_click(lambda _: page.report(lambda: f"saved {page.session.save_queries(w.query_file.value)}"))
+    open_q.on_click(lambda _: page.report(lambda: page.session.open_queries(w.query_file.value)
+                                           or f"opened {w.query_file.value.strip()}"))
   with gui.add_folder("Orientation"):
     gui.add_markdown("for the chosen bodies; the window as above (whole span: at the end)")
-    page.axis = gui.add_dropdown("Body axis up", BODY_AXES, initial_value="z")
-    page.within = gui.add_number("Within (deg)", 15.0, min=0.0, max=180.0, step=1.0)
+    w.axis = gui.add_dropdown("Body axis up", BODY_AXES, initial_value="z")
+    w.within = gui.add_number("Within (deg)", 15.0, min=0.0, max=180.0, step=1.0)
     upright = gui.add_button("Upright at the end")
     initial = gui.add_button("Near its initial orientation")
-    upright.on_click(lambda _: page._add_orientation(upright=True))
-    initial.on_click(lambda _: page._add_orientation(upright=False))
+    upright.on_click(lambda _: page.add_orientation(upright=True))
+    initial.on_click(lambda _: page.add_orientation(upright=False))
   with gui.add_folder("Contacts"):
     gui.add_markdown("two sides that touch, or never touch, in the time window above")
     actors = tuple(bank.event_actors) + tuple(bank.groups) or ("(no contact events in this bank)",)
-    page.touch_a = gui.add_dropdown("This", actors, initial_value=actors[0])
-    page.touch_b = gui.add_dropdown("touches", actors, initial_value=actors[min(1, len(actors) - 1)])
+    w.touch_a = gui.add_dropdown("This", actors, initial_value=actors[0])
+    w.touch_b = gui.add_dropdown("touches", actors, initial_value=actors[min(1, len(actors) - 1)])
     touches = gui.add_button("Add: they touch")
     never = gui.add_button("Add: they never touch")
-    touches.on_click(lambda _: page._add_touch(include=True))
-    never.on_click(lambda _: page._add_touch(include=False))
+    touches.on_click(lambda _: page.add_touch(include=True))
+    never.on_click(lambda _: page.add_touch(include=False))
   with gui.add_folder("Sorter"):
-    page.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS, ORIENTATION_ERROR),
+    w.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS, ORIENTATION_ERROR),
                                    initial_value=bank.metric_names[0])
-    page.reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
-    page.metric.on_update(lambda _: page._sorter())
-    page.reduce.on_update(lambda _: page._sorter())
-    page.sorter_md = gui.add_markdown("")
-    page.compare = gui.add_checkbox("Add to the playing worlds", False,
+    w.reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
+    w.metric.on_update(lambda _: page.sorter())
+    w.reduce.on_update(lambda _: page.sorter())
+    w.sorter_md = gui.add_markdown("")
+    w.compare = gui.add_checkbox("Add to the playing worlds", False,
                                     hint=f"play up to {MAX_PLAYED} worlds at once, each labelled with its id")
-    page.side_by_side = gui.add_checkbox("Side by side", False,
+    w.side_by_side = gui.add_checkbox("Side by side", False,
                                          hint="the played worlds in a grid of copies of the scene, not overlaid")
-    page.side_by_side.on_update(lambda _: page._layout())
-    page.chosen = gui.add_text("Worlds to compare", "", hint=f"2 to {MAX_PLAYED} world ids, e.g. 3, 7, 12")
+    w.side_by_side.on_update(lambda _: page.layout())
+    w.chosen = gui.add_text("Worlds to compare", "", hint=f"2 to {MAX_PLAYED} world ids, e.g. 3, 7, 12")
     compare = gui.add_button("Show side by side")
-    compare.on_click(lambda _: page._compare())
-    page.sorter = gui.add_folder("Worlds (click to play)")
-    page.row_buttons: list = []
+    compare.on_click(lambda _: page.compare())
+    w.sorter = gui.add_folder("Worlds (click to play)")
+    w.row_buttons: list = []
   with gui.add_folder("Playback"):
-    page.playing_md = gui.add_markdown("no world playing")
-    page.lineage_md = gui.add_markdown("")
-    page.paused = gui.add_checkbox("Pause", False)
-    page.time_slider = gui.add_slider("Time (s)", 0.0, max(end, 1e-3), 1.0 / bank.record_fps, 0.0)
-    page.time_slider.on_update(lambda _: page._seek())
-    page.export_file = gui.add_text("Export file", "world.usd", hint="a .usd, .mp4 or .npz file under "
+    w.playing_md = gui.add_markdown("no world playing")
+    w.lineage_md = gui.add_markdown("")
+    w.paused = gui.add_checkbox("Pause", False)
+    w.time_slider = gui.add_slider("Time (s)", 0.0, max(end, 1e-3), 1.0 / bank.record_fps, 0.0)
+    w.time_slider.on_update(lambda _: page.seek())
+    w.export_file = gui.add_text("Export file", "world.usd", hint="a .usd, .mp4 or .npz file under "
                                     f"{page.session.query_dir}")
     export = gui.add_button("Export playing world")
-    export.on_click(lambda _: page._export())
+    export.on_click(lambda _: page.export())
   with gui.add_folder("Refine"):
-    page.objects = gui.add_dropdown("Objects", tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,),
+    w.objects = gui.add_dropdown("Objects", tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,),
                                     initial_value=next(iter(bank.objects)))
-    page.start = gui.add_dropdown("From", (CURRENT_TIME, FIRST_ENTRY), initial_value=CURRENT_TIME)
-    page.samples = gui.add_number("Samples", 16, min=1, max=MAX_REFINE_SAMPLES, step=1,
+    w.start = gui.add_dropdown("From", (CURRENT_TIME, FIRST_ENTRY), initial_value=CURRENT_TIME)
+    w.samples = gui.add_number("Samples", 16, min=1, max=MAX_REFINE_SAMPLES, step=1,
                                   hint=f"1 to {MAX_REFINE_SAMPLES}")
-    page.scene_file = gui.add_text("Scene file", "", hint="a later scene version (.yaml under "
+    w.scene_file = gui.add_text("Scene file", "", hint="a later scene version (.yaml under "
                                    f"{page.session.query_dir}) holding the objects to add; blank: none")
-    page.add_objects = gui.add_text("Add objects", "", hint="objects of the scene file, inserted at the start time")
-    page.remove_objects = gui.add_text("Remove objects", "", hint="objects parked from the start time on")
+    w.add_objects = gui.add_text("Add objects", "", hint="objects of the scene file, inserted at the start time")
+    w.remove_objects = gui.add_text("Remove objects", "", hint="objects parked from the start time on")
     refine = gui.add_button("Refine playing world")
-    refine.on_click(lambda _: page._refine())
+    refine.on_click(lambda _: page.refine())
     cancel = gui.add_button("Cancel refinement")
-    cancel.on_click(lambda _: page._cancel())
-    page.progress = gui.add_progress_bar(0.0, visible=False)
+    cancel.on_click(lambda _: page.cancel())
+    w.progress = gui.add_progress_bar(0.0, visible=False)
     parent = gui.add_button("Go to parent")
-    parent.on_click(lambda _: page._parent())
+    parent.on_click(lambda _: page.parent())
     save = gui.add_button("Save bank")
-    save.on_click(lambda _: page._report(lambda: f"saved {page.session.save()}"))
-    page.status_md = gui.add_markdown("")
+    save.on_click(lambda _: page.report(lambda: f"saved {page.session.save()}"))
+    w.status_md = gui.add_markdown("")
+  return w

@@ -199,11 +199,11 @@ def test_replaying_uploads_no_meshes_and_side_by_side_cells(tmp_path):
     # The poses shown are the decoded world's at the shared frame.
     from mwbx.viewer.kinematics import body_trajectories
     pos, _ = body_trajectories(page.model, bank.qpos_frames(2).astype(np.float64), page.stage.body_ids)
-    page.paused.value = True
+    page.ui.paused.value = True
     page.player.seek(5)
     frames = page.stage.slot(page.player.played[2])
     np.testing.assert_allclose(frames[int(page.stage.body_ids[0])].position, pos[5, 0], atol=1e-6)
-    page.side_by_side.value = True
+    page.ui.side_by_side.value = True
     page.stage.set_side_by_side(True)
     assert [page.stage._slots[k][3].text for k in range(3)] == ["world 0", "world 1", "world 2"]
     offsets = [tuple(page.stage.offset(k)) for k in range(3)]

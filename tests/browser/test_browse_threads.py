@@ -21,7 +21,7 @@ def test_gui_callbacks_and_playback_hold_one_lock():
     done: list[str] = []
     threads = [threading.Thread(target=lambda: (page.refresh(), done.append("refresh"))),
                threading.Thread(target=lambda: (page.play(world), done.append("play"))),
-               threading.Thread(target=lambda: (page._sorter(), done.append("sorter")))]
+               threading.Thread(target=lambda: (page.sorter(), done.append("sorter")))]
     with page.lock:  # as the playback thread holds it while it poses the played worlds
       for t in threads:
         t.start()
