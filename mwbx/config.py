@@ -80,6 +80,9 @@ class Distribution(_Strict):
 
 class Randomization(_Strict):
   """Initial-condition noise for one object (or every object of a group).
+  For a flex, position and linear velocity move all of its vertices alike,
+  rotation and angular velocity turn them about their mean (world frame);
+  joint_noise is refused.
 
   Attributes:
     position: offset of the root position, metres (3 components).
@@ -103,8 +106,8 @@ class SceneSection(_Strict):
   Attributes:
     mjcf: path of the MJCF file, relative to the config file; if no such file
       exists, the packaged asset of that name (``mwbx/assets``).
-    objects: root bodies (children of the world body) to treat as objects;
-      default every non-static tree.
+    objects: root bodies (children of the world body) and flexes (by their
+      MJCF name) to treat as objects; default every non-static tree and flex.
     track: bodies tracked for queries and metrics; default every body of
       every object.
     groups: named sets of objects (or other groups); a member with ``*``, ``?``

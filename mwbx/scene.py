@@ -2,7 +2,9 @@
 initial-condition randomization of each world.
 
 An *object* is a kinematic tree hanging off the world body (a free box, a
-ragdoll); its name is the name of its root body. *Tracked* bodies are the ones
+ragdoll); its name is the name of its root body. A flex (``<flexcomp>``: cloth,
+a rope, a soft solid) is one object named as in the MJCF, its bodies its
+moving vertex bodies (:func:`find_objects`). *Tracked* bodies are the ones
 whose centre-of-mass paths and metrics are recorded. *Groups* name sets of
 objects. Every name a config uses is checked here, with a message naming the
 config file and field.
@@ -154,6 +156,9 @@ class ObjectInit:
     joint_qpos: i32[k] qpos addresses of its hinge/slide joints.
     position, rotation, linear_velocity, angular_velocity, joint_noise: the
       distributions (None: no noise).
+    flex: a flex's :class:`FlexMotion` (its position and velocity fields move
+      all of its vertices; rotation and angular velocity are about the mean of
+      its vertices at ``qpos0``, in the world frame), else None.
   """
 
   name: str
@@ -165,6 +170,7 @@ class ObjectInit:
   linear_velocity: Distribution | None
   angular_velocity: Distribution | None
   joint_noise: Distribution | None
+  flex: "FlexMotion | None" = None
 
 
 # The randomized quantities of an object, in the order of their keys
@@ -189,6 +195,122 @@ class NoiseSlot:
   dist: Distribution
 
 
+def flex_bodies(model: mujoco.MjModel) -> dict[str, tuple[int, ...]]:
+  """Flex name -> ids (ascending) of the moving bodies that carry it: its
+  vertex bodies, or the node bodies of an interpolated flex
+  (``dof="trilinear"``/``"quadratic"``). Vertices pinned to the world or to a
+  static body (no degrees of freedom) are left out. Unnamed flexes get no
+  entry here (:func:`find_objects` refuses them)."""
+  out: dict[str, tuple[int, ...]] = {}
+  for f in range(model.nflex):
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f)
+    if not name:
+      continue
+    verts = model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]
+    nodes = model.flex_nodebodyid[model.flex_nodeadr[f]:model.flex_nodeadr[f] + model.flex_nodenum[f]]
+    ids = {int(b) for b in np.concatenate([verts, nodes]) if b > 0 and model.body_dofnum[b] > 0}
+    out[name] = tuple(sorted(ids))
+  return out
+
+
+def object_body_mask(model: mujoco.MjModel, names) -> np.ndarray:
+  """bool[O, nbody] each named object's bodies (a root body's tree, or a
+  flex's vertex bodies: :func:`find_objects`)."""
+  objects = find_objects(model, "model")
+  mask = np.zeros((len(names), model.nbody), bool)
+  for o, name in enumerate(names):
+    mask[o, objects[name]] = True
+  return mask
+
+
+def find_objects(model: mujoco.MjModel, source: str) -> dict[str, list[int]]:
+  """Every candidate object -> its body ids (ascending), in object order.
+
+  A rigid object is a moving root body (a child of the world body with
+  degrees of freedom) and its kinematic tree, named after the root body. A
+  flex (``<flexcomp>``) is one object named as in the MJCF, its bodies its
+  moving vertex bodies (:func:`flex_bodies`) that do not already belong to a
+  rigid object's tree (a flex inside a moving body stays part of that body's
+  object); it takes the place its first vertex body would have had. A scene
+  without flexes gets exactly the objects, in the order, it always had.
+
+  Raises:
+    MwbxError: an unnamed moving root body or flex, a flex named like a root
+      body, or no moving bodies at all.
+  """
+  body_name = lambda i: mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, i)
+  rigid_root = lambda i: model.body_parentid[i] == 0 and model.body_dofnum[i] > 0
+  flexes = flex_bodies(model)
+  unnamed_flex = [f for f in range(model.nflex) if not mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f)]
+  if unnamed_flex:
+    raise MwbxError(f"{source}: scene.mjcf: flexes need names (flex ids {unnamed_flex})")
+  flex_of = {}  # body id -> the flex whose object takes it
+  for name, ids in flexes.items():
+    for b in ids:
+      root = int(model.body_rootid[b])
+      if root == b or not rigid_root(root):
+        flex_of.setdefault(b, name)
+  roots = [i for i in range(1, model.nbody) if rigid_root(i) and i not in flex_of]
+  unnamed = [i for i in roots if not body_name(i)]
+  if unnamed:
+    raise MwbxError(f"{source}: scene.mjcf: moving root bodies need names (body ids {unnamed})")
+  clash = sorted(set(flex_of.values()) & {body_name(i) for i in roots})
+  if clash:
+    raise MwbxError(f"{source}: scene.mjcf: flex {clash[0]!r} has the name of a moving root body; rename one")
+  out: dict[str, list[int]] = {}
+  for i in range(1, model.nbody):
+    if i in flex_of:
+      out.setdefault(flex_of[i], []).append(i)
+    elif rigid_root(i):
+      out[body_name(i)] = [j for j in range(1, model.nbody) if model.body_rootid[j] == i]
+  if not out:
+    raise MwbxError(f"{source}: scene.mjcf: no moving bodies (nothing hangs off the world body by a"
+                    f" joint), so there is nothing to sample")
+  return out
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class FlexMotion:
+  """How a flex moves as a whole: each of its n moving bodies (vertex or node
+  bodies, :func:`flex_bodies`) has three slide joints.
+
+  Attributes:
+    qpos: i32[n, 3] qpos addresses of each body's slide joints.
+    dof: i32[n, 3] their dof addresses.
+    to_joints: f64[n, 3, 3] maps a world-frame displacement of a body to its
+      slide joints' coordinates (the inverse of their world axes).
+    arm: f64[n, 3] each body's position at ``qpos0`` less their mean (the
+      centre a flex's ``rotation`` and ``angular_velocity`` turn about).
+  """
+
+  qpos: np.ndarray
+  dof: np.ndarray
+  to_joints: np.ndarray
+  arm: np.ndarray
+
+
+def flex_motion(model: mujoco.MjModel, bodies: Sequence[int]) -> FlexMotion | str:
+  """The :class:`FlexMotion` of a flex's bodies, or why it has none (a body
+  whose joints are not three independent slides, e.g. ``dof="radial"``)."""
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  qpos, dof, to_joints = [], [], []
+  for b in bodies:
+    joints = list(range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]))
+    axes = data.xaxis[joints].T if joints else np.zeros((3, 0))
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b)
+    if (len(joints) != 3 or any(int(model.jnt_type[j]) != JNT_SLIDE for j in joints)
+        or abs(np.linalg.det(axes)) < 1e-6 or model.body_dofnum[model.body_parentid[b]] > 0):
+      return (f"its body {name!r} has {len(joints)} joint(s), not three independent slide joints"
+              f" off a static parent, so the flex cannot be moved as a whole")
+    qpos.append(model.jnt_qposadr[joints])
+    dof.append(model.jnt_dofadr[joints])
+    to_joints.append(np.linalg.inv(axes))
+  pos = data.xpos[list(bodies)]
+  return FlexMotion(np.array(qpos, np.int32), np.array(dof, np.int32), np.array(to_joints),
+                    pos - pos.mean(axis=0))
+
+
 class Scene:
   """A loaded scene: model, objects, tracked bodies, groups, randomization.
 
@@ -201,12 +323,14 @@ class Scene:
     mjcf_dir: where its meshes and textures are found.
     digest: sha256 of the config, the MJCF and its includes.
     model: ``MjModel`` with the observation sensors added.
-    object_names: names of the objects (root bodies).
+    object_names: names of the objects (root bodies and flexes).
+    flex_objects: the object names that are flexes.
     objects: object name -> tracked body names.
     groups: group name -> object names (nested groups flattened).
     body_names: the B tracked bodies.
     body_ids: i32[B] MuJoCo body ids of the tracked bodies.
-    perturbable: bool[B] false for bodies opted out of perturbations.
+    perturbable: bool[B] false for bodies opted out of perturbations
+      (``perturb.exclude``) and for every flex body.
   """
 
   def __init__(self, config: Config, mjcf_text: str | None = None, mjcf_dir: str | None = None,
@@ -239,30 +363,16 @@ class Scene:
     self.digest = config.digest(mjcf_text, self.mjcf_includes)
 
     body_name = lambda i: mujoco.mj_id2name(plain_model, mujoco.mjtObj.mjOBJ_BODY, i)
-    roots = [
-        i for i in range(1, plain_model.nbody)
-        if plain_model.body_parentid[i] == 0 and plain_model.body_dofnum[i] > 0
-    ]
-    root_names = {body_name(i): i for i in roots}
-    unnamed = [i for i in roots if not body_name(i)]
-    if unnamed:
-      raise MwbxError(f"{source}: scene.mjcf: moving root bodies need names (body ids {unnamed})")
-
-    if not root_names:
-      raise MwbxError(f"{source}: scene.mjcf: no moving bodies (nothing hangs off the world body by a"
-                      f" joint), so there is nothing to sample")
-    object_names = config.scene.objects or tuple(root_names)
+    subtree = find_objects(plain_model, source)  # every candidate object -> its body ids
+    object_names = config.scene.objects or tuple(subtree)
     for name in object_names:
-      if name not in root_names:
+      if name not in subtree:
         raise MwbxError(
             f"{source}: scene.objects: {name!r} is not a moving body hanging off the world body"
-            f" (have: {', '.join(root_names)})"
+            f" nor a flex (have: {', '.join(subtree)})"
         )
     self.object_names = tuple(object_names)
-    subtree = {
-        name: [i for i in range(1, plain_model.nbody) if plain_model.body_rootid[i] == root_names[name]]
-        for name in self.object_names
-    }
+    self.flex_objects = tuple(n for n in self.object_names if n in flex_bodies(plain_model))
     all_bodies = [body_name(i) for name in self.object_names for i in subtree[name]]
     if config.scene.track is None:
       tracked = all_bodies
@@ -285,7 +395,10 @@ class Scene:
     excluded = self.select_bodies(config.perturb.exclude, field="perturb.exclude")
     self.perturbable = np.ones(len(self.body_names), bool)
     self.perturbable[excluded] = False
-    self.object_inits = self._object_inits(source, subtree, root_names)
+    # A flex's vertex bodies are never perturbed one by one (docs/sampling.md, "Flexes").
+    flex_body_ids = [b for bodies in flex_bodies(plain_model).values() for b in bodies]
+    self.perturbable[np.isin(self.body_ids, flex_body_ids)] = False
+    self.object_inits = self._object_inits(source, subtree)
     controls.actuator_ids(self.model, config.controls, source)  # names each unknown actuator
 
   # -- names ------------------------------------------------------------------
@@ -326,7 +439,7 @@ class Scene:
 
   # -- randomization ------------------------------------------------------------
 
-  def _object_inits(self, source, subtree, root_names) -> tuple[ObjectInit, ...]:
+  def _object_inits(self, source, subtree) -> tuple[ObjectInit, ...]:
     m = self.model
     per_object: dict[str, dict] = {}
     for key, randomization in self.config.randomize.items():
@@ -334,15 +447,25 @@ class Scene:
         per_object.setdefault(obj, {}).update(randomization.model_dump(exclude_none=True))
     inits = []
     for obj, fields in per_object.items():
-      root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, obj)
-      joints = [j for j in range(m.njnt) if m.body_rootid[m.jnt_bodyid[j]] == root]
-      free = [j for j in joints if int(m.jnt_type[j]) == JNT_FREE and m.jnt_bodyid[j] == root]
-      scalar = [j for j in joints if int(m.jnt_type[j]) in (JNT_HINGE, JNT_SLIDE)]
-      for field in ("position", "rotation", "linear_velocity", "angular_velocity"):
-        if field in fields and not free:
-          raise MwbxError(f"{source}: randomize.{obj}.{field}: object {obj!r} has no free joint at its root")
-      if "joint_noise" in fields and not scalar:
-        raise MwbxError(f"{source}: randomize.{obj}.joint_noise: object {obj!r} has no hinge or slide joints")
+      flex = None
+      if obj in self.flex_objects:
+        free, scalar = [], []
+        if "joint_noise" in fields:
+          raise MwbxError(f"{source}: randomize.{obj}.joint_noise: object {obj!r} is a flex; its vertices are"
+                          f" not randomized one by one (position, rotation and the velocities move it whole)")
+        flex = flex_motion(m, subtree[obj])
+        if isinstance(flex, str):
+          raise MwbxError(f"{source}: randomize.{obj}.{next(iter(fields))}: flex {obj!r}: {flex}")
+      else:
+        root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, obj)
+        joints = [j for j in range(m.njnt) if m.body_rootid[m.jnt_bodyid[j]] == root]
+        free = [j for j in joints if int(m.jnt_type[j]) == JNT_FREE and m.jnt_bodyid[j] == root]
+        scalar = [j for j in joints if int(m.jnt_type[j]) in (JNT_HINGE, JNT_SLIDE)]
+        for field in ("position", "rotation", "linear_velocity", "angular_velocity"):
+          if field in fields and not free:
+            raise MwbxError(f"{source}: randomize.{obj}.{field}: object {obj!r} has no free joint at its root")
+        if "joint_noise" in fields and not scalar:
+          raise MwbxError(f"{source}: randomize.{obj}.joint_noise: object {obj!r} has no hinge or slide joints")
       dist = {k: Distribution.model_validate(v) for k, v in fields.items()}
       for k, d in dist.items():
         width = len(scalar) if k == "joint_noise" else 3
@@ -358,7 +481,7 @@ class Scene:
           joint_qpos=tuple(int(m.jnt_qposadr[j]) for j in scalar),
           position=dist.get("position"), rotation=dist.get("rotation"),
           linear_velocity=dist.get("linear_velocity"), angular_velocity=dist.get("angular_velocity"),
-          joint_noise=dist.get("joint_noise"),
+          joint_noise=dist.get("joint_noise"), flex=flex,
       ))
     return tuple(inits)
 
@@ -370,7 +493,7 @@ class Scene:
     slots, start = [], 0
     for init in self.object_inits:
       widths = {"joint_noise": len(init.joint_qpos)} if init.joint_qpos else {}
-      if init.free_qpos >= 0:
+      if init.free_qpos >= 0 or init.flex is not None:
         widths.update({f: 3 for f in RANDOMIZED_FIELDS[:4]})
       for field in RANDOMIZED_FIELDS:
         dist = getattr(init, field)
@@ -422,6 +545,15 @@ class Scene:
       if init.joint_qpos:
         idx = np.array(init.joint_qpos)
         qpos = qpos.at[idx].add(offset(init, "joint_noise", len(idx)))
+      if init.flex is not None:  # every vertex moved: a translation, then a turn about their mean
+        f = init.flex
+        arm = jnp.asarray(f.arm, jnp.float32)
+        turn = rotations.quat_to_matrix(rotations.quat_from_rotvec(offset(init, "rotation", 3)))
+        shift = arm @ turn.T - arm + offset(init, "position", 3)
+        speed = offset(init, "linear_velocity", 3) + jnp.cross(offset(init, "angular_velocity", 3), arm)
+        to_joints = jnp.asarray(f.to_joints, jnp.float32)
+        qpos = qpos.at[f.qpos].add(jnp.einsum("nij,nj->ni", to_joints, shift))
+        qvel = qvel.at[f.dof].add(jnp.einsum("nij,nj->ni", to_joints, speed))
     return qpos, qvel
 
   def initial_state(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -25,6 +25,8 @@ import math
 import mujoco
 import numpy as np
 
+from mwbx import scene as scene_lib
+
 from mwbx.bank.stores import store_for
 from mwbx.errors import MwbxError
 from mwbx.joints import JNT_FREE
@@ -55,9 +57,9 @@ def is_parked(points: np.ndarray) -> np.ndarray:
 def parked_columns(model: mujoco.MjModel, objects) -> np.ndarray:
   """bool[nq] the free-joint coordinates (position and orientation) of ``objects``."""
   out = np.zeros(model.nq, bool)
-  roots = [model.body(name).id for name in objects]
+  ours = scene_lib.object_body_mask(model, objects).any(axis=0)
   for j in range(model.njnt):
-    if model.body_rootid[model.jnt_bodyid[j]] in roots and model.jnt_type[j] == JNT_FREE:
+    if ours[model.jnt_bodyid[j]] and model.jnt_type[j] == JNT_FREE:
       out[model.jnt_qposadr[j]:model.jnt_qposadr[j] + 7] = True
   return out
 

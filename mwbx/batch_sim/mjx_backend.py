@@ -17,6 +17,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+
+from mwbx.errors import MwbxError
 from mujoco import mjx
 
 from mwbx import controls
@@ -186,7 +188,13 @@ class MjxBackend:
     self._blocks: dict = {}
 
   def _put(self, model: mujoco.MjModel):
-    mx = mjx.put_model(model, device=self.devices[0], impl=self.impl)
+    try:
+      mx = mjx.put_model(model, device=self.devices[0], impl=self.impl)
+    except NotImplementedError as err:  # e.g. "Flex not implemented for JAX backend."
+      flexes = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f) for f in range(model.nflex)]
+      what = f"the scene has flexes ({', '.join(flexes)}): " if flexes else ""
+      raise MwbxError(f"sim.backend: mjx (impl {self.impl}) cannot run this scene: {what}{str(err).rstrip('.')};"
+                      " use backend: native" + (" or mjx_impl: warp" if self.impl == "jax" else "")) from None
     if self.impl == "warp":  # overflows are read from its counters, not printed every step
       mx = mx.tree_replace({"opt._impl.warn_overflow": 0})
     else:

@@ -14,6 +14,7 @@ from typing import NamedTuple, Sequence
 import mujoco
 import numpy as np
 
+from mwbx import scene as scene_lib
 from mwbx.errors import MwbxError
 
 WORLD = "world"  # the unnamed static geoms
@@ -27,11 +28,22 @@ class Actors(NamedTuple):
       static geoms in model order, then ``world`` if any static geom is unnamed.
     geom_actor: i32[ngeom] each geom's actor (index into ``names``).
     n_objects: how many of ``names`` are objects (the first ones).
+    flex_actor: i32[nflex] each flex's actor (MuJoCo reports a flex's
+      contacts by flex, not geom): the object it is (a cloth) or belongs to.
   """
 
   names: tuple[str, ...]
   geom_actor: np.ndarray
   n_objects: int
+  flex_actor: np.ndarray = np.zeros(0, np.int32)
+
+  def of_contacts(self, geoms: np.ndarray, flexes: np.ndarray) -> np.ndarray:
+    """i64[K, 2] the actors of contacts: each side's geom's, or its flex's."""
+    geoms = np.asarray(geoms, np.int64)
+    flexes = np.asarray(flexes, np.int64)
+    by_geom = self.geom_actor[np.maximum(geoms, 0)]
+    by_flex = self.flex_actor[np.maximum(flexes, 0)] if len(self.flex_actor) else by_geom
+    return np.where(geoms >= 0, by_geom, by_flex).astype(np.int64)
 
   def index(self, name: str) -> int:
     """The actor named ``name``; MwbxError listing the actors otherwise."""
@@ -68,4 +80,13 @@ def actors_of(model: mujoco.MjModel, objects: Sequence[str]) -> Actors:
       unnamed = True
   names = tuple(objects) + tuple(static_names) + ((WORLD,) if unnamed else ())
   geom_actor[geom_actor < 0] = len(names) - 1  # the unnamed static geoms: `world`
-  return Actors(names, geom_actor, len(objects))
+  flex_actor = np.full(model.nflex, len(names) - 1, np.int32)
+  if model.nflex:
+    bodies = scene_lib.find_objects(model, "contact events")
+    owner = {b: object_index[name] for name, ids in bodies.items() if name in object_index for b in ids}
+    for f in range(model.nflex):
+      vertices = model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]
+      found = [owner[int(b)] for b in vertices if int(b) in owner]
+      if found:
+        flex_actor[f] = found[0]
+  return Actors(names, geom_actor, len(objects), flex_actor)

@@ -56,7 +56,7 @@ def world_episodes(model: mujoco.MjModel, data: mujoco.MjData, actors: Actors, f
     i32[n, 4] ``(a, b, first, last)`` sorted by ``(a, b, first)``.
   """
   kinematics, collision = mujoco.mj_kinematics, mujoco.mj_collision
-  found_frames, found_geoms, found_dist = [], [], []
+  found_frames, found_geoms, found_flexes, found_dist = [], [], [], []
   qpos = data.qpos
   for f, frame in enumerate(np.asarray(frames, np.float64)):  # the per-frame loop stays minimal
     qpos[:] = frame
@@ -66,28 +66,29 @@ def world_episodes(model: mujoco.MjModel, data: mujoco.MjData, actors: Actors, f
     if n:
       contact = data.contact
       found_geoms.append(contact.geom[:n].copy())
+      found_flexes.append(contact.flex[:n].copy())
       found_dist.append(contact.dist[:n].copy())
       found_frames.append(np.full(n, f, np.int64))
-  return episodes(actors, np.concatenate(found_frames) if found_frames else np.zeros(0, np.int64),
-                  np.concatenate(found_geoms) if found_geoms else np.zeros((0, 2), np.int64),
-                  np.concatenate(found_dist) if found_dist else np.zeros(0), margin)
+  if not found_frames:
+    return np.zeros((0, 4), np.int32)
+  sides = actors.of_contacts(np.concatenate(found_geoms), np.concatenate(found_flexes))
+  return episodes(len(actors.names), np.concatenate(found_frames), sides, np.concatenate(found_dist), margin)
 
 
-def episodes(actors: Actors, frame: np.ndarray, geoms: np.ndarray, dist: np.ndarray, margin: float) -> np.ndarray:
+def episodes(n_actors: int, frame: np.ndarray, sides: np.ndarray, dist: np.ndarray, margin: float) -> np.ndarray:
   """Episodes from one world's contacts.
 
   Args:
-    actors: the scene's actors.
-    frame: i64[K] the frame of each contact. geoms: i[K, 2] its geoms.
+    n_actors: how many actors the scene has.
+    frame: i64[K] the frame of each contact. sides: i[K, 2] the actors of
+      its two sides (:meth:`Actors.of_contacts`).
     dist: f64[K] its distance, m. margin: touch margin, m.
 
   Returns:
     i32[n, 4] ``(a, b, first, last)``: maximal runs of consecutive frames in
     which actors a < b touch, sorted by ``(a, b, first)``.
   """
-  n_actors = len(actors.names)
-  a = actors.geom_actor[geoms[:, 0]].astype(np.int64)
-  b = actors.geom_actor[geoms[:, 1]].astype(np.int64)
+  a, b = sides[:, 0], sides[:, 1]
   keep = (a != b) & (dist <= margin)
   pair = np.minimum(a, b)[keep] * n_actors + np.maximum(a, b)[keep]
   frame = frame[keep]

@@ -17,13 +17,15 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from mwbx import scene as scene_lib
+
 from mwbx.refinement.plan import object_coordinates
 
 
 def _object_geoms(model: mujoco.MjModel, object_names) -> list[np.ndarray]:
   """i[k] geom ids of each object (geoms of every body under its root)."""
-  root_of_geom = model.body_rootid[model.geom_bodyid]
-  return [np.flatnonzero(root_of_geom == model.body(name).id) for name in object_names]
+  geom_object = scene_lib.object_body_mask(model, object_names)[:, model.geom_bodyid]
+  return [np.flatnonzero(row) for row in geom_object]
 
 
 def _can_collide(model: mujoco.MjModel, g1: int, g2: int) -> bool:

@@ -27,6 +27,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mwbx import scene as scene_lib
+
 from mwbx.codec import CodecBounds
 from mwbx.errors import MwbxError
 from mwbx.host_jit import host_jit
@@ -67,11 +69,11 @@ def object_reach_radii(model: mujoco.MjModel, body_ids: np.ndarray, objects: dic
   """
   tracked = {int(b): i for i, b in enumerate(body_ids)}
   radius = np.zeros(len(body_ids))
-  roots = {model.body(name).id for name in objects}
+  ours = scene_lib.object_body_mask(model, objects).any(axis=0)
   for b in range(1, model.nbody):
-    root = int(model.body_rootid[b])
-    if root not in roots:
+    if not ours[b]:
       continue
+    root = int(model.body_rootid[b])
     anchor, reach = b, 0.0
     while anchor not in tracked:
       reach += float(np.linalg.norm(model.body_pos[anchor]))

@@ -27,6 +27,7 @@ from mwbx.batch_sim.sampler import SampleStats, stored_frames, world_keys
 from mwbx.codec import CodecBounds
 from mwbx.events import detect as events_lib
 from mwbx.events.record import EventRecord
+from mwbx import scene as scene_lib
 from mwbx.joints import DOF_WIDTH, QPOS_WIDTH
 from mwbx.progress import Progress
 from mwbx.refinement import interactions, stored_motion
@@ -38,10 +39,11 @@ def object_coordinates(model: mujoco.MjModel, object_names) -> tuple[np.ndarray,
   """(bool[O, nq], bool[O, nv]) coordinates of each object's joints."""
   qm = np.zeros((len(object_names), model.nq), bool)
   vm = np.zeros((len(object_names), model.nv), bool)
+  objects = scene_lib.find_objects(model, "refine")  # a flex's vertex bodies, or a root body's tree
   for o, name in enumerate(object_names):
-    root = model.body(name).id
+    bodies = set(objects[name])
     for j in range(model.njnt):
-      if model.body_rootid[model.jnt_bodyid[j]] == root:
+      if int(model.jnt_bodyid[j]) in bodies:
         t = int(model.jnt_type[j])
         qm[o, model.jnt_qposadr[j]:model.jnt_qposadr[j] + QPOS_WIDTH[t]] = True
         vm[o, model.jnt_dofadr[j]:model.jnt_dofadr[j] + DOF_WIDTH[t]] = True

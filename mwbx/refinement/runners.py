@@ -23,6 +23,8 @@ from typing import Callable, NamedTuple, Protocol
 import mujoco
 import numpy as np
 
+from mwbx import scene as scene_lib
+
 from mwbx.bank.versions import parked_columns
 from mwbx.batch_sim import free_bodies
 from mwbx.errors import MwbxError
@@ -119,8 +121,8 @@ def removal_model(model: mujoco.MjModel, removed) -> mujoco.MjModel:
   if not removed:
     return model
   out = copy.copy(model)  # mj_copyModel
-  roots = [model.body(name).id for name in removed]
-  bodies = np.isin(model.body_rootid, roots)
+  objects = scene_lib.find_objects(model, "refine")  # a flex's vertex bodies, or a root body's tree
+  bodies = np.isin(np.arange(model.nbody), [b for name in removed for b in objects[name]])
   geoms = bodies[model.geom_bodyid]
   out.geom_contype[geoms] = 0
   out.geom_conaffinity[geoms] = 0

@@ -20,6 +20,8 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from mwbx import scene as scene_lib
+
 from mwbx import rotations
 from mwbx.batch_sim import world
 
@@ -188,9 +190,7 @@ class ContactFreeModels:
 
   def __init__(self, model: mujoco.MjModel, object_names):
     self.model = model
-    roots = np.array([model.body(name).id for name in object_names], np.int64)
-    geom_root = model.body_rootid[model.geom_bodyid]
-    self.geom_object = geom_root[None, :] == roots[:, None]  # bool[O, ngeom]
+    self.geom_object = scene_lib.object_body_mask(model, object_names)[:, model.geom_bodyid]  # bool[O, ngeom]
     body_moves = (model.body_weldid != 0) | (model.body_mocapid >= 0)
     may_collide = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
     stranger = body_moves[model.geom_bodyid] & ~self.geom_object.any(axis=0) & may_collide

@@ -1,0 +1,161 @@
+"""A flex (MuJoCo ``<flexcomp>``) is one object named as in the MJCF: a small
+cloth dropped over a static sphere beside a free box samples as the objects
+``box, cloth``; its vertex bodies are tracked, not perturbed, moved together
+by its randomization; rigid scenes keep exactly the objects they had."""
+
+import pathlib
+
+import jax
+import mujoco
+import numpy as np
+import pytest
+
+import mwbx
+from mwbx.errors import MwbxError
+from mwbx.scene import Scene
+
+SCENES = pathlib.Path(__file__).parent / "scenes"
+
+MJCF = """<mujoco>
+  <option timestep="0.0020833333333333333" integrator="implicitfast"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <geom name="dome" type="sphere" size="0.12" pos="0 0 0.12"/>
+    <body name="box" pos="0.4 0 0.3"><freejoint/><geom type="box" size="0.04 0.04 0.04" mass="0.2"/></body>
+    <flexcomp name="cloth" type="grid" dim="2" count="5 5 1" spacing="0.06 0.06 0.06" pos="0 0 0.4"
+              radius="0.01" mass="0.1" DOF>
+      <edge equality="true" damping="0.01"/>
+      <contact condim="3" selfcollide="none"/>
+      PIN
+    </flexcomp>
+  </worldbody>
+</mujoco>
+"""
+
+CONFIG = """scene: {mjcf: scene.xml}
+sim: {end_time: 0.5, chunk_size: 4}
+randomize:
+  RANDOMIZE
+"""
+
+CLOTH_MOVES = """cloth:
+    position: {dist: uniform, scale: [0.05, 0.05, 0.02]}
+    rotation: {dist: uniform, scale: 0.3}
+    linear_velocity: {dist: uniform, scale: 0.2}
+    angular_velocity: {dist: uniform, scale: 1.0}
+  box: {position: {dist: uniform, scale: [0.02, 0.02, 0.0]}}"""
+
+
+def flex_config(tmp_path, randomize=CLOTH_MOVES, dof="", pin=""):
+  (tmp_path / "scene.xml").write_text(MJCF.replace("DOF", dof).replace("PIN", pin))
+  (tmp_path / "config.yaml").write_text(CONFIG.replace("RANDOMIZE", randomize))
+  return mwbx.load_config(tmp_path / "config.yaml")
+
+
+def vertex_bodies(model):
+  return [b for b in model.flex_vertbodyid if b > 0 and model.body_dofnum[b] > 0]
+
+
+def test_a_flex_is_one_object_of_its_vertex_bodies(tmp_path):
+  scene = Scene(flex_config(tmp_path))
+  cloth = [mujoco.mj_id2name(scene.model, mujoco.mjtObj.mjOBJ_BODY, b) for b in vertex_bodies(scene.model)]
+  assert len(cloth) == 25
+  assert scene.object_names == ("box", "cloth")  # MJCF order
+  assert scene.flex_objects == ("cloth",)
+  assert scene.objects == {"box": ("box",), "cloth": tuple(cloth)}
+  assert scene.body_names == ("box", *cloth)  # tracked by default
+  np.testing.assert_array_equal(scene.select_bodies("cloth"), np.arange(1, 26))
+  np.testing.assert_array_equal(scene.select_bodies("object:cloth"), np.arange(1, 26))
+  assert scene.objects_of("cloth", "f") == ("cloth",)
+  # Vertex bodies are never perturbed one by one; the box is.
+  np.testing.assert_array_equal(scene.perturbable, [True] + [False] * 25)
+
+
+def test_pinned_vertices_are_not_part_of_it(tmp_path):
+  scene = Scene(flex_config(tmp_path, pin='<pin id="0 4"/>'))
+  assert scene.object_names == ("box", "cloth")
+  assert len(scene.objects["cloth"]) == 23
+
+
+def test_flex_randomization_moves_every_vertex_together(tmp_path):
+  scene = Scene(flex_config(tmp_path))
+  m = scene.model
+  ids = vertex_bodies(m)
+  d = mujoco.MjData(m)
+  mujoco.mj_kinematics(m, d)
+  before = d.xpos[ids].copy()
+  unit = scene.unit_noise(jax.random.key(3))
+  qpos, qvel = scene.initial_state_from_noise(unit)
+  d.qpos[:] = np.asarray(qpos)
+  mujoco.mj_kinematics(m, d)
+  after = d.xpos[ids]
+  # A rigid motion: every distance kept, the centre moved by the position draw.
+  dist = lambda p: np.linalg.norm(p[:, None] - p[None], axis=-1)
+  np.testing.assert_allclose(dist(after), dist(before), atol=1e-5)
+  slots = {s.field: s for s in scene.noise_slots if s.object == "cloth"}
+  pos = slots["position"]
+  shift = np.asarray(unit[pos.start:pos.start + 3]) * np.array([0.05, 0.05, 0.02])
+  np.testing.assert_allclose(after.mean(0) - before.mean(0), shift, atol=1e-5)
+  assert np.abs(after - before - shift).max() > 1e-3  # and turned
+  # Velocities: v + w x (p - centre) at every vertex.
+  lin, ang = (np.asarray(unit[slots[f].start:slots[f].start + 3]) * s
+              for f, s in (("linear_velocity", 0.2), ("angular_velocity", 1.0)))
+  d.qvel[:] = np.asarray(qvel)
+  vel = np.array([d.qvel[m.body_dofadr[b]:m.body_dofadr[b] + 3] for b in ids])
+  np.testing.assert_allclose(vel, lin + np.cross(ang, before - before.mean(0)), atol=1e-5)
+
+
+def test_flexes_refuse_what_they_cannot_do(tmp_path):
+  with pytest.raises(MwbxError, match=r"randomize\.cloth\.joint_noise: object 'cloth' is a flex"):
+    Scene(flex_config(tmp_path, "cloth: {joint_noise: {scale: 0.01}}"))
+  with pytest.raises(MwbxError, match=r"randomize\.cloth\.position: flex 'cloth': .* not three independent slide"):
+    Scene(flex_config(tmp_path, "cloth: {position: {scale: 0.01}}", dof='dof="radial"'))
+  with pytest.raises(MwbxError, match=r"scene\.objects: 'cloth_3' is not a moving body"):
+    Scene(flex_config(tmp_path, "{}").model_copy(
+        update={"scene": flex_config(tmp_path, "{}").scene.model_copy(update={"objects": ("cloth_3",)})}))
+
+
+def test_flex_scene_samples_on_the_native_backend(tmp_path):
+  bank = mwbx.sample(flex_config(tmp_path), n_worlds=3, key=jax.random.key(0), backend="native")
+  assert bank.n_worlds == 3 and tuple(bank.objects) == ("box", "cloth")
+  assert len(bank.objects["cloth"]) == 25
+  for w in range(3):
+    frames = bank.qpos_frames(w)
+    assert frames.shape[0] > 1 and np.isfinite(frames).all()
+  assert np.isfinite(bank.com).all() and bank.valid.all()
+  # The cloth's contacts are the cloth's: MuJoCo reports them by flex, not by geom.
+  assert mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "dome")]).all()
+  assert not mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "cloth")]).any()
+  # Refinement takes the flex as an object, active or replayed.
+  for objects in ("box", "cloth"):
+    refined = mwbx.refine(bank, 1, objects, t_min=0.2, n_samples=2, key=jax.random.key(1), backend="native")
+    new = refined.world_ids[-2:]
+    assert refined.n_worlds == 5 and refined.valid[-2:].all()
+    assert all(np.isfinite(refined.qpos_frames(int(i))).all() for i in new)
+    assert all(objects in refined.lineage[str(int(i))]["active"] for i in new)
+
+
+def old_objects(model):
+  """The rule before flexes: moving root bodies and their trees."""
+  name = lambda i: mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, i)
+  roots = [i for i in range(1, model.nbody) if model.body_parentid[i] == 0 and model.body_dofnum[i] > 0]
+  return {name(r): tuple(name(i) for i in range(1, model.nbody) if model.body_rootid[i] == r) for r in roots}
+
+
+def test_rigid_scenes_keep_their_objects_and_bodies(tiny_config):
+  scene = Scene(tiny_config)
+  assert scene.object_names == ("cube", "ball") and scene.flex_objects == ()
+  assert scene.objects == {"cube": ("cube",), "ball": ("ball",)}
+  assert scene.body_names == ("cube", "ball")
+  np.testing.assert_array_equal(scene.body_ids, [1, 2])
+  assert scene.perturbable.all()
+  for path in sorted(SCENES.glob("*.yaml")):
+    scene = Scene(mwbx.load_config(path))
+    if not scene.config.scene.objects and not scene.config.scene.track:
+      assert scene.objects == old_objects(scene.model), path
+
+
+def test_mjx_says_in_one_line_that_it_cannot_run_a_flex(tmp_path):
+  with pytest.raises(MwbxError, match=r"the scene has flexes \(cloth\).*use backend: native") as err:
+    mwbx.Sampler(flex_config(tmp_path), backend="mjx")
+  assert "\n" not in str(err.value)
