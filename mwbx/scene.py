@@ -389,6 +389,8 @@ class Scene:
     self.groups = self._resolve_groups(source)
 
     self.model = build_model(mjcf_text, self.body_names, self.mjcf_dir, self.mjcf_includes)
+    if config.sim.timestep is not None:  # the config's step, set once here (else the MJCF's own)
+      self.model.opt.timestep = config.sim.timestep
     self.body_ids = np.array(
         [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b) for b in self.body_names], np.int32
     )

@@ -44,7 +44,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("foundation", (
         "mwbx.errors", "mwbx.files", "mwbx.host_jit", "mwbx.host_device", "mwbx.joints",
         "mwbx.rotations", "mwbx.progress", "mwbx.yaml_input", "mwbx.distributed",
-        "mwbx.world_ids",
+        "mwbx.world_ids", "mwbx.host_pool",
     )),
     ("scene and kernels", (
         "mwbx.config", "mwbx.rates", "mwbx.scene", "mwbx.controls", "mwbx.perturb",

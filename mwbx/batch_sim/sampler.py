@@ -168,9 +168,7 @@ class Sampler:
     self.chunk_size = int(chunk_size or cfg.sim.chunk_size)
     if self.chunk_size < 1:
       raise MwbxError(f"chunk_size: must be a positive number of worlds, got {self.chunk_size}")
-    model = self.scene.model
-    if cfg.sim.timestep is not None:  # else the MJCF's own <option timestep>
-      model.opt.timestep = cfg.sim.timestep
+    model = self.scene.model  # its timestep is the config's (Scene sets it; the sampler changes nothing)
     spf, self.query_stride, end_frame = frame_rates(cfg, model.opt.timestep)
     self.n_frames = end_frame + 1
     self.params = world.world_params(self.scene, spf, end_frame)

@@ -9,8 +9,6 @@ a guarantee checked on the decoded data.
 
 from __future__ import annotations
 
-import concurrent.futures
-import os
 from typing import NamedTuple
 
 import jax
@@ -24,6 +22,7 @@ from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
                                initial_steps, parse, quantize_initial, serialize)
 from mwbx.host_device import host_cpu
+from mwbx.host_pool import LazyPool
 
 # Fraction of each bound kept back for float32 rounding inside the fit.
 FIT_MARGIN = 2.0**-6
@@ -58,16 +57,7 @@ def _bucket(n: int, multiple: int) -> int:
 FIT_BATCH = 256
 
 
-_POOL = None
-
-
-def _fit_pool() -> concurrent.futures.ThreadPoolExecutor:
-  """Threads for the fit's batches, one per core (made on first use)."""
-  global _POOL
-  if _POOL is None:
-    _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=os.cpu_count() or 1,
-                                                  thread_name_prefix="mwbx-codec-fit")
-  return _POOL
+_FIT_POOL = LazyPool("mwbx-codec-fit")  # the fit's batches, a thread per core
 
 
 def fit_device() -> jax.Device | None:
@@ -140,7 +130,7 @@ def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
   # on one core: batches go to a thread per core.
   order = np.argsort(n, kind="stable")
   batches = [order[lo:lo + FIT_BATCH] for lo in range(0, num, FIT_BATCH)]
-  out = list(_fit_pool().map(fit_batch, batches)) if len(batches) > 1 else [fit_batch(batches[0])]
+  out = list(_FIT_POOL.get().map(fit_batch, batches)) if len(batches) > 1 else [fit_batch(batches[0])]
   path, frame, vel, flag = (np.concatenate(parts) for parts in zip(*out))
   back = np.lexsort((frame, path))
   return path[back], frame[back], vel[back], flag[back]

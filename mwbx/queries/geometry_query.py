@@ -15,8 +15,6 @@ frame.
 
 from __future__ import annotations
 
-import concurrent.futures
-import os
 import threading
 
 import numpy as np
@@ -26,6 +24,7 @@ from mwbx.queries import geometry_cull
 from mwbx.queries.frustum import Frustum
 from mwbx.queries.geometry import GeometryIndex
 from mwbx.queries.poses import quat_matrix
+from mwbx.host_pool import LazyPool
 
 
 ANSWERS_KEPT = 32  # latest answers kept per index
@@ -143,7 +142,7 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window)
   bodies = np.flatnonzero(selected)
   # The pass holds no GIL: bodies run on all cores while this thread does the
   # exact stage of the bodies already passed.
-  for b, (found, undecided) in zip(bodies, _pool().map(compiled_pass, bodies)):
+  for b, (found, undecided) in zip(bodies, _POOL.get().map(compiled_pass, bodies)):
     hits[:, b] = found
     pending = np.flatnonzero(undecided.any(axis=1))
     if pending.size == 0:
@@ -165,24 +164,7 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window)
   return hits & index.valid[:, None]
 
 
-def _pool() -> concurrent.futures.ThreadPoolExecutor:
-  """The threads that run body passes (made on first use)."""
-  global _POOL
-  if _POOL is None:
-    _POOL = concurrent.futures.ThreadPoolExecutor(max_workers=os.cpu_count() or 1,
-                                                  thread_name_prefix="mwbx-geometry")
-  return _POOL
-
-
-_POOL: concurrent.futures.ThreadPoolExecutor | None = None
-
-
-def _forget_pool() -> None:
-  global _POOL
-  _POOL = None
-
-
-os.register_at_fork(after_in_child=_forget_pool)  # a forked child has none of the parent's threads
+_POOL = LazyPool("mwbx-geometry")  # the body passes, a thread per core
 
 
 def _core_arrays(index: GeometryIndex, b: int) -> tuple:
