@@ -23,7 +23,8 @@ import time
 import numpy as np
 import zstandard
 
-from mwbx.codec import ChannelLayout, CodecBounds, decode_world, encode_batch_checked, testing
+from mwbx.codec import ChannelLayout, CodecBounds, decode_world, encode_batch_checked
+from mwbx.testing import codec_data as testing
 from mwbx.codec.batch import decode_batch
 
 ZSTD_LEVEL = 19

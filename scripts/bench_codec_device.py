@@ -23,7 +23,8 @@ import time
 import jax
 import numpy as np
 
-from mwbx.codec import ChannelLayout, CodecBounds, encode, encode_batch_checked, testing
+from mwbx.codec import ChannelLayout, CodecBounds, encode, encode_batch_checked
+from mwbx.testing import codec_data as testing
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 

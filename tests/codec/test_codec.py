@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mwbx.codec import (ChannelLayout, CodecBounds, CodecError, CompressedQposStore,
-                        decode_world, encode_batch, encode_batch_checked, encode_world, rice,
-                        testing)
+                        decode_world, encode_batch, encode_batch_checked, encode_world, rice)
+from mwbx.testing import codec_data as testing
 from mwbx.codec import fit as fit_lib
 from mwbx.codec.decode import decode_code
 from mwbx.codec.stream import MODE_RAW, parse

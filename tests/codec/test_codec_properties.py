@@ -9,7 +9,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mwbx.codec import (ChannelLayout, CodecBounds, CodecError, decode_world,
-                        encode_batch_checked, testing)
+                        encode_batch_checked)
+from mwbx.testing import codec_data as testing
 
 import codec_reference as ref
 
