@@ -20,7 +20,10 @@ from mwbx.bank import FLAG_UNSTABLE
 from mwbx.batch_sim import METRIC_NAMES
 from mwbx.batch_sim import SampleStats
 from mwbx.batch_sim import Sampler
+from mwbx.batch_sim import Hosts
+from mwbx.batch_sim import SamplingRun
 from mwbx.batch_sim import sample
+from mwbx.batch_sim import sample_run
 from mwbx.refinement import refine
 from mwbx.codec import CodecBounds
 from mwbx.codec import CodecError
@@ -92,6 +95,7 @@ __all__ = [
     "FLAG_FINISHED",
     "FLAG_SIM_ERROR",
     "FLAG_UNSTABLE",
+    "Hosts",
     "Frustum",
     "JointQuery",
     "OrderQuery",
@@ -104,6 +108,7 @@ __all__ = [
     "RawQposStore",
     "RefineStats",
     "SampleStats",
+    "SamplingRun",
     "Sampler",
     "Scene",
     "ScreenBox",
@@ -125,6 +130,7 @@ __all__ = [
     "refine",
     "render_video",
     "sample",
+    "sample_run",
     "search",
     "solve",
     "view",

@@ -31,20 +31,15 @@ import secrets
 import signal
 import sys
 import threading
-import uuid
 
 import jax
 import mujoco
-import numpy as np
 
 import mwbx
 from mwbx import __version__
-from mwbx import distributed
-from mwbx.bank import FLAG_CONTACT_OVERFLOW, FLAG_SIM_ERROR, BankDirectory, runs, shards
-from mwbx.batch_sim import memory
-from mwbx.batch_sim.sampler import MAX_WORLD_ID, check_chunk_memory, empty_bank
+from mwbx.bank import runs, shards
+from mwbx.batch_sim.sampling_run import Hosts, RunInterrupted, sample_run
 from mwbx.errors import MwbxError
-from mwbx.files import write_atomic
 from mwbx.progress import reporter
 from mwbx.queries import Camera, ScreenBox, load_queries
 from mwbx.queries.report import run_query_file
@@ -60,77 +55,17 @@ def _cmd_sample(args) -> int:
   _check_sample_args(args)
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
-  scene = mwbx.Scene(config)
-  # Before a bank directory is made or a run recorded: a run that cannot fit leaves nothing behind.
-  chunk = args.chunk_size or config.sim.chunk_size
-  check_chunk_memory(scene, min(chunk, args.worlds) if args.worlds else chunk)
-  group = distributed.join(args.coordinator, args.num_processes, args.process_id, auto=args.distributed,
-                           timeout=args.timeout)
-  plan, alive = _plan_run(args, out, scene, group) if group.leader else (None, None)
+  hosts = Hosts(args.coordinator, args.num_processes, args.process_id, args.distributed, args.timeout)
   try:
-    plan = distributed.share_plan(group, plan, timeout=args.timeout)
-    seed, todo = plan["seed"], np.asarray(plan["todo"], np.int64)
-    if plan["resume"] and group.leader:
-      done, target = plan["resume"]
-      print(f"mwbx: resuming: {done} of {target} worlds done (seed {seed})", file=sys.stderr)
-    mine = distributed.my_share(todo, group)
-    directory = BankDirectory(out)
-    if group.leader:
-      record = plan["record"]
-    else:  # recorded now, live: a process killed before its first shard is resumed too
-      record = {"id": uuid.uuid4().hex, "seed": seed, "id_ranges": runs.id_ranges(mine),
-                "group_ranges": runs.id_ranges(todo), "finished": False}
-      alive = runs.Liveness(out, record["id"])
-      directory.append_run(record)
-    record.update(process=group.process_id, processes=group.num_processes)
-    return _sample_share(args, out, scene, config, directory, record, mine, seed, group)
-  finally:
-    if alive is not None:
-      alive.release()
-
-
-def _sample_share(args, out, scene, config, directory, record, mine, seed, group) -> int:
-  """Samples this process's ids of the run into the bank, a shard per chunk."""
-  who = f" (process {group.process_id} of {group.num_processes})" if group.num_processes > 1 else ""
-  summary = _RunSummary()
-  if mine.size:
-    with mwbx.Sampler(scene, backend=args.backend, chunk_size=args.chunk_size) as sampler:
-      sampler.check_memory(mine.size)  # before anything is announced or allocated
-      print(f"mwbx: sampling {mine.size} worlds of {args.config} on {sampler.backend_label}"
-            f" (worlds {mine[0]}..{mine[-1]}, seed {seed}){who} into {out}", file=sys.stderr)
-      print(f"mwbx: {scene.rates.describe()}", file=sys.stderr)
-      record["chunk_size"], record["backend"] = sampler.chunk_size, sampler.backend_label
-      if sampler.contact_budget is not None:
-        print(f"mwbx: contact budget: {sampler.contact_budget.describe()}", file=sys.stderr)
-        record["contact_budget"] = sampler.contact_budget._asdict()
-      if sampler.warp_solver is not None:
-        print(f"mwbx: warp solver: {sampler.warp_solver.describe()}", file=sys.stderr)
-        record["warp_solver"] = sampler.warp_solver._asdict()
-      try:
-        with _reporter_with_safe_points("sample") as update:
-          for part, stats in sampler.run_chunks(mine.size, jax.random.key(seed), ids=mine, progress=update):
-            part.run = {**part.run, "seed": seed}
-            # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the
-            # chunk in flight, and the same command resumes it.
-            try:
-              directory.append(part, run=record)
-            except MwbxError as err:  # e.g. a full disk: the run stays resumable
-              raise MwbxError(f"{err}; {summary.worlds} worlds of this run are saved in {out}; run the same"
-                              f" command again to resume") from None
-            summary.add(part)
-            for world_id, message in stats.sim_errors[summary.errors_shown:]:
-              print(f"mwbx: world {world_id}: MuJoCo error, world flagged and the run goes on: "
-                    f"{' '.join(message.split())}", file=sys.stderr)
-            summary.errors_shown = len(stats.sim_errors)
-      except KeyboardInterrupt:
-        print(f"mwbx: interrupted; {summary.worlds} worlds of this run are saved in {out};"
-              f" run the same command again to resume", file=sys.stderr)
-        return 130
-    summary.stats = stats
-  directory.finish_run(record["id"])
-  write_atomic(out / "config.resolved.json", json.dumps(scene.config.resolved(), indent=2), "resolved config")
-  write_atomic(out / "scene.xml", scene.mjcf_text, "scene MJCF")
-  summary.print(out, len(directory.stored_ids()))
+    with _reporter_with_safe_points("sample") as update:
+      run = sample_run(config, out, n_worlds=args.worlds, seed=args.seed, backend=args.backend,
+                       chunk_size=args.chunk_size, hosts=hosts, progress=update,
+                       say=lambda message: print(f"mwbx: {message}", file=sys.stderr, flush=True))
+  except RunInterrupted as err:
+    print(f"mwbx: interrupted; {err.saved} worlds of this run are saved in {err.out};"
+          f" run the same command again to resume", file=sys.stderr)
+    return 130
+  _print_run(run)
   return 0
 
 
@@ -187,69 +122,29 @@ def _check_sample_args(args) -> None:
     raise MwbxError(f"--seed: must fit in 64 bits (signed), got {args.seed}")
 
 
-def _plan_run(args, out: pathlib.Path, scene, group):
-  """What a sampling run does (decided by process 0 of a group, under the
-  bank's lock): the seed, the world ids to sample (fresh ids reserved at
-  once, or those of a dead run), and for a resumed run (worlds done, worlds
-  in it); recorded in the manifest with this process's liveness lock held."""
-  directory = BankDirectory(out)
-  if directory.manifest is None and (out / "checkpoints").is_dir():
-    mwbx.Bank.load(out).save(out)  # a bank of the orbax format: its worlds become the first shard
-    directory = BankDirectory(out)
-  if directory.manifest is not None and directory.manifest["scene"]["digest"] != scene.digest:
-    raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
-  if args.worlds is not None:  # before a list of the run's ids is made
-    first = 0 if directory.manifest is None else int(directory.manifest["next_id"])
-    if first + args.worlds - 1 > MAX_WORLD_ID:
-      raise MwbxError(f"--worlds: {args.worlds:,} worlds from id {first:,} would pass the last world id"
-                      f" {MAX_WORLD_ID:,}")
-    memory.check(args.worlds * memory.PLAN_BYTES_PER_WORLD, f"--worlds {args.worlds}: the run's list of world ids",
-                 "sample fewer worlds per run (the same --out continues the bank)")
-  return runs.plan(directory, empty_bank(scene), n_worlds=args.worlds, seed=args.seed,
-                   run_id=uuid.uuid4().hex, share=lambda ids: distributed.my_share(ids, group))
-
-
-class _RunSummary:
-  """Counts over the chunks of one sampling run (the chunks are not kept)."""
-
-  def __init__(self):
-    self.worlds = self.valid = self.at_rest = self.perturbations = self.sim_errors = self.overflow = 0
-    self.errors_shown = 0
-    self.stats = None
-    self.budget = None  # the MJX contact budget record, if any
-    self.warp_solver = None  # mjx:warp's solver settings record, if any
-
-  def add(self, part) -> None:
-    self.worlds += part.n_worlds
-    self.overflow += int(((part.flags & FLAG_CONTACT_OVERFLOW) != 0).sum())
-    self.budget = part.run.get("contact_budget", self.budget)
-    self.warp_solver = part.run.get("warp_solver", self.warp_solver)
-    self.valid += int(part.valid.sum())
-    self.at_rest += int(part.at_rest.sum())
-    self.perturbations += int(part.perturbations.sum())
-    self.sim_errors += int(((part.flags & FLAG_SIM_ERROR) != 0).sum())
-
-  def print(self, out: pathlib.Path, total: int) -> None:
-    n = max(1, self.worlds)
-    errors = f", {self.sim_errors} of them stopped by MuJoCo errors" if self.sim_errors else ""
-    unstable = self.worlds - self.valid - self.overflow
-    overflow = f", {self.overflow} over the contact budget" if self.overflow else ""
-    print(f"worlds sampled      {self.worlds} ({self.valid} valid, {unstable} unstable{errors}{overflow})")
-    print(f"worlds at rest      {self.at_rest} ({self.at_rest / n:.0%})")
-    print(f"perturbations       {self.perturbations} ({self.perturbations / n:.1f} per world)")
-    if self.stats is not None:
-      st = self.stats
-      if self.budget:
-        print(f"contact budget      {_budget_line(self.budget)}")
-      if self.warp_solver:
-        w = self.warp_solver
-        print(f"warp solver         {w['solver']}, tolerance {w['tolerance']:g}, {w['iterations']} iterations"
-              f" ({w['reason']})")
-      print(f"world-steps/s       {st.world_steps_per_second:,.0f} ({st.backend};"
-            f" {st.world_steps:,} steps in {st.run_seconds:.2f} s, compile {st.compile_seconds:.1f} s,"
-            f" compression {st.codec_seconds:.1f} s)")
-    size = sum(f.stat().st_size for f in (out / "shards").rglob("*") if f.is_file())
-    print(f"bank                {out} ({total} worlds, {size / 1e6:.1f} MB on disk)")
+def _print_run(run) -> None:
+  """The summary ``mwbx sample`` prints of a :class:`~mwbx.batch_sim.SamplingRun`."""
+  s = run.summary
+  n = max(1, s.worlds)
+  errors = f", {s.sim_errors} of them stopped by MuJoCo errors" if s.sim_errors else ""
+  unstable = s.worlds - s.valid - s.overflow
+  overflow = f", {s.overflow} over the contact budget" if s.overflow else ""
+  print(f"worlds sampled      {s.worlds} ({s.valid} valid, {unstable} unstable{errors}{overflow})")
+  print(f"worlds at rest      {s.at_rest} ({s.at_rest / n:.0%})")
+  print(f"perturbations       {s.perturbations} ({s.perturbations / n:.1f} per world)")
+  if s.stats is not None:
+    st = s.stats
+    if s.budget:
+      print(f"contact budget      {_budget_line(s.budget)}")
+    if s.warp_solver:
+      w = s.warp_solver
+      print(f"warp solver         {w['solver']}, tolerance {w['tolerance']:g}, {w['iterations']} iterations"
+            f" ({w['reason']})")
+    print(f"world-steps/s       {st.world_steps_per_second:,.0f} ({st.backend};"
+          f" {st.world_steps:,} steps in {st.run_seconds:.2f} s, compile {st.compile_seconds:.1f} s,"
+          f" compression {st.codec_seconds:.1f} s, contact events {st.events_seconds:.1f} s)")
+  size = sum(f.stat().st_size for f in (run.out / "shards").rglob("*") if f.is_file())
+  print(f"bank                {run.out} ({run.stored} worlds, {size / 1e6:.1f} MB on disk)")
 
 
 def _budget_line(record: dict) -> str:

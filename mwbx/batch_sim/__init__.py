@@ -6,3 +6,7 @@ from mwbx.batch_sim.sampler import SampleStats
 from mwbx.batch_sim.sampler import Sampler
 from mwbx.batch_sim.sampler import sample
 from mwbx.batch_sim.world import METRIC_NAMES
+from mwbx.batch_sim.sampling_run import Hosts
+from mwbx.batch_sim.sampling_run import RunInterrupted
+from mwbx.batch_sim.sampling_run import SamplingRun
+from mwbx.batch_sim.sampling_run import sample_run
