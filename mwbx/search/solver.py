@@ -73,12 +73,10 @@ from mwbx.search.objects import spare_objects
 
 # Restart times of successive attempts on one world, as fractions of the time
 # its objects go wrong: late first (small changes keep more of what works),
-# then earlier (bigger changes). Never from the start: in three unattended
-# SIGGRAPH searches, of 363 refinements restarting in the first 0.25 s (over
-# a quarter from t = 0; there every letter is still in the crowd and becomes
-# active) one met more queries than its parent, against 24 of 177 restarting
-# at 0.75-1.5 s (scripts/refinement_yield.py, by restart time). Initial
-# conditions are guided sampling's job (fix_blocking_query).
+# then earlier (bigger changes). Never from the start: there every object is
+# still in the crowd and becomes active, and a restart is a resample (initial
+# conditions are guided sampling's job, fix_blocking_query). Measured:
+# docs/search.md, scripts/refinement_yield.py.
 RESTART_FRACTIONS = (0.85, 0.6, 0.35)
 # A stall fixes a query only where some world meeting it (and the queries
 # fixed already) meets at most this many fewer places than the best world:
@@ -86,17 +84,15 @@ RESTART_FRACTIONS = (0.85, 0.6, 0.35)
 FIX_MARGIN = 2
 # On a plateau every repair starts one round later (an earlier restart, pairs
 # and single queries in turn) each STALL_STEP refinements without a better
-# best world. A world with as many unmet queries as tries otherwise only ever
-# gets round 0 (each query alone, late): on SIGGRAPH none of 472 such repairs
-# of a world meeting 12 of 16 met more (scripts/refinement_yield.py), as
-# moving a letter across slots needs an early restart.
+# best world: a world with as many unmet queries as tries would otherwise only
+# get round 0 (each query alone, late), and moving an object far needs an
+# early restart.
 STALL_STEP = 10
 # At each STALL_STEP of a plateau the queries the search's top world fails
 # weigh this much more in its ranking (clause weighting, as in breakout local
-# search): a query no late repair wins (a letter whose slot is decided in the
-# crowd, a letter that never lands upright) comes to outweigh one other
-# query, and the search moves to worlds that meet it, which a count of
-# queries met would rank below its plateau forever.
+# search): a query no late repair wins comes to outweigh one other query, and
+# the search moves to worlds that meet it, which a count of queries met would
+# rank below its plateau forever.
 WEIGHT_STEP = 1.0
 
 
