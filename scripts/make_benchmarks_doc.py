@@ -742,6 +742,28 @@ def _chain(d: dict) -> list[str]:
   return lines
 
 
+def flex(d: dict) -> tuple[list[str], list[str]]:
+  lines = ["## Flexes (cloth, soft solids)", "",
+           "`scripts/bench_flex.py`: the mwbx sampler (native) against bare `mujoco.rollout` of the same "
+           "model from the same initial states in the same run (the baseline), and the bank's stored qpos "
+           "per flex vertex-second against float32 vertex positions and SZ3 (`pysz`) at the same absolute "
+           f"bound on the flex's coordinates (the codec's `e_scalar`). Machine: {d['machine']}, MuJoCo "
+           f"{d['mujoco']}. The mwbx bytes are the whole stored qpos (flex and rigid objects), so an upper "
+           "bound for the flex's share; a trilinear soft solid's vertices are its 8 node bodies.", "",
+           "| scene | worlds | world-steps/s (mwbx) | bare rollout | ratio | flex | vertices | mwbx B/vertex-s | "
+           "vs float32 | SZ3 B/vertex-s | SZ3 / mwbx |",
+           "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+  for r in d["scenes"]:
+    for name in r["flexes"]:
+      f = r[name]
+      sz3 = (f"{f['sz3_bytes_per_vertex_second']:.1f} | {f['sz3_over_mwbx']:.2f}×" if f["sz3_bytes_per_vertex_second"]
+             else "– | –")
+      lines.append(f"| {r['scene']} | {r['worlds']} | {r['mwbx_world_steps_per_s']:,.0f} | "
+                   f"{r['rollout_world_steps_per_s']:,.0f} | {r['ratio_vs_rollout']:.2f}× | {name} | {f['vertices']} | "
+                   f"{f['mwbx_qpos_bytes_per_vertex_second']:.1f} | {f['mwbx_vs_float32']:.3f}× | {sz3} |")
+  return lines, []
+
+
 def events(d: dict) -> tuple[list[str], list[str]]:
   c, lat = d["cost"], d["latency"]
   lines = ["## Contact events", "",
@@ -773,7 +795,7 @@ def events(d: dict) -> tuple[list[str], list[str]]:
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
             ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry), ("scale", scale),
             ("scenes", scenes), ("backends", backends), ("gpu", gpu),
-            ("solve", solve), ("events", events))
+            ("solve", solve), ("events", events), ("flex", flex))
 
 
 def main() -> None:
