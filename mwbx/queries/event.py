@@ -40,6 +40,7 @@ from mwbx.queries.query import Query
 
 Side = tuple[str, ...]  # actor, object or group names: any of them
 FRAME_SLACK = 1e-9  # s: window ends compare with frame times exactly, less float noise
+KNOWN_SHOWN = 20  # actor names an unknown-actor message lists
 
 
 def _side(label: str, field: str, value) -> Side:
@@ -72,8 +73,9 @@ def actor_mask(bank, side: Side, label: str = "query") -> np.ndarray:
       members = (name.split(":", 1)[1] if name.startswith("object:") else name,)
     for member in members:
       if member not in actors:
-        raise MwbxError(f"{label}: unknown actor {name!r} (objects, groups and named static geoms: "
-                        f"{', '.join(actors + tuple(bank.groups))})")
+        known = actors + tuple(bank.groups)
+        shown = ", ".join(known[:KNOWN_SHOWN]) + (f", ... ({len(known)} in all)" if len(known) > KNOWN_SHOWN else "")
+        raise MwbxError(f"{label}: unknown actor {name!r} (objects, groups and named static geoms: {shown})")
       mask[actors.index(member)] = True
   return mask
 
@@ -250,6 +252,7 @@ class TouchQuery(Query):
   bodies = None  # about actors, not tracked bodies: objects() and body_mask() say which
 
   def check(self, bank) -> None:
+    _events(bank, self.label)
     for side in (self.a, self.b):
       actor_mask(bank, side, self.label)
 
@@ -327,6 +330,7 @@ class OrderQuery(Query):
   bodies = None  # about actors, not tracked bodies: objects() and body_mask() say which
 
   def check(self, bank) -> None:
+    _events(bank, self.label)
     for pair in self.events:
       for side in pair:
         actor_mask(bank, side, self.label)
