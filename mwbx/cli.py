@@ -194,6 +194,11 @@ def _cmd_info(args) -> int:
   print(f"groups              {', '.join(f'{k}={list(v)}' for k, v in bank.groups.items()) or 'none'}")
   print(f"cameras             {', '.join(_cameras(bank)) or 'none (screen queries need a named MJCF camera)'}")
   print(f"metrics             {', '.join(bank.metric_names)}")
+  if bank.events is None:
+    print("contact events      none (the bank was saved before they were recorded)")
+  else:
+    statics = [a for a in bank.event_actors if a not in bank.objects]
+    print(f"contact events      {len(bank.events.rows):,} episodes; static actors: {', '.join(statics) or 'none'}")
   print(f"rates               record {bank.record_fps:g} fps, query {bank.query_fps:g} fps,"
         f" timestep {bank.timestep:.6g} s")
   print(f"config              {bank.config.get('source') or '-'} (full: mwbx info --json)")
