@@ -159,3 +159,31 @@ def test_mjx_says_in_one_line_that_it_cannot_run_a_flex(tmp_path):
   with pytest.raises(MwbxError, match=r"the scene has flexes \(cloth\).*use backend: native") as err:
     mwbx.Sampler(flex_config(tmp_path), backend="mjx")
   assert "\n" not in str(err.value)
+
+
+def test_the_page_draws_the_cloth_surface_where_its_vertices_are(tmp_path):
+  from mwbx.browser import Browser, Session  # the page (viser) loads only for this test
+  bank = mwbx.sample(flex_config(tmp_path), n_worlds=2, key=jax.random.key(0), backend="native")
+  page = Browser(Session(bank))
+  try:
+    (cloth,) = page.stage.flexes
+    assert cloth.name == "cloth" and cloth.faces.shape == (32, 3)  # a 5x5 grid: 4x4 squares, two triangles each
+    world = int(bank.world_ids[1])
+    page.play(world)
+    page.player.seek(10)
+    mesh = page.stage._slots[0][2][-1]
+    model = bank.model()
+    data = mujoco.MjData(model)
+    data.qpos[:] = bank.qpos_frames(world)[10]
+    mujoco.mj_kinematics(model, data)
+    np.testing.assert_allclose(mesh.vertices, data.xpos[cloth.bodies], atol=1e-5)
+  finally:
+    page.close()
+
+
+def test_viewers_draw_one_path_per_flex(tmp_path, tiny_native_bank):
+  from mwbx.viewer.flex import path_bodies  # viewers load only for this test
+  bank = mwbx.sample(flex_config(tmp_path), n_worlds=1, key=jax.random.key(0), backend="native")
+  drawn = [bank.body_names[i] for i in path_bodies(bank)]
+  assert drawn == ["box", "cloth_12"]  # the box, and the 5x5 cloth's centre vertex
+  np.testing.assert_array_equal(path_bodies(tiny_native_bank), np.arange(len(tiny_native_bank.body_names)))

@@ -41,6 +41,7 @@ from mwbx.browser.scene import Stage
 from mwbx.browser.session import ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
 from mwbx.viewer import display, framing
+from mwbx.viewer import flex as flex_lib
 
 # The page's log: what each action did, one line each (``mwbx browse: ...`` on
 # stdout once :func:`browse` serves; research code configures it as it likes).
@@ -299,7 +300,7 @@ class Browser:
     bank = session.bank
     view = session.view()
     selection = self._selection()
-    bodies = (np.arange(len(bank.body_names)) if selection is None
+    bodies = (flex_lib.path_bodies(bank) if selection is None  # one path per flex, not one per vertex
               else np.asarray(bank.select_bodies(list(selection))))
     with self.lock:
       left_out = drawing.draw_paths(self.server, self._handles, bank, bodies, view.match, view.rejected,

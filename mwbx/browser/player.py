@@ -62,7 +62,7 @@ class Player:
         self._poses.move_to_end(world)
         return self._poses[world]
     qpos = self.session.bank.qpos_frames(world).astype(np.float64)
-    out = body_trajectories(self.stage.model, qpos, self.stage.body_ids)
+    out = body_trajectories(self.stage.model, qpos, self.stage.pose_ids)
     with self.lock:
       self._poses[world] = out
       while len(self._poses) > KEPT_WORLDS:

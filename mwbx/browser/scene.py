@@ -19,6 +19,7 @@ import numpy as np
 
 from mwbx.browser import glb
 from mwbx.errors import MwbxError
+from mwbx.viewer import flex as flex_lib
 from mwbx.viewer import geometry as vgeom
 from mwbx.viewer import triangles
 
@@ -114,6 +115,10 @@ class Stage:
     static: the geoms that never move (:class:`StaticMesh`, planes :class:`StaticLines`).
     moving: body id -> [(name, vertices, faces, rgb, wxyz, position)] of its geoms.
     body_ids: i64[B] the moving bodies, in slot order.
+    flexes: the flexes' surfaces (:func:`mwbx.viewer.flex.flex_surfaces`),
+      redrawn from their vertex bodies at every pose.
+    pose_ids: i64[B + V] the bodies whose poses :meth:`pose` takes: the
+      moving bodies, then every flex's vertex bodies.
     uploads: meshes sent to the clients so far (a replay sends none).
   """
 
@@ -135,6 +140,8 @@ class Stage:
       else:
         self.moving.setdefault(int(v.body_id), []).append((v.name, verts, faces, _rgb(v.rgba), wxyz, pos))
     self.body_ids = np.array(sorted(self.moving), np.int64)
+    self.flexes = flex_lib.flex_surfaces(model)
+    self.pose_ids = np.concatenate([self.body_ids] + [f.bodies for f in self.flexes]).astype(np.int64)
     lo, hi = (np.asarray(e, np.float64) for e in extent)
     size = np.maximum(hi - lo, 1e-3)
     self.cell = size * (1.0 + GRID_GAP)
@@ -185,6 +192,14 @@ class Stage:
         meshes.append(scene.add_mesh_simple(f"/play/s{k}/b{body}/{name}", verts, faces, color=rgb, wxyz=wxyz,
                                             position=position, opacity=self._opacity(k), **NO_SHADOWS))
         self.uploads += 1
+    data = mujoco.MjData(self.model)
+    mujoco.mj_kinematics(self.model, data)
+    for f in self.flexes:  # drawn where the model starts; every pose moves its vertices
+      vertices = f.vertices(data.xpos[f.bodies], data.xquat[f.bodies])
+      rgb = tuple(int(c) for c in np.clip(np.round(f.rgba[:3] * 255), 0, 255))
+      meshes.append(scene.add_mesh_simple(f"/play/s{k}/flex/{f.name}", vertices, f.faces, color=rgb,
+                                          side="double", opacity=self._opacity(k), **NO_SHADOWS))
+      self.uploads += 1
     label = None
     if self.body_ids.size:  # the label rides on the slot's first body
       label = scene.add_label(f"/play/s{k}/b{self.body_ids[0]}/label", "")
@@ -202,12 +217,20 @@ class Stage:
       label.text = f"world {world}"
 
   def pose(self, k: int, pos: np.ndarray, quat: np.ndarray) -> None:
-    """Moves slot ``k``'s bodies: pos f64[B, 3] metres, quat f64[B, 4] (w, x, y, z), in body_ids order."""
+    """Moves slot ``k``'s bodies and flexes: pos f64[N, 3] metres, quat f64[N, 4] (w, x, y, z), in
+    pose_ids order (the moving bodies first)."""
     frames = self.slot(k)
     for i, b in enumerate(self.body_ids):
       frame = frames[int(b)]
       frame.position = pos[i]
       frame.wxyz = quat[i]
+    if self.flexes:
+      meshes = self._slots[k][2][-len(self.flexes):]
+      at = len(self.body_ids)
+      for f, mesh in zip(self.flexes, meshes):
+        n = len(f.bodies)
+        mesh.vertices = f.vertices(pos[at:at + n], quat[at:at + n])
+        at += n
 
   def set_side_by_side(self, on: bool) -> None:
     """Overlay (every slot at the origin, all but the first translucent) or a

@@ -20,6 +20,7 @@ import numpy as np
 
 from mwbx.errors import MwbxError
 from mwbx.queries.query import Query
+from mwbx.viewer import flex as flex_lib
 from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS, QueryVolume, as_volume, classify_worlds
 from mwbx.viewer.framing import place_camera, scene_bounds, view_spec
@@ -94,8 +95,8 @@ def resolve_bodies(bank, paths: Any) -> np.ndarray | None:
   a body/object/group name or a list of them); None when no paths."""
   if paths is None or paths is False:
     return None
-  if paths is True:
-    return np.arange(len(bank.body_names), dtype=np.int64)
+  if paths is True:  # every tracked body; a flex by one path, not one per vertex
+    return flex_lib.path_bodies(bank)
   return np.asarray(bank.select_bodies(paths), np.int64).reshape(-1)
 
 

@@ -1,0 +1,108 @@
+"""A flex's surface for the viewers: its triangles from MuJoCo's flex data,
+its vertices placed by its vertex bodies' poses.
+
+A cloth (``dim=2``) shows its elements, a soft solid (``dim=3``) its shell
+(boundary faces); a rope (``dim=1``) and a flex whose vertices are
+interpolated from nodes (``dof="trilinear"``) have no surface drawn here.
+
+Example::
+
+  surfaces = flex_surfaces(model)
+  vertices = surfaces[0].vertices(pos, quat)   # pos f64[N, 3], quat f64[N, 4] of surfaces[0].bodies
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+
+from mwbx.queries.poses import quat_rotate
+
+
+class FlexSurface(NamedTuple):
+  """One flex's surface.
+
+  Attributes:
+    name: the flex's (and its object's) name.
+    faces: i32[F, 3] triangles over its vertices.
+    bodies: i64[V] each vertex's body id.
+    offsets: f64[V, 3] each vertex in its body's frame, m (zero when centred).
+    rgba: f64[4] its colour.
+  """
+
+  name: str
+  faces: np.ndarray
+  bodies: np.ndarray
+  offsets: np.ndarray
+  rgba: np.ndarray
+
+  def vertices(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """f32[V, 3] the vertices in the world, from their bodies' pos f64[V, 3] and quat f64[V, 4] (w, x, y, z)."""
+    return (np.asarray(pos, np.float64) + quat_rotate(np.asarray(quat, np.float64), self.offsets)).astype(
+        np.float32)
+
+
+def flex_surfaces(model: mujoco.MjModel) -> list[FlexSurface]:
+  """The drawable surfaces of a model's flexes (see the module)."""
+  out = []
+  for f in range(model.nflex):
+    dim = int(model.flex_dim[f])
+    if dim not in (2, 3) or int(model.flex_interp[f]):  # a rope, or vertices interpolated from nodes
+      continue
+    adr, n = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
+    if dim == 2:
+      start, count = int(model.flex_elemdataadr[f]), int(model.flex_elemnum[f])
+      faces = model.flex_elem[start:start + 3 * count].reshape(count, 3)
+    else:
+      start, count = int(model.flex_shelldataadr[f]), int(model.flex_shellnum[f])
+      faces = model.flex_shell[start:start + 3 * count].reshape(count, 3)
+    bodies = np.asarray(model.flex_vertbodyid[adr:adr + n], np.int64)
+    offsets = (np.zeros((n, 3)) if bool(model.flex_centered[f])
+               else np.asarray(model.flex_vert[adr:adr + n], np.float64))
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f) or f"flex{f}"
+    out.append(FlexSurface(name, np.asarray(faces, np.int32), bodies, offsets, np.asarray(model.flex_rgba[f])))
+  return out
+
+
+def path_bodies(bank) -> np.ndarray:
+  """i64[k] the tracked bodies whose COM paths a viewer draws by default (all, in
+  a scene without flexes):
+  every tracked body but a flex's vertices, and for each flex one path, its
+  centre vertex's (the vertex nearest the mean of its vertices at the
+  model's initial configuration), not one per vertex."""
+  model = bank.model()
+  if not model.nflex:
+    return np.arange(len(bank.body_names), dtype=np.int64)
+  tracked = {int(b): i for i, b in enumerate(np.asarray(bank.body_ids))}
+  keep = np.ones(len(tracked), bool)
+  centres = []
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  for surface in flex_surfaces(model) + _other_flexes(model):
+    rows = [tracked[int(b)] for b in surface.bodies if int(b) in tracked]
+    if not rows:
+      continue
+    keep[rows] = False
+    points = data.xpos[surface.bodies]
+    centre = int(surface.bodies[np.argmin(np.linalg.norm(points - points.mean(axis=0), axis=1))])
+    if centre in tracked:
+      centres.append(tracked[centre])
+  return np.sort(np.concatenate([np.flatnonzero(keep), np.asarray(centres, np.int64)])).astype(np.int64)
+
+
+def _other_flexes(model: mujoco.MjModel) -> list[FlexSurface]:
+  """Flexes without a drawn surface (ropes, interpolated solids), for their one path."""
+  drawn = {s.name for s in flex_surfaces(model)}
+  out = []
+  for f in range(model.nflex):
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f) or f"flex{f}"
+    if name in drawn:
+      continue
+    adr, n = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
+    bodies = np.unique(np.asarray(model.flex_vertbodyid[adr:adr + n], np.int64))
+    bodies = bodies[model.body_dofnum[bodies] > 0]
+    out.append(FlexSurface(name, np.zeros((0, 3), np.int32), bodies, np.zeros((len(bodies), 3)),
+                           np.asarray(model.flex_rgba[f])))
+  return out
