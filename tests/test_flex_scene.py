@@ -187,3 +187,16 @@ def test_viewers_draw_one_path_per_flex(tmp_path, tiny_native_bank):
   drawn = [bank.body_names[i] for i in path_bodies(bank)]
   assert drawn == ["box", "cloth_12"]  # the box, and the 5x5 cloth's centre vertex
   np.testing.assert_array_equal(path_bodies(tiny_native_bank), np.arange(len(tiny_native_bank.body_names)))
+
+
+def test_queries_on_a_flex(tmp_path):
+  bank = mwbx.sample(flex_config(tmp_path), n_worlds=2, key=jax.random.key(0), backend="native")
+  # A COM query with radius auto grows each vertex by the flex's radius (0.01 m), as its collisions do.
+  radii = mwbx.queries.body_radii(bank.model(), bank.body_ids)
+  cloth = [bank.body_names.index(b) for b in bank.objects["cloth"]]
+  np.testing.assert_allclose(radii[cloth], 0.01)
+  below = mwbx.Query.region((-1, -1, -1), (1, 1, 0.25), bodies="cloth", radius="auto", window=(0.4, None))
+  assert mwbx.evaluate(bank, [below]).all()  # the cloth has fallen onto the dome
+  with pytest.raises(MwbxError, match="has no orientation") as err:
+    mwbx.evaluate(bank, [mwbx.OrientationQuery(bodies="cloth", axis="z", within_deg=10)])
+  assert "\n" not in str(err.value)

@@ -134,6 +134,10 @@ class OrientationQuery(Query):
 
   # -- the Query interface -----------------------------------------------------------
 
+  def check(self, bank) -> None:
+    super().check(bank)
+    _refuse_flexes(bank, selection_mask(bank, self.bodies), self)
+
   def evaluate(self, bank) -> np.ndarray:
     return evaluate_orientation(bank, self, selection_mask(bank, self.bodies))
 
@@ -301,9 +305,24 @@ def _closeness(query: OrientationQuery, quats: np.ndarray) -> np.ndarray:
   return np.abs(w * t[0] + x * t[1] + y * t[2] + z * t[3])
 
 
+def _refuse_flexes(bank, mask: np.ndarray, query: OrientationQuery) -> None:
+  """MwbxError if the query selects a flex's vertex bodies: a cloth has no orientation."""
+  model = bank.model()
+  if not model.nflex:
+    return
+  vertex = np.zeros(model.nbody, bool)
+  vertex[model.flex_vertbodyid] = True
+  chosen = np.asarray(bank.body_ids)[mask]
+  if vertex[chosen].any():
+    label = f"query {query.name!r}" if query.name else "query"
+    raise MwbxError(f"{label}: bodies: {', '.join(query.bodies or ('every body',))} include a flex's vertices;"
+                    " a flex (cloth, soft solid) has no orientation to ask about")
+
+
 def body_errors(bank, query: OrientationQuery, mask: np.ndarray) -> np.ndarray:
   """f64[W, B] each selected body's largest error over the query's frames,
   radians (NaN for unselected bodies)."""
+  _refuse_flexes(bank, mask, query)
   out = np.full((bank.n_worlds, len(mask)), np.nan)
   f0, f1 = frame_range(bank, query.window)
   rows = np.arange(bank.n_worlds)

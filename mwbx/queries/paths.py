@@ -99,14 +99,21 @@ def body_radii(model: mujoco.MjModel, body_ids) -> np.ndarray:
 
   Returns:
     f64[B] max over the body's geoms of |geom centre - COM| + geom bounding
-    radius, metres (0 for a body without geoms).
+    radius, metres; a flex's vertex body at least the flex's radius (what
+    its collisions see); 0 for a body with neither.
   """
   radii = np.zeros(len(body_ids))
+  flex_radius = np.zeros(model.nbody)
+  for f in range(model.nflex):
+    adr, n = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
+    bodies = model.flex_vertbodyid[adr:adr + n]
+    flex_radius[bodies] = np.maximum(flex_radius[bodies], float(model.flex_radius[f]))
   for i, body in enumerate(np.asarray(body_ids)):
     geoms = np.flatnonzero(model.geom_bodyid == body)
     if geoms.size:
       reach = np.linalg.norm(model.geom_pos[geoms] - model.body_ipos[body], axis=1)
       radii[i] = float(np.max(reach + model.geom_rbound[geoms]))
+    radii[i] = max(radii[i], flex_radius[int(body)])
   return radii
 
 
