@@ -200,3 +200,18 @@ def test_queries_on_a_flex(tmp_path):
   with pytest.raises(MwbxError, match="has no orientation") as err:
     mwbx.evaluate(bank, [mwbx.OrientationQuery(bodies="cloth", axis="z", within_deg=10)])
   assert "\n" not in str(err.value)
+
+
+def test_the_meshcat_viewer_animates_the_cloth_surface(tmp_path):
+  import meshcat  # the viewer loads only for this test
+  import umsgpack
+  from mwbx import viewer
+  bank = mwbx.sample(flex_config(tmp_path), n_worlds=1, key=jax.random.key(0), backend="native")
+  vis = meshcat.Visualizer(window=viewer.SceneRecorder())
+  viewer.draw(vis, bank, worlds=[0], layout="overlay")
+  commands = [umsgpack.unpackb(blob) for blob in vis.window.command_blobs()]
+  meshes = [c for c in commands if c["type"] == "set_object" and "/flex/cloth/f" in c["path"]]
+  shown = len(range(0, int(bank.frame_count[0]), 4))  # recorded at 120 fps, a surface 30 times a second
+  assert len(meshes) == shown
+  clips = {a["path"]: a["clip"] for c in commands if c["type"] == "set_animation" for a in c["animations"]}
+  assert sum("/flex/cloth/f" in path for path in clips) == shown

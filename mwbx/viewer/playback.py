@@ -15,6 +15,8 @@ import meshcat.geometry as mg
 import mujoco
 import numpy as np
 
+from mwbx.viewer import flex as flex_lib
+from mwbx.viewer.display import Rgba
 from mwbx.viewer.errors import ViewerError
 from mwbx.viewer.geometry import (PLANE_THICKNESS, GeomVisual, body_node_name, material, moving_body_ids,
                                   pose_matrix)
@@ -229,6 +231,39 @@ def add_clip(animation: manim.Animation, node, pos: np.ndarray, quat: np.ndarray
   )
 
 
+# A flex's surface in meshcat is one mesh per shown frame (meshcat animates
+# poses, not vertices), each scaled up only while its frame plays: this many a second.
+FLEX_FPS = 30.0
+
+
+def draw_flex(vis, animation: manim.Animation, surface, pos: np.ndarray, quat: np.ndarray, fps: float,
+              style: WorldStyle) -> None:
+  """A flex's surface under ``vis``: a mesh per shown frame (:data:`FLEX_FPS`),
+  each with a scale track that shows it for its frames only.
+
+  Args:
+    surface: the :class:`mwbx.viewer.flex.FlexSurface`.
+    pos, quat: f64[T, V, 3] / f64[T, V, 4] its vertex bodies' poses at every recorded frame.
+    fps: the recording rate.
+  """
+  n_frames = pos.shape[0]
+  step = max(1, int(round(fps / FLEX_FPS)))
+  colour = Rgba(*(float(c) for c in surface.rgba))
+  for f in range(0, n_frames, step):
+    node = vis[f"f{f}"]
+    node.set_object(mg.TriangularMeshGeometry(surface.vertices(pos[f], quat[f]), surface.faces),
+                    material(colour, opacity=None if style.opacity >= 1.0 else style.opacity))
+    shown, hidden = [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]
+    end = min(f + step, n_frames)
+    keys = sorted({max(f - 1, 0), f, end - 1, min(end, n_frames - 1)})
+    values = [shown if f <= k < end else hidden for k in keys]
+    if end >= n_frames:  # the last mesh stays once the world is at rest
+      values[-1] = shown
+    animation.clips[node.path] = manim.AnimationClip(
+        tracks={"scale": manim.AnimationTrack("scale", "vector3", keys, values)}, fps=float(fps))
+    node.set_transform(np.diag([1.0, 1.0, 1.0, 1.0]) if f == 0 else np.diag([0.0, 0.0, 0.0, 1.0]))
+
+
 def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual],
                   worlds: Sequence[int], layout: str, grid: Grid | None = None,
                   play: bool = True) -> np.ndarray:
@@ -250,7 +285,9 @@ def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual
     draw_static(vis["static"], visuals)
   if not worlds:
     return offsets
-  tracks = world_tracks(bank, model, worlds, body_ids)
+  surfaces = flex_lib.flex_surfaces(model)
+  flex_ids = [s.bodies for s in surfaces]
+  tracks = world_tracks(bank, model, worlds, np.concatenate([body_ids] + flex_ids).astype(np.int64))
   animation = manim.Animation(default_framerate=float(bank.record_fps))
   world_ids = np.asarray(bank.world_ids)
   for k, (track, style) in enumerate(zip(tracks, styles)):
@@ -262,10 +299,16 @@ def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual
       draw_static(node["static"], visuals)
       draw_label(node["label"], f"world {int(world_ids[track.world])}", grid)
     nodes = draw_bodies(node, model, visuals, style)
-    for j, body in enumerate(track.body_ids):
+    for j, body in enumerate(body_ids):
       body_node = nodes[int(body)]
       body_node.set_transform(pose_matrix(track.pos[0, j], track.quat[0, j]))
       add_clip(animation, body_node, track.pos[:, j], track.quat[:, j], bank.record_fps)
+    at = len(body_ids)
+    for surface in surfaces:
+      n = len(surface.bodies)
+      draw_flex(node["flex"][surface.name], animation, surface, track.pos[:, at:at + n], track.quat[:, at:at + n],
+                bank.record_fps, style)
+      at += n
   if animation.clips:
     vis.set_animation(animation, play=play, repetitions=float("inf") if play else 1)
   return offsets
