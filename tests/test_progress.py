@@ -46,8 +46,8 @@ def test_sampler_and_refinement_report_every_phase(tiny_native):
   seen = []
   bank, _ = tiny_native.run(6, jax.random.key(0), progress=seen.append)
   phases = [p.phase for p in seen]
-  assert "simulating" in phases and phases[-1] == "compressing" and seen[-1].done == 6
-  for phase in ("simulating", "compressing"):
+  assert "simulating" in phases and phases[-1] == "contact events" and seen[-1].done == 6
+  for phase in ("simulating", "compressing", "contact events"):
     done = [p.done for p in seen if p.phase == phase]
     assert done[-1] == 6 and all(b >= a for a, b in zip(done, done[1:]))
   refined = []
