@@ -250,6 +250,7 @@ class TouchQuery(Query):
   sign: str = "include"
   name: str = ""
   bodies = None  # about actors, not tracked bodies: objects() and body_mask() say which
+  needs_events = True
 
   def check(self, bank) -> None:
     _events(bank, self.label)
@@ -328,6 +329,7 @@ class OrderQuery(Query):
   name: str = ""
   sign = "include"
   bodies = None  # about actors, not tracked bodies: objects() and body_mask() say which
+  needs_events = True
 
   def check(self, bank) -> None:
     _events(bank, self.label)

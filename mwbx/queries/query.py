@@ -79,6 +79,7 @@ class Query(abc.ABC):
       earlier than they settle.
     error_metric: the name of a per-world error it can rank by
       (:meth:`error`, smallest first), or None.
+    needs_events: answered from the bank's contact events (event queries).
   """
 
   name: str = ""
@@ -88,6 +89,7 @@ class Query(abc.ABC):
   frustum = None
   goal: ClassVar[str] = "place"
   error_metric: ClassVar[str | None] = None
+  needs_events: ClassVar[bool] = False  # answered from the bank's contact events
 
   def __new__(cls, *args, **kwargs):
     if cls is Query:  # Query(frustum, ...): a VolumeQuery, as before the interface existed

@@ -83,6 +83,8 @@ class RefinePlan(NamedTuple):
     first_id: the first new world's id.
     bounds: the codec's error bounds (e_pos m, e_rot rad, e_scalar).
     contact_budget: the MJX contact budget the bank was sampled with (None: none).
+    events: find the new worlds' contact events (False: the new bank has
+      none; a caller keeping a few of many, as ``solve`` does, finds theirs).
   """
 
   world: int
@@ -104,6 +106,7 @@ class RefinePlan(NamedTuple):
   first_id: int
   bounds: CodecBounds
   contact_budget: dict | None
+  events: bool = True
 
 
 class _Parent(NamedTuple):
@@ -239,7 +242,7 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -
   qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
   keep_qpos = (~active).astype(np.float32) @ parent.qpos_object.astype(np.float32) > 0.5
   store = bank.qpos_store.refined(qpos, count, row, parent.frames, keep_qpos)
-  events, event_actors = _events(bank, row, f0, store, sampler)
+  events, event_actors = _events(bank, row, f0, store, sampler) if plan.events else (None, ())
 
   # Inactive bodies keep the parent's polylines; a removed object keeps the
   # parent's metrics too (what it did while it was there).

@@ -139,6 +139,10 @@ class RefineRequest(NamedTuple):
       their configured initial state (randomized per refined world).
     remove: objects taken out at t_min: parked, colliding with nothing; their
       ghosts stay, so the objects they used to touch are resimulated.
+    events: find the refined worlds' contact events (default). False: the
+      new worlds have none (``Refinement.new.events`` is None), for a caller
+      that keeps a few of many and finds theirs (``solve`` without event
+      queries: :meth:`mwbx.Sampler.events_of`).
   """
 
   world: int
@@ -155,6 +159,7 @@ class RefineRequest(NamedTuple):
   scene: object = None
   add: str | Sequence[str] = ()
   remove: str | Sequence[str] = ()
+  events: bool = True
 
 
 def plan_refinement(bank, request: RefineRequest) -> RefinePlan:
@@ -214,7 +219,7 @@ def plan_refinement(bank, request: RefineRequest) -> RefinePlan:
       # An added object puts a world in the bank's current scene version.
       scene_version=len(bank.versions) if added else int(bank.scene_version[row]),
       first_id=bank.next_world_id, bounds=sampler.scene.config.codec.bounds(),
-      contact_budget=bank.run.get("contact_budget"))
+      contact_budget=bank.run.get("contact_budget"), events=bool(request.events))
 
 
 _SAMPLERS: dict = {}

@@ -604,8 +604,11 @@ class _Search:
   def refine(self, world: int, objects, t_min: float, samples: int, keep: int) -> None:
     """Refines ``objects`` of ``world`` from ``t_min``; keeps its ``keep`` best
     valid children in the bank."""
+    # Contact events of every child only where a query reads them; else of the kept children alone.
+    events = any(q.needs_events for q in self.queries)
     done = refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=samples, backend=self.backend,
-                                               key=stream_key(self.key, KeyStream.REFINE, self.refinements)))
+                                               key=stream_key(self.key, KeyStream.REFINE, self.refinements),
+                                               events=events))
     children, stats = done.new, done.stats
     self.refinements += 1
     self.spent_steps += int(stats.world_steps)
@@ -615,8 +618,12 @@ class _Search:
     kept = np.sort(order[:keep][children.valid[order[:keep]]])
     if kept.size:
       dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
-      self._add(children.drop(children.world_ids[dropped]) if dropped.size else children, c_gaps[kept],
-                c_ties[kept])
+      chosen = children.drop(children.world_ids[dropped]) if dropped.size else children
+      if not events and self.bank.events is not None:
+        sampler = sampler_for(self.bank, self.backend)
+        chosen = dataclasses.replace(chosen, events=sampler.events_of(chosen.qpos_store),
+                                     event_actors=sampler.event_actors.names)
+      self._add(chosen, c_gaps[kept], c_ties[kept])
 
   def result(self, reason: str, throw: bool) -> SolveResult:
     """What the search found, with one line saying so."""

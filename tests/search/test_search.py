@@ -165,6 +165,13 @@ def test_solve_reaches_a_reachable_goal(tiny_bank):
   assert result.message.startswith("solved: world")
   bank = result.bank
   assert mwbx.evaluate(bank, REACHABLE)[bank.row_of(result.world)]
+  # Without event queries the search finds contact events for the children it keeps only: as fresh.
+  from mwbx.events import actors_of, detect_events, touch_margin
+  model = bank.model()
+  new = bank.world_ids[tiny_bank.n_worlds:]
+  fresh = detect_events(model, actors_of(model, list(bank.objects)), [bank.qpos_frames(int(i)) for i in new],
+                        touch_margin(bank.config["codec"]["e_pos"]))
+  np.testing.assert_array_equal(fresh.rows, bank.events.take(bank.row_of(new)).rows)
   # An ordinary refined world: its lineage leads back to a sampled world.
   ancestors = bank.ancestors(result.world)
   assert len(ancestors) >= 1 and ancestors[-1] in tiny_bank.world_ids
