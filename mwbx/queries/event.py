@@ -37,6 +37,7 @@ from mwbx.queries import paths
 from mwbx.queries import selection
 from mwbx.queries.intervals import checked_interval
 from mwbx.queries.query import Query
+from mwbx.queries.query import unexpected_fields
 
 Side = tuple[str, ...]  # actor, object or group names: any of them
 FRAME_SLACK = 1e-9  # s: window ends compare with frame times exactly, less float noise
@@ -304,7 +305,7 @@ class TouchQuery(Query):
   @classmethod
   def from_entry(cls, entry, index: int, context) -> TouchQuery:
     where = f"queries[{index}]"
-    _only(entry, where, context, "touch", ("touch", "sign", "window", "name"))
+    _refuse_others(entry, where, context, "touch", ("touch", "sign", "window", "name"))
     try:
       a, b = _pair(f"{context.path}: {where}", "touch", entry.touch)
       query = cls(a, b, entry.window, entry.sign, entry.name or f"q{index}")
@@ -396,7 +397,7 @@ class OrderQuery(Query):
   @classmethod
   def from_entry(cls, entry, index: int, context) -> OrderQuery:
     where = f"queries[{index}]"
-    _only(entry, where, context, "then", ("then", "window", "name"))
+    _refuse_others(entry, where, context, "then", ("then", "window", "name"))
     try:
       query = cls(tuple(entry.then), entry.window, entry.name or f"q{index}")
     except MwbxError as err:
@@ -405,9 +406,8 @@ class OrderQuery(Query):
     return query
 
 
-def _only(entry, where: str, context, kind: str, allowed: Sequence[str]) -> None:
+def _refuse_others(entry, where: str, context, kind: str, takes: Sequence[str]) -> None:
   """MwbxError naming the fields an event entry does not take."""
-  defaults = {"sign": "include", "mode": "any", "radius": 0.0, "shape": "com", "name": ""}
-  given = [f for f, v in entry if f not in allowed and v is not None and v != defaults.get(f, None)]
-  if given:
-    raise MwbxError(f"{context.path}: {where}: a '{kind}' query takes {', '.join(allowed)}, not {', '.join(given)}")
+  extra = unexpected_fields(entry, takes)
+  if extra:
+    raise MwbxError(f"{context.path}: {where}: a '{kind}' query takes {', '.join(takes)}, not {', '.join(extra)}")

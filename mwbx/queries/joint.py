@@ -28,6 +28,7 @@ from mwbx.errors import MwbxError
 from mwbx.joints import JNT_HINGE, JNT_SLIDE
 from mwbx.queries.bank_cache import PerBank
 from mwbx.queries.query import Query
+from mwbx.queries.query import unexpected_fields
 from mwbx.queries.intervals import checked_interval
 
 
@@ -113,13 +114,11 @@ class JointQuery(Query):
   @classmethod
   def from_entry(cls, entry, index: int, context) -> JointQuery:
     where = f"queries[{index}]"
-    spatial = [name for name in ("box", "region", "camera", "near", "far", "bodies")
-               if getattr(entry, name) is not None]
-    wrong = [n for n, bad in (("sign", entry.sign != "include"), ("mode", entry.mode != "any"),
-                              ("radius", entry.radius != 0.0)) if bad]
-    if spatial or wrong:
+    # `shape` is ignored here, as it always was.
+    extra = unexpected_fields(entry, ("joint", "turn", "of", "window", "name", "shape"))
+    if extra:
       raise MwbxError(f"{context.path}: {where}: a joint query takes joint, turn, of, window and name, not "
-                      f"{', '.join(spatial + wrong)}")
+                      f"{', '.join(extra)}")
     if entry.joint is None or entry.turn is None:
       raise MwbxError(f"{context.path}: {where}: a joint query needs both 'joint' and 'turn' ([lo, hi])")
     try:

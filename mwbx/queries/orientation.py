@@ -39,6 +39,7 @@ from mwbx.joints import QPOS_WIDTH
 from mwbx.queries import poses as poses_lib
 from mwbx.queries.bank_cache import PerBank
 from mwbx.queries.query import Query
+from mwbx.queries.query import unexpected_fields
 from mwbx.queries.query import who
 from mwbx.queries.intervals import checked_interval
 from mwbx.queries.selection import selection_mask
@@ -163,11 +164,11 @@ class OrientationQuery(Query):
   @classmethod
   def from_entry(cls, entry, index: int, context) -> OrientationQuery:
     where = f"queries[{index}]"
-    spatial = [name for name in ("box", "region", "camera", "near", "far") if getattr(entry, name) is not None]
-    wrong = [n for n, bad in (("radius", entry.radius != 0.0), ("shape", entry.shape != "com")) if bad]
-    if spatial or wrong:
+    extra = unexpected_fields(entry, ("name", "bodies", "upright", "orientation", "within_deg", "window", "sign",
+                                      "mode"))
+    if extra:
       raise MwbxError(f"{context.path}: {where}: an orientation query takes bodies, upright or orientation, "
-                      f"within_deg, window, sign, mode and name, not {', '.join(spatial + wrong)}")
+                      f"within_deg, window, sign, mode and name, not {', '.join(extra)}")
     if (entry.upright is None) == (entry.orientation is None):
       raise MwbxError(f"{context.path}: {where}: an orientation query needs exactly one of 'upright' "
                       f"(a body axis) or 'orientation' (a quaternion or 'initial')")

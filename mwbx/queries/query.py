@@ -443,6 +443,14 @@ class VolumeQuery(Query):
     return query
 
 
+def unexpected_fields(entry, takes) -> list[str]:
+  """The fields of a query-file entry (``mwbx.queries.query_file``) set to
+  other than their defaults that are not among ``takes``, in the file
+  format's order: what a query type names when it refuses them."""
+  defaults = type(entry).model_fields
+  return [field for field, value in entry if field not in takes and value != defaults[field].default]
+
+
 def as_queries(queries) -> tuple:
   """A query, a sequence of them or an object with `.queries` (a QuerySet) -> tuple."""
   if isinstance(queries, Query):
