@@ -143,6 +143,15 @@ class Query(abc.ABC):
     for volumes, radians or metres for joints, radians for orientations):
     :func:`mwbx.queries.query_gaps` makes it exactly 0 where met."""
 
+  @classmethod
+  def gap_many(cls, bank, queries: Sequence["Query"]) -> np.ndarray:
+    """f64[W, k] the gaps of several queries of this type (one read of the
+    bank where a type shares it, as :meth:`evaluate_many`); by default each on its own."""
+    out = np.zeros((bank.n_worlds, len(queries)))
+    for i, query in enumerate(queries):
+      out[:, i] = query.gap(bank)
+    return out
+
   def error(self, bank, reduce: str = "max", bodies=None) -> np.ndarray:
     """f64[W] the per-world error named by :attr:`error_metric` (rank smallest
     first), combined over its bodies (or ``bodies``) by ``max`` or ``sum``."""
@@ -339,6 +348,16 @@ class VolumeQuery(Query):
     the shallowest). A whole-geometry query is graded on the COM points swept
     by each body's bounding sphere (the geometry lies in it, so the measure
     points the same way)."""
+    return self.gap_many(bank, [self])[:, 0]
+
+  @classmethod
+  def gap_many(cls, bank, queries) -> np.ndarray:
+    """f64[W, k]: the bank's COM polylines are read once for all of them."""
+    com = np.asarray(bank.com[np.arange(bank.n_worlds)], np.float32)
+    return np.stack([q._gap(bank, com) for q in queries], axis=1) if queries else np.zeros((bank.n_worlds, 0))
+
+  def _gap(self, bank, com: np.ndarray) -> np.ndarray:
+    """:meth:`gap` on the bank's COM polylines ``com`` f32[W, P, B, 3]."""
     mask = selection.selection_mask(bank, self.bodies)
     if not mask.any():
       return np.full(bank.n_worlds, np.inf if self.include else 0.0)
@@ -346,7 +365,6 @@ class VolumeQuery(Query):
       radius = paths.body_radii(bank.model(), np.asarray(bank.body_ids)[mask])
     else:
       radius = np.full(int(mask.sum()), float(self.radius))
-    com = np.asarray(bank.com[np.arange(bank.n_worlds)], np.float32)
     points = com[:, paths.window_points(bank, self.window)][:, :, mask]  # [W, P, b, 3]
     # Outside distance per point: the largest plane distance, sphere pushed out.
     d = self.frustum.distances(points).max(axis=-1) - radius[None, None, :]  # [W, P, b]
@@ -451,6 +469,14 @@ def unexpected_fields(entry, takes) -> list[str]:
   return [field for field, value in entry if field not in takes and value != defaults[field].default]
 
 
+def columns_by_type(queries) -> dict[type, list[int]]:
+  """{query type: the indices of its queries}, in order: what one type answers together."""
+  out: dict[type, list[int]] = {}
+  for i, query in enumerate(queries):
+    out.setdefault(type(query), []).append(i)
+  return out
+
+
 def as_queries(queries) -> tuple:
   """A query, a sequence of them or an object with `.queries` (a QuerySet) -> tuple."""
   if isinstance(queries, Query):
@@ -473,10 +499,7 @@ def evaluate_each(bank, queries) -> np.ndarray:
   out = np.zeros((bank.n_worlds, len(queries)), bool)
   if bank.n_worlds == 0 or not queries:
     return out
-  by_type: dict[type, list[int]] = {}
-  for i, query in enumerate(queries):
-    by_type.setdefault(type(query), []).append(i)
-  for kind, columns in by_type.items():
+  for kind, columns in columns_by_type(queries).items():
     out[:, columns] = kind.evaluate_many(bank, [queries[i] for i in columns])
   return out
 
