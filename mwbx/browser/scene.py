@@ -192,8 +192,9 @@ class Stage:
         meshes.append(scene.add_mesh_simple(f"/play/s{k}/b{body}/{name}", verts, faces, color=rgb, wxyz=wxyz,
                                             position=position, opacity=self._opacity(k), **NO_SHADOWS))
         self.uploads += 1
-    data = mujoco.MjData(self.model)
-    mujoco.mj_kinematics(self.model, data)
+    data = mujoco.MjData(self.model) if self.flexes else None
+    if data is not None:
+      mujoco.mj_kinematics(self.model, data)
     for f in self.flexes:  # drawn where the model starts; every pose moves its vertices
       vertices = f.vertices(data.xpos[f.bodies], data.xquat[f.bodies])
       rgb = tuple(int(c) for c in np.clip(np.round(f.rgba[:3] * 255), 0, 255))

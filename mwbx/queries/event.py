@@ -167,6 +167,8 @@ def approach_gap(bank, a: Side, b: Side, window=None) -> np.ndarray:
   radii = paths.body_radii(model, np.asarray(bank.body_ids))
   com = np.asarray(bank.com[np.arange(bank.n_worlds)], np.float32)[:, paths.window_points(bank, window)]
   best = np.full(bank.n_worlds, np.inf)
+  scenery = mujoco.MjData(model)  # the static geoms where the model puts them
+  mujoco.mj_kinematics(model, scenery)
   for mine, other in ((a, b), (b, a)):
     objects = side_objects(bank, mine)
     if not objects:
@@ -181,7 +183,7 @@ def approach_gap(bank, a: Side, b: Side, window=None) -> np.ndarray:
       d = d - reach[None, None, :, None] - radii[omask][None, None, None, :]
       best = np.minimum(best, d.reshape(bank.n_worlds, -1).min(axis=1))
     for geom in _static_geoms(bank, model, other):
-      d = _geom_distance(model, geom, points) - reach[None, None, :]
+      d = _geom_distance(model, scenery, geom, points) - reach[None, None, :]
       best = np.minimum(best, d.reshape(bank.n_worlds, -1).min(axis=1))
   return np.where(np.isfinite(best), np.maximum(best, 0.0), 0.0)
 
@@ -204,11 +206,10 @@ def _static_geoms(bank, model, side: Side) -> list[int]:
   return out
 
 
-def _geom_distance(model, geom: int, points: np.ndarray) -> np.ndarray:
+def _geom_distance(model, data, geom: int, points: np.ndarray) -> np.ndarray:
   """f64[...] distance from points (f[..., 3], m) to a static geom at its
-  model pose: a plane's (its +z side), else to its bounding sphere (>= 0)."""
-  data = mujoco.MjData(model)
-  mujoco.mj_kinematics(model, data)
+  pose in ``data`` (after ``mj_kinematics``): a plane's (its +z side), else
+  to its bounding sphere (>= 0)."""
   centre = data.geom_xpos[geom]
   if int(model.geom_type[geom]) == int(mujoco.mjtGeom.mjGEOM_PLANE):
     normal = data.geom_xmat[geom].reshape(3, 3)[:, 2]

@@ -184,7 +184,7 @@ class Query(abc.ABC):
   def deadline(self, bank, world: int) -> float:
     """Seconds by which its objects must be right in world ``world``: its
     window's start (else its end, else the world's end)."""
-    end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
+    end = _world_end(bank, world)
     window = self.window or (None, None)
     t = window[0] if window[0] is not None else window[1]
     return min(end, t) if t is not None else end
@@ -399,7 +399,7 @@ class VolumeQuery(Query):
     query's first entry (a whole-geometry one's: its bounding sphere's, no later)."""
     if self.include:
       return super().deadline(bank, world)
-    end = (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
+    end = _world_end(bank, world)
     radius = "auto" if self.shape == "geometry" else self.radius
     t = paths.first_entry(bank, world, self.bodies, self.frustum, window=self.window, radius=radius)
     return end if t is None else t
@@ -467,6 +467,11 @@ def unexpected_fields(entry, takes) -> list[str]:
   format's order: what a query type names when it refuses them."""
   defaults = type(entry).model_fields
   return [field for field, value in entry if field not in takes and value != defaults[field].default]
+
+
+def _world_end(bank, world: int) -> float:
+  """Seconds of a world's last recorded frame."""
+  return (int(bank.frame_count[bank.row_of(world)]) - 1) / bank.record_fps
 
 
 def columns_by_type(queries) -> dict[type, list[int]]:
