@@ -47,6 +47,10 @@ class QposStore(Protocol):
              columns=None) -> np.ndarray:
     """f32[n, nq] frames ``start:stop`` of row ``row``; with ``columns`` the others are zero."""
 
+  def frames_of_rows(self, rows=None, start: int = 0, stop: int | None = None, columns=None) -> list:
+    """f32[n, nq] frames ``start:stop`` of each of ``rows`` (i64[k]; None:
+    every row), in one pass where the store can; ``columns`` as :meth:`row_frames`."""
+
   def relaid(self, target: "QposStore", fill: np.ndarray) -> "QposStore":
     """Every world in ``target``'s settings (an empty store of a later scene
     version whose qpos starts with this one's, f32[nq'] ``fill`` for the new
@@ -132,6 +136,10 @@ class RawQposStore:
     keep = np.zeros(self.nq, bool)
     keep[np.asarray(columns, np.int64)] = True
     return np.where(keep, out, np.float32(0))
+
+  def frames_of_rows(self, rows=None, start: int = 0, stop: int | None = None, columns=None) -> list:
+    rows = np.arange(self.n_worlds) if rows is None else np.asarray(rows, np.int64)
+    return [self.row_frames(int(r), start, stop, columns=columns) for r in rows]
 
   @property
   def n_worlds(self) -> int:

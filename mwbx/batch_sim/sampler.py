@@ -348,7 +348,7 @@ class Sampler:
       store: their stored qpos.
       progress: optional callback (phase ``contact events``).
     """
-    return self.events_of_frames(stored_frames(store), progress=progress)
+    return self.events_of_frames(store.frames_of_rows(None), progress=progress)
 
   def events_of_frames(self, frames, first_frame=0, progress=None) -> EventRecord:
     """The contact events of worlds' stored frames (each f32[T, nq], from
@@ -455,13 +455,6 @@ def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str
   with Sampler(scene, backend, chunk_size, store=store) as sampler:
     bank, _ = sampler.run(n_worlds, key, first_world=first_world, progress=progress)
   return bank
-
-
-def stored_frames(store: QposStore) -> list:
-  """Every world's decoded frames, f32[T, nq] each (one pass where the store can)."""
-  if hasattr(store, "frames_of_rows"):
-    return store.frames_of_rows(None)
-  return [store.row_frames(r) for r in range(store.n_worlds)]
 
 
 def empty_bank(scene: Scene, store: QposStore | None = None) -> bank_lib.Bank:

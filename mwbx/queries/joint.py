@@ -158,12 +158,7 @@ def _decoded(bank, column: int) -> np.ndarray:
   n = bank.n_worlds
   counts = np.asarray(bank.frame_count, np.int64)
   out = np.zeros((n, max(int(counts.max(initial=1)), 1)), np.float32)
-  store = bank.qpos_store
-  columns = np.array([column])
-  if hasattr(store, "frames_of_rows"):
-    frames = store.frames_of_rows(None, columns=columns)
-  else:
-    frames = [store.row_frames(w, columns=columns) for w in range(n)]
+  frames = bank.qpos_store.frames_of_rows(None, columns=np.array([column]))
   for w, f in enumerate(frames):
     if len(f):
       out[w, :len(f)] = f[:, column]

@@ -119,11 +119,7 @@ def body_poses(model: mujoco.MjModel, qpos: np.ndarray,
 
 def decoded_frames(bank, rows: np.ndarray, columns=None) -> list[np.ndarray]:
   """f32[n_w, nq] decoded stored qpos of bank rows (i64[k]), one per row."""
-  store = bank.qpos_store
-  rows = np.asarray(rows, np.int64)
-  if hasattr(store, "frames_of_rows"):
-    return list(store.frames_of_rows(rows, columns=columns))
-  return [store.row_frames(int(r), columns=columns) for r in rows]
+  return list(bank.qpos_store.frames_of_rows(np.asarray(rows, np.int64), columns=columns))
 
 
 def padded(frames: list[np.ndarray], n_frames: int) -> np.ndarray:

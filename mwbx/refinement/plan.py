@@ -23,7 +23,7 @@ from mwbx.bank.versions import parked_columns, parked_qpos
 from mwbx import controls
 from mwbx.batch_sim import rows as rows_lib
 from mwbx.batch_sim import world as world_lib
-from mwbx.batch_sim.sampler import SampleStats, stored_frames, world_keys
+from mwbx.batch_sim.sampler import SampleStats, world_keys
 from mwbx.codec import CodecBounds
 from mwbx.events import detect as events_lib
 from mwbx.events.record import EventRecord
@@ -281,7 +281,7 @@ def _events(bank, row: int, first_frame: int, store, sampler):
   if bank.events is None:
     return None, ()
   actors = sampler.event_actors.names
-  frames = stored_frames(store)
+  frames = store.frames_of_rows(None)
   if tuple(bank.event_actors) != actors:  # a later scene version: other actors, found afresh
     return sampler.events_of_frames(frames), actors
   # The frames a refined world shares with its parent exactly (before
