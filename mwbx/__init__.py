@@ -8,7 +8,7 @@ Example::
   import jax, mwbx
   scene = mwbx.load_config("configs/quickstart.yaml")
   bank = mwbx.sample(scene, n_worlds=1024, key=jax.random.key(0))
-  bank.save("out/quick"); bank2 = mwbx.Bank.load("out/quick")
+  bank = bank.save("out/quick")  # the bank as stored; mwbx.Bank.load("out/quick") reads it back
 """
 
 from mwbx.bank import Bank

@@ -296,7 +296,7 @@ def _cmd_refine(args) -> int:
     print(f"mwbx: bank moved to scene version {done.scene_version} ({args.scene})", file=sys.stderr)
   active = [len(new.lineage[str(int(i))]["active"]) for i in new.world_ids]
   print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
-  total.save(out)  # may renumber the new worlds (another process took their ids meanwhile)
+  total = total.save(out)  # the new worlds' ids on disk (another process may have taken theirs meanwhile)
   saved = total.world_ids[total.n_worlds - new.n_worlds:]
   ids = f"{int(saved[0])}..{int(saved[-1])}"
   print(f"refined worlds      {new.n_worlds} of world {args.world} from t_min = {new.refine_time[0]:.4f} s"
@@ -338,8 +338,8 @@ def _cmd_solve(args) -> int:
   out = pathlib.Path(args.out or args.bank)
   print(f"mwbx: saving {result.bank.n_worlds} worlds to {out}", file=sys.stderr)
   row = result.bank.row_of(result.world)
-  result.bank.save(out)  # may renumber new worlds (another process took their ids meanwhile)
-  result = result._replace(world=int(result.bank.world_ids[row]))
+  saved = result.bank.save(out)  # the new worlds' ids on disk (another process may have taken theirs meanwhile)
+  result = result._replace(bank=saved, world=int(saved.world_ids[row]))
   plot = pathlib.Path(args.plot) if args.plot else out.parent / f"{out.name}-solve.png"
   plot.parent.mkdir(parents=True, exist_ok=True)
   progress_plot(result.steps, plot, title=f"mwbx solve {pathlib.Path(args.queries).name}")
@@ -360,7 +360,7 @@ def _cmd_drop(args) -> int:
   ids = parse_world_ids(args.ids, flag="IDS", known=bank.world_ids)
   kept = bank.drop(ids)
   out = pathlib.Path(args.out or args.bank)
-  kept.save(out)
+  kept = kept.save(out)
   dropped = ", ".join(f"{lo}..{hi}" if hi > lo else str(lo) for lo, hi in runs.id_ranges(ids))
   print(f"dropped worlds      {dropped}")
   print(f"bank                {out} ({kept.n_worlds} worlds, ids {_id_span(kept)})")

@@ -56,7 +56,8 @@ def bench_scene(name: str, n: int, tmp: pathlib.Path) -> dict:
   for label, e_com in (("float32", None), ("grid", config.codec.e_com)):
     cfg = config.model_copy(update={"codec": config.codec.model_copy(update={"e_com": e_com})})
     bank = mwbx.sample(cfg, n, jax.random.key(0))
-    path = bank.save(tmp / f"{name}-{label}")
+    path = tmp / f"{name}-{label}"
+    bank.save(path)
     body_seconds = float(bank.frame_count.sum()) / bank.record_fps * len(bank.body_names)
     disk = _disk(path)
     out[label] = {"e_com_m": e_com, "body_seconds": body_seconds, "disk_bytes": disk,

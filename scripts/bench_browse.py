@@ -280,7 +280,8 @@ def main() -> None:
       if len(page.session.entries) > 3:
         page.session.remove(0)
     with tempfile.TemporaryDirectory() as tmp:
-      bank_dir = bank.save(pathlib.Path(tmp) / "bank")
+      bank_dir = pathlib.Path(tmp) / "bank"
+      bank.save(bank_dir)
       page.session.workdir = pathlib.Path(tmp)  # the page's query files stay under its directory
       qfile = page.session.save_queries("q.yaml")
       cli_s = []

@@ -115,9 +115,12 @@ class Bank:
   events: EventRecord | None = None
   event_actors: tuple[str, ...] = ()
   _model: object = dataclasses.field(default=None, repr=False, compare=False)
-  # Where the bank was loaded from or last saved to, with the ids it held
-  # there (mwbx.bank.shards.Origin): what a save into that directory adds and drops.
+  # Where the bank was loaded from or saved to (the bank a save returns), with the
+  # ids it held there (mwbx.bank.shards.Origin): what a save into that directory adds and drops.
   origin: object = dataclasses.field(default=None, repr=False, compare=False)
+  # What saves of this bank, and of the banks sharing this record (made from
+  # it), wrote where: path -> {id: (id on disk, key bytes)} (mwbx.bank.saving).
+  _saved: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
   def __post_init__(self):
     if self.scene_version is None:  # banks of one scene version, and those saved before versions
@@ -396,17 +399,35 @@ class Bank:
   _ARRAYS = ("world_ids", "keys", "flags", "frame_count", "com", "com_count", "metrics",
              "perturbations", "steps", "parent_world", "refine_time", "scene_version")
 
-  def save(self, path: str | pathlib.Path) -> pathlib.Path:
-    """Writes the bank to directory ``path`` as append-only shards.
+  def save(self, path: str | pathlib.Path) -> "Bank":
+    """Writes the bank to directory ``path`` as append-only shards; returns the bank as saved.
 
     Worlds already stored there (same scene) are not written again: a save
     after an append or a refinement writes one new shard with the new worlds,
     and worlds this bank dropped are recorded as such. Other processes may
     write the same directory: worlds they added since this bank was loaded
-    stay, and new worlds whose ids they took meanwhile are given fresh ids
-    (this bank's ids are updated to those saved). Also writes
-    ``path/config.resolved.json`` and ``path/scene.xml`` for people. See
-    :mod:`mwbx.bank.saving`.
+    stay, and new worlds whose ids they took meanwhile are given fresh ids.
+    Also writes ``path/config.resolved.json`` and ``path/scene.xml`` for
+    people. See :mod:`mwbx.bank.saving`.
+
+    Like :meth:`append` and :meth:`drop`, saving leaves this bank as it is
+    (ids, ``next_id``, origin) and returns a new one: the same worlds under
+    the ids they have on disk (parent ids and lineage following), with the
+    directory's ``next_id``, whose next save writes only what changes after
+    it. Keep using the returned bank. Saving this one again writes none of
+    the worlds this save wrote (nor does saving a bank made from it), as
+    long as they are stored there.
+
+    Args:
+      path: the bank directory (created if missing).
+
+    Returns:
+      the bank as stored in ``path``.
+
+    Example:
+      >>> bank = mwbx.refine(mwbx.Bank.load("out/quick"), 3, "ball", t_min=0.5, n_samples=8)
+      >>> bank = bank.save("out/quick")   # the refined worlds' ids as on disk
+      >>> bank.save("out/quick")          # writes nothing new
     """
     return saving.save(self, path)
 

@@ -10,7 +10,7 @@ lock and on the manifest as it is at that moment:
 - gives its new worlds fresh ids if another writer took one of theirs
   meanwhile (stored, dropped, or reserved by a sampling run; parents and
   lineage follow), so two processes refining one bank both
-  keep their worlds; the bank's ids are updated to those saved;
+  keep their worlds;
 - a bank moved to a later scene version is written whole beside the
   directory and swapped in with one atomic exchange (``renameat2``), so the
   path always holds a complete bank; it is refused, and nothing written, if
@@ -20,6 +20,14 @@ A bank not loaded from the directory (e.g. sampled in memory) drops nothing
 and writes every world that is not already stored there (the same id with
 the same key); a world whose id is taken there by another world gets a fresh
 id, as above.
+
+Saving changes no bank: :func:`save` returns the bank as saved (the ids its
+worlds have on disk, the directory's ``next_id``, an origin naming every world
+it holds there), as ``Bank.append`` and ``Bank.drop`` return new banks. A
+bank remembers what it saved where (shared with the banks made from it): its
+worlds saved into a directory before, and still stored there with their keys,
+are not written again, so saving a bank twice, or a bank made from it before
+the first save returned, writes each world once.
 """
 
 from __future__ import annotations
@@ -41,12 +49,28 @@ from mwbx.bank import shards
 from mwbx.errors import MwbxError
 
 
-def save(bank, path: str | os.PathLike) -> pathlib.Path:
-  """Writes ``bank`` into directory ``path`` (see the module); returns the path.
+def save(bank, path: str | os.PathLike):
+  """Writes ``bank`` into directory ``path`` (see the module); returns the bank as saved.
 
-  Updates ``bank`` in place to what is on disk: its new worlds' ids as saved
-  (renumbered if another process took them meanwhile; parent ids and lineage
-  follow), ``next_id`` and its origin (a second save writes nothing again).
+  ``bank`` itself is unchanged (its ids, ``next_id`` and origin). The bank
+  returned holds the same worlds under the ids they have on disk (new worlds
+  renumbered if another process took their ids meanwhile; parent ids and
+  lineage follow), the directory's ``next_id``, and an origin naming every
+  world it holds there: saving it again writes nothing. Saving ``bank`` (or a
+  bank made from it) into ``path`` again writes none of the worlds this save
+  wrote, as long as they are stored there.
+
+  Args:
+    bank: the :class:`mwbx.Bank` to write.
+    path: the bank directory (created if missing).
+
+  Returns:
+    a new :class:`mwbx.Bank`: ``bank`` as it is stored in ``path`` now.
+
+  Example:
+    >>> bank = mwbx.Bank.load("out/quick").append(more)
+    >>> saved = bank.save("out/quick")   # its new worlds' ids may differ from bank's
+    >>> saved.save("out/quick")          # writes nothing new
   """
   path = pathlib.Path(path).absolute()
   if shards.has_manifest(path):
@@ -59,24 +83,23 @@ def save(bank, path: str | os.PathLike) -> pathlib.Path:
   with directory._locked():
     directory._check_scene(bank)
     if origin is not None:
-      rows = np.flatnonzero(~np.isin(bank.world_ids, origin.ids))
+      new = np.flatnonzero(~np.isin(bank.world_ids, origin.ids))
       gone = set(directory.taken(np.setdiff1d(origin.ids, bank.world_ids)).tolist())
     else:  # a world stored there with the same id and key is the same world; others are new
-      rows = np.flatnonzero(~directory.same_worlds(bank.world_ids, bank.keys))
+      new = np.flatnonzero(~directory.same_worlds(bank.world_ids, bank.keys))
       gone = set()
-    mapping = _fresh_ids(directory, bank.world_ids[rows])
-    out = renumbered(bank, mapping)
+    earlier = _saved_before(directory, bank, new)
+    rows = new[~np.isin(bank.world_ids[new], list(earlier))]
+    mapping = {**earlier, **_fresh_ids(directory, bank.world_ids[rows])}
+    out = renumbered(bank, {old: new_id for old, new_id in mapping.items() if old != new_id})
     if gone:
       directory.manifest["dropped"] = sorted(set(directory.manifest["dropped"]) | gone)
     directory._append_locked(out, rows)
     directory.commit()
     next_id = int(directory.manifest["next_id"])
+  _remember(bank, path, rows, out.world_ids[rows])
   write_readables(path, bank)
-  if mapping:  # the bank says what is on disk
-    bank.world_ids, bank.parent_world, bank.lineage = out.world_ids, out.parent_world, out.lineage
-  bank.next_id = max(bank.next_world_id, next_id)
-  bank.origin = shards.Origin(str(path), np.sort(bank.world_ids))
-  return path
+  return _as_saved(out, path, next_id)
 
 
 def write_readables(path: pathlib.Path, bank) -> None:
@@ -88,6 +111,35 @@ def write_readables(path: pathlib.Path, bank) -> None:
 def _origin_in(bank, path: pathlib.Path):
   origin = getattr(bank, "origin", None)
   return origin if origin is not None and pathlib.Path(origin.path) == path else None
+
+
+def _saved_before(directory, bank, rows: np.ndarray) -> dict[int, int]:
+  """old id -> id on disk of those worlds ``rows`` of ``bank`` that a save of
+  ``bank`` (or of a bank it was made from) wrote into ``directory`` and that
+  are still stored there with the same key."""
+  memo = bank._saved.get(str(directory.path), {})
+  ids = [int(i) for i in bank.world_ids[rows]]
+  hits = [(k, memo[i][0]) for k, i in enumerate(ids)
+          if i in memo and memo[i][1] == np.asarray(bank.keys[rows[k]]).tobytes()]
+  if not hits:
+    return {}
+  there = directory.same_worlds([new for _, new in hits], np.asarray(bank.keys)[rows[[k for k, _ in hits]]])
+  return {ids[k]: new for (k, new), ok in zip(hits, there) if ok}
+
+
+def _remember(bank, path: pathlib.Path, rows: np.ndarray, saved_ids: np.ndarray) -> None:
+  """Records in ``bank`` (and the banks sharing its record) which of its
+  worlds were written into ``path``, under which ids, with which keys."""
+  memo = bank._saved.setdefault(str(path), {})
+  for row, new in zip(rows.tolist(), saved_ids.tolist()):
+    memo[int(bank.world_ids[row])] = (int(new), np.asarray(bank.keys[row]).tobytes())
+
+
+def _as_saved(bank, path: pathlib.Path, next_id: int):
+  """``bank`` (ids as on disk) with the directory's ``next_id`` and an origin
+  of all its ids there; a record of saves of its own."""
+  return dataclasses.replace(bank, next_id=max(bank.next_world_id, next_id),
+                             origin=shards.Origin(str(path), np.sort(bank.world_ids)), _saved={})
 
 
 def _fresh_ids(directory, ids: np.ndarray) -> dict[int, int]:
@@ -118,9 +170,10 @@ def renumbered(bank, mapping: dict[int, int]):
       next_id=max(bank.next_world_id, max(mapping.values()) + 1))
 
 
-def _rewrite(bank, path: pathlib.Path) -> pathlib.Path:
+def _rewrite(bank, path: pathlib.Path):
   """Writes ``bank`` (of a later scene version) whole beside ``path`` and
-  exchanges the two directories atomically, all under ``path``'s lock."""
+  exchanges the two directories atomically, all under ``path``'s lock;
+  returns the bank as saved."""
   directory = shards.BankDirectory(path)
   origin = _origin_in(bank, path)
   ids = set(bank.world_ids.tolist())
@@ -148,14 +201,15 @@ def _rewrite(bank, path: pathlib.Path) -> pathlib.Path:
         target.manifest["dropped"] = sorted(set(manifest.get("dropped", [])) | ((loaded - ids) & stored))
         target.manifest["next_id"] = max(int(target.manifest["next_id"]), int(manifest.get("next_id", 0)))
         target.commit()
+        next_id = int(target.manifest["next_id"])
       write_readables(fresh, bank)
       exchange(fresh, path)  # ``fresh`` now names the old directory
     except BaseException:
       files.remove_quietly(fresh)
       raise
   shutil.rmtree(fresh, ignore_errors=True)
-  bank.origin = shards.Origin(str(path), np.sort(bank.world_ids))
-  return path
+  _remember(bank, path, np.arange(bank.n_worlds), bank.world_ids)
+  return _as_saved(bank, path, next_id)
 
 
 _AT_FDCWD = -100

@@ -62,7 +62,7 @@ _PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
 
 
 class Origin(typing.NamedTuple):
-  """Where a bank was loaded from (or last saved to), and the ids it had then.
+  """Where a bank was loaded from (or saved to: the bank a save returns), and the ids it had then.
 
   Attributes:
     path: the bank directory (absolute).

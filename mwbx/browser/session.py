@@ -319,13 +319,17 @@ class Session:
     self.entries = [Entry(q) for q in loaded.queries]
 
   def save(self) -> pathlib.Path:
-    """Writes the bank's new worlds as a new shard (nothing saved before changes)."""
+    """Writes the bank's new worlds as a new shard (nothing saved before
+    changes); the session goes on with the bank as saved (its worlds' ids as
+    on disk). Returns the bank directory."""
     if self.path is None:
       raise MwbxError("save: this session has no bank directory (pass path=)")
     with self._lock:
-      out = self.bank.save(self.path)
+      before, self.bank = self.bank, self.bank.save(self.path)
+      if self._cache is not None and self._cache[0][0] == id(before):  # the same worlds in the same rows
+        self._cache = ((id(self.bank), *self._cache[0][1:]), self._cache[1])
       self.unsaved.clear()
-      return out
+      return pathlib.Path(self.bank.origin.path)
 
   # -- refinement --------------------------------------------------------------------------
 

@@ -375,7 +375,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     queries = mwbx.load_queries("configs/queries/siggraph.yaml", bank=bank)
     result = mwbx.solve(bank, queries, budget=mwbx.search.Budget(seconds=600))
     print(result.message)
-    result.bank.save("out/siggraph")
+    bank = result.bank.save("out/siggraph")  # the bank as stored: its new worlds' ids as on disk
   """
   queries = as_queries(queries)
   if not queries:

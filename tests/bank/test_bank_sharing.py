@@ -8,6 +8,7 @@ processes (`python -m mwbx.cli ...`), started together."""
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import json
 import os
@@ -96,13 +97,59 @@ def test_new_worlds_whose_ids_another_writer_took_are_renumbered(small_bank, tin
   ours = stale.append(more)  # ids 4, 5
   theirs = other.append(more)  # ids 4, 5 too
   theirs.save(small_bank)
-  ours.save(small_bank)
-  assert ours.world_ids.tolist()[-2:] == [6, 7]  # the bank says what is on disk
+  saved = ours.save(small_bank)
+  assert saved.world_ids.tolist()[-2:] == [6, 7]  # the bank returned says what is on disk
   bank = mwbx.Bank.load(small_bank)
   assert sorted(bank.world_ids.tolist()) == list(range(8))
   np.testing.assert_array_equal(bank.qpos_frames(6), bank.qpos_frames(4))  # the same draws, twice
-  ours.save(small_bank)  # nothing new: nothing written again
+  saved.save(small_bank)  # nothing new: nothing written again
   assert mwbx.Bank.load(small_bank).n_worlds == 8
+
+
+def _state(bank):
+  return (bank.world_ids.tolist(), bank.parent_world.tolist(), sorted(bank.lineage), bank.next_id,
+          bank.origin and (bank.origin.path, bank.origin.ids.tolist()))
+
+
+def _shards(path):
+  return [e["name"] for e in _manifest(path)["shards"]]
+
+
+def test_saving_returns_the_bank_as_saved_and_leaves_the_bank_as_it_was(small_bank, tiny_native):
+  # Saving renumbered, and moved next_id and the origin of, the bank it was given.
+  more, _ = tiny_native.run(2, jax.random.key(5))
+  other = mwbx.Bank.load(small_bank).append(more)  # ids 4, 5
+  mine = mwbx.Bank.load(small_bank).append(more)  # ids 4, 5 too
+  mine = mine.append(mine._take(np.array([4, 5])))  # 6, 7: made children of 4 and 5
+  mine = dataclasses.replace(mine, parent_world=np.array([-1] * 6 + [4, 5]),
+                             lineage={"6": {"parent": 4}, "7": {"parent": 5}})
+  before = _state(mine)
+  first = other.save(small_bank)
+  assert _state(other)[:4] == ([0, 1, 2, 3, 4, 5], [-1] * 6, [], 6)
+  assert first.origin.ids.tolist() == list(range(6)) and first.next_id == 6
+  saved = mine.save(small_bank)  # 4..7 are taken: renumbered 6..9
+  assert _state(mine) == before
+  assert saved.world_ids.tolist() == list(range(4)) + [6, 7, 8, 9] and saved.next_id == 10
+  assert saved.parent_world.tolist()[-2:] == [6, 7] and saved.lineage["8"] == {"parent": 6}
+  assert saved.origin.path == str(small_bank) and saved.origin.ids.tolist() == list(range(4)) + [6, 7, 8, 9]
+  loaded = mwbx.Bank.load(small_bank)
+  assert sorted(loaded.world_ids.tolist()) == list(range(10)) and loaded.lineage["9"] == {"parent": 7}
+  shards = _shards(small_bank)
+  # Saving either bank again writes nothing: the first save's worlds are found on disk.
+  assert _state(saved.save(small_bank)) == _state(saved)
+  again = mine.save(small_bank)
+  assert _state(again) == _state(saved) and _state(mine) == before
+  assert _shards(small_bank) == shards and mwbx.Bank.load(small_bank).n_worlds == 10
+  # A bank made from the original writes only its own new worlds.
+  grown = mine.append(more).save(small_bank)
+  assert grown.world_ids.tolist()[-6:] == [6, 7, 8, 9, 10, 11] and mwbx.Bank.load(small_bank).n_worlds == 12
+  # A bank sampled elsewhere, its ids taken there: renumbered once, however often it is saved.
+  fresh, _ = tiny_native.run(2, jax.random.key(9))
+  ids = fresh.world_ids.tolist()
+  placed = fresh.save(small_bank)
+  assert fresh.world_ids.tolist() == ids == [0, 1] and fresh.origin is None
+  assert placed.world_ids.tolist() == [12, 13] and fresh.save(small_bank).world_ids.tolist() == [12, 13]
+  assert mwbx.Bank.load(small_bank).n_worlds == 14
 
 
 def test_two_sampling_runs_started_together_get_distinct_ids(tmp_path):
@@ -407,10 +454,10 @@ def test_a_bank_sampled_elsewhere_keeps_its_worlds_when_saved_over_the_same_ids(
   again.save(small_bank)
   assert sorted(mwbx.Bank.load(small_bank).world_ids.tolist()) == [0, 1, 2, 3]
   other, _ = tiny_native.run(2, jax.random.key(9))  # ids 0 and 1 again, other worlds
-  other.save(small_bank)
+  saved = other.save(small_bank)
   loaded = mwbx.Bank.load(small_bank)
-  assert sorted(loaded.world_ids.tolist()) == [0, 1, 2, 3, 4, 5] and other.world_ids.tolist() == [4, 5]
-  np.testing.assert_array_equal(loaded.qpos_frames(4), other.qpos_frames(4))
+  assert sorted(loaded.world_ids.tolist()) == [0, 1, 2, 3, 4, 5] and saved.world_ids.tolist() == [4, 5]
+  np.testing.assert_array_equal(loaded.qpos_frames(4), saved.qpos_frames(4))
   np.testing.assert_array_equal(loaded.qpos_frames(0), again.qpos_frames(0))
 
 

@@ -97,7 +97,8 @@ def test_interrupt_keeps_finished_chunks(tmp_path, capsys, monkeypatch):
 def test_append_writes_only_the_new_shard(tmp_path):
   config = mwbx.load_config(TINY)
   bank = mwbx.sample(config, 6, jax.random.key(0), backend="native")
-  path = bank.save(tmp_path / "bank")
+  path = tmp_path / "bank"
+  bank.save(path)
   first = {f: (f.stat().st_ino, f.stat().st_mtime_ns) for f in (path / "shards").rglob("*.npy")}
   more = mwbx.sample(config, 3, jax.random.key(0), first_world=bank.next_world_id, backend="native")
   bank.append(more).save(path)
@@ -112,7 +113,8 @@ def test_append_writes_only_the_new_shard(tmp_path):
 def test_one_corrupt_shard_is_named_and_the_others_stay_readable(tmp_path, capsys):
   config = mwbx.load_config(TINY)
   bank = mwbx.sample(config, 6, jax.random.key(0), backend="native", chunk_size=2)
-  path = bank.save(tmp_path / "bank")
+  path = tmp_path / "bank"
+  bank.save(path)
   more = mwbx.sample(config, 2, jax.random.key(0), first_world=6, backend="native")
   bank.append(more).save(path)
   target = path / "shards" / "00000" / "metrics.npy"

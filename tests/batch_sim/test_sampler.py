@@ -127,7 +127,8 @@ def test_nan_world_does_not_disturb_the_batch(tiny_native):
 
 def test_save_load_append(tmp_path, tiny_native_bank, tiny_config):
   bank = tiny_native_bank
-  path = bank.save(tmp_path / "bank")
+  path = tmp_path / "bank"
+  bank.save(path)
   loaded = mwbx.Bank.load(path)
   for i in (0, 31):
     same_world(bank, i, loaded, i)
@@ -144,7 +145,8 @@ def test_save_load_append(tmp_path, tiny_native_bank, tiny_config):
 
 
 def test_corrupt_bank_gives_a_clear_error(tmp_path, tiny_native_bank):
-  path = tiny_native_bank.save(tmp_path / "bank")
+  path = tmp_path / "bank"
+  tiny_native_bank.save(path)
   with pytest.raises(mwbx.MwbxError, match="no bank here"):
     mwbx.Bank.load(tmp_path / "missing")
   for f in sorted(path.rglob("*")):
@@ -320,7 +322,8 @@ def test_flipped_bits_are_caught_or_harmless(tmp_path, tiny_native_bank):
   array as saved: never a silently changed answer."""
   import shutil
   bank = tiny_native_bank
-  clean = bank.save(tmp_path / "clean")
+  clean = tmp_path / "clean"
+  bank.save(clean)
   files = sorted(f for f in (clean / "shards").rglob("*") if f.is_file())
   rng = np.random.default_rng(0)
   caught = 0
@@ -351,7 +354,8 @@ def test_flipped_bits_are_caught_or_harmless(tmp_path, tiny_native_bank):
 
 
 def test_checksum_names_the_changed_array(tmp_path, tiny_native_bank):
-  path = tiny_native_bank.save(tmp_path / "bank")
+  path = tmp_path / "bank"
+  tiny_native_bank.save(path)
   shard = path / "shards" / "00000"
   metrics = np.load(shard / "metrics.npy")
   metrics[0, 0, 0] += 1.0  # a valid file with other numbers: only the checksum can tell

@@ -67,7 +67,8 @@ def test_sampled_banks_store_their_paths_on_the_grid(tiny_native_bank, tmp_path)
   bank = tiny_native_bank
   step = polyline.grid_step(bank.config["codec"]["e_com"])
   np.testing.assert_array_equal(polyline.round_to_grid(bank.com, step), bank.com)
-  path = bank.save(tmp_path / "bank")
+  path = tmp_path / "bank"
+  bank.save(path)
   coded = np.load(path / "shards" / "00000" / "com_grid.npy")
   assert coded.size * 4 < bank.com.nbytes
   np.testing.assert_array_equal(mwbx.Bank.load(path).com, bank.com)

@@ -175,7 +175,8 @@ def test_solve_sees_their_objects_and_deadlines(bank):
 
 def test_cli_query_with_geometry_and_orientation(tiny_native_bank, tmp_path, capsys):
   bank = tiny_native_bank
-  saved = bank.save(tmp_path / "bank")
+  saved = tmp_path / "bank"
+  bank.save(saved)
   path = tmp_path / "q.yaml"
   path.write_text(
       "queries:\n"
