@@ -17,10 +17,70 @@ reset before every world.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c
+from mwbx.batch_sim import free_bodies as free_bodies_lib
+from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world
 from mwbx.host_jit import host_jit
+
+
+class WorldInputs(NamedTuple):
+  """What every world of a chunk steps and is observed with (read only).
+
+  Attributes:
+    ctrl_table: f64[n_frames · S, nu] actuator control of each step from step 0
+      (:func:`mwbx.controls.control_table`, the actuators' units); width 0:
+      ``ctrl`` is left alone.
+    n_frames: frames per world at most (end_frame + 1).
+    timestep: physics step, s.
+    gravity: f64[3] m/s².
+    free: True to observe the tracked bodies from the states (the model then
+      steps without sensors); False to read MuJoCo's sensors.
+    free_bodies: :class:`free_bodies.FreeBodies` of the tracked bodies
+      (:func:`free_bodies.host_arrays`; empty arrays unless ``free``).
+  """
+
+  ctrl_table: np.ndarray
+  n_frames: int
+  timestep: float
+  gravity: np.ndarray
+  free: bool
+  free_bodies: free_bodies_lib.FreeBodies
+
+
+class ChunkBuffers(NamedTuple):
+  """Host arrays of a chunk of C worlds; row i belongs to world i and is
+  written only by the thread running it.
+
+  Attributes:
+    params: :func:`host_bookkeeping.host_params` of the scene's
+      :class:`world.WorldParams` (f64 arrays, Python scalars).
+    key_data: u32[C, 2] per-world step key roots (``jax.random.key_data``).
+    tracked_ids: i64[B] MuJoCo body id of each tracked body.
+    states: f64[C, nstate] full physics state after each world's last frame.
+    warmstart: f64[C, nv] accelerations of each world's last step (m/s², rad/s²).
+    sensordata: f32[C, S, nsensordata] sensor blocks of the last frame's steps
+      (:data:`mwbx.scene.SENSORS` units; NaN where MuJoCo reset the world).
+    wrench_full: f64[C, S, nbody, 6] ``xfrc_applied`` of each world's next
+      frame: force N, torque N·m.
+    qpos_buf: f32[C, T, nq] recorded ``qpos`` of each frame.
+    com_buf: f32[C, T, B, 3] recorded COM of each tracked body, m.
+    carry: :class:`world.WorldCarry` of host arrays
+      (:func:`host_bookkeeping.init_carry`), updated.
+  """
+
+  params: world.WorldParams
+  key_data: np.ndarray
+  tracked_ids: np.ndarray
+  states: np.ndarray
+  warmstart: np.ndarray
+  sensordata: np.ndarray
+  wrench_full: np.ndarray
+  qpos_buf: np.ndarray
+  com_buf: np.ndarray
+  carry: world.WorldCarry
 
 
 _step = mujoco_c.mj_step
@@ -40,77 +100,66 @@ def monotonic_seconds(ts):
 
 
 @host_jit
-def physics_step(model_adr, data_adr, xfrc_applied, wrench, data_ctrl, ctrl_table, k, state_out, free,
-                 sensors_out, data_sensordata):
+def physics_step(data, wrench, ctrl_table, k, state_out, free, sensors_out):
   """One ``mj_step`` of a world with the step's applied wrenches and control.
 
   Args:
+    data: :class:`mujoco_c.MjDataViews` of the world's ``MjData``.
     wrench: f64[nbody, 6] ``xfrc_applied`` of the step.
     ctrl_table: f64[N, nu] control per step (width 0: ``ctrl`` left alone); k: the step.
     state_out: f64[nstate] out: the full physics state after the step.
     sensors_out: f64[nsensordata] out unless ``free``: the sensors of the
       state the step started from.
   """
-  xfrc_applied[:, :] = wrench
+  data.xfrc_applied[:, :] = wrench
   if ctrl_table.shape[1] > 0:
-    data_ctrl[:] = ctrl_table[min(k, ctrl_table.shape[0] - 1)]
-  _step(model_adr, data_adr)
-  _get_state(model_adr, data_adr, state_out.ctypes.data, _FULLPHYSICS)
+    data.ctrl[:] = ctrl_table[min(k, ctrl_table.shape[0] - 1)]
+  _step(data.model_adr, data.data_adr)
+  _get_state(data.model_adr, data.data_adr, state_out.ctypes.data, _FULLPHYSICS)
   if not free:
-    sensors_out[:] = data_sensordata
+    sensors_out[:] = data.sensordata
 
 
 @host_jit
-def run_world(row, model_adr, data_adr, xfrc_applied, data_sensordata, data_ctrl, ctrl_table,
-              initial_states, n_frames, timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, sensordata, warmstart,
-              states, key_data, p, carry, tracked, qpos_buf, com_buf, wrench_full, running):
+def run_world(row, data, inputs, initial_states, buffers, running):
   """Runs world ``row`` of a chunk until it finishes; returns seconds inside ``mj_step``.
 
   Args:
     row: chunk row of the world.
-    model_adr, data_adr: ``MjModel._address`` and ``MjData._address`` (this
-      thread's data).
-    xfrc_applied: f64[nbody, 6], data_sensordata: f64[nsensordata] and
-      data_ctrl: f64[nu], views of that ``MjData``'s arrays.
-    ctrl_table: f64[n_frames · S, nu] control of each step
-      (:func:`mwbx.controls.control_table`); width 0: ``ctrl`` is left alone.
+    data: :class:`mujoco_c.MjDataViews` of this thread's ``MjData``.
+    inputs: the chunk's :class:`WorldInputs`.
     initial_states: f64[C, nstate] full physics states at time 0.
-    n_frames: frames per world at most.
-    timestep: physics step, s. gravity: f64[3], m/s**2.
-    free: True to observe free bodies from the states (the model then steps
-      without sensors); False to read MuJoCo's sensors.
-    qpos_adr, dof_adr, ipos, iquat: :class:`free_bodies.FreeBodies` arrays.
-    sensordata, warmstart, states: chunk buffers of
-      :func:`host_loops.absorb_rows` (f32[C, S, nsensordata], f64[C, nv],
-      f64[C, nstate]).
-    key_data, p, carry, tracked, qpos_buf, com_buf, wrench_full, running: as
-      :func:`host_bookkeeping.frame_update`.
+    buffers: the chunk's :class:`ChunkBuffers` (row ``row`` written).
+    running: bool[C] as :func:`host_bookkeeping.frame_update` (out).
   """
-  n_steps = wrench_full.shape[1]
+  b = buffers
+  free = inputs.free
+  n_steps = b.wrench_full.shape[1]
   nstate = initial_states.shape[1]
-  nq = qpos_buf.shape[2]
+  nq = b.qpos_buf.shape[2]
   rows = np.full(1, row, np.int64)
   before = np.empty((1, nstate))
   after = np.empty((1, n_steps, nstate))
-  sensors = np.zeros((1, n_steps, 0 if free else data_sensordata.size))
+  sensors = np.zeros((1, n_steps, 0 if free else data.sensordata.size))
   ts = np.zeros(2, np.int64)
-  _reset(model_adr, data_adr)
-  _set_state(model_adr, data_adr, initial_states[row].ctypes.data, _FULLPHYSICS)
+  _reset(data.model_adr, data.data_adr)
+  _set_state(data.model_adr, data.data_adr, initial_states[row].ctypes.data, _FULLPHYSICS)
   physics = 0.0
   frame = 0
-  while running[row] and frame < n_frames:
-    _get_state(model_adr, data_adr, before[0].ctypes.data, _FULLPHYSICS)
+  while running[row] and frame < inputs.n_frames:
+    _get_state(data.model_adr, data.data_adr, before[0].ctypes.data, _FULLPHYSICS)
     start = monotonic_seconds(ts)
     for s in range(n_steps):
-      physics_step(model_adr, data_adr, xfrc_applied, wrench_full[row, s], data_ctrl, ctrl_table,
-                   frame * n_steps + s, after[0, s], free, sensors[0, s], data_sensordata)
+      physics_step(data, b.wrench_full[row, s], inputs.ctrl_table, frame * n_steps + s, after[0, s], free,
+                   sensors[0, s])
     physics += monotonic_seconds(ts) - start
-    host_loops.absorb_rows(rows, before, after, sensors, timestep, 1 + nq, sensordata, warmstart,
-                           states)
+    host_loops.absorb_rows(rows, before, after, sensors, inputs.timestep, 1 + nq, b.sensordata, b.warmstart,
+                           b.states)
     if free:
-      host_loops.observe_free_bodies(rows, before, after, timestep, gravity, 1, 1 + nq, qpos_adr,
-                                     dof_adr, ipos, iquat, sensordata)
-    host_bookkeeping.frame_update(rows, sensordata, key_data, p, carry, tracked, before, 1, frame,
-                                  qpos_buf, com_buf, wrench_full, running)
+      fb = inputs.free_bodies
+      host_loops.observe_free_bodies(rows, before, after, inputs.timestep, inputs.gravity, 1, 1 + nq,
+                                     fb.qpos_adr, fb.dof_adr, fb.ipos, fb.iquat, b.sensordata)
+    host_bookkeeping.frame_update(rows, b.sensordata, b.key_data, b.params, b.carry, b.tracked_ids, before, 1,
+                                  frame, b.qpos_buf, b.com_buf, b.wrench_full, running)
     frame += 1
   return physics

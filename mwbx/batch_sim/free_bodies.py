@@ -61,12 +61,12 @@ def free_bodies(model: mujoco.MjModel, body_ids) -> FreeBodies | None:
                     np.ascontiguousarray(model.body_ipos[ids]), np.ascontiguousarray(model.body_iquat[ids]))
 
 
-def host_arrays(bodies: FreeBodies | None) -> tuple[bool, tuple]:
-  """(whether there are free bodies to observe from the states, their arrays
-  for the compiled loops: empty ones when ``bodies`` is None)."""
+def host_arrays(bodies: FreeBodies | None) -> tuple[bool, FreeBodies]:
+  """(whether there are free bodies to observe from the states, ``bodies``
+  for the compiled loops: empty arrays when ``bodies`` is None)."""
   if bodies is None:
-    return False, (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
-  return True, tuple(bodies)
+    return False, FreeBodies(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+  return True, bodies
 
 
 def quiet_copy(model: mujoco.MjModel) -> mujoco.MjModel:

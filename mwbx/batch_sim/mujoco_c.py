@@ -21,10 +21,11 @@ import ctypes
 import pathlib
 import threading
 import time
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import llvmlite.binding as llvm
 import mujoco
+import numpy as np
 from numba import types
 
 STATE_FULLPHYSICS = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -66,6 +67,35 @@ CLOCK_MONOTONIC = int(getattr(time, "CLOCK_MONOTONIC", 1))
 def available() -> bool:
   """Whether the compiled per-world loop can call MuJoCo's C library here."""
   return mj_step is not None
+
+
+class MjDataViews(NamedTuple):
+  """One thread's ``MjData`` as the compiled loops see it (:func:`data_views`).
+
+  Attributes:
+    model_adr: ``MjModel._address`` of the model the data steps with.
+    data_adr: ``MjData._address``.
+    qpos: f64[nq] view of ``qpos`` (m, rad; free-joint quaternions w, x, y, z).
+    qvel: f64[nv] view of ``qvel`` (m/s, rad/s).
+    xfrc_applied: f64[nbody, 6] view of ``xfrc_applied``: force N, torque N·m
+      (world frame, at each body's COM).
+    sensordata: f64[nsensordata] view of ``sensordata`` (the sensors' units).
+    ctrl: f64[nu] view of ``ctrl`` (the actuators' units).
+  """
+
+  model_adr: int
+  data_adr: int
+  qpos: np.ndarray
+  qvel: np.ndarray
+  xfrc_applied: np.ndarray
+  sensordata: np.ndarray
+  ctrl: np.ndarray
+
+
+def data_views(model: mujoco.MjModel, data: mujoco.MjData) -> MjDataViews:
+  """``data`` (made for ``model``, or a model of the same sizes) for the compiled loops."""
+  return MjDataViews(model._address, data._address, data.qpos, data.qvel, data.xfrc_applied,
+                     data.sensordata, data.ctrl)
 
 
 # -- MuJoCo errors inside compiled loops ---------------------------------------------

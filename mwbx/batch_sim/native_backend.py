@@ -42,20 +42,18 @@ _CONTROL_CTRL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPL
 
 
 class _Chunk(NamedTuple):
-  """Host buffers of one chunk of C worlds (shapes as in :meth:`NativeBackend.step`
-  and :func:`host_bookkeeping.frame_update`)."""
+  """Host state of one chunk of C worlds.
 
-  host_params: world.WorldParams
-  key_data: np.ndarray
-  free_bodies: object  # free_bodies.FreeBodies or None
-  tracked_ids: np.ndarray
-  states: np.ndarray
-  warmstart: np.ndarray
-  wrench_full: np.ndarray
-  sensordata: np.ndarray
-  qpos_buf: np.ndarray
-  com_buf: np.ndarray
-  carry: world.WorldCarry
+  Attributes:
+    buffers: the :class:`compiled_world.ChunkBuffers` both sampling loops write.
+    free_bodies: :class:`free_bodies.FreeBodies` to observe from the states,
+      or None to read MuJoCo's sensors.
+    active: bool[C] false for padding slots.
+    running: bool[C] worlds that need another frame.
+  """
+
+  buffers: compiled_world.ChunkBuffers
+  free_bodies: free_bodies_lib.FreeBodies | None
   active: np.ndarray
   running: np.ndarray
 
@@ -176,29 +174,32 @@ class NativeBackend:
     n_bodies = len(scene.body_ids)
     spf = params.steps_per_frame
     active = np.asarray(active)
-    return _Chunk(
-        host_params=host_bookkeeping.host_params(params),
+    buffers = compiled_world.ChunkBuffers(
+        params=host_bookkeeping.host_params(params),
         key_data=np.asarray(jax.random.key_data(step_keys), np.uint32),
-        # Free bodies are observed from their states: MuJoCo then steps without sensors.
-        free_bodies=free_bodies_lib.free_bodies(m, scene.body_ids),
         tracked_ids=np.asarray(scene.body_ids, np.int64),
         states=self.initial_states(np.asarray(qpos0), np.asarray(qvel0)),
         warmstart=np.zeros((c, m.nv)),
-        wrench_full=np.zeros((c, spf, m.nbody, 6)),
         sensordata=np.zeros((c, spf, m.nsensordata), np.float32),
+        wrench_full=np.zeros((c, spf, m.nbody, 6)),
         qpos_buf=np.zeros((c, n_frames, m.nq), np.float32),
         com_buf=np.zeros((c, n_frames, n_bodies, 3), np.float32),
-        carry=host_bookkeeping.init_carry(n_bodies, active),
+        carry=host_bookkeeping.init_carry(n_bodies, active))
+    return _Chunk(
+        buffers=buffers,
+        # Free bodies are observed from their states: MuJoCo then steps without sensors.
+        free_bodies=free_bodies_lib.free_bodies(m, scene.body_ids),
         active=active,
         running=active.copy())
 
   @staticmethod
   def _result(ch: _Chunk, compile_seconds: float, run_seconds: float,
               physics_seconds: float) -> ChunkResult:
-    carry = ch.carry
+    b = ch.buffers
+    carry = b.carry
     frame_count = carry.frame_count.astype(np.int32)
     return ChunkResult(
-        qpos=fill_tail(ch.qpos_buf, frame_count), com=fill_tail(ch.com_buf, frame_count),
+        qpos=fill_tail(b.qpos_buf, frame_count), com=fill_tail(b.com_buf, frame_count),
         frame_count=frame_count, status=carry.status.astype(np.int32),
         metrics=world.finalize_metrics(carry).astype(np.float32), perturbations=carry.perturbations.astype(np.int32),
         steps=carry.step.astype(np.int32), compile_seconds=compile_seconds, run_seconds=run_seconds,
@@ -224,20 +225,18 @@ class NativeBackend:
     m = self.model
     c = len(qpos0)
     ch = self._chunk(scene, params, qpos0, qvel0, step_keys, active, n_frames)
-    carry, running, active = ch.carry, ch.running, ch.active
-    initial = ch.states.copy()  # ch.states moves on with each world
-    free, (qpos_adr, dof_adr, ipos, iquat) = free_bodies_lib.host_arrays(ch.free_bodies)
+    buffers, running, active = ch.buffers, ch.running, ch.active
+    carry = buffers.carry
+    initial = buffers.states.copy()  # buffers.states moves on with each world
+    free, bodies = free_bodies_lib.host_arrays(ch.free_bodies)
     model = self.quiet_model if free else m
-    gravity = np.asarray(m.opt.gravity, np.float64)
-    ctrl_table = controls.scene_table(scene, n_frames * params.steps_per_frame)
+    inputs = compiled_world.WorldInputs(
+        ctrl_table=controls.scene_table(scene, n_frames * params.steps_per_frame), n_frames=n_frames,
+        timestep=m.opt.timestep, gravity=np.asarray(m.opt.gravity, np.float64), free=free, free_bodies=bodies)
 
     def run(row, data, running_flags):
-      return compiled_world.run_world(
-          row, model._address, data._address, data.xfrc_applied, data.sensordata, data.ctrl, ctrl_table,
-          initial, n_frames,
-          m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat, ch.sensordata, ch.warmstart,
-          ch.states, ch.key_data, ch.host_params, carry, ch.tracked_ids, ch.qpos_buf, ch.com_buf,
-          ch.wrench_full, running_flags)
+      return compiled_world.run_world(row, mujoco_c.data_views(model, data), inputs, initial, buffers,
+                                      running_flags)
 
     # The first call compiles the loop, or loads it from numba's cache (no world
     # is marked running, so it returns at once).
@@ -360,12 +359,13 @@ class NativeBackend:
     c = len(qpos0)
     spf = params.steps_per_frame
     ch = self._chunk(scene, params, qpos0, qvel0, step_keys, active, n_frames)
-    states, warmstart, wrench_full, sensordata = ch.states, ch.warmstart, ch.wrench_full, ch.sensordata
+    b = ch.buffers
+    states, warmstart, wrench_full, sensordata = b.states, b.warmstart, b.wrench_full, b.sensordata
     running, active, free_bodies = ch.running, ch.active, ch.free_bodies
 
     def bookkeeping(rows, before, frame):
-      host_bookkeeping.frame_update(rows, sensordata, ch.key_data, ch.host_params, ch.carry, ch.tracked_ids,
-                                    before, 1, frame, ch.qpos_buf, ch.com_buf, wrench_full, running)
+      host_bookkeeping.frame_update(rows, sensordata, b.key_data, b.params, b.carry, b.tracked_ids,
+                                    before, 1, frame, b.qpos_buf, b.com_buf, wrench_full, running)
 
     t0 = time.perf_counter()
     bookkeeping(np.zeros(0, np.int64), states[:0], 0)  # compile, or load from numba's cache

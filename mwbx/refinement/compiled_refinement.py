@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from typing import NamedTuple
 
 import jax
 import mujoco
@@ -42,8 +43,8 @@ import numpy as np
 
 from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops, mujoco_c, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
+from mwbx.batch_sim.compiled_world import ChunkBuffers, WorldInputs, physics_step
 from mwbx.batch_sim.compiled_world import monotonic_seconds as _now
-from mwbx.batch_sim.compiled_world import physics_step
 from mwbx.host_jit import host_jit
 from mwbx.refinement import interactions
 from mwbx.refinement.loop import RefineOutput, start_active
@@ -56,6 +57,70 @@ _FULLPHYSICS = mujoco_c.STATE_FULLPHYSICS
 # What a call of run_refined_world ended with.
 FINISHED = 0
 ACTIVATED = 1  # the active set grew: call again with the new inactive set's model
+
+
+class ParentMotion(NamedTuple):
+  """The parent's stored motion: where the refined worlds start and the path
+  inactive objects play back (:class:`stored_motion.StoredPath`, as f32 host arrays).
+
+  Attributes:
+    first_frame: f0, the parent's frame the refined worlds start from.
+    qpos: f32[F, nq] decoded frames (m, rad; free-joint quaternions w, x, y, z).
+    qvel: f32[F, nv] chord velocity from frame f to f + 1 (m/s, rad/s).
+    step_targets: f32[F · S, nq] playback ``qpos`` of each physics step.
+    com: f32[F, B, 3] tracked bodies' centres of mass, m.
+    quat: f32[F, B, 4] tracked bodies' inertial-frame orientations (w, x, y, z).
+    lin_vel: f32[F, B, 3] COM chord velocity from frame f to f + 1, m/s.
+    ang_vel: f32[F, B, 3] chord angular velocity (world frame), rad/s.
+  """
+
+  first_frame: int
+  qpos: np.ndarray
+  qvel: np.ndarray
+  step_targets: np.ndarray
+  com: np.ndarray
+  quat: np.ndarray
+  lin_vel: np.ndarray
+  ang_vel: np.ndarray
+
+
+class RefineObjects(NamedTuple):
+  """The scene's objects as the refined worlds see them (read only).
+
+  Attributes:
+    qpos_object: bool[O, nq] the ``qpos`` coordinates of each object.
+    dof_object: bool[O, nv] the dofs of each object.
+    perturbable: bool[B] the scene's perturbable tracked bodies (only those
+      of active objects are perturbed).
+    interaction: :class:`interactions.HostInteraction` of the interaction test.
+  """
+
+  qpos_object: np.ndarray
+  dof_object: np.ndarray
+  perturbable: np.ndarray
+  interaction: interactions.HostInteraction
+
+
+class RefinedWorlds(NamedTuple):
+  """Per-world refinement state and audit of a chunk, updated in place; row i
+  belongs to world i and is written only by the thread running it.
+
+  Attributes:
+    frame_of: i64[C] the next frame of each world.
+    active: bool[C, O] objects simulated in the coming frame.
+    prev_inactive: bool[C, O] objects inactive in the last frame.
+    activated: i32[C, O] frame each object became active, -1: never.
+    audit_ratio: f64[C] largest ``‖dv‖ / (α‖Δv‖)`` (or angular alike) of
+      the perturbations applied.
+    audit_stray: i64[C] perturbations applied to bodies not perturbable.
+  """
+
+  frame_of: np.ndarray
+  active: np.ndarray
+  prev_inactive: np.ndarray
+  activated: np.ndarray
+  audit_ratio: np.ndarray
+  audit_stray: np.ndarray
 
 
 @host_jit
@@ -131,105 +196,91 @@ def _audit(sensordata_row, wrench_row, tracked, mass, inertia, perturbable, alph
 
 
 @host_jit
-def run_refined_world(row, model_adr, data_adr, data_qpos, data_qvel, xfrc_applied, data_sensordata, data_ctrl,
-                      ctrl_table, n_frames, first_frame, timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat,
-                      path_qpos, path_qvel, step_targets, path_com, path_quat, path_lin_vel, path_ang_vel,
-                      qpos_object, dof_object, body_object, radius, ghost_slack, margin, horizon, speed_factor,
-                      g_norm, scene_perturbable, sensordata, warmstart, states, key_data, p, carry, tracked,
-                      qpos_buf, com_buf, wrench_full, running, frame_of, active, prev_inactive, activated,
-                      audit_ratio, audit_stray):
+def run_refined_world(row, data, inputs, parent, objects, buffers, refined, running):
   """Runs refined world ``row`` until it finishes or its active set grows.
 
   Args:
     row: chunk row of the world.
-    model_adr, data_adr: ``MjModel._address`` (the contact-free model of the
-      world's current inactive set) and this thread's ``MjData._address``.
-    data_qpos, data_qvel, xfrc_applied, data_sensordata, data_ctrl: views of
-      that ``MjData``'s arrays.
-    ctrl_table: f64[n_frames · S, nu] control of each step from step 0 (width 0: none).
-    n_frames: end_frame + 1. first_frame: f0.
-    timestep: s. gravity: f64[3] m/s². free, qpos_adr, dof_adr, ipos, iquat:
-      free-body observation (as sampling's ``compiled_world.run_world``).
-    path_qpos, path_qvel, step_targets, path_com, path_quat, path_lin_vel,
-      path_ang_vel: the parent's :class:`stored_motion.StoredPath` arrays and the
-      per-step playback qpos (f32[F · S, nq]).
-    qpos_object: bool[O, nq]; dof_object: bool[O, nv] each object's coordinates.
-    body_object, radius, ghost_slack, margin, horizon, speed_factor, g_norm:
-      :func:`interactions.host_interaction`.
-    scene_perturbable: bool[B] the scene's perturbable bodies.
-    sensordata, warmstart, states, key_data, p, carry, tracked, qpos_buf,
-      com_buf, wrench_full, running: as in sampling (recording from f0:
-      ``qpos_buf[row, f - f0]``); ``p.perturbable`` is this thread's own
-      bool[B], rewritten here for the world's active bodies.
-    frame_of: i64[C] the next frame of each world (updated).
-    active: bool[C, O] objects simulated in the coming frame (updated).
-    prev_inactive: bool[C, O] objects inactive in the last frame (updated).
-    activated: i32[C, O] frame each object became active, -1: never (updated).
-    audit_ratio: f64[C]; audit_stray: i64[C] plausibility audit (updated).
+    data: :class:`mujoco_c.MjDataViews` of this thread's ``MjData``, its
+      ``model_adr`` the contact-free model of the world's current inactive set.
+    inputs: :class:`compiled_world.WorldInputs` (``ctrl_table`` from step 0).
+    parent: :class:`ParentMotion`.
+    objects: :class:`RefineObjects`.
+    buffers: :class:`compiled_world.ChunkBuffers` as in sampling (recording
+      from f0: ``qpos_buf[row, f - f0]``); ``buffers.params.perturbable`` is
+      this thread's own bool[B], rewritten here for the world's active bodies.
+    refined: :class:`RefinedWorlds` (row ``row`` updated).
+    running: bool[C] as in sampling (out).
 
   Returns:
     (FINISHED or ACTIVATED, seconds inside ``mj_step``).
   """
-  n_steps = wrench_full.shape[1]
-  nstate = states.shape[1]
-  nq = qpos_buf.shape[2]
-  n_bodies = tracked.size
+  b, p, inter = buffers, buffers.params, objects.interaction
+  free, timestep = inputs.free, inputs.timestep
+  active, prev_inactive = refined.active, refined.prev_inactive
+  frame_of = refined.frame_of
+  n_steps = b.wrench_full.shape[1]
+  nstate = b.states.shape[1]
+  nq = b.qpos_buf.shape[2]
+  n_bodies = b.tracked_ids.size
   n_objects = active.shape[1]
   rows = np.full(1, row, np.int64)
   before = np.empty((1, nstate))
   after = np.empty((1, n_steps, nstate))
-  sensors = np.zeros((1, n_steps, 0 if free else data_sensordata.size))
+  sensors = np.zeros((1, n_steps, 0 if free else data.sensordata.size))
   com_sim = np.empty((n_bodies, 3))
   speed_sim = np.empty(n_bodies)
   inactive = np.empty(n_objects, np.bool_)
   nxt = np.empty(n_objects, np.bool_)
   ts = np.zeros(2, np.int64)
   physics = 0.0
-  for b in range(n_bodies):
-    p.perturbable[b] = scene_perturbable[b] and active[row, body_object[b]]
-  while running[row] and frame_of[row] < n_frames:
+  for i in range(n_bodies):
+    p.perturbable[i] = objects.perturbable[i] and active[row, inter.body_object[i]]
+  while running[row] and frame_of[row] < inputs.n_frames:
     frame = frame_of[row]
-    _put_on_path(data_qpos, data_qvel, prev_inactive[row], qpos_object, dof_object, path_qpos[frame],
-                 path_qvel[frame])
-    _get_state(model_adr, data_adr, before[0].ctypes.data, _FULLPHYSICS)
+    _put_on_path(data.qpos, data.qvel, prev_inactive[row], objects.qpos_object, objects.dof_object,
+                 parent.qpos[frame], parent.qvel[frame])
+    _get_state(data.model_adr, data.data_adr, before[0].ctypes.data, _FULLPHYSICS)
     for o in range(n_objects):
       inactive[o] = not active[row, o]
     start = _now(ts)
     for s in range(n_steps):
       if s > 0:
-        _put_on_path(data_qpos, data_qvel, inactive, qpos_object, dof_object, step_targets[frame * n_steps + s],
-                     path_qvel[frame])
-      physics_step(model_adr, data_adr, xfrc_applied, wrench_full[row, s], data_ctrl, ctrl_table,
-                   frame * n_steps + s, after[0, s], free, sensors[0, s], data_sensordata)
+        _put_on_path(data.qpos, data.qvel, inactive, objects.qpos_object, objects.dof_object,
+                     parent.step_targets[frame * n_steps + s], parent.qvel[frame])
+      physics_step(data, b.wrench_full[row, s], inputs.ctrl_table, frame * n_steps + s, after[0, s], free,
+                   sensors[0, s])
     physics += _now(ts) - start
-    host_loops.absorb_rows(rows, before, after, sensors, timestep, 1 + nq, sensordata, warmstart, states)
+    host_loops.absorb_rows(rows, before, after, sensors, timestep, 1 + nq, b.sensordata, b.warmstart, b.states)
     if free:
-      host_loops.observe_free_bodies(rows, before, after, timestep, gravity, 1, 1 + nq, qpos_adr, dof_adr,
-                                     ipos, iquat, sensordata)
-    _stored_motion(sensordata[row], active[row], body_object, frame, path_com, path_quat, path_lin_vel,
-                   path_ang_vel)
-    host_bookkeeping.frame_update(rows, sensordata, key_data, p, carry, tracked, before, 1, frame - first_frame,
-                                  qpos_buf, com_buf, wrench_full, running)
-    worst, stray = _audit(sensordata[row], wrench_full[row], tracked, p.mass, p.inertia, p.perturbable,
+      fb = inputs.free_bodies
+      host_loops.observe_free_bodies(rows, before, after, timestep, inputs.gravity, 1, 1 + nq, fb.qpos_adr,
+                                     fb.dof_adr, fb.ipos, fb.iquat, b.sensordata)
+    _stored_motion(b.sensordata[row], active[row], inter.body_object, frame, parent.com, parent.quat,
+                   parent.lin_vel, parent.ang_vel)
+    host_bookkeeping.frame_update(rows, b.sensordata, b.key_data, p, b.carry, b.tracked_ids, before, 1,
+                                  frame - parent.first_frame, b.qpos_buf, b.com_buf, b.wrench_full, running)
+    worst, stray = _audit(b.sensordata[row], b.wrench_full[row], b.tracked_ids, p.mass, p.inertia, p.perturbable,
                           p.perturb.alpha, timestep)
-    audit_ratio[row] = max(audit_ratio[row], worst)
-    audit_stray[row] += stray
+    refined.audit_ratio[row] = max(refined.audit_ratio[row], worst)
+    refined.audit_stray[row] += stray
     # The interaction test for the next frame, on the last step's observations.
-    last = sensordata[row, n_steps - 1]
-    for b in range(n_bodies):
-      o = b * SENSOR_WIDTH
+    last = b.sensordata[row, n_steps - 1]
+    for i in range(n_bodies):
+      o = i * SENSOR_WIDTH
       for a in range(3):
-        com_sim[b, a] = last[o + COM_POS + a]
-      speed_sim[b] = math.sqrt(float(last[o + LIN_VEL]) ** 2 + float(last[o + LIN_VEL + 1]) ** 2
+        com_sim[i, a] = last[o + COM_POS + a]
+      speed_sim[i] = math.sqrt(float(last[o + LIN_VEL]) ** 2 + float(last[o + LIN_VEL + 1]) ** 2
                                + float(last[o + LIN_VEL + 2]) ** 2)
-    interactions.activate_host(active[row], com_sim, speed_sim, path_com[frame + 1], path_com[frame + 2],
-                               body_object, radius, ghost_slack, margin, horizon, speed_factor, g_norm, nxt)
+    interactions.activate_host(active[row], com_sim, speed_sim, parent.com[frame + 1], parent.com[frame + 2],
+                               inter.body_object, inter.radius, inter.ghost_slack, inter.margin, inter.horizon,
+                               inter.speed_factor, inter.gravity, nxt)
     grew = False
     for o in range(n_objects):
       prev_inactive[row, o] = not active[row, o]
       if running[row] and nxt[o] and not active[row, o]:
         active[row, o] = True
-        activated[row, o] = frame + 1
+        refined.activated[row, o] = frame + 1
         grew = True
     frame_of[row] = frame + 1
     if grew:
@@ -252,48 +303,47 @@ def run_compiled(backend, inp, progress=None):
   n_out = inp.n_frames - f0
   body_ids = np.asarray(inp.body_ids, np.int64)
   n_bodies, n_objects = len(body_ids), inp.active0.shape[1]
-  free, (qpos_adr, dof_adr, ipos, iquat) = free_bodies.host_arrays(inp.free_bodies)
+  free, bodies = free_bodies.host_arrays(inp.free_bodies)
   p = host_bookkeeping.host_params(params)
-  scene_perturbable = p.perturbable.copy()
   carry = host_bookkeeping.init_carry(n_bodies, inp.running0)
   carry0 = inp.carry0
   for name in ("step", "metrics", "prev_com", "init_quat"):
     getattr(carry, name)[...] = np.asarray(getattr(carry0, name))
-  inter = interactions.host_interaction(inp.inter)
   running = np.asarray(inp.running0).copy()
   active = np.array(start_active(inp), bool)
-  prev_inactive = ~np.asarray(inp.active0, bool)
-  activated = np.where(active, f0, -1).astype(np.int32)
-  frame_of = np.full(c, f0, np.int64)
-  audit_ratio, audit_stray = np.zeros(c), np.zeros(c, np.int64)
-  key_data = np.asarray(jax.random.key_data(inp.step_keys), np.uint32)
-  sensordata = np.zeros((c, spf, m.nsensordata), np.float32)
-  warmstart, states = np.zeros((c, m.nv)), np.zeros((c, backend.nstate))
-  qpos_buf = np.zeros((c, n_out, m.nq), np.float32)
-  com_buf = np.zeros((c, n_out, n_bodies, 3), np.float32)
-  wrench_full = np.zeros((c, spf, m.nbody, 6))
+  refined = RefinedWorlds(
+      frame_of=np.full(c, f0, np.int64), active=active, prev_inactive=~np.asarray(inp.active0, bool),
+      activated=np.where(active, f0, -1).astype(np.int32), audit_ratio=np.zeros(c),
+      audit_stray=np.zeros(c, np.int64))
+  buffers = ChunkBuffers(
+      params=p, key_data=np.asarray(jax.random.key_data(inp.step_keys), np.uint32), tracked_ids=body_ids,
+      states=np.zeros((c, backend.nstate)), warmstart=np.zeros((c, m.nv)),
+      sensordata=np.zeros((c, spf, m.nsensordata), np.float32), wrench_full=np.zeros((c, spf, m.nbody, 6)),
+      qpos_buf=np.zeros((c, n_out, m.nq), np.float32), com_buf=np.zeros((c, n_out, n_bodies, 3), np.float32),
+      carry=carry)
   ctrl = np.zeros((1, 0)) if inp.ctrl is None else np.ascontiguousarray(inp.ctrl, np.float64)  # width 0: none
+  inputs = WorldInputs(ctrl_table=ctrl, n_frames=inp.n_frames, timestep=m.opt.timestep,
+                       gravity=np.asarray(m.opt.gravity, np.float64), free=free, free_bodies=bodies)
   f32 = lambda x: np.ascontiguousarray(np.asarray(x, np.float32))
-  arrays = (f32(path.qpos), f32(path.qvel), f32(inp.step_targets), f32(path.com), f32(path.quat),
-            f32(path.lin_vel), f32(path.ang_vel), np.ascontiguousarray(inp.qpos_object, bool),
-            np.ascontiguousarray(inp.dof_object, bool))
-  gravity = np.asarray(m.opt.gravity, np.float64)
+  parent = ParentMotion(
+      first_frame=f0, qpos=f32(path.qpos), qvel=f32(path.qvel), step_targets=f32(inp.step_targets),
+      com=f32(path.com), quat=f32(path.quat), lin_vel=f32(path.lin_vel), ang_vel=f32(path.ang_vel))
+  objects = RefineObjects(
+      qpos_object=np.ascontiguousarray(inp.qpos_object, bool),
+      dof_object=np.ascontiguousarray(inp.dof_object, bool), perturbable=p.perturbable.copy(),
+      interaction=interactions.host_interaction(inp.inter))
   models_lock = threading.Lock()
-  thread_params = threading.local()
+  thread_buffers = threading.local()
 
   def model_for(row):
     with models_lock:
       return inp.models(~active[row:row + 1])[0]
 
   def call(row, model, data, flags):
-    if not hasattr(thread_params, "p"):  # each thread rewrites its own perturbable mask
-      thread_params.p = p._replace(perturbable=scene_perturbable.copy())
-    return run_refined_world(
-        row, model._address, data._address, data.qpos, data.qvel, data.xfrc_applied, data.sensordata,
-        data.ctrl, ctrl, inp.n_frames, f0, m.opt.timestep, gravity, free, qpos_adr, dof_adr, ipos, iquat,
-        *arrays, *inter, scene_perturbable, sensordata, warmstart, states, key_data, thread_params.p, carry,
-        body_ids, qpos_buf, com_buf, wrench_full, flags, frame_of, active, prev_inactive, activated,
-        audit_ratio, audit_stray)
+    if not hasattr(thread_buffers, "b"):  # each thread rewrites its own perturbable mask
+      thread_buffers.b = buffers._replace(params=p._replace(perturbable=objects.perturbable.copy()))
+    return run_refined_world(row, mujoco_c.data_views(model, data), inputs, parent, objects, thread_buffers.b,
+                             refined, flags)
 
   def work(row, data):
     mujoco.mj_resetData(m, data)
@@ -324,9 +374,11 @@ def run_compiled(backend, inp, progress=None):
   frame_count = carry.frame_count.astype(np.int32)
   steps = np.where(inp.running0, carry.step - f0 * spf, 0).astype(np.int32)
   chunk = ChunkResult(
-      qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count), frame_count=frame_count,
-      status=carry.status.astype(np.int32), metrics=world.finalize_metrics(carry).astype(np.float32),
+      qpos=fill_tail(buffers.qpos_buf, frame_count), com=fill_tail(buffers.com_buf, frame_count),
+      frame_count=frame_count, status=carry.status.astype(np.int32),
+      metrics=world.finalize_metrics(carry).astype(np.float32),
       perturbations=carry.perturbations.astype(np.int32), steps=steps, compile_seconds=compile_seconds,
       run_seconds=run_seconds)
-  return RefineOutput(chunk=chunk, active=active, activated=activated,
-                      max_perturbation_ratio=audit_ratio.astype(np.float32), inactive_perturbations=audit_stray)
+  return RefineOutput(chunk=chunk, active=active, activated=refined.activated,
+                      max_perturbation_ratio=refined.audit_ratio.astype(np.float32),
+                      inactive_perturbations=refined.audit_stray)

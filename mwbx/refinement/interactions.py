@@ -210,13 +210,34 @@ def activate(active: jax.Array, com_sim: jax.Array, speed_sim: jax.Array, com_no
   return (active.astype(jnp.float32) @ closure) > 0.5
 
 
-def host_interaction(p: InteractionParams) -> tuple:
-  """``p`` as the plain arrays and floats :func:`activate_host` takes:
-  (body_object i64[B], radius f64[B], ghost_slack f64[B], margin, horizon,
-  speed_factor, gravity)."""
+class HostInteraction(NamedTuple):
+  """:class:`InteractionParams` as the plain arrays and floats of :func:`activate_host`.
+
+  Attributes:
+    body_object: i64[B] object of each tracked body.
+    radius: f64[B] bounding-sphere radius about the body's COM, m.
+    ghost_slack: f64[B] codec error bound at the body's geoms, m.
+    margin: contact margin added to every pair, m.
+    horizon: s until the next test.
+    speed_factor: bound on speed growth within a frame.
+    gravity: |g|, m/s².
+  """
+
+  body_object: np.ndarray
+  radius: np.ndarray
+  ghost_slack: np.ndarray
+  margin: float
+  horizon: float
+  speed_factor: float
+  gravity: float
+
+
+def host_interaction(p: InteractionParams) -> HostInteraction:
+  """``p`` as the plain arrays and floats :func:`activate_host` takes."""
   f64 = lambda x: np.ascontiguousarray(np.asarray(x, np.float64))
-  return (np.asarray(p.body_object).argmax(axis=1).astype(np.int64), f64(p.radius), f64(p.ghost_slack),
-          float(p.margin), float(p.horizon), float(p.speed_factor), float(p.gravity))
+  return HostInteraction(np.asarray(p.body_object).argmax(axis=1).astype(np.int64), f64(p.radius),
+                         f64(p.ghost_slack), float(p.margin), float(p.horizon), float(p.speed_factor),
+                         float(p.gravity))
 
 
 @host_jit
