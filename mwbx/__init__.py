@@ -11,6 +11,8 @@ Example::
   bank = bank.save("out/quick")  # the bank as stored; mwbx.Bank.load("out/quick") reads it back
 """
 
+# First: it tells numba where to keep compiled kernels before any is decorated.
+from mwbx import host_jit as _host_jit  # noqa: F401
 from mwbx.bank import Bank
 from mwbx.bank import FLAG_AT_REST
 from mwbx.bank import FLAG_CONTACT_OVERFLOW
