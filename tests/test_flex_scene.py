@@ -215,3 +215,50 @@ def test_the_meshcat_viewer_animates_the_cloth_surface(tmp_path):
   assert len(meshes) == shown
   clips = {a["path"]: a["clip"] for c in commands if c["type"] == "set_animation" for a in c["animations"]}
   assert sum("/flex/cloth/f" in path for path in clips) == shown
+
+
+def test_whole_geometry_queries_on_a_flex_against_its_vertices(tmp_path):
+  """shape: geometry on the cloth: its vertices grown by the flex radius,
+  against MuJoCo's own vertex positions (flexvert_xpos) at every stored frame."""
+  from mwbx.queries import geometry as geometry_lib
+  bank = mwbx.sample(flex_config(tmp_path), n_worlds=4, key=jax.random.key(2), backend="native")
+  model = bank.model()
+  data = mujoco.MjData(model)
+  radius = float(model.flex_radius[0])
+  n_frames = int(bank.frame_count.max())
+  verts = np.zeros((bank.n_worlds, n_frames, model.nflexvert, 3))
+  for w in range(bank.n_worlds):
+    q = bank.qpos_store.row_frames(w)
+    for j in range(n_frames):
+      data.qpos[:] = q[min(j, len(q) - 1)]
+      mujoco.mj_forward(model, data)
+      verts[w, j] = data.flexvert_xpos
+  every = geometry_lib.build(bank, np.asarray(bank.valid, bool), stride=1)  # the stated margins per stored frame
+  assert every.codec.max() > 0  # a coded bank: its bound is part of the margin
+  cloth = [bank.body_names.index(b) for b in bank.objects["cloth"]]
+  body_of_vert = [bank.body_names.index(model.body(int(b)).name) if model.body(int(b)).name in bank.body_names
+                  else -1 for b in model.flex_vertbodyid]
+  rng = np.random.default_rng(0)
+  hits = 0
+  for k in range(12):
+    w, j, v = int(rng.integers(bank.n_worlds)), int(rng.integers(n_frames)), int(rng.integers(model.nflexvert))
+    centre = verts[w, j, v] + rng.uniform(-0.03, 0.03, 3)
+    half = rng.uniform(0.005, 0.02, 3)
+    query = mwbx.Query.region(centre - half, centre + half, bodies="cloth", shape="geometry")
+    ours = mwbx.evaluate(bank, [query])
+    gap = np.linalg.norm(np.maximum(np.abs(verts - centre) - half, 0.0), axis=-1)  # [W, T, V]
+    exact = (gap <= radius).any(axis=(1, 2))
+    margin = np.zeros(gap.shape)
+    for i, b in enumerate(body_of_vert):
+      if b in cloth:
+        step = every.sweep[b, :, :n_frames - 1]
+        margin[:, :-1, i] = step
+        margin[:, 1:, i] = np.maximum(margin[:, 1:, i], step)
+        margin[:, :, i] += every.codec[b]
+      else:
+        margin[:, :, i] = -np.inf  # pinned or static: not the cloth's
+    loose = (gap <= radius + margin + 1e-6).any(axis=(1, 2))
+    assert not (exact & ~ours).any(), f"box {k}: a world whose cloth meets the box is missed"
+    assert not (ours & ~loose).any(), f"box {k}: an answer beyond the stated margin"
+    hits += int(exact.sum())
+  assert hits > 5

@@ -138,9 +138,24 @@ def geom_core(model: mujoco.MjModel, geom: int) -> Core | None:
 
 
 def body_cores(model: mujoco.MjModel, body: int) -> list[Core]:
-  """The cores of a body's own geoms (planes left out)."""
+  """The cores of a body's own geoms (planes left out), and of the flex
+  vertices it carries (:func:`flex_vertex_cores`)."""
   cores = [geom_core(model, int(g)) for g in np.flatnonzero(model.geom_bodyid == body)]
-  return [c for c in cores if c is not None]
+  return [c for c in cores if c is not None] + flex_vertex_cores(model, body)
+
+
+def flex_vertex_cores(model: mujoco.MjModel, body: int) -> list[Core]:
+  """A flex vertex on this body as a point grown by its flex's radius (what
+  MuJoCo collides there); geom -1. A flex's whole geometry is its vertices
+  so grown: the surface between vertices is not tested."""
+  empty = np.zeros((0, 3))
+  out = []
+  for f in range(model.nflex):
+    adr, n = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
+    for v in np.flatnonzero(np.asarray(model.flex_vertbodyid[adr:adr + n]) == body):
+      point = np.asarray(model.flex_vert[adr + v], np.float64).reshape(1, 3)
+      out.append(Core(point, empty, empty, np.zeros((0, 2), np.int64), float(model.flex_radius[f]), 0.0, -1))
+  return out
 
 
 def reach(model: mujoco.MjModel, body: int, cores: list[Core]) -> float:
