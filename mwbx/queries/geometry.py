@@ -17,12 +17,19 @@ and `reach` the body's farthest geom point from c,
       + max_j (|c_j+1 - c_j| / 2 + 2 sin(theta_j,j+1 / 4) reach).
 
 The codec's bound adds a constant per body (its joints' position, rotation
-and scalar bounds times their lever arms), and a float tolerance. A body hits
-when, at a kept frame whose interval overlaps the window, its exact geom
-shapes come within that frame's margin of the volume (:mod:`.convex`). So a
-world a brute-force test finds (some point of some geom inside the volume at
-some stored frame in the window) is always found, and a reported hit has a
-geom point within the margin of the volume at a kept frame next to the window.
+and scalar bounds times their lever arms), and a float tolerance.
+
+The answer is that of every stored frame: a body hits when, at some stored
+frame whose step (to the next or previous stored frame) overlaps the window,
+its exact geom shapes come within that step's margin (the second term of m
+for the one step, at most half the step's motion) plus the codec's bound of
+the volume (:mod:`.convex`). So a world a brute-force test finds (some point
+of some geom inside the volume at some stored frame in the window) is always
+found, and a reported hit is never further out than the motion between two
+stored frames and the codec's error. The kept frames, with their interval
+margins, decide most worlds at once; a world that meets the volume only
+within an interval's margin is settled on its stored frames
+(:class:`StoredFrames`, decoded on demand and kept).
 
 Fast path, all conservative (:mod:`.geometry_cull`): per body, one compiled
 pass culls worlds, groups and chunks of kept frames by boxes of the COM
@@ -35,7 +42,10 @@ full separating-axis test. The index is built by :mod:`.kept_poses`.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import threading
+import weakref
 
 import numpy as np
 
@@ -70,6 +80,10 @@ class GeometryIndex:
   valid: bool[W].
   chunk: kept frames per chunk box; group: chunks per group box.
   bounds: the culling boxes of :func:`.geometry_cull.chunk_bounds`.
+  stride: stored frames per interval between kept frames.
+  tol: metres of float slack (float32 storage of poses and margins).
+  stored: the poses at every stored frame, for the worlds a query must
+    settle there (None where every stored frame is kept).
   answers: the latest query answers by their volume, bodies and window (a
     page re-evaluates its whole query stack when one query changes).
   """
@@ -90,6 +104,9 @@ class GeometryIndex:
   chunk: int
   group: int
   bounds: tuple = dataclasses.field(repr=False)
+  stride: int = 1
+  tol: float = 0.0
+  stored: "StoredFrames | None" = dataclasses.field(default=None, repr=False)
   answers: dict = dataclasses.field(default_factory=dict, repr=False)
 
 
@@ -166,45 +183,126 @@ def sweep_margins(com: np.ndarray, quat: np.ndarray, reach: np.ndarray, stride: 
 def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK,
           group: int = GROUP) -> GeometryIndex:
   """The geometry index of a bank's tracked bodies (decodes every world once)."""
-  model = bank.model()
-  body_ids = np.asarray(bank.body_ids, np.int64)
-  n_bodies, n_worlds = len(body_ids), bank.n_worlds
   if stride is None:
     stride = max(1, int(round(float(bank.record_fps) / float(bank.query_fps))))
+  model = bank.model()
+  body_ids = np.asarray(bank.body_ids, np.int64)
   counts = np.asarray(bank.frame_count, np.int64)
   n_frames = max(int(counts.max(initial=1)), 1)
   n_int = max(1, -(-(n_frames - 1) // stride))
-  t_pad = n_int * stride + 1
-  frames = np.arange(n_int + 1) * stride
   cores = [shapes_lib.body_cores(model, int(b)) for b in body_ids]
   reach = np.array([shapes_lib.reach(model, int(b), c) for b, c in zip(body_ids, cores)])
   bounds = getattr(bank.qpos_store, "bounds", None)
   codec = np.array([codec_reach(model, int(b), r, bounds) for b, r in zip(body_ids, reach)])
   ipos = np.asarray(model.body_ipos[body_ids], np.float64)
-  com = np.zeros((n_bodies, n_worlds, n_int + 1, 3), np.float32)
-  quat = np.zeros((n_bodies, n_worlds, n_int + 1, 4), np.float32)
-  sweep = np.zeros((n_bodies, n_worlds, n_int), np.float32)
-  kinematic_tree = kept_poses.tree(model, body_ids)
-  for s in range(0, n_worlds, BLOCK):
-    rows = np.arange(s, min(n_worlds, s + BLOCK))
-    qpos = poses_lib.padded(poses_lib.decoded_frames(bank, rows), t_pad)  # [w, T, nq]
-    part = slice(s, s + len(rows))
-    kept_poses.kept_poses(qpos, *kinematic_tree, body_ids, ipos, reach, stride, com[:, part], quat[:, part],
-                          sweep[:, part])
+  kinematics = _Kinematics(kept_poses.tree(model, body_ids), body_ids, ipos, reach, n_int * stride + 1)
+  com, quat, sweep = kinematics.poses(bank, np.arange(bank.n_worlds), stride)
   finite = np.isfinite(com).all(axis=(0, 2, 3)) & valid
   extent = float(np.max(np.abs(com[:, finite]), initial=0.0))
-  tol = 1e-6 * (1.0 + extent)  # float32 storage of poses and margins
-  sweep = np.where(np.isfinite(sweep), sweep + np.float32(tol), np.inf).astype(np.float32)
+  sweep_tol = 1e-6 * (1.0 + extent)  # float32 storage of poses and margins
+  sweep = _with_tol(sweep, sweep_tol)
   grow = float(np.max(reach + codec, initial=0.0)) + float(np.max(np.where(np.isfinite(sweep[:, finite]),
                                                                           sweep[:, finite], 0.0),
                                                                  initial=0.0))
   lo = np.full(3, -(extent + grow + 1.0))
+  hi = -lo
+  frames = np.arange(n_int + 1) * stride
+  stored = None if stride == 1 else StoredFrames(bank, kinematics, sweep_tol, chunk * stride, group)
+  return _index(frames, frames / float(bank.record_fps), com, quat, sweep, codec, reach, cores, ipos, lo, hi,
+                np.asarray(valid, bool), chunk, group, stride, stored)
+
+
+def _with_tol(sweep: np.ndarray, tol: float) -> np.ndarray:
+  """Margins grown by the float tolerance; non-finite ones (an unstable world) infinite."""
+  return np.where(np.isfinite(sweep), sweep + np.float32(tol), np.inf).astype(np.float32)
+
+
+def _index(frames, times, com, quat, sweep, codec, reach, cores, ipos, lo, hi, valid, chunk, group, stride,
+           stored) -> GeometryIndex:
+  """A :class:`GeometryIndex` of poses and margins already computed."""
   repeat = np.zeros(com.shape[:3], bool)
   repeat[:, :, 1:] = (np.all(com[:, :, 1:] == com[:, :, :-1], axis=-1)
                       & np.all(quat[:, :, 1:] == quat[:, :, :-1], axis=-1))
-  return GeometryIndex(frames, frames / float(bank.record_fps), com, quat, sweep, codec, reach, cores,
-                       ipos, repeat, lo, -lo, np.asarray(valid, bool), chunk, group,
-                       geometry_cull.chunk_bounds(com, sweep, chunk, group))
+  return GeometryIndex(frames, times, com, quat, sweep, codec, reach, cores, ipos, repeat, lo, hi, valid, chunk,
+                       group, geometry_cull.chunk_bounds(com, sweep, chunk, group), stride,
+                       1e-6 * (1.0 + float(np.max(np.abs(hi)))), stored)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Kinematics:
+  """What :func:`kept_poses.kept_poses` needs of a bank's model."""
+
+  tree: tuple
+  body_ids: np.ndarray
+  ipos: np.ndarray
+  reach: np.ndarray
+  n_stored: int  # stored frames per world, padded (1 + intervals x stride)
+
+  def poses(self, bank, rows: np.ndarray, stride: int) -> tuple:
+    """(com f32[B, w, K, 3], quat f32[B, w, K, 4], sweep f32[B, w, K - 1]) of
+    bank rows, every `stride`-th stored frame kept (sweep without tolerance)."""
+    n_bodies, n_kept = len(self.body_ids), (self.n_stored - 1) // stride + 1
+    com = np.zeros((n_bodies, len(rows), n_kept, 3), np.float32)
+    quat = np.zeros((n_bodies, len(rows), n_kept, 4), np.float32)
+    sweep = np.zeros((n_bodies, len(rows), n_kept - 1), np.float32)
+    for s in range(0, len(rows), BLOCK):
+      block = rows[s:s + BLOCK]
+      qpos = poses_lib.padded(poses_lib.decoded_frames(bank, block), self.n_stored)  # [w, T, nq]
+      part = slice(s, s + len(block))
+      kept_poses.kept_poses(qpos, *self.tree, self.body_ids, self.ipos, self.reach, stride, com[:, part],
+                            quat[:, part], sweep[:, part])
+    return com, quat, sweep
+
+
+STORED_FRAMES_BYTES = 256 << 20  # poses at every stored frame kept per index, at most
+
+
+class StoredFrames:
+  """A bank's poses at every stored frame, for the worlds a query settles there.
+
+  A hit found only with an interval's sweep margin is settled on the stored
+  frames: :meth:`index` is a stride-1 :class:`GeometryIndex` of just those
+  worlds (margins: the motion between consecutive stored frames), each
+  world decoded once and kept (most recently used first, up to
+  ``STORED_FRAMES_BYTES``).
+  """
+
+  def __init__(self, bank, kinematics: _Kinematics, sweep_tol: float, chunk: int, group: int):
+    try:
+      self._bank = weakref.ref(bank)
+    except TypeError:  # not weak-referenceable (a test's stand-in)
+      self._bank = lambda bank=bank: bank
+    self._kinematics, self._sweep_tol, self._chunk, self._group = kinematics, sweep_tol, chunk, group
+    self._record_fps = float(bank.record_fps)
+    self._kept: collections.OrderedDict = collections.OrderedDict()  # row -> (com, quat, sweep)
+    self._bytes = 0
+    self._lock = threading.Lock()
+
+  def index(self, parent: GeometryIndex, rows: np.ndarray) -> GeometryIndex:
+    """The stride-1 index of bank rows (i64[n]), clipped as ``parent``."""
+    rows = np.asarray(rows, np.int64)
+    with self._lock:
+      missing = np.array([r for r in rows.tolist() if r not in self._kept], np.int64)
+      if missing.size:
+        bank = self._bank()
+        if bank is None:
+          raise RuntimeError("the bank of this geometry index is gone")
+        com, quat, sweep = self._kinematics.poses(bank, missing, 1)
+        sweep = _with_tol(sweep, self._sweep_tol)
+        for i, r in enumerate(missing.tolist()):
+          entry = (com[:, i].copy(), quat[:, i].copy(), sweep[:, i].copy())
+          self._kept[r] = entry
+          self._bytes += sum(a.nbytes for a in entry)
+      entries = [self._kept[r] for r in rows.tolist()]
+      for r in rows.tolist():
+        self._kept.move_to_end(r)
+      while self._bytes > STORED_FRAMES_BYTES and len(self._kept) > len(rows):
+        _, old = self._kept.popitem(last=False)
+        self._bytes -= sum(a.nbytes for a in old)
+    com, quat, sweep = (np.stack([e[i] for e in entries], axis=1) for i in range(3))
+    frames = np.arange(com.shape[2])
+    return _index(frames, frames / self._record_fps, com, quat, sweep, parent.codec, parent.reach, parent.cores, parent.ipos,
+                  parent.lo, parent.hi, parent.valid[rows], self._chunk, self._group, 1, None)
 
 
 # ---------------------------------------------------------------------------

@@ -5,12 +5,15 @@ Per selected body, one compiled pass (:mod:`.geometry_cull`) culls worlds
 and chunks of kept frames by their boxes, then decides each kept frame the
 window reaches by its bounding sphere, each geom's extent along the planes,
 a vertex in or projected into the volume, and the exact distance of the
-nearest vertex, stopping a world at its first hit. Only frames that leave
-undecided (a polytope core near an edge or corner of the volume) reach the
-exact separating-axis test (:mod:`.convex`) here, a few per world at a time.
-Every stage is conservative (it drops only what provably misses and keeps
-only what provably hits), so the answer is that of the exact test on every
-frame.
+nearest vertex, stopping a world at its first settled hit. Only frames that
+leave undecided (a polytope core near an edge or corner of the volume) reach
+the exact separating-axis test (:mod:`.convex`) here, a few per world at a
+time. A world that meets the volume only within an interval's sweep margin
+is borderline: the same evaluation on its stored frames (a stride-1 index
+of just those worlds, :class:`~.geometry.StoredFrames`) settles it. Every
+stage is conservative (it drops only what provably misses and keeps only
+what provably hits), so the answer is that of the exact test on every
+stored frame.
 """
 
 from __future__ import annotations
@@ -106,8 +109,9 @@ def geometry_hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray,
   return answer.copy()
 
 
-def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window) -> np.ndarray:
-  """`geometry_hits` computed afresh."""
+def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window,
+          worlds: np.ndarray | None = None) -> np.ndarray:
+  """`geometry_hits` computed afresh (for the worlds marked in bool[W] `worlds`, default the valid ones)."""
   n_bodies, n_worlds, n_frames = index.com.shape[:3]
   hits = np.zeros((n_worlds, n_bodies), bool)
   selected = np.asarray(body_mask, bool) & np.array([bool(c) for c in index.cores])
@@ -116,61 +120,79 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window)
   volume = convex.clipped(frustum, index.lo, index.hi)
   if len(volume.vertices) == 0:  # empty inside the box that holds every shape
     return hits
+  valid = index.valid if worlds is None else index.valid & worlds
   relevant, overlap = _relevant(index.times, window)
   n_chunks = index.bounds[6].shape[2]
   chunk_relevant = np.array([relevant[h * index.chunk:(h + 1) * index.chunk].any() for h in range(n_chunks)])
-  normals = np.ascontiguousarray(frustum.normals, np.float64)
-  offsets = np.ascontiguousarray(frustum.offsets, np.float64)
-  tol = 1e-6 * (1.0 + float(np.max(np.abs(index.hi))))
+  settle = index.stored is not None
+  frames = geometry_cull.WindowFrames(relevant, overlap, _inside(index.times, window), chunk_relevant, settle)
+  planes = geometry_cull.planes_of(frustum.normals, frustum.offsets, index.tol)
   vol = geometry_cull.volume_arrays(volume)
-  world_lo, world_hi, world_sweep, group_lo, group_hi, group_sweep, chunk_lo, chunk_hi, chunk_sweep = index.bounds
   margin = _Margins(index.sweep, overlap)
 
-  def compiled_pass(b: int) -> tuple[np.ndarray, np.ndarray]:
-    verts, vstart, radius, core_normals, nstart, core_dirs, dstart = _core_arrays(index, b)
-    undecided = np.zeros((n_worlds, n_frames), bool)
+  def compiled_pass(b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    shape = _body_shape(index, b)
+    poses = geometry_cull.KeptPoses(index.com[b], index.quat[b], index.sweep[b], index.repeat[b], valid)
+    boxes = geometry_cull.body_boxes(index.bounds, b, index.group, index.chunk)
     found = np.zeros(n_worlds, bool)
-    geometry_cull.body_pass(index.com[b], index.quat[b], index.sweep[b], index.repeat[b], index.valid, relevant,
-                            overlap, world_lo[b][:, None], world_hi[b][:, None], world_sweep[b], group_lo[b], group_hi[b],
-                            group_sweep[b], index.group, chunk_lo[b], chunk_hi[b],
-                            chunk_sweep[b], index.chunk, chunk_relevant, float(index.reach[b]),
-                            float(index.codec[b]), verts, vstart, radius, core_normals, nstart, core_dirs, dstart,
-                            np.ascontiguousarray(volume.directions, np.float64).reshape(-1, 3), normals, offsets,
-                            tol, *vol, found, undecided)
-    return found, undecided
+    near = np.zeros(n_worlds, bool)
+    undecided = np.zeros((n_worlds, n_frames), bool)
+    geometry_cull.body_pass(poses, boxes, frames, shape, planes, vol, geometry_cull.scratch_for(shape, planes, vol),
+                            found, near, undecided)
+    return found, near, undecided
 
   bodies = np.flatnonzero(selected)
+  borderline = np.zeros_like(hits)
   # The pass holds no GIL: bodies run on all cores while this thread does the
   # exact stage of the bodies already passed.
-  for b, (found, undecided) in zip(bodies, _POOL.get().map(compiled_pass, bodies)):
+  for b, (found, near, undecided) in zip(bodies, _POOL.get().map(compiled_pass, bodies)):
     hits[:, b] = found
+    borderline[:, b] = near
     pending = np.flatnonzero(undecided.any(axis=1))
     if pending.size == 0:
       continue
-    rows, frames = np.nonzero(undecided[pending])
-    worlds = pending[rows]
-    m = margin[b, worlds, frames].astype(np.float64) + index.codec[b]
+    rows, kept = np.nonzero(undecided[pending])
+    rows = pending[rows]
+    m = margin[b, rows, kept].astype(np.float64) + index.codec[b]
     # In rounds of 1, 2, 4, ... undecided frames per world (in time order): a
-    # world is done at its first hit.
-    rank = np.arange(worlds.size) - np.searchsorted(worlds, worlds)
+    # world is done at its first settled hit.
+    rank = np.arange(rows.size) - np.searchsorted(rows, rows)
     lo = 0
     while lo <= rank.max():
       hi = 2 * lo + 1
-      take = (rank >= lo) & (rank < hi) & ~hits[worlds, b]
-      if take.any():
-        hit = _exact_stage(index, b, worlds[take], frames[take], m[take], normals, offsets, volume, tol)
-        hits[worlds[take][hit], b] = True
+      take = np.flatnonzero((rank >= lo) & (rank < hi) & ~hits[rows, b] & ~borderline[rows, b])
+      if take.size:
+        hit = take[_exact_stage(index, b, rows[take], kept[take], m[take], volume, planes.tol)]
+        if settle:  # settled only by the stored frame itself (margin: the codec's bound)
+          inside = hit[frames.inside[kept[hit]]]
+          sure = inside[_exact_stage(index, b, rows[inside], kept[inside], np.full(inside.size, index.codec[b]),
+                                     volume, planes.tol)]
+          borderline[rows[hit], b] = True
+          hit = sure
+        hits[rows[hit], b] = True
       lo = hi
+  borderline &= ~hits
+  if borderline.any():
+    rows = np.flatnonzero(borderline.any(axis=1))
+    fine = index.stored.index(index, rows)
+    hits[rows] |= _hits(fine, frustum, borderline[rows].any(axis=0), window, borderline[rows].any(axis=1)) & borderline[rows]
   return hits & index.valid[:, None]
+
+
+def _inside(times: np.ndarray, window) -> np.ndarray:
+  """bool[K] kept frames whose time lies in the window (clamped as :func:`_relevant` does)."""
+  t0, t1 = (None, None) if window is None else window
+  end = float(times[-1])
+  t0 = 0.0 if t0 is None else min(max(float(t0), 0.0), end)
+  t1 = end if t1 is None else min(max(float(t1), 0.0), end)
+  return (times >= t0) & (times <= t1)
 
 
 _POOL = LazyPool("mwbx-geometry")  # the body passes, a thread per core
 
 
-def _core_arrays(index: GeometryIndex, b: int) -> tuple:
-  """Body b's cores for the compiled pass: (vertices f64[V, 3] about the
-  COM, their starts i64[cores + 1], radii f64[cores], face normals
-  f64[N, 3], their starts, edge directions f64[D, 3], their starts)."""
+def _body_shape(index: GeometryIndex, b: int) -> geometry_cull.BodyShape:
+  """Body b's cores for the compiled pass."""
   cores = index.cores[b]
 
   def stacked(arrays):
@@ -180,12 +202,15 @@ def _core_arrays(index: GeometryIndex, b: int) -> tuple:
   verts, vstart = stacked([c.vertices - index.ipos[b] for c in cores])
   normals, nstart = stacked([c.normals.reshape(-1, 3) for c in cores])
   dirs, dstart = stacked([c.directions.reshape(-1, 3) for c in cores])
-  return verts, vstart, np.array([c.radius for c in cores], np.float64), normals, nstart, dirs, dstart
+  return geometry_cull.BodyShape(float(index.reach[b]), float(index.codec[b]), verts, vstart,
+                                 np.array([c.radius for c in cores], np.float64), normals, nstart, dirs, dstart)
 
 
-def _exact_stage(index, b, worlds, frames, m, normals, offsets, volume, tol) -> np.ndarray:
-  """Stages 2 and 3 for candidate frames of body b: bool[n] its geometry
-  (grown by m f64[n] plus each geom's radius) meets the volume."""
+def _exact_stage(index, b, worlds, frames, m, volume, tol) -> np.ndarray:
+  """Stages 2 and 3 for candidate kept frames of body b: bool[n] its geometry
+  (grown by m f64[n] plus each geom's radius) meets the volume (the
+  frustum's planes clipped to the index's box)."""
+  normals, offsets = volume.normals, volume.offsets  # the frustum's own planes
   found = np.zeros(worlds.size, bool)
   com = index.com[b, worlds, frames].astype(np.float64)
   rotation = quat_matrix(index.quat[b, worlds, frames].astype(np.float64))  # [n, 3, 3]
