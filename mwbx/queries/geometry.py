@@ -249,7 +249,7 @@ class _Kinematics:
       block = rows[s:s + BLOCK]
       qpos = poses_lib.padded(poses_lib.decoded_frames(bank, block), self.n_stored)  # [w, T, nq]
       part = slice(s, s + len(block))
-      kept_poses.kept_poses(qpos, *self.tree, self.body_ids, self.ipos, self.reach, stride, com[:, part],
+      kept_poses.kept_poses(qpos, self.tree, self.body_ids, self.ipos, self.reach, stride, com[:, part],
                             quat[:, part], sweep[:, part])
     return com, quat, sweep
 

@@ -12,6 +12,7 @@ body's joints) and `sweep_margins`, in float64 (the tests compare them).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import mujoco
 import numba
@@ -21,18 +22,43 @@ from mwbx.joints import JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE
 from mwbx.queries import poses as poses_lib
 
 
-def tree(model: mujoco.MjModel, body_ids) -> tuple:
-  """(chain i64[C] bodies placing the given ones, parents first; parent,
-  mocap i64[nbody]; body_pos f64[nbody, 3], body_quat f64[nbody, 4];
-  jnt_start, jnt_count i64[nbody]; jnt_type, jnt_adr i64[njnt]; jnt_pos,
-  jnt_axis f64[njnt, 3]; qpos0 f64[nq])."""
-  return (np.array(poses_lib.chain(model, body_ids), np.int64).reshape(-1),
-          np.asarray(model.body_parentid, np.int64), np.asarray(model.body_mocapid, np.int64),
-          np.asarray(model.body_pos, np.float64), np.asarray(model.body_quat, np.float64),
-          np.asarray(model.body_jntadr, np.int64), np.asarray(model.body_jntnum, np.int64),
-          np.asarray(model.jnt_type, np.int64).reshape(-1), np.asarray(model.jnt_qposadr, np.int64).reshape(-1),
-          np.asarray(model.jnt_pos, np.float64).reshape(-1, 3), np.asarray(model.jnt_axis, np.float64).reshape(-1, 3),
-          np.asarray(model.qpos0, np.float64))
+class KinematicTree(NamedTuple):
+  """What forward kinematics of the bodies placing some tracked ones needs of a model.
+
+  Attributes:
+    chain: i64[C] bodies placing the tracked ones, parents first.
+    parent: i64[nbody] parent body; mocap: i64[nbody] mocap id (-1: none).
+    body_pos: f64[nbody, 3] offset in the parent's frame, m; body_quat: f64[nbody, 4].
+    jnt_start, jnt_count: i64[nbody] each body's joints.
+    jnt_type, jnt_adr: i64[njnt] joint kind (mjtJoint) and qpos address.
+    jnt_pos: f64[njnt, 3] anchor in the body frame, m; jnt_axis: f64[njnt, 3].
+    qpos0: f64[nq] the reference configuration (hinge and slide zero).
+  """
+
+  chain: np.ndarray
+  parent: np.ndarray
+  mocap: np.ndarray
+  body_pos: np.ndarray
+  body_quat: np.ndarray
+  jnt_start: np.ndarray
+  jnt_count: np.ndarray
+  jnt_type: np.ndarray
+  jnt_adr: np.ndarray
+  jnt_pos: np.ndarray
+  jnt_axis: np.ndarray
+  qpos0: np.ndarray
+
+
+def tree(model: mujoco.MjModel, body_ids) -> KinematicTree:
+  """The :class:`KinematicTree` placing the given bodies."""
+  return KinematicTree(
+      np.array(poses_lib.chain(model, body_ids), np.int64).reshape(-1),
+      np.asarray(model.body_parentid, np.int64), np.asarray(model.body_mocapid, np.int64),
+      np.asarray(model.body_pos, np.float64), np.asarray(model.body_quat, np.float64),
+      np.asarray(model.body_jntadr, np.int64), np.asarray(model.body_jntnum, np.int64),
+      np.asarray(model.jnt_type, np.int64).reshape(-1), np.asarray(model.jnt_qposadr, np.int64).reshape(-1),
+      np.asarray(model.jnt_pos, np.float64).reshape(-1, 3), np.asarray(model.jnt_axis, np.float64).reshape(-1, 3),
+      np.asarray(model.qpos0, np.float64))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -68,10 +94,13 @@ def _normalize(q):
 
 
 @numba.njit(cache=True, nogil=True)
-def _kinematics(qpos, chain, parent, mocap, body_pos, body_quat, jnt_start, jnt_count, jnt_type, jnt_adr,
-                jnt_pos, jnt_axis, qpos0, pos, quat):
-  """Forward kinematics of one frame: pos f64[nbody, 3], quat f64[nbody, 4]
-  filled for the chain's bodies (row 0, the world, holds the identity)."""
+def _kinematics(qpos, tree, pos, quat):
+  """Forward kinematics of one frame (tree: :class:`KinematicTree`): pos
+  f64[nbody, 3], quat f64[nbody, 4] filled for the chain's bodies (row 0,
+  the world, holds the identity)."""
+  chain, parent, mocap, body_pos, body_quat = tree.chain, tree.parent, tree.mocap, tree.body_pos, tree.body_quat
+  jnt_start, jnt_count, jnt_type, jnt_adr = tree.jnt_start, tree.jnt_count, tree.jnt_type, tree.jnt_adr
+  jnt_pos, jnt_axis, qpos0 = tree.jnt_pos, tree.jnt_axis, tree.qpos0
   tmp = np.empty(3)
   tmp2 = np.empty(3)
   local = np.empty(4)
@@ -127,13 +156,12 @@ def _kinematics(qpos, chain, parent, mocap, body_pos, body_quat, jnt_start, jnt_
 
 
 @numba.njit(cache=True, nogil=True)
-def kept_poses(qpos, chain, parent, mocap, body_pos, body_quat, jnt_start, jnt_count, jnt_type, jnt_adr,
-               jnt_pos, jnt_axis, qpos0, body_ids, ipos, reach, stride, com_out, quat_out, sweep_out):
+def kept_poses(qpos, tree, body_ids, ipos, reach, stride, com_out, quat_out, sweep_out):
   """Poses at kept frames and sweep margins of a block of worlds.
 
   Args:
     qpos: f32[w, T, nq] stored frames, T = 1 + k stride.
-    chain ... qpos0: the arrays of :func:`tree`.
+    tree: the :class:`KinematicTree` of :func:`tree`.
     body_ids: i64[B]; ipos: f64[B, 3] COM in the body frame; reach: f64[B].
     stride: stored frames per interval.
     com_out: f32[B, w, k + 1, 3], quat_out: f32[B, w, k + 1, 4] poses at
@@ -142,7 +170,7 @@ def kept_poses(qpos, chain, parent, mocap, body_pos, body_quat, jnt_start, jnt_c
   n_worlds, n_frames = qpos.shape[0], qpos.shape[1]
   n_bodies = body_ids.shape[0]
   n_int = (n_frames - 1) // stride
-  nbody = parent.shape[0]
+  nbody = tree.parent.shape[0]
   pos = np.zeros((nbody, 3))
   quat = np.zeros((nbody, 4))
   quat[0, 0] = 1.0
@@ -159,8 +187,7 @@ def kept_poses(qpos, chain, parent, mocap, body_pos, body_quat, jnt_start, jnt_c
           continue
         for a in range(qpos.shape[2]):
           frame[a] = qpos[w, i * stride + s, a]
-        _kinematics(frame, chain, parent, mocap, body_pos, body_quat, jnt_start, jnt_count, jnt_type, jnt_adr,
-                    jnt_pos, jnt_axis, qpos0, pos, quat)
+        _kinematics(frame, tree, pos, quat)
         for k in range(n_bodies):
           b = body_ids[k]
           _rotate(quat[b], ipos[k], tmp)
@@ -206,8 +233,7 @@ def kept_poses(qpos, chain, parent, mocap, body_pos, body_quat, jnt_start, jnt_c
     if n_int == 0:  # one stored frame: one kept pose, no interval
       for a in range(qpos.shape[2]):
         frame[a] = qpos[w, 0, a]
-      _kinematics(frame, chain, parent, mocap, body_pos, body_quat, jnt_start, jnt_count, jnt_type, jnt_adr,
-                  jnt_pos, jnt_axis, qpos0, pos, quat)
+      _kinematics(frame, tree, pos, quat)
       for k in range(n_bodies):
         b = body_ids[k]
         _rotate(quat[b], ipos[k], tmp)

@@ -50,7 +50,7 @@ def test_kept_poses_match_numpy_kinematics_and_margins(xml, stride):
   com = np.zeros((len(body_ids), n_worlds, n_int + 1, 3), np.float32)
   quat = np.zeros((len(body_ids), n_worlds, n_int + 1, 4), np.float32)
   sweep = np.zeros((len(body_ids), n_worlds, n_int), np.float32)
-  kept_poses.kept_poses(qpos, *kept_poses.tree(model, body_ids), body_ids, ipos, reach, stride, com, quat, sweep)
+  kept_poses.kept_poses(qpos, kept_poses.tree(model, body_ids), body_ids, ipos, reach, stride, com, quat, sweep)
   want_com, want_quat, want_sweep = _reference(model, qpos, body_ids, reach, stride)
   np.testing.assert_allclose(com, np.moveaxis(want_com, 2, 0), rtol=1e-6, atol=1e-6)
   np.testing.assert_allclose(quat, np.moveaxis(want_quat, 2, 0), rtol=1e-6, atol=1e-6)
@@ -58,5 +58,5 @@ def test_kept_poses_match_numpy_kinematics_and_margins(xml, stride):
   assert (sweep > 0).mean() > 0.6  # the motion is not trivial (a mocap body holds still)
   # A world whose poses are not finite gets no finite margin.
   qpos[1, 2] = np.nan
-  kept_poses.kept_poses(qpos, *kept_poses.tree(model, body_ids), body_ids, ipos, reach, stride, com, quat, sweep)
+  kept_poses.kept_poses(qpos, kept_poses.tree(model, body_ids), body_ids, ipos, reach, stride, com, quat, sweep)
   assert np.isinf(sweep[0, 1]).any() and np.isfinite(sweep[:, 0]).all()
