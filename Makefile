@@ -39,6 +39,7 @@ bench: $(DEV_STAMP)
 	$(PY) scripts/bench_sampler.py
 	$(PY) scripts/bench_codec.py
 	$(PY) scripts/bench_queries.py --real 1024
+	$(PY) scripts/bench_geometry_tightness.py
 	$(PY) scripts/bench_viewer.py --browser --screenshot docs/viewer_screenshot.png
 	$(PY) scripts/bench_refine.py
 	$(PY) scripts/bench_bank.py

@@ -434,6 +434,42 @@ def geometry(d: dict) -> tuple[list[str], list[str]]:
   return lines, head
 
 
+def geometry_tightness(d: dict) -> tuple[list[str], list[str]]:
+  s, b = d["settled"], d["kept_frames_only"]
+  q = d["query_ms"]
+
+  def row(label: str, t: dict) -> str:
+    x = t["extra_distance_mm"]
+    return (f"| {label} | {t['answers']} | {t['false_negatives']} | {t['extras']} ({100 * t['extras_share']:.1f} %) | "
+            f"{x['median']:.1f} / {x['p90']:.1f} / {x['max']:.1f} | {t['beyond_margin_reference']} "
+            f"({100 * t['beyond_margin_share']:.1f} %) |")
+
+  lines = ["## Geometry tightness", "",
+           "`scripts/bench_geometry_tightness.py`: a scene no test uses (16 crates and 4 balls dropped onto a "
+           f"tilted board, {d['worlds']} worlds, stored at {d['record_fps']:g} fps, kept at {d['query_fps']:g} fps); "
+           f"{d['boxes']} region boxes (half-sizes 5–30 mm) centred on crate surface points late in some world's "
+           "run, each a whole-geometry include query over the whole run. References from the decoded frames "
+           "with MuJoCo's kinematics and plain geometry, independent of the query code: *exact* (a geom meets "
+           "the box at a stored frame; "
+           f"{d['exact_reference_hits']} hits) and *with margin* (a geom within its stored frame's step margin "
+           "plus the codec's bound). An extra is an answer the exact reference does not have; its distance is "
+           "how near its geoms came to the box.", "",
+           f"Machine: {d['machine']}; commit {d.get('commit', '?')}; load average "
+           f"{d.get('load_average', float('nan')):.1f} when it ended.", "",
+           "| answers | include answers | false negatives | extras | extra distance median / p90 / max (mm) | "
+           "beyond the margin reference |",
+           "|---|---:|---:|---:|---:|---:|",
+           row("settled on the stored frames (mwbx)", s),
+           row("kept frames' margins alone (before)", b), "",
+           f"Query time on these {d['worlds']} worlds: {q['first_median']:.0f} ms median the first time (worlds to "
+           f"settle decoded on demand; max {q['first_max']:.0f} ms), {q['again_median']:.0f} ms again with their "
+           "stored frames kept."]
+  head = [f"**geometry tightness**: whole-geometry answers {100 * s['extras_share']:.1f} % beyond the exact "
+          f"reference ({s['beyond_margin_reference']} beyond the margin reference, {s['false_negatives']} missed; "
+          f"{100 * b['extras_share']:.1f} % with the kept frames' margins alone)"]
+  return lines, head
+
+
 def scale(d: dict) -> tuple[list[str], list[str]]:
   lines = ["## Scale", "",
            "`scripts/bench_scale.py`: the paper's trebuchet and 192-block tower "
@@ -793,7 +829,8 @@ def events(d: dict) -> tuple[list[str], list[str]]:
 
 
 SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
-            ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry), ("scale", scale),
+            ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry),
+            ("geometry_tightness", geometry_tightness), ("scale", scale),
             ("scenes", scenes), ("backends", backends), ("gpu", gpu),
             ("solve", solve), ("events", events), ("flex", flex))
 
