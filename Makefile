@@ -27,11 +27,13 @@ venv: $(DEV_STAMP)
 run: $(STAMP)
 	$(VENV)/bin/mwbx sample configs/quickstart.yaml --worlds 256 --out out/quickstart
 
-# The linter, then the whole test suite (the browser test installs Debian's chromium when it can).
+# The linter, then the whole test suite (the browser test installs Debian's chromium when it can),
+# in TEST_WORKERS processes, a test file each at a time (its module fixtures built once).
+TEST_WORKERS ?= 2
 test: $(DEV_STAMP)
 	-@bash scripts/ensure_chromium.sh
 	$(PY) -m ruff check mwbx scripts tests
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile tests
 
 # Every benchmark: tables on stdout, JSON (and plots) in out/bench/, then docs/benchmarks.md from them.
 bench: $(DEV_STAMP)
