@@ -417,6 +417,9 @@ def geometry(d: dict) -> tuple[list[str], list[str]]:
            f"| {d['worlds']} | {d['bodies']} | {d['boxes']} | {c['median']:.0f} / {c['p95']:.0f} | "
            f"{g['median']:.0f} / {g['p95']:.0f} | {d['geometry_over_com']:.1f}× | "
            f"{d['geometry_index_build_s']:.0f} | {inc['com']} → {inc['geometry']} | {exc['com']} → {exc['geometry']} |"]
+  if "first_geometry_query_s" in d:
+    lines += ["", f"The first geometry query after the index took {d['first_geometry_query_s']:.1f} s: it builds "
+              "the poses at every stored frame that settle borderline worlds (once per bank)."]
   if o:
     lines += ["", "Orientation queries on the same bank (cached orientations): " + "; ".join(
         f"{k.replace('_', ' ')} {v['ms']:.0f} ms ({v['worlds']} worlds)" for k, v in o.items()) + "."]

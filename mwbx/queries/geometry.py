@@ -254,17 +254,20 @@ class _Kinematics:
     return com, quat, sweep
 
 
-STORED_FRAMES_BYTES = 256 << 20  # poses at every stored frame kept per index, at most
+STORED_FRAMES_BYTES = 1 << 30  # poses at every stored frame kept per index, at most
 
 
 class StoredFrames:
   """A bank's poses at every stored frame, for the worlds a query settles there.
 
   A hit found only with an interval's sweep margin is settled on the stored
-  frames: :meth:`index` is a stride-1 :class:`GeometryIndex` of just those
-  worlds (margins: the motion between consecutive stored frames), each
-  world decoded once and kept (most recently used first, up to
-  ``STORED_FRAMES_BYTES``).
+  frames, by the same evaluation on a stride-1 :class:`GeometryIndex`
+  (margins: the motion between consecutive stored frames). Where the whole
+  bank's stored-frame poses fit in ``STORED_FRAMES_BYTES``, that index is
+  built for every world on the first settle (one more decode of the bank)
+  and kept: a settle is then one masked pass. Otherwise it holds just the
+  worlds asked for, each decoded once and kept (most recently used first,
+  within the same budget).
   """
 
   def __init__(self, bank, kinematics: _Kinematics, sweep_tol: float, chunk: int, group: int):
@@ -274,21 +277,30 @@ class StoredFrames:
       self._bank = lambda bank=bank: bank
     self._kinematics, self._sweep_tol, self._chunk, self._group = kinematics, sweep_tol, chunk, group
     self._record_fps = float(bank.record_fps)
+    per_world = len(kinematics.body_ids) * kinematics.n_stored * 4 * (3 + 4 + 1)  # float32 com, quat, sweep
+    self._whole = per_world * bank.n_worlds <= STORED_FRAMES_BYTES
+    self._all: GeometryIndex | None = None
     self._kept: collections.OrderedDict = collections.OrderedDict()  # row -> (com, quat, sweep)
     self._bytes = 0
     self._lock = threading.Lock()
 
-  def index(self, parent: GeometryIndex, rows: np.ndarray) -> GeometryIndex:
-    """The stride-1 index of bank rows (i64[n]), clipped as ``parent``."""
+  def _live_bank(self):
+    bank = self._bank()
+    if bank is None:
+      raise RuntimeError("the bank of this geometry index is gone")
+    return bank
+
+  def index(self, parent: GeometryIndex, rows: np.ndarray) -> tuple[GeometryIndex, np.ndarray]:
+    """(stride-1 index holding bank rows i64[n], clipped as ``parent``; the rows' places in it)."""
     rows = np.asarray(rows, np.int64)
     with self._lock:
+      if self._whole:
+        if self._all is None:
+          self._all = self._stride_one(parent, *self._poses(np.arange(parent.com.shape[1])), parent.valid)
+        return self._all, rows
       missing = np.array([r for r in rows.tolist() if r not in self._kept], np.int64)
       if missing.size:
-        bank = self._bank()
-        if bank is None:
-          raise RuntimeError("the bank of this geometry index is gone")
-        com, quat, sweep = self._kinematics.poses(bank, missing, 1)
-        sweep = _with_tol(sweep, self._sweep_tol)
+        com, quat, sweep = self._poses(missing)
         for i, r in enumerate(missing.tolist()):
           entry = (com[:, i].copy(), quat[:, i].copy(), sweep[:, i].copy())
           self._kept[r] = entry
@@ -300,9 +312,16 @@ class StoredFrames:
         _, old = self._kept.popitem(last=False)
         self._bytes -= sum(a.nbytes for a in old)
     com, quat, sweep = (np.stack([e[i] for e in entries], axis=1) for i in range(3))
+    return self._stride_one(parent, com, quat, sweep, parent.valid[rows]), np.arange(len(rows))
+
+  def _poses(self, rows: np.ndarray) -> tuple:
+    com, quat, sweep = self._kinematics.poses(self._live_bank(), rows, 1)
+    return com, quat, _with_tol(sweep, self._sweep_tol)
+
+  def _stride_one(self, parent: GeometryIndex, com, quat, sweep, valid) -> GeometryIndex:
     frames = np.arange(com.shape[2])
-    return _index(frames, frames / self._record_fps, com, quat, sweep, parent.codec, parent.reach, parent.cores, parent.ipos,
-                  parent.lo, parent.hi, parent.valid[rows], self._chunk, self._group, 1, None)
+    return _index(frames, frames / self._record_fps, com, quat, sweep, parent.codec, parent.reach, parent.cores,
+                  parent.ipos, parent.lo, parent.hi, valid, self._chunk, self._group, 1, None)
 
 
 # ---------------------------------------------------------------------------

@@ -174,8 +174,10 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window,
   borderline &= ~hits
   if borderline.any():
     rows = np.flatnonzero(borderline.any(axis=1))
-    fine = index.stored.index(index, rows)
-    hits[rows] |= _hits(fine, frustum, borderline[rows].any(axis=0), window, borderline[rows].any(axis=1)) & borderline[rows]
+    fine, places = index.stored.index(index, rows)
+    worlds = np.zeros(fine.com.shape[1], bool)
+    worlds[places] = True
+    hits[rows] |= _hits(fine, frustum, borderline[rows].any(axis=0), window, worlds)[places] & borderline[rows]
   return hits & index.valid[:, None]
 
 

@@ -103,3 +103,18 @@ def test_answers_are_kept_per_query_and_returned_as_copies(bank):
   for k in range(geometry_query.ANSWERS_KEPT + 3):
     geometry_query.geometry_hits(index, mq.Frustum.box((-0.6, -0.5, 0.7), (0.6, 0.5, 1.2 + 0.01 * k)), mask, None)
   assert len(index.answers) == geometry_query.ANSWERS_KEPT
+
+
+def test_worlds_settled_one_by_one_answer_as_the_whole_bank(bank, monkeypatch):
+  """Where the stored frames of the whole bank do not fit the budget, the
+  worlds to settle are decoded and kept one by one: same answers."""
+  monkeypatch.setattr(geometry_lib, "STORED_FRAMES_BYTES", 200_000)
+  index = geometry_lib.build(bank, np.asarray(bank.valid, bool))
+  assert not index.stored._whole
+  rng = np.random.default_rng(5)
+  mask = np.ones(len(bank.body_names), bool)
+  for k, frustum in enumerate(ref.random_frustums(rng, 6, corner=(0.15, 0.75), size=(0.01, 0.25), box_side=(0.02, 0.4))):
+    window = WINDOWS[k % len(WINDOWS)]
+    ours = geometry_query.geometry_hits(index, frustum, mask, window)
+    np.testing.assert_array_equal(ours, _every_stored_frame(bank, frustum, window), err_msg=f"frustum {k}")
+  assert 0 < index.stored._bytes <= 200_000 or len(index.stored._kept) == 1
