@@ -51,12 +51,17 @@ def frame_margins(index: GeometryIndex, window) -> tuple[np.ndarray, "_Margins"]
   return relevant, _Margins(index.sweep, overlap)
 
 
-def _relevant(times: np.ndarray, window) -> tuple[np.ndarray, np.ndarray]:
-  """(relevant bool[K] kept frames, overlap bool[K - 1] intervals) of a window."""
+def _clamped(times: np.ndarray, window) -> tuple[float, float]:
+  """The window's (t0, t1) within [0, the last kept frame's time], open ends closed."""
   t0, t1 = (None, None) if window is None else window
   end = float(times[-1])
-  t0 = 0.0 if t0 is None else min(max(float(t0), 0.0), end)
-  t1 = end if t1 is None else min(max(float(t1), 0.0), end)
+  return (0.0 if t0 is None else min(max(float(t0), 0.0), end),
+          end if t1 is None else min(max(float(t1), 0.0), end))
+
+
+def _relevant(times: np.ndarray, window) -> tuple[np.ndarray, np.ndarray]:
+  """(relevant bool[K] kept frames, overlap bool[K - 1] intervals) of a window."""
+  t0, t1 = _clamped(times, window)
   overlap = (times[:-1] <= t1) & (times[1:] >= t0)  # [K - 1]
   relevant = np.zeros(len(times), bool)
   relevant[:-1] |= overlap
@@ -182,11 +187,8 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window,
 
 
 def _inside(times: np.ndarray, window) -> np.ndarray:
-  """bool[K] kept frames whose time lies in the window (clamped as :func:`_relevant` does)."""
-  t0, t1 = (None, None) if window is None else window
-  end = float(times[-1])
-  t0 = 0.0 if t0 is None else min(max(float(t0), 0.0), end)
-  t1 = end if t1 is None else min(max(float(t1), 0.0), end)
+  """bool[K] kept frames whose time lies in the (clamped) window."""
+  t0, t1 = _clamped(times, window)
   return (times >= t0) & (times <= t1)
 
 
