@@ -24,6 +24,8 @@ used to touch become active.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import math
 import secrets
 import time
@@ -231,12 +233,25 @@ def sampler_for(bank, backend: str | None = None) -> Sampler:
   # MJX refines under the contact budget and mjx:warp's solver settings its bank was sampled with, if any.
   budget, warp_solver = bank.run.get("contact_budget"), bank.run.get("warp_solver")
   frozen = lambda record: None if record is None else tuple(sorted(record.items()))
-  cache_key = (bank.digest, backend, frozen(budget), frozen(warp_solver))
+  cache_key = (_stored_scene_key(bank), backend, frozen(budget), frozen(warp_solver))
   if cache_key not in _SAMPLERS:
     if len(_SAMPLERS) >= 4:
       _SAMPLERS.pop(next(iter(_SAMPLERS))).close()
     _SAMPLERS[cache_key] = Sampler(bank.scene(), backend, contact_budget=budget, warp_solver=warp_solver)
   return _SAMPLERS[cache_key]
+
+
+def _stored_scene_key(bank) -> str:
+  """A hash of what the bank's scene is built from (its stored config, MJCF
+  text, included files and folder), not of the digest it claims: a bank
+  whose stored text differs from one refined before builds, and checks, its
+  own scene."""
+  digest = hashlib.sha256()
+  for part in (json.dumps(bank.config, sort_keys=True, default=str), bank.mjcf_text,
+               json.dumps(bank.mjcf_includes, sort_keys=True, default=str), str(bank.mjcf_dir())):
+    digest.update(part.encode())
+    digest.update(b"\0")
+  return digest.hexdigest()
 
 
 def refine(bank, world, objects=(), *, progress=None, **fields):

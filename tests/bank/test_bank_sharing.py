@@ -481,6 +481,9 @@ def test_a_bank_model_is_built_only_from_the_text_it_stores(small_bank, tmp_path
 
 def test_refine_never_reads_a_file_a_crafted_bank_includes(small_bank, tmp_path, capsys):
   # refine built its scene from the stored text without the check Bank.model makes, and opened the file.
+  # First the bank as sampled: its scene is kept for later refinements, and the crafted bank below claims
+  # the same digest, so a scene kept by digest would be reused unchecked.
+  mwbx.refine(mwbx.Bank.load(small_bank), 0, "ball", t_min=0.1, n_samples=2, key=jax.random.key(1), backend="native")
   _plant_include(small_bank, tmp_path)
   bank = mwbx.Bank.load(small_bank)
   with pytest.raises(MwbxError, match=r"includes '.*planted.xml', which is not stored with it"):
