@@ -472,6 +472,22 @@ def geometry_tightness(d: dict) -> tuple[list[str], list[str]]:
   return lines, head
 
 
+def setup(d: dict) -> tuple[list[str], list[str]]:
+  home = "a fresh HOME (no pip, numba, JAX or Warp caches)" if d.get("fresh_home", True) else "this machine's HOME"
+  lines = ["## Setup", "",
+           "`scripts/bench_setup.py`: a fresh clone of the commit below, with " + home + "; `make run` twice "
+           "(the second, which installs and compiles nothing, is the baseline)"
+           + (", then `make test`" if "make_test_s" in d else "") + ".", "",
+           f"Machine: {d['machine']}; commit {d.get('commit', '?')}; load average "
+           f"{d.get('load_average', float('nan')):.1f} when it ended.", "",
+           "| first `make run` (s) | second `make run` (s) | first / second |"
+           + (" `make test` (min) |" if "make_test_s" in d else ""),
+           "|---:|---:|---:|" + ("---:|" if "make_test_s" in d else ""),
+           f"| {d['first_make_run_s']:.0f} | {d['second_make_run_s']:.0f} | {d['first_over_second']:.1f}× |"
+           + (f" {d['make_test_s'] / 60:.1f} |" if "make_test_s" in d else "")]
+  return lines, []  # the README shows its own set-up commands
+
+
 def scale(d: dict) -> tuple[list[str], list[str]]:
   lines = ["## Scale", "",
            "`scripts/bench_scale.py`: the paper's trebuchet and 192-block tower "
@@ -830,7 +846,7 @@ def events(d: dict) -> tuple[list[str], list[str]]:
   return lines, head
 
 
-SECTIONS = (("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
+SECTIONS = (("setup", setup), ("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
             ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry),
             ("geometry_tightness", geometry_tightness), ("scale", scale),
             ("scenes", scenes), ("backends", backends), ("gpu", gpu),
