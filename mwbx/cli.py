@@ -37,7 +37,7 @@ import mujoco
 
 import mwbx
 from mwbx import __version__
-from mwbx.bank import runs, shards
+from mwbx.bank import runs, shards, warm
 from mwbx.batch_sim.sampling_run import Hosts, RunInterrupted, sample_run
 from mwbx.errors import MwbxError
 from mwbx.progress import reporter
@@ -56,6 +56,7 @@ def _cmd_sample(args) -> int:
   config = mwbx.load_config(args.config)
   out = pathlib.Path(args.out or f"out/{pathlib.Path(args.config).stem}")
   hosts = Hosts(args.coordinator, args.num_processes, args.process_id, args.distributed, args.timeout)
+  warming = warm.start(args.config)  # the codec compiles beside the native loop on a first run
   try:
     with _reporter_with_safe_points("sample") as update:
       run = sample_run(config, out, n_worlds=args.worlds, seed=args.seed, backend=args.backend,
@@ -65,6 +66,10 @@ def _cmd_sample(args) -> int:
     print(f"mwbx: interrupted; {err.saved} worlds of this run are saved in {err.out};"
           f" run the same command again to resume", file=sys.stderr)
     return 130
+  finally:
+    if warming is not None:  # its work is done or no longer needed
+      warming.kill()
+      warming.wait()
   _print_run(run)
   return 0
 

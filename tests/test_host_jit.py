@@ -43,3 +43,24 @@ def test_a_copy_of_the_package_elsewhere_loads_the_kept_code(tmp_path):
     hits.append(out.stdout.strip())
   assert hits[0] == "Counter()"  # compiled in the first clone
   assert hits[1] != "Counter()"  # loaded in the second
+
+
+def test_the_codec_warms_up_in_a_second_process_only_when_not_cached(tmp_path):
+  """`mwbx sample` starts `python -m mwbx.bank.warm CONFIG` on a machine without the codec's kernels cached:
+  it compresses a few worlds of the scene, leaving them in the cache, after which it is not started again."""
+  from mwbx.bank import warm
+  home = tmp_path / "home"
+  env = {**os.environ, "HOME": str(home)}
+  env.pop("NUMBA_CACHE_DIR", None)
+  config = os.path.join(os.path.dirname(os.path.dirname(mwbx.__file__)), "configs", "quickstart.yaml")
+  check = ("from mwbx.bank import warm; p = warm.start({!r}); print(warm.codec_cached(), p is None)\n"
+           "if p is not None:\n  p.kill(); p.wait()").format(config)
+  before = subprocess.run([sys.executable, "-c", check], env=env, capture_output=True, text=True, timeout=600)
+  assert before.stdout.split() == ["False", "False"], before.stderr  # not cached: started
+  done = subprocess.run([sys.executable, "-m", "mwbx.bank.warm", config], env=env, capture_output=True, text=True,
+                        timeout=1200)
+  assert done.returncode == 0, done.stderr
+  assert any(name.endswith(".nbi") for name in os.listdir(home / ".cache" / "mwbx" / "numba" / "mwbx" / "codec"))
+  after = subprocess.run([sys.executable, "-c", check], env=env, capture_output=True, text=True, timeout=600)
+  assert after.stdout.split() == ["True", "True"], after.stderr
+  assert warm.WORLDS >= 2
