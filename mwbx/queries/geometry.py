@@ -232,7 +232,7 @@ def _index(frames, times, com, quat, sweep, codec, reach, cores, ipos, lo, hi, v
 class _Kinematics:
   """What :func:`kept_poses.kept_poses` needs of a bank's model."""
 
-  tree: tuple
+  tree: kept_poses.KinematicTree
   body_ids: np.ndarray
   ipos: np.ndarray
   reach: np.ndarray
