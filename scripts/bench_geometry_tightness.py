@@ -33,7 +33,6 @@ import json
 import os
 import pathlib
 import platform
-import subprocess
 import time
 
 import jax
@@ -45,18 +44,12 @@ from mwbx import queries as mq
 from mwbx.queries import geometry as geometry_lib
 from mwbx.queries import geometry_query
 
+from bench_geometry import _commit  # the geometry bench's commit stamp (scripts/ is on the path)
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SPACING = 0.001  # m between surface points of the distance reference
 CLOSEST = 4  # frames of least separating-axis gap per world and crate measured by surface points
 N_CRATES, N_BALLS = 16, 4
-
-
-def _commit() -> str:
-  try:
-    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                          text=True, check=True).stdout.strip()
-  except (OSError, subprocess.CalledProcessError):
-    return "unknown"
 
 
 def scene_files(folder: pathlib.Path) -> pathlib.Path:
