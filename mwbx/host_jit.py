@@ -7,20 +7,41 @@ refinement's per-world loops, the per-step bookkeeping) compiles with it:
 compressing thread run at once.
 
 The machine code of mwbx's kernels is kept in ``~/.cache/mwbx/numba`` (by
-package path, checked against a hash of the source's content), not beside
-the sources: another clone or checkout of the same code on this machine
-loads it instead of compiling again (about 30 s of a first run on 2 cores).
-``NUMBA_CACHE_DIR``, if set, is used instead, as numba documents.
+package path), not beside the sources: another clone or checkout of the same
+code on this machine loads it instead of compiling again (about 30 s of a
+first run on 2 cores). It is checked against a hash of every source file of
+the package, not only the kernel's own file: numba inlines a kernel's callees
+from other modules and freezes module constants into the machine code, so a
+change to ``host_bookkeeping.py`` must also recompile ``compiled_world.py``'s
+loop that calls it (numba's per-file check kept the stale loop).
+``NUMBA_CACHE_DIR``, if set, is used instead, as numba documents (with
+numba's per-file check).
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
 
 import numba
 
 PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "mwbx", "numba")
+
+
+@functools.lru_cache(maxsize=None)
+def package_source_hash() -> bytes:
+  """sha256 over the names and contents of every ``.py`` file of the package."""
+  digest = hashlib.sha256()
+  for folder, dirs, files in sorted(os.walk(PACKAGE_DIR)):
+    dirs[:] = sorted(d for d in dirs if d != "__pycache__")
+    for name in sorted(f for f in files if f.endswith(".py")):
+      path = os.path.join(folder, name)
+      digest.update(os.path.relpath(path, PACKAGE_DIR).encode() + b"\0")
+      with open(path, "rb") as f:
+        digest.update(hashlib.sha256(f.read()).digest())
+  return digest.digest()
 
 
 def _shared_cache_locator():
@@ -45,6 +66,9 @@ def _shared_cache_locator():
 
     def get_cache_path(self):
       return self._cache_path
+
+    def get_source_stamp(self):
+      return package_source_hash()
 
     @classmethod
     def from_function(cls, py_func, py_file):

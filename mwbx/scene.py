@@ -331,6 +331,11 @@ class Scene:
     body_ids: i32[B] MuJoCo body ids of the tracked bodies.
     perturbable: bool[B] false for bodies opted out of perturbations
       (``perturb.exclude``) and for every flex body.
+    flex_weight: f32[F, B] each flex object's mass fractions over the
+      tracked bodies (its vertex or node bodies; rows sum to 1): the flex's
+      velocity change is their weighted mean (docs/sampling.md, "Flexes").
+    flex_perturbable: bool[F] flexes perturbed as a whole (false where
+      ``perturb.exclude`` names every tracked body of it).
   """
 
   def __init__(self, config: Config, mjcf_text: str | None = None, mjcf_dir: str | None = None,
@@ -397,9 +402,17 @@ class Scene:
     excluded = self.select_bodies(config.perturb.exclude, field="perturb.exclude")
     self.perturbable = np.ones(len(self.body_names), bool)
     self.perturbable[excluded] = False
-    # A flex's vertex bodies are never perturbed one by one (docs/sampling.md, "Flexes").
+    # A flex is perturbed as a whole, never its vertex bodies one by one
+    # (docs/sampling.md, "Flexes").
     flex_body_ids = [b for bodies in flex_bodies(plain_model).values() for b in bodies]
     self.perturbable[np.isin(self.body_ids, flex_body_ids)] = False
+    self.flex_weight = np.zeros((len(self.flex_objects), len(self.body_names)), np.float32)
+    self.flex_perturbable = np.zeros(len(self.flex_objects), bool)
+    for f, name in enumerate(self.flex_objects):
+      members = np.flatnonzero(np.isin(self.body_names, self.objects[name]))
+      mass = self.model.body_mass[self.body_ids[members]]
+      self.flex_weight[f, members] = mass / mass.sum() if mass.sum() > 0 else 1.0 / max(len(members), 1)
+      self.flex_perturbable[f] = len(members) > 0 and not np.isin(members, excluded).all()
     self.object_inits = self._object_inits(source, subtree)
     controls.actuator_ids(self.model, config.controls, source)  # names each unknown actuator
 

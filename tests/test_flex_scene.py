@@ -12,6 +12,7 @@ import pytest
 
 import mwbx
 from mwbx.errors import MwbxError
+from mwbx.refinement import RefineRequest, refinement
 from mwbx.scene import Scene
 
 SCENES = pathlib.Path(__file__).parent / "scenes"
@@ -67,8 +68,15 @@ def test_a_flex_is_one_object_of_its_vertex_bodies(tmp_path):
   np.testing.assert_array_equal(scene.select_bodies("cloth"), np.arange(1, 26))
   np.testing.assert_array_equal(scene.select_bodies("object:cloth"), np.arange(1, 26))
   assert scene.objects_of("cloth", "f") == ("cloth",)
-  # Vertex bodies are never perturbed one by one; the box is.
+  # Vertex bodies are never perturbed one by one; the box is, and the cloth
+  # as a whole, weighted by its vertices' masses.
   np.testing.assert_array_equal(scene.perturbable, [True] + [False] * 25)
+  mass = scene.model.body_mass[scene.body_ids[1:]]
+  np.testing.assert_allclose(scene.flex_weight, [[0.0, *(mass / mass.sum())]], rtol=1e-6)
+  np.testing.assert_array_equal(scene.flex_perturbable, [True])
+  config = flex_config(tmp_path)
+  excluded = Scene(config.model_copy(update={"perturb": config.perturb.model_copy(update={"exclude": ("cloth",)})}))
+  np.testing.assert_array_equal(excluded.flex_perturbable, [False])
 
 
 def test_pinned_vertices_are_not_part_of_it(tmp_path):
@@ -126,13 +134,43 @@ def test_flex_scene_samples_on_the_native_backend(tmp_path):
   # The cloth's contacts are the cloth's: MuJoCo reports them by flex, not by geom.
   assert mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "dome")]).all()
   assert not mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "cloth")]).any()
-  # Refinement takes the flex as an object, active or replayed.
+  # The cloth is perturbed as a whole where it strikes something: the box
+  # alone perturbed (the cloth excluded) draws fewer.
+  config = flex_config(tmp_path)
+  alone = mwbx.sample(config.model_copy(update={"perturb": config.perturb.model_copy(update={"exclude": ("cloth",)})}),
+                      n_worlds=3, key=jax.random.key(0), backend="native")
+  assert np.all(bank.perturbations > alone.perturbations)
+  # Refinement takes the flex as an object, active or replayed, its
+  # perturbations within the bound and only on active objects.
   for objects in ("box", "cloth"):
-    refined = mwbx.refine(bank, 1, objects, t_min=0.2, n_samples=2, key=jax.random.key(1), backend="native")
+    done = refinement(bank, RefineRequest(1, (objects,), t_min=0.2, n_samples=2, key=jax.random.key(1),
+                                          backend="native"))
+    refined, stats = done.bank, done.stats
     new = refined.world_ids[-2:]
     assert refined.n_worlds == 5 and refined.valid[-2:].all()
     assert all(np.isfinite(refined.qpos_frames(int(i))).all() for i in new)
     assert all(objects in refined.lineage[str(int(i))]["active"] for i in new)
+    assert np.all(stats.max_perturbation_ratio <= 1.0 + 1e-5) and np.all(stats.inactive_perturbations == 0)
+    if objects == "cloth":
+      assert np.all(stats.max_perturbation_ratio > 0)  # the cloth did get perturbed
+
+
+def test_flex_scene_samples_and_refines_on_mjx_warp(tmp_path):
+  """MuJoCo Warp simulates flexes (here on the CPU): the cloth samples, is
+  perturbed as a whole, starts where native starts, and refines."""
+  pytest.importorskip("warp")
+  config = flex_config(tmp_path)
+  config = config.model_copy(update={"sim": config.sim.model_copy(update={"mjx_impl": "warp", "end_time": 0.3})})
+  bank = mwbx.sample(config, n_worlds=2, key=jax.random.key(0), backend="mjx")
+  native = mwbx.sample(config, n_worlds=2, key=jax.random.key(0), backend="native")
+  assert bank.valid.all() and np.all(bank.perturbations > 0)
+  e_pos = bank.config["codec"]["e_pos"]
+  for w in range(2):  # the same initial states: the first frame within the codec's bound of each other
+    np.testing.assert_allclose(bank.qpos_frames(w)[0], native.qpos_frames(w)[0], atol=2 * e_pos, rtol=0)
+  done = refinement(bank, RefineRequest(1, ("cloth",), t_min=0.1, n_samples=2, key=jax.random.key(1),
+                                        backend="mjx"))
+  assert done.stats.backend == "mjx:warp" and done.new.valid.all()
+  assert np.all(done.stats.max_perturbation_ratio <= 1.0 + 1e-5) and np.all(done.stats.inactive_perturbations == 0)
 
 
 def old_objects(model):

@@ -64,3 +64,23 @@ def test_the_codec_warms_up_in_a_second_process_only_when_not_cached(tmp_path):
   after = subprocess.run([sys.executable, "-c", check], env=env, capture_output=True, text=True, timeout=600)
   assert after.stdout.split() == ["True", "True"], after.stderr
   assert warm.WORLDS >= 2
+
+
+def test_a_change_anywhere_in_the_package_recompiles_every_kernel(tmp_path):
+  """numba inlines callees from other modules (compiled_world's loop calls
+  host_bookkeeping's) and freezes module constants: a kernel's kept code is
+  stale when any source of the package changes, not only its own file."""
+  clone = tmp_path / "clone"
+  shutil.copytree(os.path.dirname(mwbx.__file__), clone / "mwbx", ignore=shutil.ignore_patterns("__pycache__"))
+  code = ("import numba.core.caching as c; from mwbx.batch_sim import compiled_world as w;"
+          "print(c.CacheImpl._locator_classes[0].from_function(w.run_world.py_func, w.__file__)"
+          ".get_source_stamp().hex())")
+  env = {**os.environ, "HOME": str(tmp_path / "home"), "PYTHONPATH": str(clone)}
+  env.pop("NUMBA_CACHE_DIR", None)
+  stamp = lambda: subprocess.run([sys.executable, "-c", code], env=env, cwd=clone, capture_output=True, text=True,
+                                 timeout=600, check=True).stdout.strip()
+  before = stamp()
+  assert before == stamp()  # the same sources: the same stamp
+  with open(clone / "mwbx" / "batch_sim" / "host_bookkeeping.py", "a") as f:
+    f.write("\n# changed\n")
+  assert stamp() != before  # a callee's file changed: the caller's code is recompiled too

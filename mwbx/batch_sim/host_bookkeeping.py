@@ -20,6 +20,8 @@ two give the same perturbations up to float rounding.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
+
 import numpy as np
 
 from mwbx.batch_sim import host_loops, world
@@ -38,6 +40,8 @@ def host_params(params: world.WorldParams) -> world.WorldParams:
   return params._replace(
       gravity=f64(params.gravity), mass=f64(params.mass), inertia=f64(params.inertia),
       perturbable=np.ascontiguousarray(np.asarray(params.perturbable, np.bool_)),
+      flex_weight=f64(params.flex_weight).reshape(-1, len(params.mass)),
+      flex_perturbable=np.ascontiguousarray(np.asarray(params.flex_perturbable, np.bool_)),
       perturb=params.perturb._make(float(x) for x in params.perturb),
       enabled=bool(params.enabled), dt=float(params.dt),
       rest_linear_speed=float(params.rest_linear_speed), rest_angular_speed=float(params.rest_angular_speed),
@@ -178,8 +182,37 @@ def _finite_step(sensors, n_bodies):
 
 # --- one frame of a batch ----------------------------------------------------
 
+class FrameImpacts(NamedTuple):
+  """One world's contact velocity changes over a frame's S steps (scratch,
+  rewritten for each world).
+
+  Attributes:
+    delta_v: f64[S, B, 3] linear, m/s.
+    delta_w: f64[S, B, 3] angular, rad/s.
+    impact_v, impact_w: bool[S, B] over the perturbation thresholds.
+  """
+
+  delta_v: np.ndarray
+  delta_w: np.ndarray
+  impact_v: np.ndarray
+  impact_w: np.ndarray
+
+
+class WrenchScratch(NamedTuple):
+  """Per-impact scratch of :func:`_next_wrenches`: uniforms f64[6], the drawn
+  dv f64[3] and dw f64[3], a quaternion f64[4], a wrench f64[6], a flex's
+  velocity change f64[3]."""
+
+  u: np.ndarray
+  dv: np.ndarray
+  dw: np.ndarray
+  quat: np.ndarray
+  wrench: np.ndarray
+  flex_delta: np.ndarray
+
+
 @host_jit
-def _contact_impacts(obs, n_bodies, p, delta_v, delta_w, impact_v, impact_w):
+def _contact_impacts(obs, n_bodies, p, impacts):
   """The velocity changes contacts made in each step of one world's frame, and
   which are impacts (over the perturbation thresholds).
 
@@ -187,10 +220,10 @@ def _contact_impacts(obs, n_bodies, p, delta_v, delta_w, impact_v, impact_w):
     obs: f32[S, B * SENSOR_WIDTH] the world's sensors of the frame's steps.
     n_bodies: B tracked bodies.
     p: :func:`host_params`.
-    delta_v, delta_w: f64[S, B, 3] out, m/s and rad/s.
-    impact_v, impact_w: bool[S, B] out.
+    impacts: :class:`FrameImpacts` out.
   """
   dt = p.dt
+  delta_v, delta_w = impacts.delta_v, impacts.delta_w
   for j in range(obs.shape[0]):
     for b in range(n_bodies):
       o = b * SENSOR_WIDTH
@@ -198,14 +231,14 @@ def _contact_impacts(obs, n_bodies, p, delta_v, delta_w, impact_v, impact_w):
         # The sensor reads a - gravity: the velocity change contacts made.
         delta_v[j, b, a] = dt * obs[j, o + LIN_ACC + a]
         delta_w[j, b, a] = dt * obs[j, o + ANG_ACC + a]
-      impact_v[j, b] = (_norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2])
-                        > p.perturb.linear_threshold * dt)
-      impact_w[j, b] = (_norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2])
-                        > p.perturb.angular_threshold * dt)
+      impacts.impact_v[j, b] = (_norm3(delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2])
+                                > p.perturb.linear_threshold * dt)
+      impacts.impact_w[j, b] = (_norm3(delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2])
+                                > p.perturb.angular_threshold * dt)
 
 
 @host_jit
-def _step_bookkeeping(obs, r, k0, was_running, n_bodies, p, carry, impact_v, impact_w):
+def _step_bookkeeping(obs, r, k0, was_running, n_bodies, p, carry, impacts):
   """Health, rest and metrics of world ``r`` through the frame's steps.
 
   Updates ``carry``'s metrics, initial orientations, steps since an impact and
@@ -241,7 +274,7 @@ def _step_bookkeeping(obs, r, k0, was_running, n_bodies, p, carry, impact_v, imp
       if not keep:
         continue
       m = carry.metrics[r, b]
-      impact = impact_v[j, b] or impact_w[j, b]
+      impact = impacts.impact_v[j, b] or impacts.impact_w[j, b]
       m[ANGULAR_TRAVEL] += spin * dt
       if moving:
         # k·dt rounded as float32 arithmetic rounds it (the product of two
@@ -282,28 +315,43 @@ def _frame_status(status, was_running, healthy, still, k0, p):
 
 
 @host_jit
-def _next_wrenches(r, obs, k0, keep_going, key_data, p, tracked, delta_v, delta_w, impact_v, impact_w,
-                   wrench_full, u, dv, dw, quat, wrench):
-  """The perturbation impulses of world ``r``'s impacts, as ``xfrc_applied``
-  wrenches of its next frame's steps (zero where none).
+def flex_velocity_change(delta_v, weight, out):
+  """``world.flex_velocity_change`` of one flex at one step: the mass-weighted
+  mean (``weight`` f64[B]) of the bodies' ``delta_v`` (f64[B, 3]) into ``out``."""
+  out[:] = 0.0
+  for b in range(weight.size):
+    if weight[b] != 0.0:
+      for a in range(3):
+        out[a] += weight[b] * delta_v[b, a]
 
-  ``u``, ``dv``, ``dw``, ``quat``, ``wrench`` are scratch (f64[6], [3], [3],
-  [4], [6]). Returns the number of nonzero perturbations applied.
+
+@host_jit
+def _next_wrenches(r, obs, k0, keep_going, key_data, p, tracked, impacts, wrench_full, scratch):
+  """The perturbation impulses of world ``r``'s impacts, as ``xfrc_applied``
+  wrenches of its next frame's steps (zero where none): each perturbable
+  body's, then each flex's as a whole where one of its bodies was struck
+  (``world.frame_update``).
+
+  Returns the number of nonzero perturbations applied.
   """
+  u, dv, dw, quat, wrench = scratch.u, scratch.dv, scratch.dw, scratch.quat, scratch.wrench
+  delta_v, delta_w = impacts.delta_v, impacts.delta_w
+  n_bodies = tracked.size
+  perturbing = keep_going and p.enabled
   n_applied = 0
   for j in range(obs.shape[0]):
-    for b in range(tracked.size):
+    for b in range(n_bodies):
       for a in range(6):
         wrench_full[r, j, tracked[b], a] = 0.0
-      if not (keep_going and p.enabled and p.perturbable[b] and (impact_v[j, b] or impact_w[j, b])):
+      if not (perturbing and p.perturbable[b] and (impacts.impact_v[j, b] or impacts.impact_w[j, b])):
         continue
       body_step_uniforms(key_data[r, 0], key_data[r, 1], k0 + j, b, u)
       dv[:] = 0.0
       dw[:] = 0.0
-      if impact_v[j, b]:
+      if impacts.impact_v[j, b]:
         _perturbation(u[0], u[1], u[2], delta_v[j, b, 0], delta_v[j, b, 1], delta_v[j, b, 2],
                       p.perturb.alpha, p.perturb.lobe_exponent, dv)
-      if impact_w[j, b]:
+      if impacts.impact_w[j, b]:
         _perturbation(u[3], u[4], u[5], delta_w[j, b, 0], delta_w[j, b, 1], delta_w[j, b, 2],
                       p.perturb.alpha, p.perturb.lobe_exponent, dw)
       if (dv[0] != 0.0 or dv[1] != 0.0 or dv[2] != 0.0 or dw[0] != 0.0 or dw[1] != 0.0
@@ -314,6 +362,26 @@ def _next_wrenches(r, obs, k0, keep_going, key_data, p, tracked, delta_v, delta_
       _impulse_wrench(dv, dw, p.mass[b], p.inertia[b], quat, p.dt, wrench)
       for a in range(6):
         wrench_full[r, j, tracked[b], a] = wrench[a]
+    for f in range(p.flex_perturbable.size):
+      if not (perturbing and p.flex_perturbable[f]):
+        continue
+      struck = False  # any of its bodies over the linear threshold
+      for b in range(n_bodies):
+        struck = struck or (p.flex_weight[f, b] != 0.0 and impacts.impact_v[j, b])
+      if not struck:
+        continue
+      delta = scratch.flex_delta
+      flex_velocity_change(delta_v[j], p.flex_weight[f], delta)
+      body_step_uniforms(key_data[r, 0], key_data[r, 1], k0 + j, n_bodies + f, u)
+      _perturbation(u[0], u[1], u[2], delta[0], delta[1], delta[2], p.perturb.alpha, p.perturb.lobe_exponent,
+                    dv)
+      if dv[0] != 0.0 or dv[1] != 0.0 or dv[2] != 0.0:
+        n_applied += 1
+      # The same velocity change for every body of the flex: m_b · dv / dt each.
+      for b in range(n_bodies):
+        if p.flex_weight[f, b] != 0.0:
+          for a in range(3):
+            wrench_full[r, j, tracked[b], a] += p.mass[b] * dv[a] / p.dt
   return n_applied
 
 
@@ -344,27 +412,20 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
   n_steps = sensordata.shape[1]
   n_bodies = tracked.size
   nq = qpos_buf.shape[2]
-  delta_v = np.empty((n_steps, n_bodies, 3))
-  delta_w = np.empty((n_steps, n_bodies, 3))
-  impact_v = np.empty((n_steps, n_bodies), np.bool_)
-  impact_w = np.empty((n_steps, n_bodies), np.bool_)
-  u = np.empty(6)
-  dv = np.empty(3)
-  dw = np.empty(3)
-  quat = np.empty(4)
-  wrench = np.empty(6)
+  impacts = FrameImpacts(np.empty((n_steps, n_bodies, 3)), np.empty((n_steps, n_bodies, 3)),
+                         np.empty((n_steps, n_bodies), np.bool_), np.empty((n_steps, n_bodies), np.bool_))
+  scratch = WrenchScratch(np.empty(6), np.empty(3), np.empty(3), np.empty(4), np.empty(6), np.empty(3))
   for i in range(rows.size):
     r = rows[i]
     obs = sensordata[r]
     k0 = carry.step[r]
     was_running = carry.status[r] == world.RUNNING
     record = was_running and _finite_step(obs[0], n_bodies)
-    _contact_impacts(obs, n_bodies, p, delta_v, delta_w, impact_v, impact_w)
-    healthy, still = _step_bookkeeping(obs, r, k0, was_running, n_bodies, p, carry, impact_v, impact_w)
+    _contact_impacts(obs, n_bodies, p, impacts)
+    healthy, still = _step_bookkeeping(obs, r, k0, was_running, n_bodies, p, carry, impacts)
     status = _frame_status(carry.status[r], was_running, healthy, still, k0, p)
     keep_going = was_running and status == world.RUNNING
-    n_applied = _next_wrenches(r, obs, k0, keep_going, key_data, p, tracked, delta_v, delta_w, impact_v,
-                               impact_w, wrench_full, u, dv, dw, quat, wrench)
+    n_applied = _next_wrenches(r, obs, k0, keep_going, key_data, p, tracked, impacts, wrench_full, scratch)
     if was_running:
       carry.step[r] = k0 + n_steps
       carry.still_steps[r] = still

@@ -93,6 +93,9 @@ class WorldParams(NamedTuple):
     mass: f32[B] kg.
     inertia: f32[B, 3] principal moments, kg·m².
     perturbable: bool[B].
+    flex_weight: f32[F, B] each flex's mass fractions over the tracked
+      bodies (F may be 0): a flex is perturbed as a whole (:func:`frame_update`).
+    flex_perturbable: bool[F].
     perturb: thresholds, α, lobe exponent.
     enabled: perturbations on (False: plain simulation).
     rest_linear_speed, rest_angular_speed: m/s, rad/s.
@@ -107,6 +110,8 @@ class WorldParams(NamedTuple):
   mass: jax.Array
   inertia: jax.Array
   perturbable: jax.Array
+  flex_weight: jax.Array
+  flex_perturbable: jax.Array
   perturb: perturb.PerturbParams
   enabled: bool
   dt: float
@@ -169,8 +174,9 @@ class FrameOutput(NamedTuple):
       of the next frame.
     record: bool, store the frame's first state s_k (frame k / S) now.
     running: bool, the world needs the next frame.
-    dv: f32[S, B, 3] linear velocity perturbations applied next frame, m/s.
-    dw: f32[S, B, 3] angular velocity perturbations applied next frame, rad/s.
+    dv: f32[S, B + F, 3] linear velocity perturbations applied next frame
+      (bodies, then flexes), m/s.
+    dw: f32[S, B + F, 3] angular velocity perturbations alike, rad/s.
     linear_impact: bool[S, B] steps whose ‖Δv‖/dt exceeded C_v.
     angular_impact: bool[S, B] steps whose ‖Δω‖/dt exceeded C_ω.
   """
@@ -208,9 +214,10 @@ def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: 
     carry: the world's bookkeeping before the frame.
     obs: observations of the frame's steps, leading axis S (see module doc).
     impacts: (linear bool[S, B], angular bool[S, B]) from :func:`frame_impacts`.
-    dv: f32[S, B, 3] sampled linear perturbations, m/s.
-    dw: f32[S, B, 3] sampled angular perturbations, rad/s.
-    wrench: f32[S, B, 6] the wrenches applying them (perturb.impulse_wrench).
+    dv: f32[S, B + F, 3] sampled linear perturbations (bodies, then flexes), m/s.
+    dw: f32[S, B + F, 3] sampled angular perturbations, rad/s.
+    wrench: f32[S, B, 6] the wrenches applying them (perturb.impulse_wrench;
+      a flex's spread over its bodies).
     params: scene constants.
 
   Returns:
@@ -291,9 +298,42 @@ def post_frame(carry: WorldCarry, obs: Observation, impacts, dv: jax.Array, dw: 
                                 linear_impact=linear_impact, angular_impact=angular_impact)
 
 
+def flex_velocity_change(delta_v: jax.Array, params: WorldParams) -> jax.Array:
+  """f32[..., F, 3] each flex's contact-induced velocity change, m/s: the
+  mass-weighted mean of its bodies' ``delta_v`` (f32[..., B, 3]).
+
+  This is the velocity change of the flex's centre of mass: forces between its
+  own vertices (edges, elasticity, self contacts) cancel in the sum, so only
+  what the rest of the scene does to the flex remains.
+  """
+  return jnp.einsum("fb,...bc->...fc", params.flex_weight, delta_v)
+
+
+def perturbation_bounds(delta_v: jax.Array, delta_w: jax.Array, params: WorldParams):
+  """The velocity changes that bound each perturbation, bodies then flexes:
+  (f32[..., B + F, 3], f32[..., B + F, 3]); a flex has no angular part."""
+  if not params.flex_weight.shape[0]:
+    return delta_v, delta_w
+  flex_dv = flex_velocity_change(delta_v, params)
+  return (jnp.concatenate([delta_v, flex_dv], axis=-2),
+          jnp.concatenate([delta_w, jnp.zeros_like(flex_dv)], axis=-2))
+
+
+def flex_mask(body_mask: jax.Array, params: WorldParams) -> jax.Array:
+  """bool[W, F] flexes with a body in ``body_mask`` (bool[W, B])."""
+  members = (params.flex_weight > 0).astype(jnp.float32)
+  return (body_mask.astype(jnp.float32) @ members.T) > 0.5
+
+
 def frame_update(carry: WorldCarry, obs: Observation, world_keys: jax.Array, params: WorldParams,
                  perturbable: jax.Array | None = None):
   """:func:`post_frame` for a batch, with perturbations drawn only at impacts.
+
+  A flex is perturbed as a whole: at a step where any of its bodies has a
+  linear impact (the flex struck something), one perturbation is drawn about
+  the flex's velocity change (:func:`flex_velocity_change`) exactly as for a
+  body (its randomness that of "body" B + f, bounded by α times that change),
+  and every body of the flex gets that same velocity change.
 
   Args:
     carry: bookkeeping of W worlds (leading axis W).
@@ -304,17 +344,40 @@ def frame_update(carry: WorldCarry, obs: Observation, world_keys: jax.Array, par
       ``params.perturbable`` (refinement: only active objects are perturbed).
 
   Returns:
-    (new carry, :class:`FrameOutput` with leading axis W).
+    (new carry, :class:`FrameOutput` with leading axis W; its ``dv`` and
+    ``dw`` over bodies then flexes, f32[W, S, B + F, 3]).
   """
   delta_v, delta_w, linear_impact, angular_impact = jax.vmap(frame_impacts, in_axes=(0, None))(obs, params)
-  wanted = (params.perturbable & params.enabled) & (carry.status == RUNNING)[:, None, None]
+  running = (carry.status == RUNNING)[:, None, None]
+  wanted = (params.perturbable & params.enabled) & running
   if perturbable is not None:
     wanted = wanted & perturbable[:, None, :]
   n_worlds, n_steps, n_bodies = linear_impact.shape
+  n_flex = params.flex_weight.shape[0]
+  mass, inertia, quat = params.mass, params.inertia, obs.quat
+  bound_v, bound_w = perturbation_bounds(delta_v, delta_w, params)
+  linear_wanted, angular_wanted = linear_impact & wanted, angular_impact & wanted
+  if n_flex:
+    flex_wanted = (params.flex_perturbable & params.enabled) & running
+    if perturbable is not None:
+      flex_wanted = flex_wanted & flex_mask(perturbable, params)[:, None, :]
+    flex_impact = flex_mask(linear_impact.reshape(-1, n_bodies), params).reshape(n_worlds, n_steps, n_flex)
+    linear_wanted = jnp.concatenate([linear_wanted, flex_impact & flex_wanted], axis=-1)
+    angular_wanted = jnp.concatenate([angular_wanted, jnp.zeros_like(flex_impact)], axis=-1)
+    # A flex's wrench is computed per unit mass, then given to each body by its mass.
+    mass = jnp.concatenate([mass, jnp.ones(n_flex, mass.dtype)])
+    inertia = jnp.concatenate([inertia, jnp.ones((n_flex, 3), inertia.dtype)])
+    identity = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0, 0.0], quat.dtype), (n_worlds, n_steps, n_flex, 4))
+    quat = jnp.concatenate([quat, identity], axis=-2)
+  n_perturbed = n_bodies + n_flex
   dv, dw, wrench = perturb.batch_perturbations(
-      world_keys, carry.step, delta_v, delta_w, linear_impact & wanted, angular_impact & wanted,
-      params.perturb, cap=max(64, n_worlds * n_steps * n_bodies // 16),
-      inertial=(params.mass, params.inertia, obs.quat, params.dt))
+      world_keys, carry.step, bound_v, bound_w, linear_wanted, angular_wanted,
+      params.perturb, cap=max(64, n_worlds * n_steps * n_perturbed // 16),
+      inertial=(mass, inertia, quat, params.dt))
+  if n_flex:
+    member_mass = (params.flex_weight > 0) * params.mass[None, :]  # [F, B]
+    spread = jnp.einsum("fb,wsfc->wsbc", member_mass, wrench[:, :, n_bodies:, :3])
+    wrench = wrench[:, :, :n_bodies].at[..., :3].add(spread)
   return jax.vmap(post_frame, in_axes=(0, 0, 0, 0, 0, 0, None))(
       carry, obs, (linear_impact, angular_impact), dv, dw, wrench, params)
 
@@ -333,6 +396,8 @@ def world_params(scene, steps_per_frame: int, end_frame: int) -> WorldParams:
       mass=jnp.asarray(m.body_mass[scene.body_ids], jnp.float32),
       inertia=jnp.asarray(m.body_inertia[scene.body_ids], jnp.float32),
       perturbable=jnp.asarray(scene.perturbable),
+      flex_weight=jnp.asarray(scene.flex_weight, jnp.float32),
+      flex_perturbable=jnp.asarray(scene.flex_perturbable),
       perturb=perturb.PerturbParams(
           alpha=cfg.perturb.alpha, lobe_exponent=cfg.perturb.lobe_exponent,
           linear_threshold=cfg.perturb.linear_threshold, angular_threshold=cfg.perturb.angular_threshold),

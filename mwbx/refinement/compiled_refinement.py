@@ -92,12 +92,16 @@ class RefineObjects(NamedTuple):
     dof_object: bool[O, nv] the dofs of each object.
     perturbable: bool[B] the scene's perturbable tracked bodies (only those
       of active objects are perturbed).
+    flex_perturbable: bool[F] the scene's perturbable flexes (alike).
+    flex_object: i64[F] the object of each flex.
     interaction: :class:`interactions.HostInteraction` of the interaction test.
   """
 
   qpos_object: np.ndarray
   dof_object: np.ndarray
   perturbable: np.ndarray
+  flex_perturbable: np.ndarray
+  flex_object: np.ndarray
   interaction: interactions.HostInteraction
 
 
@@ -161,33 +165,50 @@ def _stored_motion(sensordata_row, active, body_object, frame, path_com, path_qu
 
 
 @host_jit
-def _audit(sensordata_row, wrench_row, tracked, mass, inertia, perturbable, alpha, dt):
+def _audit(sensordata_row, wrench_row, tracked, p, dt, flex_delta):
   """(largest ``‖dv‖ / (α‖Δv‖)`` or angular alike, perturbations on bodies
-  not perturbable) of one frame's next wrenches (f64[S, nbody, 6])."""
+  not perturbable) of one frame's next wrenches (f64[S, nbody, 6]); a flex's
+  bodies are held to its velocity change (``flex_delta`` f64[3] scratch)."""
   worst = 0.0
   stray = 0
+  alpha = p.perturb.alpha
+  n_bodies = tracked.size
   for s in range(wrench_row.shape[0]):
-    for b in range(tracked.size):
+    for b in range(n_bodies):
       w = wrench_row[s, tracked[b]]
       if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0 and w[3] == 0.0 and w[4] == 0.0 and w[5] == 0.0:
         continue
-      if not perturbable[b]:
+      flex = -1
+      for f in range(p.flex_perturbable.size):
+        if p.flex_weight[f, b] != 0.0:
+          flex = f
+      if not (p.perturbable[b] or (flex >= 0 and p.flex_perturbable[flex])):
         stray += 1
       o = b * SENSOR_WIDTH
       q = sensordata_row[s, o + QUAT:o + QUAT + 4]
       norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
       r00, r01, r02, r10, r11, r12, r20, r21, r22 = host_loops.rotation_matrix(
           q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm)
-      dv = math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) * dt / mass[b]
+      dv = math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) * dt / p.mass[b]
       # dw = R · diag(1/I) · Rᵀ · torque · dt (inverse of the impulse wrench)
-      bx = (r00 * w[3] + r10 * w[4] + r20 * w[5]) / inertia[b, 0]
-      by = (r01 * w[3] + r11 * w[4] + r21 * w[5]) / inertia[b, 1]
-      bz = (r02 * w[3] + r12 * w[4] + r22 * w[5]) / inertia[b, 2]
+      bx = (r00 * w[3] + r10 * w[4] + r20 * w[5]) / p.inertia[b, 0]
+      by = (r01 * w[3] + r11 * w[4] + r21 * w[5]) / p.inertia[b, 1]
+      bz = (r02 * w[3] + r12 * w[4] + r22 * w[5]) / p.inertia[b, 2]
       dw = math.sqrt(bx * bx + by * by + bz * bz) * dt
-      delta_v = dt * math.sqrt(float(sensordata_row[s, o + LIN_ACC]) ** 2 + float(sensordata_row[s, o + LIN_ACC + 1]) ** 2
-                               + float(sensordata_row[s, o + LIN_ACC + 2]) ** 2)
-      delta_w = dt * math.sqrt(float(sensordata_row[s, o + ANG_ACC]) ** 2 + float(sensordata_row[s, o + ANG_ACC + 1]) ** 2
-                               + float(sensordata_row[s, o + ANG_ACC + 2]) ** 2)
+      if flex >= 0:  # the flex's velocity change: its bodies' mass-weighted mean
+        flex_delta[:] = 0.0
+        for i in range(n_bodies):
+          for a in range(3):
+            flex_delta[a] += p.flex_weight[flex, i] * dt * float(sensordata_row[s, i * SENSOR_WIDTH + LIN_ACC + a])
+        delta_v = math.sqrt(flex_delta[0] ** 2 + flex_delta[1] ** 2 + flex_delta[2] ** 2)
+        delta_w = 0.0
+      else:
+        delta_v = dt * math.sqrt(float(sensordata_row[s, o + LIN_ACC]) ** 2
+                                 + float(sensordata_row[s, o + LIN_ACC + 1]) ** 2
+                                 + float(sensordata_row[s, o + LIN_ACC + 2]) ** 2)
+        delta_w = dt * math.sqrt(float(sensordata_row[s, o + ANG_ACC]) ** 2
+                                 + float(sensordata_row[s, o + ANG_ACC + 1]) ** 2
+                                 + float(sensordata_row[s, o + ANG_ACC + 2]) ** 2)
       if dv > 0.0:
         worst = max(worst, dv / max(alpha * delta_v, 1e-30))
       if dw > 0.0:
@@ -234,8 +255,11 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
   nxt = np.empty(n_objects, np.bool_)
   ts = np.zeros(2, np.int64)
   physics = 0.0
+  flex_delta = np.empty(3)
   for i in range(n_bodies):
     p.perturbable[i] = objects.perturbable[i] and active[row, inter.body_object[i]]
+  for f in range(objects.flex_perturbable.size):
+    p.flex_perturbable[f] = objects.flex_perturbable[f] and active[row, objects.flex_object[f]]
   while running[row] and frame_of[row] < inputs.n_frames:
     frame = frame_of[row]
     _put_on_path(data.qpos, data.qvel, prev_inactive[row], objects.qpos_object, objects.dof_object,
@@ -260,8 +284,7 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
                    parent.lin_vel, parent.ang_vel)
     host_bookkeeping.frame_update(rows, b.sensordata, b.key_data, p, b.carry, b.tracked_ids, before, 1,
                                   frame - parent.first_frame, b.qpos_buf, b.com_buf, b.wrench_full, running)
-    worst, stray = _audit(b.sensordata[row], b.wrench_full[row], b.tracked_ids, p.mass, p.inertia, p.perturbable,
-                          p.perturb.alpha, timestep)
+    worst, stray = _audit(b.sensordata[row], b.wrench_full[row], b.tracked_ids, p, timestep, flex_delta)
     refined.audit_ratio[row] = max(refined.audit_ratio[row], worst)
     refined.audit_stray[row] += stray
     # The interaction test for the next frame, on the last step's observations.
@@ -328,10 +351,13 @@ def run_compiled(backend, inp, progress=None):
   parent = ParentMotion(
       first_frame=f0, qpos=f32(path.qpos), qvel=f32(path.qvel), step_targets=f32(inp.step_targets),
       com=f32(path.com), quat=f32(path.quat), lin_vel=f32(path.lin_vel), ang_vel=f32(path.ang_vel))
+  interaction = interactions.host_interaction(inp.inter)
   objects = RefineObjects(
       qpos_object=np.ascontiguousarray(inp.qpos_object, bool),
       dof_object=np.ascontiguousarray(inp.dof_object, bool), perturbable=p.perturbable.copy(),
-      interaction=interactions.host_interaction(inp.inter))
+      flex_perturbable=p.flex_perturbable.copy(),
+      flex_object=np.array([interaction.body_object[np.flatnonzero(w)[0]] for w in p.flex_weight], np.int64),
+      interaction=interaction)
   models_lock = threading.Lock()
   thread_buffers = threading.local()
 
@@ -340,8 +366,9 @@ def run_compiled(backend, inp, progress=None):
       return inp.models(~active[row:row + 1])[0]
 
   def call(row, model, data, flags):
-    if not hasattr(thread_buffers, "b"):  # each thread rewrites its own perturbable mask
-      thread_buffers.b = buffers._replace(params=p._replace(perturbable=objects.perturbable.copy()))
+    if not hasattr(thread_buffers, "b"):  # each thread rewrites its own perturbable masks
+      thread_buffers.b = buffers._replace(params=p._replace(
+          perturbable=objects.perturbable.copy(), flex_perturbable=objects.flex_perturbable.copy()))
     return run_refined_world(row, mujoco_c.data_views(model, data), inputs, parent, objects, thread_buffers.b,
                              refined, flags)
 

@@ -147,13 +147,17 @@ def _audit(obs, out, active, params, inter):
   """Per world: the largest ``‖dv‖ / (α‖Δv‖)`` (≤ 1 is the plausibility bound;
   angular alike) and how many perturbations went to inactive bodies (must be 0)."""
   delta_v, delta_w, _, _ = jax.vmap(world.frame_impacts, in_axes=(0, None))(obs, params)
+  delta_v, delta_w = world.perturbation_bounds(delta_v, delta_w, params)  # bodies, then flexes
   alpha = params.perturb.alpha
   def ratio(d, delta):
     mag, lim = jnp.linalg.norm(d, axis=-1), alpha * jnp.linalg.norm(delta, axis=-1)
     return jnp.where(mag > 0, mag / jnp.maximum(lim, 1e-30), 0.0)
   worst = jnp.maximum(ratio(out.dv, delta_v), ratio(out.dw, delta_w)).max(axis=(1, 2))
   applied = jnp.any(out.dv != 0, -1) | jnp.any(out.dw != 0, -1)  # [W, S, B]
-  stray = jnp.sum(applied & ~_body_mask(active, inter)[:, None, :], axis=(1, 2))
+  mask = _body_mask(active, inter)
+  if params.flex_weight.shape[0]:
+    mask = jnp.concatenate([mask, world.flex_mask(mask, params)], axis=-1)
+  stray = jnp.sum(applied & ~mask[:, None, :], axis=(1, 2))
   return worst, stray
 
 

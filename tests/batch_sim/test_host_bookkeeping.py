@@ -26,11 +26,18 @@ def test_uniforms_are_jax_random_bit_for_bit():
     np.testing.assert_array_equal(out.astype(np.float32), np.asarray(want))
 
 
-def _params(enabled=True):
+def _params(enabled=True, flex=False):
+  """Three bodies (the third not perturbable); with ``flex`` a fourth, and
+  the last two one flex."""
+  mass, inertia = [1.0, 0.3, 2.5], [[0.01, 0.02, 0.03], [0.002, 0.002, 0.004], [0.2, 0.1, 0.05]]
+  perturbable, flex_weight = [True, True, False], np.zeros((0, 3))
+  if flex:
+    mass, inertia = mass + [1.5], inertia + [[0.1, 0.1, 0.1]]
+    perturbable, flex_weight = perturbable + [False], np.array([[0.0, 0.0, 2.5 / 4, 1.5 / 4]])
   return world.WorldParams(
-      gravity=jnp.array([0.0, 0.0, -9.81]), mass=jnp.array([1.0, 0.3, 2.5]),
-      inertia=jnp.array([[0.01, 0.02, 0.03], [0.002, 0.002, 0.004], [0.2, 0.1, 0.05]]),
-      perturbable=jnp.array([True, True, False]),
+      gravity=jnp.array([0.0, 0.0, -9.81]), mass=jnp.array(mass), inertia=jnp.array(inertia),
+      perturbable=jnp.array(perturbable), flex_weight=jnp.asarray(flex_weight, jnp.float32),
+      flex_perturbable=jnp.ones(len(flex_weight), bool),
       perturb=perturb.PerturbParams(alpha=0.1, lobe_exponent=20.0, linear_threshold=100.0,
                                     angular_threshold=2000.0),
       enabled=enabled, dt=1 / 480, rest_linear_speed=0.05, rest_angular_speed=0.1, rest_steps=12,
@@ -64,13 +71,14 @@ def _observations(rng, n_worlds, n_frames, n_steps, n_bodies):
   return sensors.reshape(n_frames, n_worlds, n_steps, -1).astype(np.float32)
 
 
-@pytest.mark.parametrize("enabled", [True, False])
-def test_frame_update_matches_world_frame_update(enabled):
+@pytest.mark.parametrize("enabled,flex", [(True, False), (False, False), (True, True)])
+def test_frame_update_matches_world_frame_update(enabled, flex):
   rng = np.random.default_rng(1)
-  params = _params(enabled)
+  params = _params(enabled, flex)
   host_params = host_bookkeeping.host_params(params)
-  n_worlds, n_frames, n_steps, n_bodies, nq, nbody = 12, 30, 4, 3, 5, 6
-  tracked = np.array([1, 3, 4])
+  n_worlds, n_frames, n_steps, nq, nbody = 12, 30, 4, 5, 7
+  tracked = np.array([1, 3, 4, 5] if flex else [1, 3, 4])
+  n_bodies = len(tracked)
   active = np.arange(n_worlds) != 11  # a padding slot
   observations = _observations(rng, n_worlds, n_frames, n_steps, n_bodies)
   keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(jax.random.key(3), jnp.arange(n_worlds))
@@ -111,7 +119,12 @@ def test_frame_update_matches_world_frame_update(enabled):
     scale = np.abs(np.asarray(out.wrench[rows])).max() + 1.0
     np.testing.assert_allclose(wrench_full[rows][:, :, tracked], np.asarray(out.wrench)[rows],
                                rtol=_WRENCH_TOLERANCE, atol=_WRENCH_TOLERANCE * scale)
-    assert not wrench_full[rows][:, :, [0, 2, 5]].any()
+    assert not wrench_full[rows][:, :, np.setdiff1d(np.arange(nbody), tracked)].any()
+    if flex:  # the flex's bodies share one velocity change: force / mass alike
+      dv_flex = wrench_full[rows][:, :, tracked[2:], :3] / np.asarray(params.mass)[2:, None]
+      np.testing.assert_allclose(dv_flex[:, :, 0], dv_flex[:, :, 1], rtol=1e-12, atol=1e-12)
+      assert not wrench_full[rows][:, :, tracked[2:], 3:].any()
+      saw["flex"] = saw.get("flex", 0) + int(np.count_nonzero(dv_flex))
     recorded = rows[np.asarray(out.record)[rows]]
     np.testing.assert_array_equal(qpos_buf[recorded, frame], states[frame, recorded, 1:].astype(np.float32))
     np.testing.assert_array_equal(com_buf[recorded, frame], sensors[recorded, 0, :].reshape(
@@ -121,5 +134,6 @@ def test_frame_update_matches_world_frame_update(enabled):
   # The data reached every branch: perturbations (when enabled), rest, end
   # time, instability, and a frame that is not recorded.
   assert (saw["perturbed"] > 0) == enabled
+  assert saw.get("flex", 0) > 0 or not flex
   assert set(carry.status.tolist()) == {world.AT_REST, world.END_TIME, world.UNSTABLE}
   assert carry.frame_count[7] == carry.step[7] // n_steps - 1

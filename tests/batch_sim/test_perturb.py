@@ -87,6 +87,44 @@ def test_impacts_only_above_thresholds(tiny_native):
   np.testing.assert_allclose(np.asarray(out.wrench).reshape(-1, 6), reference, rtol=1e-5, atol=1e-6)
 
 
+def test_a_flex_is_perturbed_as_a_whole_within_its_bound(tiny_native):
+  """Two of three bodies as one flex: one perturbation per flex-step, exactly
+  where one of its bodies' velocity change is over C_v, bounded by α times the
+  flex's (its bodies' mass-weighted mean), the same velocity change for each of
+  its bodies (no jitter)."""
+  mass = np.array([2.0, 0.5, 1.5], np.float32)
+  weight = np.array([[0.0, 0.25, 0.75]], np.float32)
+  params = tiny_native.params._replace(
+      mass=jnp.asarray(mass), inertia=jnp.ones((3, 3)), perturbable=jnp.array([True, False, False]),
+      flex_weight=jnp.asarray(weight), flex_perturbable=jnp.array([True]))
+  rng = np.random.default_rng(5)
+  w, s, b = 8, params.steps_per_frame, 3
+  gravity = np.asarray(params.gravity)
+  lin_acc = gravity + rng.normal(0, 1, (w, s, b, 3)) * rng.choice([1.0, 80.0, 400.0], (w, s, b, 1))
+  zeros = np.zeros((w, s, b, 3))
+  quat = np.tile([1.0, 0, 0, 0], (w, s, b, 1))
+  obs = world.Observation(*(jnp.asarray(x, jnp.float32) for x in (zeros, quat, zeros, zeros, lin_acc, zeros)))
+  carry = jax.vmap(world.init_carry, in_axes=(None, 0))(b, jnp.ones(w, bool))
+  keys = jax.random.split(jax.random.key(4), w)
+  _, out = jax.jit(lambda c, o, k: world.frame_update(c, o, k, params))(carry, obs, keys)
+  dt = params.dt
+  flex_delta = dt * np.einsum("b,wsbc->wsc", weight[0], lin_acc - gravity)  # numpy reference
+  struck = np.linalg.norm(lin_acc - gravity, axis=-1) > params.perturb.linear_threshold
+  expected = struck[:, :, 1:].any(axis=-1)
+  assert expected.any() and (~expected).any()
+  dv, dw = np.asarray(out.dv), np.asarray(out.dw)
+  assert dv.shape == (w, s, b + 1, 3)
+  assert not dv[:, :, 1:3].any() and not dw[:, :, 1:].any()  # never a vertex alone, never a spin
+  flex_dv = dv[:, :, 3]
+  np.testing.assert_array_equal(np.linalg.norm(flex_dv, axis=-1) > 0, expected)
+  bound = params.perturb.alpha * np.linalg.norm(flex_delta, axis=-1)
+  assert np.all(np.linalg.norm(flex_dv, axis=-1) <= bound * (1 + _BOUND_TOLERANCE))
+  wrench = np.asarray(out.wrench)
+  for body in (1, 2):
+    np.testing.assert_allclose(wrench[:, :, body, :3] * dt / mass[body], flex_dv, rtol=1e-5, atol=1e-7)
+    assert not wrench[:, :, body, 3:].any()
+
+
 def test_sparse_batch_perturbations_match_dense_reference():
   """batch_perturbations (gathered, several rounds) equals drawing every entry."""
   rng = np.random.default_rng(1)

@@ -200,6 +200,7 @@ def test_stored_motion_and_audit_against_loops():
   p = _params(b, 4, rng)
   params = world.WorldParams(
       gravity=jnp.array([0.0, 0.0, -9.81]), mass=jnp.ones(b), inertia=jnp.ones((b, 3)), perturbable=jnp.ones(b, bool),
+      flex_weight=jnp.zeros((0, b)), flex_perturbable=jnp.zeros(0, bool),
       perturb=perturb.PerturbParams(alpha=0.1), enabled=True, dt=1 / 480, rest_linear_speed=0.02,
       rest_angular_speed=0.1, rest_steps=10, max_speed=100.0, collision_gap_steps=1, steps_per_frame=s,
       end_frame=100)
