@@ -69,12 +69,16 @@ def _in_browser(page, camera) -> dict:
   return {"page_load_s": load_s, "initial_bytes": before, "bytes_per_box_update": update_bytes}
 
 
-def _play_latency(n_worlds: int, clicks: int, in_browser: bool) -> dict:
-  """Sorter click -> world playing, on the 20-body scene: per click, decode +
-  FK (ms) and the whole play (decode, FK, poses to the page, flushed), the
-  first click of a slot (its meshes uploaded) apart from the others."""
+PLAY_SCENE = ROOT / "tests" / "scenes" / "twenty.yaml"
+
+
+def _play_latency(n_worlds: int, clicks: int, in_browser: bool, scene: pathlib.Path = PLAY_SCENE) -> dict:
+  """Sorter click -> world playing, on the 20-body scene (or ``scene``, e.g.
+  the tablecloth): per click, decode + FK (ms) and the whole play (decode, FK,
+  poses and flex surfaces to the page, flushed), the first click of a slot
+  (its meshes uploaded) apart from the others."""
   from mwbx.viewer.kinematics import body_trajectories
-  bank = mwbx.sample(mwbx.load_config(ROOT / "tests" / "scenes" / "twenty.yaml"), n_worlds, jax.random.key(0))
+  bank = mwbx.sample(mwbx.load_config(scene), n_worlds, jax.random.key(0))
   page = Browser(Session(bank))
   decode_fk, play = [], []
   try:
@@ -99,7 +103,8 @@ def _play_latency(n_worlds: int, clicks: int, in_browser: bool) -> dict:
     browser_ms = _play_in_browser(page, bank, clicks) if in_browser else None
   finally:
     page.close()
-  return {"bodies": len(bank.body_names), "meshes_per_slot": first_uploads, "clicks": clicks,
+  return {"scene": os.path.relpath(scene, ROOT), "flexes": list(bank.scene().flex_objects),
+          "bodies": len(bank.body_names), "meshes_per_slot": first_uploads, "clicks": clicks,
           "path_segments_drawn": int(drawn_segments), "path_segments_recorded": int(recorded_segments),
           "decode_fk_ms": float(1e3 * np.median(decode_fk)), "play_ms": float(1e3 * np.median(play)),
           "play_p95_ms": float(1e3 * np.percentile(play, 95)), "browser_click_to_playing_ms": browser_ms}
@@ -229,6 +234,10 @@ def main() -> None:
                       help="also page load time and bytes sent per update, in headless Chromium")
   parser.add_argument("--only-play", action="store_true",
                       help="run only the play part and update its entry in --out (the other parts kept)")
+  parser.add_argument("--play-scene", type=pathlib.Path, default=PLAY_SCENE,
+                      help="the scene of the play part (e.g. configs/tablecloth.yaml)")
+  parser.add_argument("--play-key", default="play",
+                      help="with --only-play: the entry of --out it writes (e.g. play_cloth)")
   parser.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "bench" / "browse.json")
   args = parser.parse_args()
   if args.only_play:
@@ -293,7 +302,7 @@ def main() -> None:
   finally:
     page.close()
   add_ms, sort_ms, geo_ms = 1e3 * np.array(add_s), 1e3 * np.array(sort_s), 1e3 * np.array(geometry_s)
-  play = _play_latency(args.play_worlds, args.clicks, args.browser)
+  play = _play_latency(args.play_worlds, args.clicks, args.browser, args.play_scene.resolve())
   result = {
       "machine": f"{platform.machine()}, {os.cpu_count()} cores", "worlds": bank.n_worlds,
       "bodies": len(bank.body_names), "boxes": args.boxes,
@@ -328,11 +337,11 @@ def main() -> None:
 def _only_play(args) -> None:
   """The play part alone, written into --out's existing figures."""
   load = os.getloadavg()[0]
-  play = _play_latency(args.play_worlds, args.clicks, args.browser)
+  play = _play_latency(args.play_worlds, args.clicks, args.browser, args.play_scene.resolve())
   commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
   play.update(load_average=load, commit=commit.stdout.strip() or None)
   result = json.loads(args.out.read_text()) if args.out.exists() else {}
-  result["play"] = play
+  result[args.play_key] = play
   b = play["browser_click_to_playing_ms"]
   print(f"play on {play['bodies']} bodies: decode + FK {play['decode_fk_ms']:.1f} ms, click -> poses sent"
         f" {play['play_ms']:.1f} ms median (p95 {play['play_p95_ms']:.1f})"

@@ -396,6 +396,20 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
                 f"plays {b['median']:.0f} ms median (p95 {b['p95']:.0f}), of which {b['click_to_server_median']:.0f} ms "
                 "pass before the click's event reaches the server: the browser's own time on this machine."]
     head[0] += f"; a sorter click plays a {p['bodies']}-body world in {p['play_ms']:.0f} ms on the server"
+  c = d.get("play_cloth")
+  if c:
+    b = c.get("browser_click_to_playing_ms") or {}
+    lines += ["", f"Play of a cloth world (`{c['scene']}`, {c['bodies']} tracked bodies, the flex surface drawn "
+              f"and moved each frame; {c['clicks']} clicks): decode + forward kinematics {c['decode_fk_ms']:.1f} ms, "
+              f"click → poses and surface sent {c['play_ms']:.1f} ms median (p95 {c['play_p95_ms']:.1f})"
+              + (f"; in headless Chromium a mouse click → \"playing world N\" shown {b['in_page_shown_median']:.0f} ms, "
+                 f"→ the world drawn {b['in_page_drawn_median']:.0f} ms median (p95 {b['in_page_drawn_p95']:.0f}; "
+                 f"goal ≤ 200 ms: {'met' if b['in_page_drawn_median'] <= 200 else 'missed'}), "
+                 f"{b['playing_frames_per_s']:.1f} frames/s while it plays (goal ≥ 10: "
+                 f"{'met' if b['playing_frames_per_s'] >= 10 else 'missed'}; {b['idle_frames_per_s']:.1f} idle)"
+                 if "in_page_drawn_median" in b else "")
+              + (f". Load average {c['load_average']:.1f} at the start, commit {c['commit']}." if "load_average" in c
+                 else ".")]
   return lines, head
 
 
@@ -815,6 +829,21 @@ def flex(d: dict) -> tuple[list[str], list[str]]:
       lines.append(f"| {r['scene']} | {r['worlds']} | {r['mwbx_world_steps_per_s']:,.0f} | "
                    f"{r['rollout_world_steps_per_s']:,.0f} | {r['ratio_vs_rollout']:.2f}× | {name} | {f['vertices']} | "
                    f"{f['mwbx_qpos_bytes_per_vertex_second']:.1f} | {f['mwbx_vs_float32']:.3f}× | {sz3} |")
+  blocks = [r for r in d["scenes"] if "block" in r]
+  if blocks:
+    lines += ["", "mwbx and the rollout ran in turn, a block of worlds at a time ("
+              + ", ".join(f"{r['scene']}: {r['block']}" for r in blocks)
+              + "), so that load on the shared machine falls on both alike; the ratio is of the totals."]
+  jitter = [(r, name, r["shape_jitter"][name]) for r in d["scenes"] if "shape_jitter" in r for name in r["flexes"]]
+  if jitter:
+    lines += ["", "A flex is perturbed as a whole ([sampling](sampling.md#how-it-works)): perturbations per world "
+              + ", ".join(f"{r['scene']} {r['perturbations_per_world']:.0f}" for r in blocks if
+                          "perturbations_per_world" in r)
+              + ". Its shape's shaking (RMS second difference of its vertices about their mean, per recorded "
+              "frame²) with its perturbations against the same worlds with the flex excluded from them: "
+              + "; ".join(f"{r['scene']} {name} {j['perturbed'] * 1e3:.3f} against {j['not_perturbed'] * 1e3:.3f} "
+                          f"mm/frame² ({j['ratio']:.2f}×)" for r, name, j in jitter)
+              + ": a uniform kick moves the whole flex and leaves its shape alone."]
   return lines, []
 
 
