@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
-from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world
+from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c
 from mwbx.host_jit import host_jit
 
 
@@ -48,39 +48,6 @@ class WorldInputs(NamedTuple):
   gravity: np.ndarray
   free: bool
   free_bodies: free_bodies_lib.FreeBodies
-
-
-class ChunkBuffers(NamedTuple):
-  """Host arrays of a chunk of C worlds; row i belongs to world i and is
-  written only by the thread running it.
-
-  Attributes:
-    params: :func:`host_bookkeeping.host_params` of the scene's
-      :class:`world.WorldParams` (f64 arrays, Python scalars).
-    key_data: u32[C, 2] per-world step key roots (``jax.random.key_data``).
-    tracked_ids: i64[B] MuJoCo body id of each tracked body.
-    states: f64[C, nstate] full physics state after each world's last frame.
-    warmstart: f64[C, nv] accelerations of each world's last step (m/s², rad/s²).
-    sensordata: f32[C, S, nsensordata] sensor blocks of the last frame's steps
-      (:data:`mwbx.scene.SENSORS` units; NaN where MuJoCo reset the world).
-    wrench_full: f64[C, S, nbody, 6] ``xfrc_applied`` of each world's next
-      frame: force N, torque N·m.
-    qpos_buf: f32[C, T, nq] recorded ``qpos`` of each frame.
-    com_buf: f32[C, T, B, 3] recorded COM of each tracked body, m.
-    carry: :class:`world.WorldCarry` of host arrays
-      (:func:`host_bookkeeping.init_carry`), updated.
-  """
-
-  params: world.WorldParams
-  key_data: np.ndarray
-  tracked_ids: np.ndarray
-  states: np.ndarray
-  warmstart: np.ndarray
-  sensordata: np.ndarray
-  wrench_full: np.ndarray
-  qpos_buf: np.ndarray
-  com_buf: np.ndarray
-  carry: world.WorldCarry
 
 
 _step = mujoco_c.mj_step
@@ -129,7 +96,7 @@ def run_world(row, data, inputs, initial_states, buffers, running):
     data: :class:`mujoco_c.MjDataViews` of this thread's ``MjData``.
     inputs: the chunk's :class:`WorldInputs`.
     initial_states: f64[C, nstate] full physics states at time 0.
-    buffers: the chunk's :class:`ChunkBuffers` (row ``row`` written).
+    buffers: the chunk's :class:`host_bookkeeping.ChunkBuffers` (row ``row`` written).
     running: bool[C] as :func:`host_bookkeeping.frame_update` (out).
   """
   b = buffers
@@ -159,7 +126,6 @@ def run_world(row, data, inputs, initial_states, buffers, running):
       fb = inputs.free_bodies
       host_loops.observe_free_bodies(rows, before, after, inputs.timestep, inputs.gravity, 1, 1 + nq,
                                      fb.qpos_adr, fb.dof_adr, fb.ipos, fb.iquat, b.sensordata)
-    host_bookkeeping.frame_update(rows, b.sensordata, b.key_data, b.params, b.carry, b.tracked_ids, before, 1,
-                                  frame, b.qpos_buf, b.com_buf, b.wrench_full, running)
+    host_bookkeeping.frame_update(rows, b, before, 1, frame, running)
     frame += 1
   return physics

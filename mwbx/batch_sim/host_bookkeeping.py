@@ -68,6 +68,39 @@ def init_carry(n_bodies: int, active: np.ndarray) -> world.WorldCarry:
   )
 
 
+class ChunkBuffers(NamedTuple):
+  """Host arrays of a chunk of C worlds; row i belongs to world i and is
+  written only by the thread running it.
+
+  Attributes:
+    params: :func:`host_params` of the scene's
+      :class:`world.WorldParams` (f64 arrays, Python scalars).
+    key_data: u32[C, 2] per-world step key roots (``jax.random.key_data``).
+    tracked_ids: i64[B] MuJoCo body id of each tracked body.
+    states: f64[C, nstate] full physics state after each world's last frame.
+    warmstart: f64[C, nv] accelerations of each world's last step (m/s², rad/s²).
+    sensordata: f32[C, S, nsensordata] sensor blocks of the last frame's steps
+      (:data:`mwbx.scene.SENSORS` units; NaN where MuJoCo reset the world).
+    wrench_full: f64[C, S, nbody, 6] ``xfrc_applied`` of each world's next
+      frame: force N, torque N·m.
+    qpos_buf: f32[C, T, nq] recorded ``qpos`` of each frame.
+    com_buf: f32[C, T, B, 3] recorded COM of each tracked body, m.
+    carry: :class:`world.WorldCarry` of host arrays
+      (:func:`init_carry`), updated.
+  """
+
+  params: world.WorldParams
+  key_data: np.ndarray
+  tracked_ids: np.ndarray
+  states: np.ndarray
+  warmstart: np.ndarray
+  sensordata: np.ndarray
+  wrench_full: np.ndarray
+  qpos_buf: np.ndarray
+  com_buf: np.ndarray
+  carry: world.WorldCarry
+
+
 # --- jax.random, bit for bit -------------------------------------------------
 
 @host_jit
@@ -386,8 +419,7 @@ def _next_wrenches(r, obs, k0, keep_going, key_data, p, tracked, impacts, wrench
 
 
 @host_jit
-def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_start, frame,
-                 qpos_buf, com_buf, wrench_full, running):
+def frame_update(rows, buffers, before, qpos_start, frame, running):
   """:func:`world.frame_update` for the worlds that ran a frame, and the recording.
 
   Per world: the frame's contact impacts, its steps' health, rest and
@@ -396,19 +428,18 @@ def frame_update(rows, sensordata, key_data, p, carry, tracked, before, qpos_sta
 
   Args:
     rows: i64[n] chunk row of each world that stepped the frame.
-    sensordata: f32[C, S, B * SENSOR_WIDTH] sensors of the frame's steps (NaN
-      where MuJoCo reset the world).
-    key_data: u32[C, 2] per-world step key roots (``jax.random.key_data``).
-    p: :func:`host_params` of the scene's :class:`world.WorldParams`.
-    carry: :class:`world.WorldCarry` of host arrays (:func:`init_carry`), updated.
-    tracked: i64[B] MuJoCo body id of each tracked body.
+    buffers: :class:`ChunkBuffers` of the chunk: reads ``sensordata`` (the
+      frame's steps, NaN where MuJoCo reset the world), ``key_data``,
+      ``params`` and ``tracked_ids``; updates ``carry``; writes ``qpos_buf``
+      and ``com_buf`` at ``frame`` and ``wrench_full`` (the next frame's
+      ``xfrc_applied``).
     before: f64[n, nstate] state s_k each world started the frame from.
     qpos_start: index of qpos in a state.
     frame: frame index to record into.
-    qpos_buf: f32[C, T, nq] out; com_buf: f32[C, T, B, 3] out: the recording.
-    wrench_full: f64[C, S, nbody, 6] out: ``xfrc_applied`` of the next frame.
     running: bool[C] out: whether each stepped world needs the next frame.
   """
+  sensordata, key_data, p, carry = buffers.sensordata, buffers.key_data, buffers.params, buffers.carry
+  tracked, qpos_buf, com_buf, wrench_full = buffers.tracked_ids, buffers.qpos_buf, buffers.com_buf, buffers.wrench_full
   n_steps = sensordata.shape[1]
   n_bodies = tracked.size
   nq = qpos_buf.shape[2]

@@ -45,14 +45,14 @@ class _Chunk(NamedTuple):
   """Host state of one chunk of C worlds.
 
   Attributes:
-    buffers: the :class:`compiled_world.ChunkBuffers` both sampling loops write.
+    buffers: the :class:`host_bookkeeping.ChunkBuffers` both sampling loops write.
     free_bodies: :class:`free_bodies.FreeBodies` to observe from the states,
       or None to read MuJoCo's sensors.
     active: bool[C] false for padding slots.
     running: bool[C] worlds that need another frame.
   """
 
-  buffers: compiled_world.ChunkBuffers
+  buffers: host_bookkeeping.ChunkBuffers
   free_bodies: free_bodies_lib.FreeBodies | None
   active: np.ndarray
   running: np.ndarray
@@ -174,7 +174,7 @@ class NativeBackend:
     n_bodies = len(scene.body_ids)
     spf = params.steps_per_frame
     active = np.asarray(active)
-    buffers = compiled_world.ChunkBuffers(
+    buffers = host_bookkeeping.ChunkBuffers(
         params=host_bookkeeping.host_params(params),
         key_data=np.asarray(jax.random.key_data(step_keys), np.uint32),
         tracked_ids=np.asarray(scene.body_ids, np.int64),
@@ -364,8 +364,7 @@ class NativeBackend:
     running, active, free_bodies = ch.running, ch.active, ch.free_bodies
 
     def bookkeeping(rows, before, frame):
-      host_bookkeeping.frame_update(rows, sensordata, b.key_data, b.params, b.carry, b.tracked_ids,
-                                    before, 1, frame, b.qpos_buf, b.com_buf, wrench_full, running)
+      host_bookkeeping.frame_update(rows, b, before, 1, frame, running)
 
     t0 = time.perf_counter()
     bookkeeping(np.zeros(0, np.int64), states[:0], 0)  # compile, or load from numba's cache

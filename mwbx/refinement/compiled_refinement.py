@@ -43,7 +43,8 @@ import numpy as np
 
 from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops, mujoco_c, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
-from mwbx.batch_sim.compiled_world import ChunkBuffers, WorldInputs, physics_step
+from mwbx.batch_sim.compiled_world import WorldInputs, physics_step
+from mwbx.batch_sim.host_bookkeeping import ChunkBuffers
 from mwbx.batch_sim.compiled_world import monotonic_seconds as _now
 from mwbx.host_jit import host_jit
 from mwbx.refinement import interactions
@@ -227,7 +228,7 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
     inputs: :class:`compiled_world.WorldInputs` (``ctrl_table`` from step 0).
     parent: :class:`ParentMotion`.
     objects: :class:`RefineObjects`.
-    buffers: :class:`compiled_world.ChunkBuffers` as in sampling (recording
+    buffers: :class:`host_bookkeeping.ChunkBuffers` as in sampling (recording
       from f0: ``qpos_buf[row, f - f0]``); ``buffers.params.perturbable`` is
       this thread's own bool[B], rewritten here for the world's active bodies.
     refined: :class:`RefinedWorlds` (row ``row`` updated).
@@ -282,8 +283,7 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
                                      fb.dof_adr, fb.ipos, fb.iquat, b.sensordata)
     _stored_motion(b.sensordata[row], active[row], inter.body_object, frame, parent.com, parent.quat,
                    parent.lin_vel, parent.ang_vel)
-    host_bookkeeping.frame_update(rows, b.sensordata, b.key_data, p, b.carry, b.tracked_ids, before, 1,
-                                  frame - parent.first_frame, b.qpos_buf, b.com_buf, b.wrench_full, running)
+    host_bookkeeping.frame_update(rows, b, before, 1, frame - parent.first_frame, running)
     worst, stray = _audit(b.sensordata[row], b.wrench_full[row], b.tracked_ids, p, timestep, flex_delta)
     refined.audit_ratio[row] = max(refined.audit_ratio[row], worst)
     refined.audit_stray[row] += stray

@@ -94,6 +94,10 @@ def test_frame_update_matches_world_frame_update(enabled, flex):
   com_buf = np.zeros((n_worlds, n_frames, n_bodies, 3), np.float32)
   wrench_full = np.zeros((n_worlds, n_steps, nbody, 6))
   states = rng.normal(size=(n_frames, n_worlds, 1 + nq))
+  buffers = host_bookkeeping.ChunkBuffers(
+      params=host_params, key_data=key_data, tracked_ids=tracked, states=np.zeros((n_worlds, 1 + nq)),
+      warmstart=np.zeros((n_worlds, 1)), sensordata=np.zeros_like(observations[0]), wrench_full=wrench_full,
+      qpos_buf=qpos_buf, com_buf=com_buf, carry=carry)
   saw = {"perturbed": 0}
   for frame in range(n_frames):
     rows = np.flatnonzero(running)
@@ -103,8 +107,8 @@ def test_frame_update_matches_world_frame_update(enabled, flex):
     stale = wrench_full[rows]
     stale[:, :, tracked] = np.nan  # every stepped world's wrenches must be written
     wrench_full[rows] = stale
-    host_bookkeeping.frame_update(rows, sensors, key_data, host_params, carry, tracked,
-                                  states[frame, rows], 1, frame, qpos_buf, com_buf, wrench_full, running)
+    buffers.sensordata[...] = sensors
+    host_bookkeeping.frame_update(rows, buffers, states[frame, rows], 1, frame, running)
     jax_carry, out = jax_update(jax_carry, sensors)
 
     for name in ("step", "status", "frame_count", "still_steps", "since_impact", "perturbations"):

@@ -253,6 +253,9 @@ def _reference_chunk(sampler, qpos0, qvel0, step_keys):
   p = host_bookkeeping.host_params(params)
   tracked = np.asarray(scene.body_ids, np.int64)
   nstate = initial.shape[1]
+  buffers = host_bookkeeping.ChunkBuffers(
+      params=p, key_data=key_data, tracked_ids=tracked, states=np.zeros((c, nstate)), warmstart=np.zeros((c, m.nv)),
+      sensordata=sensordata, wrench_full=wrench_full, qpos_buf=qpos_buf, com_buf=com_buf, carry=carry)
   for r in range(c):
     d = mujoco.MjData(model)
     mujoco.mj_setState(model, d, initial[r], spec)
@@ -276,8 +279,7 @@ def _reference_chunk(sampler, qpos0, qvel0, step_keys):
       if fb is not None:
         host_loops.observe_free_bodies(rows, before, after, m.opt.timestep,
                                        np.asarray(m.opt.gravity), 1, 1 + m.nq, *fb, sensordata)
-      host_bookkeeping.frame_update(rows, sensordata, key_data, p, carry, tracked, before, 1, frame,
-                                    qpos_buf, com_buf, wrench_full, running)
+      host_bookkeeping.frame_update(rows, buffers, before, 1, frame, running)
       frame += 1
   return carry, qpos_buf
 
