@@ -12,7 +12,7 @@ import numpy as np
 
 from mwbx.codec import eval_kernels
 from mwbx.codec.layout import CodecError
-from mwbx.codec.stream import KINDS, MODE_FIT, WorldCode, parse
+from mwbx.codec.stream import KINDS, MODE_FIT, Segments, WorldCode, parse
 
 KIND_ID = {"pos": 0, "rot": 1, "scalar": 2}
 
@@ -69,15 +69,15 @@ def evaluate(n_frames, initial, segs, channel_kind, addresses, nq, quanta, bound
     init = np.ascontiguousarray(initial[:, sel, :].reshape(-1, 4), np.float64)
     wanted = np.tile(wanted_channels[sel], n_w)
     columns = np.ascontiguousarray(addresses[sel])
-    args = (np.ascontiguousarray(seg.seg_count, np.int64), np.ascontiguousarray(seg.lengths, np.int64),
-            np.ascontiguousarray(seg.vel, np.int64))
+    segments = Segments(
+        np.ascontiguousarray(seg.seg_count, np.int64), np.ascontiguousarray(seg.lengths, np.int64),
+        np.ascontiguousarray(seg.vel, np.int64), np.ascontiguousarray(seg.flags, np.bool_))
+    rows = eval_kernels.OutputRows(int(sel.size), columns, wanted, lo, hi, row_off)
     if kind == "rot":
-      eval_kernels.eval_rotation(out, init, *args, float(steps[kind]), sel.size, columns, wanted, lo, hi,
-                            row_off)
+      eval_kernels.eval_rotation(out, init, segments, float(steps[kind]), rows)
     else:
       quad = float(quanta.quad) if kind == "pos" else 0.0
-      eval_kernels.eval_linear(out, init, *args, np.ascontiguousarray(seg.flags, np.bool_),
-                          float(steps[kind]), quad, sel.size, columns, wanted, lo, hi, row_off)
+      eval_kernels.eval_linear(out, init, segments, float(steps[kind]), quad, rows)
   return out, row_off
 
 

@@ -5,6 +5,7 @@ tables, the decoded error against the input, and the fit's input paths
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -14,16 +15,28 @@ from mwbx.host_jit import host_jit
 # -- evaluation -----------------------------------------------------------------------
 
 
+class OutputRows(NamedTuple):
+  """Where channel c's decoded frames go: world ``c // n_per_world``, columns
+  from ``columns[c % n_per_world]``; frames ``lo[w]:hi[w]`` of world w to rows
+  from ``row_off[w]``; only channels ``wanted`` (bool[C]) are written."""
+
+  n_per_world: int
+  columns: np.ndarray
+  wanted: np.ndarray
+  lo: np.ndarray
+  hi: np.ndarray
+  row_off: np.ndarray
+
+
 @host_jit
-def _channel_rows(c, n_per_world, columns, lo, hi, row_off):
+def _channel_rows(c, rows):
   """(first column, frame range lo:hi, row of frame 0) of channel c's output."""
-  w = c // n_per_world
-  return columns[c % n_per_world], lo[w], hi[w], row_off[w] - lo[w]
+  w = c // rows.n_per_world
+  return rows.columns[c % rows.n_per_world], rows.lo[w], rows.hi[w], rows.row_off[w] - rows.lo[w]
 
 
 @host_jit
-def eval_linear(out, initial, seg_count, lengths, vel, flags, step, quad, n_per_world, columns,
-                wanted, lo, hi, row_off):
+def eval_linear(out, initial, segments, step, quad, rows):
   """Write decoded linear channels (translations when ``quad`` != 0) into ``out``.
 
   Channel c (world ``c // n_per_world``, columns ``columns[c % n_per_world] + d``)
@@ -34,16 +47,18 @@ def eval_linear(out, initial, seg_count, lengths, vel, flags, step, quad, n_per_
   accumulate in float64; each frame is evaluated in float32 (the encoder
   measures the error of exactly this output).
 
-  out: f32[rows, nq]; initial: f64[C, 4]; seg_count: i64[C]; lengths: i64[S];
-  vel: i64[S, D]; flags: bool[S]; wanted: bool[C] channels to write.
+  out: f32[rows, nq]; initial: f64[C, 4]; segments: :class:`mwbx.codec.stream.Segments`
+  (arrays contiguous, i64 and bool);
+  step, quad: the kind's quanta; rows: :class:`OutputRows`.
   """
+  seg_count, lengths, vel, flags, wanted = segments.seg_count, segments.lengths, segments.vel, segments.flags, rows.wanted
   dim = vel.shape[1]
   rate = np.empty(dim)
   p = np.empty(dim)
   s = 0
   for c in range(seg_count.size):
     n_seg = seg_count[c]
-    col, f_lo, f_hi, row0 = _channel_rows(c, n_per_world, columns, lo, hi, row_off)
+    col, f_lo, f_hi, row0 = _channel_rows(c, rows)
     if not wanted[c] or f_lo >= f_hi:
       s += n_seg
       continue
@@ -88,8 +103,7 @@ def _quat_mul(a, b, out):
 
 
 @host_jit
-def eval_rotation(out, initial, seg_count, lengths, vel, step, n_per_world, columns, wanted, lo,
-                  hi, row_off):
+def eval_rotation(out, initial, segments, step, rows):
   """Write decoded rotation channels (unit quaternions w, x, y, z) into ``out``.
 
   Within a segment of integer rotation velocity ``w = vel * step`` (radians per
@@ -98,15 +112,16 @@ def eval_rotation(out, initial, seg_count, lengths, vel, step, n_per_world, colu
   the segment's start: the channel's normalized frame-0 value, then each
   segment's end. Everything is float64 (cos(a), sin(a) advance frame by frame by
   angle addition) and rounded to float32 on output. Arguments as
-  ``eval_linear`` (vel: i64[S, 3]).
+  ``eval_linear`` (vel: i64[S, 3]; flags unused).
   """
+  seg_count, lengths, vel, wanted = segments.seg_count, segments.lengths, segments.vel, rows.wanted
   q = np.empty(4)
   turned = np.empty(4)
   pure = np.zeros(4)
   s = 0
   for c in range(seg_count.size):
     n_seg = seg_count[c]
-    col, f_lo, f_hi, row0 = _channel_rows(c, n_per_world, columns, lo, hi, row_off)
+    col, f_lo, f_hi, row0 = _channel_rows(c, rows)
     if not wanted[c] or f_lo >= f_hi:
       s += n_seg
       continue

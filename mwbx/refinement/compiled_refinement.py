@@ -296,8 +296,7 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
       speed_sim[i] = math.sqrt(float(last[o + LIN_VEL]) ** 2 + float(last[o + LIN_VEL + 1]) ** 2
                                + float(last[o + LIN_VEL + 2]) ** 2)
     interactions.activate_host(active[row], com_sim, speed_sim, parent.com[frame + 1], parent.com[frame + 2],
-                               inter.body_object, inter.radius, inter.ghost_slack, inter.margin, inter.horizon,
-                               inter.speed_factor, inter.gravity, nxt)
+                               inter, nxt)
     grew = False
     for o in range(n_objects):
       prev_inactive[row, o] = not active[row, o]

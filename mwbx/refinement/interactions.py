@@ -241,8 +241,7 @@ def host_interaction(p: InteractionParams) -> HostInteraction:
 
 
 @host_jit
-def activate_host(active, com_sim, speed_sim, com_now, com_next, body_object, radius, ghost_slack, margin,
-                  horizon, speed_factor, gravity, out):
+def activate_host(active, com_sim, speed_sim, com_now, com_next, inter, out):
   """:func:`activate` for ONE world, compiled for the host's per-world
   refinement loop (its numba twin, in float64; tests/refinement/test_refine_kernels.py
   compares the two and :func:`activate_reference`).
@@ -250,10 +249,12 @@ def activate_host(active, com_sim, speed_sim, com_now, com_next, body_object, ra
   Args:
     active: bool[O]; com_sim: f[B, 3]; speed_sim: f[B]; com_now, com_next:
       f[B, 3] (as :func:`activate`).
-    body_object, radius, ghost_slack, margin, horizon, speed_factor, gravity:
-      :func:`host_interaction` of the scene's :class:`InteractionParams`.
+    inter: :class:`HostInteraction` (:func:`host_interaction` of the scene's
+      :class:`InteractionParams`).
     out: bool[O] out: the active set for the coming frame.
   """
+  body_object, radius, ghost_slack, margin = inter.body_object, inter.radius, inter.ghost_slack, inter.margin
+  horizon, speed_factor, gravity = inter.horizon, inter.speed_factor, inter.gravity
   n_bodies = body_object.size
   mid = np.empty((n_bodies, 3))
   center = np.empty((n_bodies, 3))

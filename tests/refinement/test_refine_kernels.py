@@ -77,7 +77,7 @@ def test_activate_matches_the_loop_reference():
     np.testing.assert_array_equal(got, want)
     host = np.zeros(5, bool)  # the numba twin of the compiled refinement loop
     interactions.activate_host(active, com_sim.astype(np.float64), speed.astype(np.float64), com_now, com_next,
-                               *interactions.host_interaction(p), host)
+                               interactions.host_interaction(p), host)
     np.testing.assert_array_equal(host, want)
     assert np.all(got[active])  # never deactivates
     checked += int(np.any(got != active))
