@@ -123,9 +123,8 @@ def run_world(row, data, inputs, initial_states, buffers, running):
     host_loops.absorb_rows(rows, before, after, sensors, inputs.timestep, 1 + nq, b.sensordata, b.warmstart,
                            b.states)
     if free:
-      fb = inputs.free_bodies
       host_loops.observe_free_bodies(rows, before, after, inputs.timestep, inputs.gravity, 1, 1 + nq,
-                                     fb.qpos_adr, fb.dof_adr, fb.ipos, fb.iquat, b.sensordata)
+                                     inputs.free_bodies, b.sensordata)
     host_bookkeeping.frame_update(rows, b, before, 1, frame, running)
     frame += 1
   return physics

@@ -59,8 +59,7 @@ def rotation_matrix(w, x, y, z):
 
 
 @host_jit
-def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel_start, qpos_adr,
-                        dof_adr, ipos, iquat, sensordata):
+def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel_start, bodies, sensordata):
   """:func:`mwbx.batch_sim.free_bodies.observe` for the worlds of a frame, compiled.
 
   The sensor block of tracked free bodies from the states of the frame (see
@@ -73,12 +72,11 @@ def observe_free_bodies(rows, before, after, timestep, gravity, qpos_start, qvel
     timestep: physics step, s.
     gravity: f64[3] m/s².
     qpos_start, qvel_start: index of qpos and of qvel in a state.
-    qpos_adr: i64[B] qpos address of each body's free joint; dof_adr: i64[B]
-      its dof address.
-    ipos: f64[B, 3] COM in the body frame; iquat: f64[B, 4] inertial frame
-      orientation in the body frame.
+    bodies: :class:`mwbx.batch_sim.free_bodies.FreeBodies` of the tracked
+      bodies (free joints' addresses, COM and inertial frames in the body frame).
     sensordata: f32[C, S, B * SENSOR_WIDTH] out (NaN for worlds MuJoCo reset).
   """
+  qpos_adr, dof_adr, ipos, iquat = bodies.qpos_adr, bodies.dof_adr, bodies.ipos, bodies.iquat
   n, n_steps, _ = after.shape
   n_bodies = qpos_adr.size
   vel = np.empty((n_steps + 1, n_bodies, 6))

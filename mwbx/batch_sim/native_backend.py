@@ -164,7 +164,7 @@ class NativeBackend:
                            warmstart, states)
     if free_bodies is not None:
       host_loops.observe_free_bodies(rows, before, after, m.opt.timestep, m.opt.gravity, 1, 1 + m.nq,
-                                     *free_bodies, sensordata)
+                                     free_bodies, sensordata)
 
   def _chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
              n_frames: int) -> _Chunk:

@@ -278,9 +278,8 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
     physics += _now(ts) - start
     host_loops.absorb_rows(rows, before, after, sensors, timestep, 1 + nq, b.sensordata, b.warmstart, b.states)
     if free:
-      fb = inputs.free_bodies
-      host_loops.observe_free_bodies(rows, before, after, timestep, inputs.gravity, 1, 1 + nq, fb.qpos_adr,
-                                     fb.dof_adr, fb.ipos, fb.iquat, b.sensordata)
+      host_loops.observe_free_bodies(rows, before, after, timestep, inputs.gravity, 1, 1 + nq,
+                                     inputs.free_bodies, b.sensordata)
     _stored_motion(b.sensordata[row], active[row], inter.body_object, frame, parent.com, parent.quat,
                    parent.lin_vel, parent.ang_vel)
     host_bookkeeping.frame_update(rows, b, before, 1, frame - parent.first_frame, running)

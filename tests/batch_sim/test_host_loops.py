@@ -77,7 +77,7 @@ def test_observe_free_bodies_matches_mujoco_sensors(quickstart_config):
     before = start if f == 0 else states[:, f * n_steps - 1]
     frame = np.zeros((n_worlds, n_steps, model.nsensordata), np.float32)
     host_loops.observe_free_bodies(np.arange(n_worlds), before, states[:, f * n_steps:(f + 1) * n_steps],
-                                   model.opt.timestep, model.opt.gravity, 1, 1 + model.nq, *free, frame)
+                                   model.opt.timestep, model.opt.gravity, 1, 1 + model.nq, free, frame)
     got[:, f * n_steps:(f + 1) * n_steps] = frame
   got = got.reshape(n_worlds, -1, len(scene.body_ids), 19).astype(np.float64)
   want = sensors.reshape(got.shape)

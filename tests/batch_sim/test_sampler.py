@@ -278,7 +278,7 @@ def _reference_chunk(sampler, qpos0, qvel0, step_keys):
                              np.zeros((c, m.nv)), np.zeros((c, nstate)))
       if fb is not None:
         host_loops.observe_free_bodies(rows, before, after, m.opt.timestep,
-                                       np.asarray(m.opt.gravity), 1, 1 + m.nq, *fb, sensordata)
+                                       np.asarray(m.opt.gravity), 1, 1 + m.nq, fb, sensordata)
       host_bookkeeping.frame_update(rows, buffers, before, 1, frame, running)
       frame += 1
   return carry, qpos_buf
