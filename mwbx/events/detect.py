@@ -1,7 +1,8 @@
 """Contact events found on the stored worlds.
 
 At every recorded frame of a world, MuJoCo's own collision detection
-(``mj_kinematics`` then ``mj_collision``, as in a physics step) runs on the
+(``mj_kinematics``, ``mj_flex`` where there are flexes, then ``mj_collision``,
+as in a physics step) runs on the
 stored state (the decoded ``qpos``: what every query sees) and two actors
 (:mod:`mwbx.events.actors`) **touch** when it reports a contact between a geom
 of each at a distance of at most the touch margin. The margin is
@@ -36,9 +37,12 @@ def touch_margin(e_pos: float) -> float:
 
 
 def margin_model(model: mujoco.MjModel, margin: float) -> mujoco.MjModel:
-  """A copy of ``model`` whose collision reports contacts up to ``margin`` apart."""
+  """A copy of ``model`` whose collision reports contacts up to ``margin``
+  apart (its geoms' and its flexes' margins)."""
   out = copy.copy(model)
   out.geom_margin[:] = np.maximum(out.geom_margin, margin)
+  if out.nflex:
+    out.flex_margin[:] = np.maximum(out.flex_margin, margin)
   return out
 
 
@@ -56,11 +60,17 @@ def world_episodes(model: mujoco.MjModel, data: mujoco.MjData, actors: Actors, f
     i32[n, 4] ``(a, b, first, last)`` sorted by ``(a, b, first)``.
   """
   kinematics, collision = mujoco.mj_kinematics, mujoco.mj_collision
+  # Flex vertices (and their bounding boxes) are placed by mj_flex, which a
+  # physics step runs between the two: without it the collision sees every
+  # vertex where the last call left it.
+  flex = mujoco.mj_flex if model.nflex else None
   found_frames, found_geoms, found_flexes, found_dist = [], [], [], []
   qpos = data.qpos
   for f, frame in enumerate(np.asarray(frames, np.float64)):  # the per-frame loop stays minimal
     qpos[:] = frame
     kinematics(model, data)
+    if flex is not None:
+      flex(model, data)
     collision(model, data)
     n = data.ncon
     if n:
