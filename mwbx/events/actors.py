@@ -85,8 +85,11 @@ def actors_of(model: mujoco.MjModel, objects: Sequence[str]) -> Actors:
     bodies = scene_lib.find_objects(model, "contact events")
     owner = {b: object_index[name] for name, ids in bodies.items() if name in object_index for b in ids}
     for f in range(model.nflex):
+      # The bodies that move it: its vertex bodies, or the node bodies of an
+      # interpolated (trilinear) flex, whose vertices belong to no body.
       vertices = model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]
-      found = [owner[int(b)] for b in vertices if int(b) in owner]
+      nodes = model.flex_nodebodyid[model.flex_nodeadr[f]:model.flex_nodeadr[f] + model.flex_nodenum[f]]
+      found = [owner[int(b)] for b in np.concatenate([vertices, nodes]) if int(b) in owner]
       if found:
         flex_actor[f] = found[0]
   return Actors(names, geom_actor, len(objects), flex_actor)

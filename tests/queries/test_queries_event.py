@@ -16,6 +16,7 @@ from mwbx import cli
 from mwbx.errors import MwbxError
 from mwbx.events import actors_of, touch_margin
 from mwbx.search.solver import place_queries
+from conftest import REPO
 
 DROP_XML = """
 <mujoco>
@@ -101,7 +102,18 @@ def test_flex_events_match_mujocos_contact_list_at_every_stored_frame(tmp_path):
   bank = mwbx.sample(flex_config(tmp_path), n_worlds=2, key=jax.random.key(0), backend="native")
   assert "cloth" in bank.event_actors
   _check_events_against_reference(bank)
+  assert mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "dome")]).all()
   assert not mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "floor", window=(0.0, 0.1))]).any()  # still falling
+
+
+def test_an_interpolated_flex_touches_by_its_nodes(tmp_path):
+  """The soft cube of configs/soft_steps.yaml (dof trilinear: its vertices
+  belong to no body, 8 node bodies move it) lands on the steps as "jelly"."""
+  config = mwbx.load_config(REPO / "configs" / "soft_steps.yaml")
+  config = config.model_copy(update={"sim": config.sim.model_copy(update={"end_time": 0.8})})
+  bank = mwbx.sample(config, n_worlds=2, key=jax.random.key(0), backend="native")
+  _check_events_against_reference(bank)
+  assert mwbx.evaluate(bank, [mwbx.TouchQuery("jelly", ("step_0", "step_1", "step_2", "step_3"))]).all()
 
 
 def _check_events_against_reference(bank):
