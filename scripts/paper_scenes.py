@@ -1,7 +1,8 @@
 """The paper's workflow on its §6 scenes, with the public API.
 
 For a scene (``siggraph``, ``spiral_staircase``, ``refrigerator_toy``, and
-``chain_reaction``, a shipped contraption rather than a paper scene):
+``chain_reaction``, a shipped contraption rather than a paper scene, and the
+flex scenes ``tablecloth`` and ``soft_steps``):
 sample worlds, run the scene's query file, report how many worlds satisfy
 each query and all of them, then repair the best world as the paper's user
 does (§5-6), here unattended with `mwbx.solve`: refine the objects of its
@@ -33,7 +34,8 @@ from mwbx.progress import reporter
 REPO = pathlib.Path(__file__).resolve().parents[1]
 # Where each scene's paths are drawn from in the picture (meshcat view direction).
 VIEW = {"siggraph": (0.0, -1.0, 0.15), "refrigerator_toy": (0.0, -1.0, 0.15),
-        "spiral_staircase": (1.0, -1.4, 1.0), "chain_reaction": (0.0, -1.0, 0.15)}
+        "spiral_staircase": (1.0, -1.4, 1.0), "chain_reaction": (0.0, -1.0, 0.15),
+        "tablecloth": (0.3, -1.0, 0.7), "soft_steps": (0.2, -1.0, 0.4)}
 
 
 def main():

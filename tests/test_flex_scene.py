@@ -253,6 +253,45 @@ def test_the_meshcat_viewer_animates_the_cloth_surface(tmp_path):
   assert len(meshes) == shown
   clips = {a["path"]: a["clip"] for c in commands if c["type"] == "set_animation" for a in c["animations"]}
   assert sum("/flex/cloth/f" in path for path in clips) == shown
+  # Hidden meshes wait at a tiny scale, never a zero one: meshcat decomposes
+  # a node's matrix, and a singular one leaves a NaN rotation (never shown).
+  starts = [np.array(c["matrix"]).reshape(4, 4) for c in commands
+            if c["type"] == "set_transform" and "/flex/cloth/f" in c["path"]]
+  assert len(starts) == shown and all(abs(np.linalg.det(m)) > 0 for m in starts)
+
+
+@pytest.mark.parametrize("name", ["tablecloth", "soft_steps"])
+def test_shipped_flex_scenes_answer_their_query_files(name):
+  repo = SCENES.parent.parent
+  bank = mwbx.sample(mwbx.load_config(repo / "configs" / f"{name}.yaml"), n_worlds=2, key=jax.random.key(0),
+                     backend="native")
+  assert bank.valid.all(), bank.flags
+  queries = mwbx.load_queries(repo / "configs" / "queries" / f"{name}.yaml", bank=bank)
+  each = mwbx.evaluate_each(bank, queries)
+  assert each.shape == (2, len(queries.queries)) and each.any()
+
+
+def test_an_interpolated_flex_is_drawn_where_mujoco_puts_its_vertices():
+  """The soft cube of configs/soft_steps.yaml (dof trilinear): its surface's
+  vertices from its 8 node bodies' poses, against MuJoCo's own (mj_flex) at
+  random states; the viewers draw one path for it, not one per node."""
+  from mwbx.viewer import flex as flex_lib
+  config = mwbx.load_config(SCENES.parent.parent / "configs" / "soft_steps.yaml")
+  model = Scene(config).model
+  surface, = flex_lib.flex_surfaces(model)
+  assert surface.name == "jelly" and surface.weights is not None and len(surface.bodies) == 8
+  assert len(surface.faces) > 0 and surface.faces.max() < model.nflexvert
+  data = mujoco.MjData(model)
+  rng = np.random.default_rng(0)
+  for _ in range(5):
+    data.qpos[:] = model.qpos0 + rng.normal(0, 0.05, model.nq)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_flex(model, data)
+    got = surface.vertices(data.xpos[surface.bodies], data.xquat[surface.bodies])
+    np.testing.assert_allclose(got, data.flexvert_xpos, atol=1e-6)
+  bank = mwbx.sample(config.model_copy(update={"sim": config.sim.model_copy(update={"end_time": 0.2})}),
+                     n_worlds=1, key=jax.random.key(0), backend="native")
+  assert len(flex_lib.path_bodies(bank)) == 1
 
 
 def test_whole_geometry_queries_on_a_flex_against_its_vertices(tmp_path):

@@ -2,8 +2,11 @@
 its vertices placed by its vertex bodies' poses.
 
 A cloth (``dim=2``) shows its elements, a soft solid (``dim=3``) its shell
-(boundary faces); a rope (``dim=1``) and a flex whose vertices are
-interpolated from nodes (``dof="trilinear"``) have no surface drawn here.
+(boundary faces); a rope (``dim=1``) has no surface drawn here. A flex whose
+vertices are interpolated from node bodies (``dof="trilinear"``) is placed by
+its nodes: MuJoCo's ``mj_flex`` puts each vertex at a fixed weighted sum of
+the nodes' positions, and those weights are read off ``mj_flex`` itself
+(:func:`interpolation_weights`).
 
 Example::
 
@@ -27,9 +30,13 @@ class FlexSurface(NamedTuple):
   Attributes:
     name: the flex's (and its object's) name.
     faces: i32[F, 3] triangles over its vertices.
-    bodies: i64[V] each vertex's body id.
-    offsets: f64[V, 3] each vertex in its body's frame, m (zero when centred).
+    bodies: i64[V] each vertex's body id (an interpolated flex: i64[N] its
+      node bodies).
+    offsets: f64[V, 3] each vertex in its body's frame, m (zero when centred;
+      an interpolated flex: the constant term of its vertices' positions).
     rgba: f64[4] its colour.
+    weights: f64[V, N] an interpolated flex's vertices as weighted sums of its
+      nodes' positions; None otherwise.
   """
 
   name: str
@@ -37,11 +44,37 @@ class FlexSurface(NamedTuple):
   bodies: np.ndarray
   offsets: np.ndarray
   rgba: np.ndarray
+  weights: np.ndarray | None = None
 
   def vertices(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
-    """f32[V, 3] the vertices in the world, from their bodies' pos f64[V, 3] and quat f64[V, 4] (w, x, y, z)."""
-    return (np.asarray(pos, np.float64) + quat_rotate(np.asarray(quat, np.float64), self.offsets)).astype(
-        np.float32)
+    """f32[V, 3] the vertices in the world, from their bodies' pos f64[V, 3]
+    and quat f64[V, 4] (w, x, y, z) (an interpolated flex: its nodes')."""
+    pos = np.asarray(pos, np.float64)
+    if self.weights is not None:
+      return (self.weights @ pos + self.offsets).astype(np.float32)
+    return (pos + quat_rotate(np.asarray(quat, np.float64), self.offsets)).astype(np.float32)
+
+
+def interpolation_weights(model: mujoco.MjModel, f: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+  """(node body ids i64[N], weights f64[V, N], constant f64[V, 3]) of flex
+  ``f``'s interpolated vertices: ``mj_flex`` places vertex v at
+  ``weights[v] @ xpos[nodes] + constant[v]``, a linear map of the node bodies'
+  positions, measured here by moving each node by a metre."""
+  adr, n = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
+  nodes = np.asarray(model.flex_nodebodyid[model.flex_nodeadr[f]:model.flex_nodeadr[f] + model.flex_nodenum[f]],
+                     np.int64)
+  data = mujoco.MjData(model)
+  mujoco.mj_kinematics(model, data)
+  mujoco.mj_flex(model, data)
+  base = data.flexvert_xpos[adr:adr + n].copy()
+  weights = np.zeros((n, len(nodes)))
+  for j, body in enumerate(nodes):
+    mujoco.mj_kinematics(model, data)
+    data.xpos[body, 0] += 1.0
+    mujoco.mj_flex(model, data)
+    weights[:, j] = data.flexvert_xpos[adr:adr + n, 0] - base[:, 0]
+  mujoco.mj_kinematics(model, data)
+  return nodes, weights, base - weights @ data.xpos[nodes]
 
 
 def flex_surfaces(model: mujoco.MjModel) -> list[FlexSurface]:
@@ -49,7 +82,7 @@ def flex_surfaces(model: mujoco.MjModel) -> list[FlexSurface]:
   out = []
   for f in range(model.nflex):
     dim = int(model.flex_dim[f])
-    if dim not in (2, 3) or int(model.flex_interp[f]):  # a rope, or vertices interpolated from nodes
+    if dim not in (2, 3):  # a rope
       continue
     adr, n = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
     if dim == 2:
@@ -58,11 +91,16 @@ def flex_surfaces(model: mujoco.MjModel) -> list[FlexSurface]:
     else:
       start, count = int(model.flex_shelldataadr[f]), int(model.flex_shellnum[f])
       faces = model.flex_shell[start:start + 3 * count].reshape(count, 3)
-    bodies = np.asarray(model.flex_vertbodyid[adr:adr + n], np.int64)
-    offsets = (np.zeros((n, 3)) if bool(model.flex_centered[f])
-               else np.asarray(model.flex_vert[adr:adr + n], np.float64))
+    weights = None
+    if int(model.flex_interp[f]):  # vertices interpolated from node bodies
+      bodies, weights, offsets = interpolation_weights(model, f)
+    else:
+      bodies = np.asarray(model.flex_vertbodyid[adr:adr + n], np.int64)
+      offsets = (np.zeros((n, 3)) if bool(model.flex_centered[f])
+                 else np.asarray(model.flex_vert[adr:adr + n], np.float64))
     name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f) or f"flex{f}"
-    out.append(FlexSurface(name, np.asarray(faces, np.int32), bodies, offsets, np.asarray(model.flex_rgba[f])))
+    out.append(FlexSurface(name, np.asarray(faces, np.int32), bodies, offsets, np.asarray(model.flex_rgba[f]),
+                           weights))
   return out
 
 
@@ -93,7 +131,7 @@ def path_bodies(bank) -> np.ndarray:
 
 
 def _other_flexes(model: mujoco.MjModel) -> list[FlexSurface]:
-  """Flexes without a drawn surface (ropes, interpolated solids), for their one path."""
+  """Flexes without a drawn surface (ropes), for their one path."""
   drawn = {s.name for s in flex_surfaces(model)}
   out = []
   for f in range(model.nflex):

@@ -234,6 +234,8 @@ def add_clip(animation: manim.Animation, node, pos: np.ndarray, quat: np.ndarray
 # A flex's surface in meshcat is one mesh per shown frame (meshcat animates
 # poses, not vertices), each scaled up only while its frame plays: this many a second.
 FLEX_FPS = 30.0
+# The scale of a flex frame's mesh before its frame plays (invisibly small).
+HIDDEN_SCALE = 1e-6
 
 
 def draw_flex(vis, animation: manim.Animation, surface, pos: np.ndarray, quat: np.ndarray, fps: float,
@@ -261,7 +263,11 @@ def draw_flex(vis, animation: manim.Animation, surface, pos: np.ndarray, quat: n
       values[-1] = shown
     animation.clips[node.path] = manim.AnimationClip(
         tracks={"scale": manim.AnimationTrack("scale", "vector3", keys, values)}, fps=float(fps))
-    node.set_transform(np.diag([1.0, 1.0, 1.0, 1.0]) if f == 0 else np.diag([0.0, 0.0, 0.0, 1.0]))
+    # Hidden until its frame by a tiny scale, not a zero one: meshcat
+    # decomposes the matrix, and a zero scale leaves a NaN rotation that keeps
+    # the mesh invisible once its scale track shows it.
+    hide = HIDDEN_SCALE
+    node.set_transform(np.diag([1.0, 1.0, 1.0, 1.0]) if f == 0 else np.diag([hide, hide, hide, 1.0]))
 
 
 def draw_playback(vis, bank, model: mujoco.MjModel, visuals: Sequence[GeomVisual],
