@@ -229,8 +229,9 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
     parent: :class:`ParentMotion`.
     objects: :class:`RefineObjects`.
     buffers: :class:`host_bookkeeping.ChunkBuffers` as in sampling (recording
-      from f0: ``qpos_buf[row, f - f0]``); ``buffers.params.perturbable`` is
-      this thread's own bool[B], rewritten here for the world's active bodies.
+      from f0: ``qpos_buf[row, f - f0]``); ``buffers.params.perturbable`` and
+      ``flex_perturbable`` are this thread's own bool[B] and bool[F],
+      rewritten here for the world's active objects.
     refined: :class:`RefinedWorlds` (row ``row`` updated).
     running: bool[C] as in sampling (out).
 

@@ -162,9 +162,10 @@ def run_plan(bank, plan: RefinePlan, sampler, progress=None, start_wall: float |
   inter = interactions.interaction_params(
       model, scene.body_ids, scene.body_names, scene.objects, object_names, plan.bounds,
       plan.margin, (spf + 1) * model.opt.timestep, scene.config.perturb.alpha)
-  params = params if not parked else params._replace(perturbable=jnp.asarray(
-      np.asarray(params.perturbable) & ~np.isin(np.asarray(scene.body_names),
-                                                 [b for o in parked for b in scene.objects[o]])))
+  params = params if not parked else params._replace(
+      perturbable=jnp.asarray(np.asarray(params.perturbable) & ~np.isin(
+          np.asarray(scene.body_names), [b for o in parked for b in scene.objects[o]])),
+      flex_perturbable=jnp.asarray(np.asarray(params.flex_perturbable) & ~np.isin(scene.flex_objects, parked)))
   ctrl = controls.scene_table(scene, n_frames * spf)
   keys, _, step_keys = world_keys(plan.key, np.arange(n_samples, dtype=np.int64))
   start_qpos, start_qvel = _start_states(scene, parent.qpos0, parent.qvel0, parent.qpos_object,
