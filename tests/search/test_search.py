@@ -322,9 +322,10 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
   assert plans[3:6] == [([7, 3], RESTART_FRACTIONS[1]), ([3], RESTART_FRACTIONS[1]),
                         ([11, 7], RESTART_FRACTIONS[1])]
   assert plans[6] == ([7, 3], RESTART_FRACTIONS[2])
-  # One unmet query: alone, from earlier at each attempt, the last fraction kept.
-  fractions = RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * (6 - len(RESTART_FRACTIONS))
-  assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in fractions]
+  # One unmet query: alone, from earlier at each attempt; past the last round the two earliest in turn.
+  fractions = RESTART_FRACTIONS + (RESTART_FRACTIONS[-2], RESTART_FRACTIONS[-1], RESTART_FRACTIONS[-2])
+  assert [repair_plan([4], k) for k in range(len(fractions))] == [([4], f) for f in fractions]
+  assert sorted(RESTART_FRACTIONS, reverse=True) == list(RESTART_FRACTIONS)  # each round restarts earlier
   with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
     repair_plan([], 0)
 
@@ -339,6 +340,7 @@ def test_a_plateau_moves_every_repair_to_a_later_round():
   assert [repair_plan(unmet, k, stalled=1) for k in range(2)] == [([7, 3], RESTART_FRACTIONS[1]),
                                                                   ([3], RESTART_FRACTIONS[1])]
   assert repair_plan(unmet, 0, stalled=9) == ([7, 3], RESTART_FRACTIONS[-1])
+  assert repair_plan(unmet, 0, stalled=8) == ([7, 3], RESTART_FRACTIONS[-2])  # a long plateau: the two earliest in turn
   assert repair_plan([4], 1, stalled=1) == ([4], RESTART_FRACTIONS[2])
   assert STALL_STEP >= 1
 
