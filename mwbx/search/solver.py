@@ -55,7 +55,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import time
-from typing import NamedTuple, Sequence
+from typing import Collection, NamedTuple, Sequence
 
 import jax
 import numpy as np
@@ -75,12 +75,15 @@ from mwbx.search.objects import spare_objects
 # its objects go wrong: late first (small changes keep more of what works),
 # then earlier (bigger changes). Never from the start: there every object is
 # still in the crowd and becomes active, and a restart is a resample (initial
-# conditions are guided sampling's job, fix_blocking_query). Past the last
-# round, rounds alternate between the two earliest: a body that took its wrong
-# way before 0.35 of the time it settles (a letter drifting off its slot from
-# its first pegs on) needs the earliest, while the repairs a later restart
-# suits keep getting it. Measured: docs/search.md, scripts/refinement_yield.py.
-RESTART_FRACTIONS = (0.85, 0.6, 0.35, 0.25)
+# conditions are guided sampling's job, fix_blocking_query). Measured:
+# docs/search.md, scripts/refinement_yield.py.
+RESTART_FRACTIONS = (0.85, 0.6, 0.35)
+# Past the last round, a repair of places alone restarts from this fraction
+# and from the last in turn: a body that took its wrong way before 0.35 of
+# the time it settles (a letter drifting off its slot from its first pegs on)
+# needs an earlier restart. Not a pose repair: restarted that early, a body
+# is re-rolled through the crowd and loses its place.
+EARLIEST_PLACE_FRACTION = 0.25
 # A stall fixes a query only where some world meeting it (and the queries
 # fixed already) meets at most this many fewer places than the best world:
 # fixing one that only worse worlds meet throws the search's progress away.
@@ -99,7 +102,8 @@ STALL_STEP = 10
 WEIGHT_STEP = 1.0
 
 
-def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[list[int], float]:
+def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0,
+                places: Collection[int] = ()) -> tuple[list[int], float]:
   """Which unmet queries attempt ``attempt`` on a world repairs, and from
   what fraction of the time they go wrong.
 
@@ -111,7 +115,9 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[l
   round) and take turns: one attempt pairs a query with the next (objects
   that meet each other, as the paper's user did), the next repairs one
   alone (an early restart of one object moves it farther and disturbs
-  less). One unmet query: alone, earlier at each attempt.
+  less). One unmet query: alone, earlier at each attempt. Past the last
+  round, a repair of ``places`` alone (query indices, :func:`place_queries`)
+  restarts from :data:`EARLIEST_PLACE_FRACTION` and the last fraction in turn.
 
   Example:
     >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3), repair_plan([5, 2, 9], 4)
@@ -125,14 +131,10 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[l
   chosen = [int(unmet[attempt % n])]
   if rounds >= 1 and n >= 2 and (attempt + attempt // n) % 2 == 0:
     chosen.append(int(unmet[(attempt + 1) % n]))
-  return chosen, RESTART_FRACTIONS[_fraction_index(rounds)]
-
-
-def _fraction_index(rounds: int) -> int:
-  """The :data:`RESTART_FRACTIONS` entry of round ``rounds``: one per round,
-  then the last two in turn."""
   last = len(RESTART_FRACTIONS) - 1
-  return rounds if rounds <= last else last - 1 + (rounds - last + 1) % 2
+  if rounds > last and (rounds - last) % 2 == 1 and all(q in places for q in chosen):
+    return chosen, EARLIEST_PLACE_FRACTION
+  return chosen, RESTART_FRACTIONS[min(rounds, last)]
 
 
 class KeyStream(enum.IntEnum):
@@ -428,7 +430,8 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     if not unmet:  # a world guided reseeding just added meets every query
       search.note()
       continue
-    chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP)
+    chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP,
+                                   places=search.place_indices)
     search.attempts[chosen] += 1
     objects, targets = [], [search.repair_target(row, q) for q in chosen]
     for target_objects, _, _ in targets:
@@ -465,6 +468,7 @@ class _Search:
     self.alone_met = self._alone_met(bank)  # bool[W, len(self.alone)]
     self.scale = typical_gaps(self.gaps)
     self.places = place_queries(queries)  # bool[Q]: ranked and repaired before the poses
+    self.place_indices = frozenset(int(q) for q in np.flatnonzero(self.places))
     self.weights = np.ones(self.n_queries)  # f64[Q]: grow on plateaus (reweigh)
     self.ties = metric(bank, tie_metric)
     self.steps: list[SolveStep] = []

@@ -24,8 +24,8 @@ from mwbx.search import objects as search_objects
 from mwbx.search import proposal as proposal_lib
 from mwbx.queries.paths import body_radii
 from mwbx.search import solver
-from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, RESTART_FRACTIONS, STALL_STEP, KeyStream,
-                                repair_plan, settle_time, stream_key)
+from mwbx.search.solver import (DIVERGENCE_TOLERANCE, EARLIEST_PLACE_FRACTION, FIX_MARGIN, RESTART_FRACTIONS,
+                                STALL_STEP, KeyStream, repair_plan, settle_time, stream_key)
 
 TESTS = pathlib.Path(__file__).parents[1]
 
@@ -322,10 +322,17 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
   assert plans[3:6] == [([7, 3], RESTART_FRACTIONS[1]), ([3], RESTART_FRACTIONS[1]),
                         ([11, 7], RESTART_FRACTIONS[1])]
   assert plans[6] == ([7, 3], RESTART_FRACTIONS[2])
-  # One unmet query: alone, from earlier at each attempt; past the last round the two earliest in turn.
-  fractions = RESTART_FRACTIONS + (RESTART_FRACTIONS[-2], RESTART_FRACTIONS[-1], RESTART_FRACTIONS[-2])
+  # One unmet query: alone, from earlier at each attempt, the last fraction kept; past the last
+  # round a place alone restarts earliest and from the last fraction in turn.
+  fractions = RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * 3
   assert [repair_plan([4], k) for k in range(len(fractions))] == [([4], f) for f in fractions]
-  assert sorted(RESTART_FRACTIONS, reverse=True) == list(RESTART_FRACTIONS)  # each round restarts earlier
+  earliest = RESTART_FRACTIONS + (EARLIEST_PLACE_FRACTION, RESTART_FRACTIONS[-1], EARLIEST_PLACE_FRACTION)
+  assert [repair_plan([4], k, places={4}) for k in range(len(fractions))] == [([4], f) for f in earliest]
+  assert sorted(RESTART_FRACTIONS + (EARLIEST_PLACE_FRACTION,), reverse=True) == [*RESTART_FRACTIONS,
+                                                                                  EARLIEST_PLACE_FRACTION]
+  # A pair holding a pose keeps the last fraction.
+  assert repair_plan([4, 5], 0, stalled=3, places={4}) == ([4, 5], RESTART_FRACTIONS[-1])
+  assert repair_plan([4, 5], 1, stalled=3, places={4, 5}) == ([5], EARLIEST_PLACE_FRACTION)
   with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
     repair_plan([], 0)
 
@@ -340,7 +347,6 @@ def test_a_plateau_moves_every_repair_to_a_later_round():
   assert [repair_plan(unmet, k, stalled=1) for k in range(2)] == [([7, 3], RESTART_FRACTIONS[1]),
                                                                   ([3], RESTART_FRACTIONS[1])]
   assert repair_plan(unmet, 0, stalled=9) == ([7, 3], RESTART_FRACTIONS[-1])
-  assert repair_plan(unmet, 0, stalled=8) == ([7, 3], RESTART_FRACTIONS[-2])  # a long plateau: the two earliest in turn
   assert repair_plan([4], 1, stalled=1) == ([4], RESTART_FRACTIONS[2])
   assert STALL_STEP >= 1
 
