@@ -78,11 +78,14 @@ from mwbx.search.objects import spare_objects
 # conditions are guided sampling's job, fix_blocking_query). Measured:
 # docs/search.md, scripts/refinement_yield.py.
 RESTART_FRACTIONS = (0.85, 0.6, 0.35)
-# Past the last round, a repair of places alone restarts from this fraction
-# and from the last in turn: a body that took its wrong way before 0.35 of
-# the time it settles (a letter drifting off its slot from its first pegs on)
-# needs an earlier restart. Not a pose repair: restarted that early, a body
-# is re-rolled through the crowd and loses its place.
+# Past the last round, a world's one unmet query, if a place, restarts from
+# this fraction and from the last in turn: a body that took its wrong way
+# before 0.35 of the time it settles (a letter drifting off its slot from its
+# first pegs on) needs an earlier restart, and with everything else met
+# nothing else is left to try. Not a pose: restarted that early, a body is
+# re-rolled through the crowd and loses its place; nor while other queries
+# are unmet: early restarts cost more steps and, on SIGGRAPH, left worlds
+# lower (docs/search.md).
 EARLIEST_PLACE_FRACTION = 0.25
 # A stall fixes a query only where some world meeting it (and the queries
 # fixed already) meets at most this many fewer places than the best world:
@@ -115,9 +118,9 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0,
   round) and take turns: one attempt pairs a query with the next (objects
   that meet each other, as the paper's user did), the next repairs one
   alone (an early restart of one object moves it farther and disturbs
-  less). One unmet query: alone, earlier at each attempt. Past the last
-  round, a repair of ``places`` alone (query indices, :func:`place_queries`)
-  restarts from :data:`EARLIEST_PLACE_FRACTION` and the last fraction in turn.
+  less). One unmet query: alone, earlier at each attempt; past the last
+  round, if it is one of ``places`` (query indices, :func:`place_queries`),
+  from :data:`EARLIEST_PLACE_FRACTION` and the last fraction in turn.
 
   Example:
     >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3), repair_plan([5, 2, 9], 4)
@@ -132,7 +135,7 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0,
   if rounds >= 1 and n >= 2 and (attempt + attempt // n) % 2 == 0:
     chosen.append(int(unmet[(attempt + 1) % n]))
   last = len(RESTART_FRACTIONS) - 1
-  if rounds > last and (rounds - last) % 2 == 1 and all(q in places for q in chosen):
+  if n == 1 and rounds > last and (rounds - last) % 2 == 1 and chosen[0] in places:
     return chosen, EARLIEST_PLACE_FRACTION
   return chosen, RESTART_FRACTIONS[min(rounds, last)]
 

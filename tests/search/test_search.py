@@ -323,16 +323,16 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
                         ([11, 7], RESTART_FRACTIONS[1])]
   assert plans[6] == ([7, 3], RESTART_FRACTIONS[2])
   # One unmet query: alone, from earlier at each attempt, the last fraction kept; past the last
-  # round a place alone restarts earliest and from the last fraction in turn.
+  # round, a place restarts earliest and from the last fraction in turn.
   fractions = RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * 3
   assert [repair_plan([4], k) for k in range(len(fractions))] == [([4], f) for f in fractions]
   earliest = RESTART_FRACTIONS + (EARLIEST_PLACE_FRACTION, RESTART_FRACTIONS[-1], EARLIEST_PLACE_FRACTION)
   assert [repair_plan([4], k, places={4}) for k in range(len(fractions))] == [([4], f) for f in earliest]
   assert sorted(RESTART_FRACTIONS + (EARLIEST_PLACE_FRACTION,), reverse=True) == [*RESTART_FRACTIONS,
                                                                                   EARLIEST_PLACE_FRACTION]
-  # A pair holding a pose keeps the last fraction.
-  assert repair_plan([4, 5], 0, stalled=3, places={4}) == ([4, 5], RESTART_FRACTIONS[-1])
-  assert repair_plan([4, 5], 1, stalled=3, places={4, 5}) == ([5], EARLIEST_PLACE_FRACTION)
+  # Only a world's last unmet query: with two places unmet, the last fraction is kept.
+  assert repair_plan([4, 5], 1, stalled=3, places={4, 5}) == ([5], RESTART_FRACTIONS[-1])
+  assert repair_plan([4], 0, stalled=3, places={5}) == ([4], RESTART_FRACTIONS[-1])  # a pose
   with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
     repair_plan([], 0)
 
