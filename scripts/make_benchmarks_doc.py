@@ -244,11 +244,13 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
       head.append(f"the spiral staircase in {t['solve_seconds']:.0f} s ({t['refinements']} refinements)")
   robust = d.get("robustness")
   if robust:
-    lines += ["Seeds (sampling and search keyed by the seed; same budgets; load: the 1-minute load average "
+    lines += ["Seeds (sampling and search keyed by the seed; same budgets; world-steps/s: how fast the machine "
+              "ran that search, physics and all, since the same search path takes the same world-steps on any "
+              "machine; load: the 1-minute load average "
               "before sampling and after the search, on a machine shared with other work):", "",
-              "| scene | seed | queries | result | refinements | world-steps | solve time | "
+              "| scene | seed | queries | result | refinements | world-steps | solve time | world-steps/s | "
               "plain-sampling estimate | load | commit |",
-              "|---|---:|---:|---|---:|---:|---:|---:|---:|---|"]
+              "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---|"]
     for r in robust["runs"]:
       result = "all met" if r["solved"] else f"{r['satisfied']} of {r['n_queries']} met"
       estimate = "–"
@@ -258,7 +260,9 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
       load = (f"{r['load_average_before']:.1f} / {r['load_average_after']:.1f}" if "load_average_before" in r
               else "–")
       lines.append(f"| {r['scene']} | {r['seed']} | {r['n_queries']} | {result} | {r['refinements']} | "
-                   f"{r['world_steps']:,} | {r['solve_seconds']:.0f} s | {estimate} | {load} | {r['commit']} |")
+                   f"{r['world_steps']:,} | {r['solve_seconds']:.0f} s | "
+                   f"{r['world_steps'] / max(r['solve_seconds'], 1e-9) / 1e3:.1f} k | {estimate} | {load} | "
+                   f"{r['commit']} |")
     lines.append("")
     upright = [r for r in robust["runs"] if r["scene"] == "siggraph" and r["n_queries"] == 16]
     if upright:
