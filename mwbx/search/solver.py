@@ -55,7 +55,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import time
-from typing import Collection, NamedTuple, Sequence
+from typing import NamedTuple, Sequence
 
 import jax
 import numpy as np
@@ -78,15 +78,6 @@ from mwbx.search.objects import spare_objects
 # conditions are guided sampling's job, fix_blocking_query). Measured:
 # docs/search.md, scripts/refinement_yield.py.
 RESTART_FRACTIONS = (0.85, 0.6, 0.35)
-# Past the last round, a world's one unmet query, if a place, restarts from
-# this fraction and from the last in turn: a body that took its wrong way
-# before 0.35 of the time it settles (a letter drifting off its slot from its
-# first pegs on) needs an earlier restart, and with everything else met
-# nothing else is left to try. Not a pose: restarted that early, a body is
-# re-rolled through the crowd and loses its place; nor while other queries
-# are unmet: early restarts cost more steps and, on SIGGRAPH, left worlds
-# lower (docs/search.md).
-EARLIEST_PLACE_FRACTION = 0.25
 # A stall fixes a query only where some world meeting it (and the queries
 # fixed already) meets at most this many fewer places than the best world:
 # fixing one that only worse worlds meet throws the search's progress away.
@@ -105,8 +96,7 @@ STALL_STEP = 10
 WEIGHT_STEP = 1.0
 
 
-def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0,
-                places: Collection[int] = ()) -> tuple[list[int], float]:
+def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[list[int], float]:
   """Which unmet queries attempt ``attempt`` on a world repairs, and from
   what fraction of the time they go wrong.
 
@@ -118,9 +108,7 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0,
   round) and take turns: one attempt pairs a query with the next (objects
   that meet each other, as the paper's user did), the next repairs one
   alone (an early restart of one object moves it farther and disturbs
-  less). One unmet query: alone, earlier at each attempt; past the last
-  round, if it is one of ``places`` (query indices, :func:`place_queries`),
-  from :data:`EARLIEST_PLACE_FRACTION` and the last fraction in turn.
+  less). One unmet query: alone, earlier at each attempt.
 
   Example:
     >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3), repair_plan([5, 2, 9], 4)
@@ -134,10 +122,7 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0,
   chosen = [int(unmet[attempt % n])]
   if rounds >= 1 and n >= 2 and (attempt + attempt // n) % 2 == 0:
     chosen.append(int(unmet[(attempt + 1) % n]))
-  last = len(RESTART_FRACTIONS) - 1
-  if n == 1 and rounds > last and (rounds - last) % 2 == 1 and chosen[0] in places:
-    return chosen, EARLIEST_PLACE_FRACTION
-  return chosen, RESTART_FRACTIONS[min(rounds, last)]
+  return chosen, RESTART_FRACTIONS[min(rounds, len(RESTART_FRACTIONS) - 1)]
 
 
 class KeyStream(enum.IntEnum):
@@ -433,8 +418,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     if not unmet:  # a world guided reseeding just added meets every query
       search.note()
       continue
-    chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP,
-                                   places=search.place_indices)
+    chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP)
     search.attempts[chosen] += 1
     objects, targets = [], [search.repair_target(row, q) for q in chosen]
     for target_objects, _, _ in targets:
@@ -471,7 +455,6 @@ class _Search:
     self.alone_met = self._alone_met(bank)  # bool[W, len(self.alone)]
     self.scale = typical_gaps(self.gaps)
     self.places = place_queries(queries)  # bool[Q]: ranked and repaired before the poses
-    self.place_indices = frozenset(int(q) for q in np.flatnonzero(self.places))
     self.weights = np.ones(self.n_queries)  # f64[Q]: grow on plateaus (reweigh)
     self.ties = metric(bank, tie_metric)
     self.steps: list[SolveStep] = []

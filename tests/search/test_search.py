@@ -24,8 +24,8 @@ from mwbx.search import objects as search_objects
 from mwbx.search import proposal as proposal_lib
 from mwbx.queries.paths import body_radii
 from mwbx.search import solver
-from mwbx.search.solver import (DIVERGENCE_TOLERANCE, EARLIEST_PLACE_FRACTION, FIX_MARGIN, RESTART_FRACTIONS,
-                                STALL_STEP, KeyStream, repair_plan, settle_time, stream_key)
+from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, RESTART_FRACTIONS, STALL_STEP, KeyStream,
+                                repair_plan, settle_time, stream_key)
 
 TESTS = pathlib.Path(__file__).parents[1]
 
@@ -322,17 +322,9 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
   assert plans[3:6] == [([7, 3], RESTART_FRACTIONS[1]), ([3], RESTART_FRACTIONS[1]),
                         ([11, 7], RESTART_FRACTIONS[1])]
   assert plans[6] == ([7, 3], RESTART_FRACTIONS[2])
-  # One unmet query: alone, from earlier at each attempt, the last fraction kept; past the last
-  # round, a place restarts earliest and from the last fraction in turn.
-  fractions = RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * 3
-  assert [repair_plan([4], k) for k in range(len(fractions))] == [([4], f) for f in fractions]
-  earliest = RESTART_FRACTIONS + (EARLIEST_PLACE_FRACTION, RESTART_FRACTIONS[-1], EARLIEST_PLACE_FRACTION)
-  assert [repair_plan([4], k, places={4}) for k in range(len(fractions))] == [([4], f) for f in earliest]
-  assert sorted(RESTART_FRACTIONS + (EARLIEST_PLACE_FRACTION,), reverse=True) == [*RESTART_FRACTIONS,
-                                                                                  EARLIEST_PLACE_FRACTION]
-  # Only a world's last unmet query: with two places unmet, the last fraction is kept.
-  assert repair_plan([4, 5], 1, stalled=3, places={4, 5}) == ([5], RESTART_FRACTIONS[-1])
-  assert repair_plan([4], 0, stalled=3, places={5}) == ([4], RESTART_FRACTIONS[-1])  # a pose
+  # One unmet query: alone, from earlier at each attempt, the last fraction kept.
+  fractions = RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * (6 - len(RESTART_FRACTIONS))
+  assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in fractions]
   with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
     repair_plan([], 0)
 
