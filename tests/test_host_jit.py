@@ -2,10 +2,12 @@
 another clone of the same code on the machine loads them."""
 
 import os
+import pickle
 import shutil
 import subprocess
 import sys
 
+import numba
 import numba.core.caching as caching
 
 import mwbx
@@ -64,6 +66,32 @@ def test_the_codec_warms_up_in_a_second_process_only_when_not_cached(tmp_path):
   after = subprocess.run([sys.executable, "-c", check], env=env, capture_output=True, text=True, timeout=600)
   assert after.stdout.split() == ["True", "True"], after.stderr
   assert warm.WORLDS >= 2
+
+
+def test_a_codec_cache_of_other_sources_or_another_numba_is_not_taken_as_warm(tmp_path, monkeypatch):
+  """After an upgrade the old indexes are still on disk; numba finds them
+  stale and compiles, so the warm-up must run again (indexes written as
+  numba writes them: its version, then the pickled (stamp, overloads))."""
+  from mwbx.bank import warm
+  monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+  monkeypatch.setattr(host_jit, "CACHE_DIR", str(tmp_path))
+  folder = tmp_path / "mwbx" / "codec"
+  folder.mkdir(parents=True)
+
+  def index(stamp, version=numba.__version__):
+    with open(folder / "eval_kernels.eval_linear-24.py312.nbi", "wb") as f:
+      pickle.dump(version, f)
+      f.write(pickle.dumps((stamp, {})))
+
+  assert not warm.codec_cached()  # nothing kept
+  index(b"the sources of another version")
+  assert not warm.codec_cached()
+  index(host_jit.package_source_hash(), version="0.0.1")
+  assert not warm.codec_cached()
+  (folder / "eval_kernels.eval_linear-24.py312.nbi").write_bytes(b"torn")
+  assert not warm.codec_cached()
+  index(host_jit.package_source_hash())
+  assert warm.codec_cached()
 
 
 def test_a_change_anywhere_in_the_package_recompiles_every_kernel(tmp_path):

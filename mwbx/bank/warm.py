@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import glob
 import os
+import pickle
 import subprocess
 import sys
 
 import mujoco
+import numba
 import numpy as np
 
 from mwbx import host_jit
@@ -28,10 +30,29 @@ WORLDS, FRAMES = 2, 24
 
 
 def codec_cached() -> bool:
-  """Whether the codec's kernels are in mwbx's numba cache (or numba keeps them elsewhere)."""
+  """Whether the codec's kernels are in mwbx's numba cache for these sources
+  and this numba (or numba keeps them elsewhere): an index written by another
+  version of the package is stale, and numba would compile again."""
   if os.environ.get("NUMBA_CACHE_DIR"):
     return True
-  return bool(glob.glob(os.path.join(host_jit.CACHE_DIR, "mwbx", "codec", "*.nbi")))
+  stamp = host_jit.package_source_hash()
+  return any(_index_stamp(path) == stamp
+             for path in glob.glob(os.path.join(host_jit.CACHE_DIR, "mwbx", "codec", "*.nbi")))
+
+
+def _index_stamp(path: str) -> bytes | None:
+  """The source stamp a numba cache index (``.nbi``) was written for; None
+  if it is unreadable or from another numba (as numba reads it:
+  ``numba.core.caching.IndexDataCacheFile``)."""
+  try:
+    with open(path, "rb") as f:
+      version = pickle.load(f)
+      if version != numba.__version__:
+        return None
+      stamp, _ = pickle.loads(f.read())
+  except Exception:  # a torn or foreign file is a stale cache, not an error
+    return None
+  return stamp if isinstance(stamp, bytes) else None
 
 
 def start(config_path: str | os.PathLike) -> subprocess.Popen | None:
