@@ -1,6 +1,7 @@
 """The MJX backend: physics against MuJoCo C, and the same sampler as native."""
 
 import pathlib
+from typing import NamedTuple
 
 import jax
 import mujoco
@@ -128,16 +129,41 @@ def test_mjx_batches_fit_the_work():
       assert sampler.batch_size(n_worlds) == batch, (chunk, n_worlds)
 
 
-def test_mjx_worlds_across_batch_shapes():
-  """An articulated scene, 16 worlds: bit-identical for the same per-device
-  batch (1 world padded to 8 vs 16 in batches of 8); across batch shapes (8
-  vs 16) the same over the first frames to a tolerance."""
-  key = jax.random.key(5)
+CHAIN_KEY = 5
+
+
+class ChainRun(NamedTuple):
+  """The articulated scene's 16 worlds of ``CHAIN_KEY`` on mjx:jax in batches
+  of 8, world 0 alone padded to a batch of 8, and the sampler's settings."""
+
+  eights: mwbx.Bank
+  first: mwbx.Bank
+  pack_rows: bool
+  backend_label: str
+  batched_step: object
+  n_devices: int
+  batch_of_16: int
+
+
+@pytest.fixture(scope="module")
+def chain_eights():
+  # One sampler for the batch-shape, every-row and device tests: each new one
+  # traces the MJX step again (a quarter of a minute on 2 cores).
+  key = jax.random.key(CHAIN_KEY)
   with mwbx.Sampler(CHAIN, backend="mjx", chunk_size=8) as sampler:
     eights, _ = sampler.run(16, key)
     first, _ = sampler.run(1, key)
+    return ChainRun(eights, first, sampler.pack_rows, sampler.backend_label, sampler.backend.batched_step,
+                    len(sampler.backend.devices), sampler.batch_size(16))
+
+
+def test_mjx_worlds_across_batch_shapes(chain_eights):
+  """An articulated scene, 16 worlds: bit-identical for the same per-device
+  batch (1 world padded to 8 vs 16 in batches of 8); across batch shapes (8
+  vs 16) the same over the first frames to a tolerance."""
+  eights, first = chain_eights.eights, chain_eights.first
   with mwbx.Sampler(CHAIN, backend="mjx", chunk_size=16) as sampler:
-    sixteen, _ = sampler.run(16, key)
+    sixteen, _ = sampler.run(16, jax.random.key(CHAIN_KEY))
   assert eights.perturbations.sum() > 0
   same_world(first, 0, eights, 0)
   for w in range(16):
@@ -148,27 +174,25 @@ def test_mjx_worlds_across_batch_shapes():
     assert stats.ks_2samp(a, b).pvalue > 1e-3, name
 
 
-def test_every_row_from_the_config():
+def test_every_row_from_the_config(chain_eights):
   """``sim.mjx.pack_rows``: by default the sampler's batch solves each world
   over its rows in use (mjx_packed_solve); ``false`` takes MJX's solve over
   every row, and its worlds are the default step's over the first frames to
   the batch-shape tolerance (another summation order)."""
   every_cfg = CHAIN.with_overrides(mjx=CHAIN.sim.mjx.model_copy(update={"pack_rows": False}))
-  key = jax.random.key(7)
-  with mwbx.Sampler(CHAIN, backend="mjx", chunk_size=8) as sampler:
-    assert sampler.pack_rows and sampler.backend_label == "mjx:jax"
-    assert sampler.backend.batched_step is mjx_collision.batched_step
-    packed, _ = sampler.run(8, key)
+  assert chain_eights.pack_rows and chain_eights.backend_label == "mjx:jax"
+  assert chain_eights.batched_step is mjx_collision.batched_step
   with mwbx.Sampler(every_cfg, backend="mjx", chunk_size=8) as sampler:
     assert not sampler.pack_rows and sampler.backend_label == "mjx:jax (every row)"
-    every_row, _ = sampler.run(8, key)
+    every_row, _ = sampler.run(8, jax.random.key(CHAIN_KEY))
+  packed = chain_eights.eights  # its first batch of 8 holds these worlds, the same bits (test above)
   assert packed.perturbations.sum() > 0
   for w in range(8):
     np.testing.assert_allclose(packed.qpos_frames(w, 0, _EARLY_FRAMES), every_row.qpos_frames(w, 0, _EARLY_FRAMES),
                                atol=_EARLY_TOLERANCE, rtol=0)
 
 
-def test_mjx_shards_worlds_over_devices_bit_identically(tmp_path):
+def test_mjx_shards_worlds_over_devices_bit_identically(tmp_path, chain_eights):
   """Two CPU devices (jax_num_cpu_devices = 2, in a child process): each runs
   half of a batch, and the worlds equal a one-device run of the same
   per-device batch (8) bit for bit."""
@@ -183,16 +207,14 @@ import mwbx
 cfg = mwbx.load_config({str(CHAIN.source)!r})
 with mwbx.Sampler(cfg, backend="mjx", chunk_size=8) as sampler:
   assert len(sampler.backend.devices) == 2 and sampler.batch_size(16) == 16
-  bank, _ = sampler.run(16, jax.random.key(6))
+  bank, _ = sampler.run(16, jax.random.key({CHAIN_KEY}))
 bank.save({str(tmp_path / "two")!r})
 """
   out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1200)
   assert out.returncode == 0, out.stderr[-3000:]
   two = mwbx.Bank.load(tmp_path / "two")
-  with mwbx.Sampler(CHAIN, backend="mjx", chunk_size=8) as sampler:
-    assert len(sampler.backend.devices) == 1 and sampler.batch_size(16) == 8
-    one, _ = sampler.run(16, jax.random.key(6))
-  _same_banks(one, two)
+  assert chain_eights.n_devices == 1 and chain_eights.batch_of_16 == 8
+  _same_banks(chain_eights.eights, two)
 
 
 def test_ctrl_c_stops_mjx_sampling_between_blocks_and_keeps_finished_chunks(tmp_path):
