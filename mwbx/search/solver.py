@@ -30,7 +30,9 @@ best-first over the bank's refinement tree:
    world, the query's deadline: an include query's window start, an exclude
    query's first entry, a joint query's window; an orientation query's
    bodies: when they settle. A fraction of it that shrinks at each round
-   (:data:`RESTART_FRACTIONS`).
+   (:data:`RESTART_FRACTIONS`); a world whose one unmet query is a place,
+   once the search has not risen for :data:`LAST_PLACE_PLATEAU`
+   refinements, from earlier still (:data:`LAST_PLACE_FRACTION`).
 4. The best ``keep`` children join the bank under their parent; the others
    are dropped. A branch that stops improving is abandoned once its worlds'
    tries run out, and the search goes on from the next best world: an
@@ -78,6 +80,14 @@ from mwbx.search.objects import spare_objects
 # conditions are guided sampling's job, fix_blocking_query). Measured:
 # docs/search.md, scripts/refinement_yield.py.
 RESTART_FRACTIONS = (0.85, 0.6, 0.35)
+# A world whose one unmet query is a place, once the best world has not risen
+# for LAST_PLACE_PLATEAU refinements, restarts that place's objects from
+# LAST_PLACE_FRACTION of when they go wrong, earlier than any round: a body
+# whose way its first pegs took (on SIGGRAPH seed 3, a G drifting onto the S
+# in slot 0) reaches its place only from there, and a world that meets every
+# other query is worth the bigger change. Measured: docs/search.md.
+LAST_PLACE_PLATEAU = 30
+LAST_PLACE_FRACTION = 0.25
 # A stall fixes a query only where some world meeting it (and the queries
 # fixed already) meets at most this many fewer places than the best world:
 # fixing one that only worse worlds meet throws the search's progress away.
@@ -96,7 +106,8 @@ STALL_STEP = 10
 WEIGHT_STEP = 1.0
 
 
-def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[list[int], float]:
+def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0,
+                last_place: bool = False) -> tuple[list[int], float]:
   """Which unmet queries attempt ``attempt`` on a world repairs, and from
   what fraction of the time they go wrong.
 
@@ -108,11 +119,15 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[l
   round) and take turns: one attempt pairs a query with the next (objects
   that meet each other, as the paper's user did), the next repairs one
   alone (an early restart of one object moves it farther and disturbs
-  less). One unmet query: alone, earlier at each attempt.
+  less). One unmet query: alone, earlier at each attempt; from
+  :data:`LAST_PLACE_FRACTION` if ``last_place`` (that query is a place and
+  the search has not risen for :data:`LAST_PLACE_PLATEAU` refinements).
 
   Example:
     >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3), repair_plan([5, 2, 9], 4)
     (([2], 0.85), ([5, 2], 0.6), ([2], 0.6))
+    >>> repair_plan([5], 0, last_place=True)
+    ([5], 0.25)
   """
   n = len(unmet)
   if n == 0:
@@ -122,6 +137,8 @@ def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0) -> tuple[l
   chosen = [int(unmet[attempt % n])]
   if rounds >= 1 and n >= 2 and (attempt + attempt // n) % 2 == 0:
     chosen.append(int(unmet[(attempt + 1) % n]))
+  if last_place and n == 1:
+    return chosen, LAST_PLACE_FRACTION
   return chosen, RESTART_FRACTIONS[min(rounds, len(RESTART_FRACTIONS) - 1)]
 
 
@@ -390,6 +407,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     search.add_guided(queries, guided_rounds, guided_batch, stream_key(key, KeyStream.GUIDED))
   search.note()
   last_gain, best_met, last_reweigh = 0, (-1, -1), 0
+  last_rise = 0  # unlike last_gain, not moved on by fixing a query
   reason = ""
   while True:
     best = search.steps[-1]
@@ -400,6 +418,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
       break
     if (best.places, best.satisfied) > best_met:  # the search gains when these rise
       best_met, last_gain = (best.places, best.satisfied), search.refinements
+      last_rise = search.refinements
     elif search.refinements - last_gain >= patience:
       search.fix_blocking_query(best.world, reseed_rounds, guided_batch)
       last_gain = search.refinements
@@ -418,7 +437,10 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     if not unmet:  # a world guided reseeding just added meets every query
       search.note()
       continue
-    chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP)
+    last_place = (len(unmet) == 1 and bool(search.places[unmet[0]])
+                  and search.refinements - last_rise >= LAST_PLACE_PLATEAU)
+    chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP,
+                                   last_place=last_place)
     search.attempts[chosen] += 1
     objects, targets = [], [search.repair_target(row, q) for q in chosen]
     for target_objects, _, _ in targets:

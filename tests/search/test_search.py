@@ -24,7 +24,8 @@ from mwbx.search import objects as search_objects
 from mwbx.search import proposal as proposal_lib
 from mwbx.queries.paths import body_radii
 from mwbx.search import solver
-from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, RESTART_FRACTIONS, STALL_STEP, KeyStream,
+from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, LAST_PLACE_FRACTION, LAST_PLACE_PLATEAU,
+                                RESTART_FRACTIONS, STALL_STEP, KeyStream,
                                 repair_plan, settle_time, stream_key)
 
 TESTS = pathlib.Path(__file__).parents[1]
@@ -327,6 +328,17 @@ def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
   assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in fractions]
   with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
     repair_plan([], 0)
+
+
+def test_a_last_place_restarts_earliest_once_the_search_stalls():
+  """A world whose one unmet query is a place, on a plateau of
+  LAST_PLACE_PLATEAU refinements, restarts it earlier than any round; with
+  other queries unmet the rounds decide as before."""
+  assert repair_plan([4], 0, last_place=True) == ([4], LAST_PLACE_FRACTION)
+  assert repair_plan([4], 5, stalled=3, last_place=True) == ([4], LAST_PLACE_FRACTION)
+  assert LAST_PLACE_FRACTION < min(RESTART_FRACTIONS)
+  assert [repair_plan([4, 5], k, last_place=True) for k in range(4)] == [repair_plan([4, 5], k) for k in range(4)]
+  assert LAST_PLACE_PLATEAU >= STALL_STEP
 
 
 def test_a_plateau_moves_every_repair_to_a_later_round():
