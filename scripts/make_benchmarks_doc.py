@@ -267,9 +267,11 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
     upright = [r for r in robust["runs"] if r["scene"] == "siggraph" and r["n_queries"] == 16]
     if upright:
       solved = [r for r in upright if r["solved"]]
-      head.append(f"SIGGRAPH upright (16 queries): {len(solved)} of {len(upright)} seeds solved"
+      commits = ", ".join(sorted({r["commit"] for r in upright if "commit" in r}))
+      head.append(f"SIGGRAPH upright (16 queries): {len(solved)} of {len(upright)} seeds solved in timed runs"
                   + (f", {max(r['solve_seconds'] for r in solved) / 60:.1f} min at most" if solved else "")
-                  + f" (load ≤ {max(r['load_average_after'] for r in upright):.0f})")
+                  + f" (load ≤ {max(r['load_average_after'] for r in upright):.0f}"
+                  + (f", {commits})" if commits else ")"))
   guided = dict(d.get("guided") or {})
   if "guided" in guided:  # one case, as written before there were several
     guided = {"quickstart": guided}

@@ -83,9 +83,9 @@ RESTART_FRACTIONS = (0.85, 0.6, 0.35)
 # A world whose one unmet query is a place, once the best world has not risen
 # for LAST_PLACE_PLATEAU refinements, restarts that place's objects from
 # LAST_PLACE_FRACTION of when they go wrong, earlier than any round: a body
-# whose way its first pegs took (on SIGGRAPH seed 3, a G drifting onto the S
-# in slot 0) reaches its place only from there, and a world that meets every
-# other query is worth the bigger change. Measured: docs/search.md.
+# that its first collisions sent off its way reaches its place only from
+# there, and a world that meets every other query is worth the bigger
+# change. Measured: docs/search.md.
 LAST_PLACE_PLATEAU = 30
 LAST_PLACE_FRACTION = 0.25
 # A stall fixes a query only where some world meeting it (and the queries
