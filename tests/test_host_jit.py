@@ -78,10 +78,10 @@ def test_a_codec_cache_of_other_sources_or_another_numba_is_not_taken_as_warm(tm
   folder = tmp_path / "mwbx" / "codec"
   folder.mkdir(parents=True)
 
-  def index(stamp, version=numba.__version__):
+  def index(stamp, version=numba.__version__):  # one kept overload, as numba writes it
     with open(folder / "eval_kernels.eval_linear-24.py312.nbi", "wb") as f:
       pickle.dump(version, f)
-      f.write(pickle.dumps((stamp, {})))
+      f.write(pickle.dumps((stamp, {("(float64,)", "cpu"): "eval_kernels.eval_linear-24.py312.1.nbc"})))
 
   assert not warm.codec_cached()  # nothing kept
   index(b"the sources of another version")

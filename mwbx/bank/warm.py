@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import glob
 import os
-import pickle
 import subprocess
 import sys
 
 import mujoco
-import numba
 import numpy as np
+from numba.core import caching
 
 from mwbx import host_jit
 from mwbx.bank.stores import store_for
@@ -36,23 +35,19 @@ def codec_cached() -> bool:
   if os.environ.get("NUMBA_CACHE_DIR"):
     return True
   stamp = host_jit.package_source_hash()
-  return any(_index_stamp(path) == stamp
+  return any(_index_is_fresh(path, stamp)
              for path in glob.glob(os.path.join(host_jit.CACHE_DIR, "mwbx", "codec", "*.nbi")))
 
 
-def _index_stamp(path: str) -> bytes | None:
-  """The source stamp a numba cache index (``.nbi``) was written for; None
-  if it is unreadable or from another numba (as numba reads it:
-  ``numba.core.caching.IndexDataCacheFile``)."""
+def _index_is_fresh(path: str, stamp: bytes) -> bool:
+  """Whether numba would load kernels from the cache index ``path``
+  (``.nbi``) for sources of ``stamp``: numba's own reader, which finds
+  nothing in an index of another numba or other sources."""
+  folder, name = os.path.split(path)
   try:
-    with open(path, "rb") as f:
-      version = pickle.load(f)
-      if version != numba.__version__:
-        return None
-      stamp, _ = pickle.loads(f.read())
-  except Exception:  # a torn or foreign file is a stale cache, not an error
-    return None
-  return stamp if isinstance(stamp, bytes) else None
+    return bool(caching.IndexDataCacheFile(folder, name[:-len(".nbi")], stamp)._load_index())
+  except Exception:  # a torn file, or numba's internals moved: not warm (the warm-up runs)
+    return False
 
 
 def start(config_path: str | os.PathLike) -> subprocess.Popen | None:
