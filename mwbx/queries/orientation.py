@@ -142,8 +142,20 @@ class OrientationQuery(Query):
   def evaluate(self, bank) -> np.ndarray:
     return evaluate_orientation(bank, self, selection_mask(bank, self.bodies))
 
+  @classmethod
+  def evaluate_many(cls, bank, queries) -> np.ndarray:
+    """bool[W, k]: the bodies of all ``queries`` decoded in one pass."""
+    _decode_together(bank, queries)
+    return super().evaluate_many(bank, queries)
+
   def gap(self, bank) -> np.ndarray:
     return orientation_gap(bank, self, selection_mask(bank, self.bodies))
+
+  @classmethod
+  def gap_many(cls, bank, queries) -> np.ndarray:
+    """f64[W, k]: the bodies of all ``queries`` decoded in one pass."""
+    _decode_together(bank, queries)
+    return super().gap_many(bank, queries)
 
   def error(self, bank, reduce: str = "max", bodies=None) -> np.ndarray:
     """f64[W] the angle to the goal, radians, per body at the world's last
@@ -251,6 +263,20 @@ def all_quats(bank, bodies) -> dict:
     out[body] = fresh[i]
     _CACHE.put(bank, body, state, fresh[i])
   return out
+
+
+def _decode_together(bank, queries) -> None:
+  """Caches the orientations of every body ``queries`` select, decoded in
+  one pass over the worlds (each query alone would decode the stored
+  streams again for its own bodies). Refuses a flex first, as each query would."""
+  if bank.n_worlds == 0:
+    return
+  chosen = np.zeros(len(bank.body_names), bool)
+  for query in queries:
+    mask = selection_mask(bank, query.bodies)
+    _refuse_flexes(bank, mask, query)
+    chosen |= mask
+  all_quats(bank, np.flatnonzero(chosen).tolist())
 
 
 def _chain_columns(model, body_id: int) -> np.ndarray:

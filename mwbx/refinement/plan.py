@@ -243,7 +243,7 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -
   qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
   keep_qpos = (~active).astype(np.float32) @ parent.qpos_object.astype(np.float32) > 0.5
   store = bank.qpos_store.refined(qpos, count, row, parent.frames, keep_qpos)
-  events, event_actors = _events(bank, row, f0, store, sampler) if plan.events else (None, ())
+  events, event_actors = refined_events(bank, row, f0, store, sampler) if plan.events else (None, ())
 
   # Inactive bodies keep the parent's polylines; a removed object keeps the
   # parent's metrics too (what it did while it was there).
@@ -275,10 +275,19 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -
       _model=None)
 
 
-def _events(bank, row: int, first_frame: int, store, sampler):
-  """(EventRecord, actor names) of the refined worlds: the parent's episodes
-  before ``first_frame`` (the frames they share with it), their own after; (None, ())
-  for a bank without events."""
+def refined_events(bank, row: int, first_frame: int, store, sampler):
+  """(EventRecord, actor names) of refined worlds of the world at ``row``,
+  as :meth:`Sampler.events_of` finds them on their whole stored frames: the
+  parent's episodes before ``first_frame`` (the frames they share with it),
+  their own after, found on those frames alone; (None, ()) for a bank
+  without events.
+
+  Args:
+    bank: the bank holding the parent. row: the parent's row.
+    first_frame: the frame the refinement restarts at.
+    store: the refined worlds' stored qpos (any of the refinement's worlds,
+      in any order). sampler: the bank scene's.
+  """
   if bank.events is None:
     return None, ()
   actors = sampler.event_actors.names

@@ -70,6 +70,7 @@ from mwbx.queries.paths import body_radii
 from mwbx.queries.query import as_queries
 from mwbx.queries.selection import selection_mask
 from mwbx.refinement import RefineRequest, refinement, sampler_for
+from mwbx.refinement.plan import refined_events
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
 from mwbx.search.objects import spare_objects
 
@@ -642,9 +643,9 @@ class _Search:
       dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
       chosen = children.drop(children.world_ids[dropped]) if dropped.size else children
       if not events and self.bank.events is not None:
-        sampler = sampler_for(self.bank, self.backend)
-        chosen = dataclasses.replace(chosen, events=sampler.events_of(chosen.qpos_store),
-                                     event_actors=sampler.event_actors.names)
+        found, actors = refined_events(self.bank, done.plan.row, done.plan.first_frame, chosen.qpos_store,
+                                       sampler_for(self.bank, self.backend))
+        chosen = dataclasses.replace(chosen, events=found, event_actors=actors)
       self._add(chosen, c_gaps[kept], c_ties[kept])
 
   def result(self, reason: str, throw: bool) -> SolveResult:

@@ -198,3 +198,29 @@ def test_cli_query_with_geometry_and_orientation(tiny_native_bank, tmp_path, cap
   path.write_text("queries:\n  - {bodies: cube, upright: z}\n")
   assert cli.main(["query", str(saved), str(path)]) == 2
   assert "queries[0]: an orientation query needs 'within_deg'" in capsys.readouterr().err
+
+
+def test_queries_asked_together_answer_as_each_alone():
+  """Several orientation queries decode their bodies in one pass over a coded
+  bank; each answer and gap is the one it has asked alone, bit for bit."""
+  from mwbx.codec import CodecBounds, CompressedQposStore
+  from mwbx.queries import orientation
+
+  model = mujoco.MjModel.from_xml_string(ref.SHAPES_XML)
+  coded = ref.shapes_bank(n_worlds=9, n_frames=41, seed=3, spin=1.5, store=CompressedQposStore.from_model(
+      model, CodecBounds(e_pos=1e-3, e_rot=0.01, e_scalar=0.01)))
+  asked = [("crate", None, CASES[0][0]), ("lower", (0.05, 0.2), CASES[1][0]), ("gem", (0.25, None), CASES[2][0]),
+           ("free", None, CASES[3][0]), ("upper", None, CASES[0][0])]
+  queries = [mwbx.OrientationQuery(bodies=body, window=window, within_deg=45, **goal) for body, window, goal in asked]
+  alone_gaps, alone_met = [], []
+  for query in queries:
+    orientation._CACHE.clear()
+    alone_met.append(mwbx.evaluate_each(coded, [query])[:, 0])
+    orientation._CACHE.clear()
+    alone_gaps.append(mq.query_gaps(coded, [query])[:, 0])
+  orientation._CACHE.clear()
+  np.testing.assert_array_equal(mwbx.evaluate_each(coded, queries), np.stack(alone_met, axis=1))
+  orientation._CACHE.clear()
+  together = mq.query_gaps(coded, queries)
+  np.testing.assert_array_equal(together, np.stack(alone_gaps, axis=1))
+  assert (together > 0).any() and (together == 0).any()
