@@ -19,6 +19,7 @@ every engine, before the worlds join a bank.
 from __future__ import annotations
 
 import copy
+import threading
 from typing import Iterable
 
 import mujoco
@@ -26,9 +27,11 @@ import numpy as np
 
 from mwbx.events.actors import Actors
 from mwbx.events.record import EventRecord
+from mwbx.host_pool import LazyPool
 from mwbx.progress import Progress
 
 TOUCH_MARGIN_PER_E_POS = 2.0
+_POOL = LazyPool("mwbx-events")  # worlds, a thread per core
 
 
 def touch_margin(e_pos: float) -> float:
@@ -137,14 +140,29 @@ def detect_events(model: mujoco.MjModel, actors: Actors, frames: Iterable[np.nda
     record = detect_events(bank.model(), actors, bank.qpos_store.frames_of_rows(None), touch_margin(1e-3))
   """
   model = margin_model(model, margin)
-  data = mujoco.MjData(model)
-  worlds = []
-  for w, world_frames in enumerate(frames):
+  scratch = threading.local()  # an MjData per thread of the pool
+
+  def one_world(w: int, world_frames: np.ndarray) -> np.ndarray:
+    data = getattr(scratch, "data", None)
+    if data is None:
+      data = scratch.data = mujoco.MjData(model)
     rows = world_episodes(model, data, actors, world_frames, margin)
     rows[:, 2:] += int(first_frame if np.ndim(first_frame) == 0 else first_frame[w])
-    worlds.append(rows)
-    if progress is not None and total:
-      progress(Progress("contact events", w + 1, total, 0))
+    return rows
+
+  # Worlds go to a thread per core: MuJoCo's collision runs without the GIL.
+  frames = list(frames)
+  jobs = [_POOL.get().submit(one_world, w, f) for w, f in enumerate(frames)] if len(frames) > 1 else []
+  worlds = []
+  try:
+    for w, world_frames in enumerate(frames):
+      worlds.append(jobs[w].result() if jobs else one_world(w, world_frames))
+      if progress is not None and total:
+        progress(Progress("contact events", w + 1, total, 0))
+  except BaseException:  # Ctrl-C or an error: the worlds not started yet are not run
+    for job in jobs:
+      job.cancel()
+    raise
   return EventRecord.from_worlds(worlds)
 
 
