@@ -9,7 +9,7 @@ a guarantee checked on the decoded data.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple, Sequence
 
 import jax
 import numpy as np
@@ -77,24 +77,28 @@ def _columns(adrs: tuple[int, ...]) -> np.ndarray:
   return np.asarray(adrs, np.int64).reshape(-1)
 
 
-def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
+class _FitJob(NamedTuple):
+  """The fit of every path of one kind (see :func:`_fit_jobs`)."""
+
+  kind: str
+  batch: Callable[[np.ndarray], tuple]  # rows -> (path, frame, vel, flag) of those paths' segment ends
+  batches: list  # i64[<= FIT_BATCH] path rows of each call, shortest paths first
+
+
+def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
              initial: np.ndarray, finite: np.ndarray, e: float, step: float, quad: float,
-             coarse: int, g_fp: int):
-  """Fit every path of one kind, FIT_BATCH paths per call.
+             coarse: int, g_fp: int) -> _FitJob:
+  """The fit of every path of one kind, FIT_BATCH paths per call.
 
   qpos: f32[W, T, nq] recordings; adrs: qpos address of each channel of this kind
   (path p is channel ``p % C`` of world ``p // C``); n: i64[P] valid frames;
   initial: f64[P, width] frame-0 values on their grid (the fit starts there);
   finite: bool[P], paths with non-finite values are fitted as zeros (they are
-  stored raw). Returns the segment ends (path i64[S], frame i64[S]) in
-  path-major order with the velocity i64[S, D] and gravity flag bool[S] of each.
+  stored raw). Each call returns the segment ends (path i64[S], frame i64[S])
+  of its paths with the velocity i64[S, D] and gravity flag bool[S] of each.
   """
   width = WIDTH[kind]
-  num, t = n.size, qpos.shape[1]
-  d = 3 if kind == "rot" else width
-  if num == 0 or t == 0:
-    return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, d), np.int64),
-            np.zeros(0, bool))
+  t = qpos.shape[1]
   columns = _columns(adrs)
   device = fit_device()
 
@@ -126,14 +130,35 @@ def _run_fit(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
     return rows[p_idx], f_idx, vel, flag
 
   # Paths sorted by length so each call scans only as many frames as its longest
-  # path, padded to a multiple of 128 so few shapes compile. A jitted call runs
-  # on one core: batches go to a thread per core.
+  # path, padded to a multiple of 128 so few shapes compile.
+  if n.size == 0 or t == 0:
+    return _FitJob(kind, fit_batch, [])
   order = np.argsort(n, kind="stable")
-  batches = [order[lo:lo + FIT_BATCH] for lo in range(0, num, FIT_BATCH)]
-  out = list(_FIT_POOL.get().map(fit_batch, batches)) if len(batches) > 1 else [fit_batch(batches[0])]
-  path, frame, vel, flag = (np.concatenate(parts) for parts in zip(*out))
-  back = np.lexsort((frame, path))
-  return path[back], frame[back], vel[back], flag[back]
+  return _FitJob(kind, fit_batch, [order[lo:lo + FIT_BATCH] for lo in range(0, n.size, FIT_BATCH)])
+
+
+def _run_fits(jobs: Sequence[_FitJob]) -> list[tuple]:
+  """Runs the calls of every kind's fit together, a thread per core (a
+  jitted call runs on one core: a small batch has one call per kind, and the
+  kinds run side by side). Returns, per job, its segment ends (path i64[S],
+  frame i64[S]) in path-major order with the velocity i64[S, D] and gravity
+  flag bool[S] of each."""
+  calls = [(j, rows) for j, job in enumerate(jobs) for rows in job.batches]
+  if len(calls) > 1:
+    results = list(_FIT_POOL.get().map(lambda call: jobs[call[0]].batch(call[1]), calls))
+  else:
+    results = [jobs[j].batch(rows) for j, rows in calls]
+  out = []
+  for j, job in enumerate(jobs):
+    parts = [r for (k, _), r in zip(calls, results) if k == j]
+    if not parts:
+      d = 3 if job.kind == "rot" else WIDTH[job.kind]
+      out.append((np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, d), np.int64), np.zeros(0, bool)))
+      continue
+    path, frame, vel, flag = (np.concatenate(p) for p in zip(*parts))
+    back = np.lexsort((frame, path))
+    out.append((path[back], frame[back], vel[back], flag[back]))
+  return out
 
 
 def _measure(code: WorldCode, stream: bytes, qpos_w: np.ndarray):
@@ -184,7 +209,7 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
   # less a margin for float32 rounding.
   bound = {"pos": bounds.e_pos, "rot": bounds.e_rot, "scalar": bounds.e_scalar}
   kinds = (("pos", layout.pos_adr), ("rot", layout.rot_adr), ("scalar", layout.scalar_adr))
-  per_kind = {}
+  inputs, jobs = [], []
   for kind, adrs in kinds:
     width = WIDTH[kind]
     columns = _columns(adrs)
@@ -195,9 +220,11 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
         (num_w, len(adrs), width), np.float32)
     initial = quantize_initial(kind, frame0.reshape(-1, width), bounds) * initial_steps(bounds)[kind]
     initial[n == 0] = 0.0
-    p_idx, f_idx, vel, flag = _run_fit(kind, qpos, adrs, n, initial, finite,
-                                       bound[kind] * (1 - FIT_MARGIN), steps[kind],
-                                       quanta.quad, quanta.coarse()[kind], quanta.g_fp(bounds))
+    inputs.append((kind, adrs, columns, n, finite, initial))
+    jobs.append(_fit_job(kind, qpos, adrs, n, initial, finite, bound[kind] * (1 - FIT_MARGIN), steps[kind],
+                         quanta.quad, quanta.coarse()[kind], quanta.g_fp(bounds)))
+  per_kind = {}
+  for (kind, adrs, columns, n, finite, initial), (p_idx, f_idx, vel, flag) in zip(inputs, _run_fits(jobs)):
     seg_per_path = np.bincount(p_idx, minlength=n.size)
     first = np.ones(p_idx.size, bool)
     first[1:] = p_idx[1:] != p_idx[:-1]
