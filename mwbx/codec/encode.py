@@ -78,7 +78,7 @@ def _columns(adrs: tuple[int, ...]) -> np.ndarray:
 
 
 class _FitJob(NamedTuple):
-  """The fit of every path of one kind (see :func:`_fit_jobs`)."""
+  """The fit of every path of one kind (see :func:`_fit_job`)."""
 
   kind: str
   batch: Callable[[np.ndarray], tuple]  # rows -> (path, frame, vel, flag) of those paths' segment ends

@@ -643,8 +643,8 @@ class _Search:
       dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
       chosen = children.drop(children.world_ids[dropped]) if dropped.size else children
       if not events and self.bank.events is not None:
-        found, actors = refined_events(self.bank, done.plan.row, done.plan.first_frame, chosen.qpos_store,
-                                       sampler_for(self.bank, self.backend))
+        found, actors = refined_events(done.parent_bank, done.plan.row, done.plan.first_frame, chosen.qpos_store,
+                                       sampler_for(done.parent_bank, self.backend))
         chosen = dataclasses.replace(chosen, events=found, event_actors=actors)
       self._add(chosen, c_gaps[kept], c_ties[kept])
 
