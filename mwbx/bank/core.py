@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import pathlib
+import uuid
 from typing import Sequence
 
 import numpy as np
@@ -118,9 +119,10 @@ class Bank:
   # Where the bank was loaded from or saved to (the bank a save returns), with the
   # ids it held there (mwbx.bank.shards.Origin): what a save into that directory adds and drops.
   origin: object = dataclasses.field(default=None, repr=False, compare=False)
-  # What saves of this bank, and of the banks sharing this record (made from
-  # it), wrote where: path -> {id: (id on disk, key bytes)} (mwbx.bank.saving).
-  _saved: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
+  # Shared with the banks made from this one (append, drop, take) and new for a
+  # bank loaded or returned by a save: the shards a save writes carry it, so a
+  # later save of this family finds the worlds it wrote (mwbx.bank.saving).
+  save_token: str = dataclasses.field(default_factory=lambda: uuid.uuid4().hex, repr=False, compare=False)
 
   def __post_init__(self):
     if self.scene_version is None:  # banks of one scene version, and those saved before versions

@@ -23,11 +23,13 @@ id, as above.
 
 Saving changes no bank: :func:`save` returns the bank as saved (the ids its
 worlds have on disk, the directory's ``next_id``, an origin naming every world
-it holds there), as ``Bank.append`` and ``Bank.drop`` return new banks. A
-bank remembers what it saved where (shared with the banks made from it): its
-worlds saved into a directory before, and still stored there with their keys,
-are not written again, so saving a bank twice, or a bank made from it before
-the first save returned, writes each world once.
+it holds there), as ``Bank.append`` and ``Bank.drop`` return new banks. Each
+shard a save writes is marked, in the manifest, with the saving bank's family
+token (:attr:`Bank.save_token`, shared with the banks made from it) and the
+ids it renumbered: worlds a save of the family wrote into a directory, and
+still stored there with their keys, are not written again, so saving a bank
+twice, or a bank made from it before the first save returned, writes each
+world once.
 """
 
 from __future__ import annotations
@@ -94,10 +96,9 @@ def save(bank, path: str | os.PathLike):
     out = renumbered(bank, {old: new_id for old, new_id in mapping.items() if old != new_id})
     if gone:
       directory.manifest["dropped"] = sorted(set(directory.manifest["dropped"]) | gone)
-    directory._append_locked(out, rows)
+    directory._append_locked(out, rows, saved_by=_saved_by(bank, out, rows))
     directory.commit()
     next_id = int(directory.manifest["next_id"])
-  _remember(bank, path, rows, out.world_ids[rows])
   write_readables(path, bank)
   return _as_saved(out, path, next_id)
 
@@ -115,31 +116,35 @@ def _origin_in(bank, path: pathlib.Path):
 
 def _saved_before(directory, bank, rows: np.ndarray) -> dict[int, int]:
   """old id -> id on disk of those worlds ``rows`` of ``bank`` that a save of
-  ``bank`` (or of a bank it was made from) wrote into ``directory`` and that
-  are still stored there with the same key."""
-  memo = bank._saved.get(str(directory.path), {})
-  ids = [int(i) for i in bank.world_ids[rows]]
-  hits = [(k, memo[i][0]) for k, i in enumerate(ids)
-          if i in memo and memo[i][1] == np.asarray(bank.keys[rows[k]]).tobytes()]
-  if not hits:
+  ``bank`` (or of a bank of its family: :attr:`Bank.save_token`) wrote into
+  ``directory`` and that are still stored there with the same key; read from
+  the shards those saves wrote."""
+  written = directory.written_by(bank.save_token) if rows.size else {}
+  if not written:
     return {}
-  there = directory.same_worlds([new for _, new in hits], np.asarray(bank.keys)[rows[[k for k, _ in hits]]])
-  return {ids[k]: new for (k, new), ok in zip(hits, there) if ok}
+  keys = np.asarray(bank.keys).reshape(bank.n_worlds, -1)
+  found = {}
+  for row in rows.tolist():
+    hit = written.get(int(bank.world_ids[row]))
+    if hit is not None and np.array_equal(hit[1], keys[row]):
+      found[int(bank.world_ids[row])] = hit[0]
+  return found
 
 
-def _remember(bank, path: pathlib.Path, rows: np.ndarray, saved_ids: np.ndarray) -> None:
-  """Records in ``bank`` (and the banks sharing its record) which of its
-  worlds were written into ``path``, under which ids, with which keys."""
-  memo = bank._saved.setdefault(str(path), {})
-  for row, new in zip(rows.tolist(), saved_ids.tolist()):
-    memo[int(bank.world_ids[row])] = (int(new), np.asarray(bank.keys[row]).tobytes())
+def _saved_by(bank, out, rows: np.ndarray) -> dict:
+  """The mark a save puts on the shard it writes: ``bank``'s family token and
+  the ids of ``rows`` it renumbered (id on disk, id in ``bank``)."""
+  moved = [[int(new), int(old)] for old, new in zip(bank.world_ids[rows].tolist(), out.world_ids[rows].tolist())
+           if old != new]
+  return {"token": bank.save_token, "renumbered": moved}
 
 
 def _as_saved(bank, path: pathlib.Path, next_id: int):
-  """``bank`` (ids as on disk) with the directory's ``next_id`` and an origin
-  of all its ids there; a record of saves of its own."""
+  """``bank`` (ids as on disk) with the directory's ``next_id``, an origin of
+  all its ids there, and a family token of its own."""
   return dataclasses.replace(bank, next_id=max(bank.next_world_id, next_id),
-                             origin=shards.Origin(str(path), np.sort(bank.world_ids)), _saved={})
+                             origin=shards.Origin(str(path), np.sort(bank.world_ids)),
+                             save_token=uuid.uuid4().hex)
 
 
 def _fresh_ids(directory, ids: np.ndarray) -> dict[int, int]:
@@ -196,7 +201,8 @@ def _rewrite(bank, path: pathlib.Path):
       target = shards.BankDirectory(fresh)
       with target._locked():
         target._check_scene(bank)
-        target._append_locked(bank, np.arange(bank.n_worlds))
+        target._append_locked(bank, np.arange(bank.n_worlds),
+                              saved_by={"token": bank.save_token, "renumbered": []})
         target.manifest["runs"] = manifest.get("runs", [])
         target.manifest["dropped"] = sorted(set(manifest.get("dropped", [])) | ((loaded - ids) & stored))
         target.manifest["next_id"] = max(int(target.manifest["next_id"]), int(manifest.get("next_id", 0)))
@@ -208,7 +214,6 @@ def _rewrite(bank, path: pathlib.Path):
       files.remove_quietly(fresh)
       raise
   shutil.rmtree(fresh, ignore_errors=True)
-  _remember(bank, path, np.arange(bank.n_worlds), bank.world_ids)
   return _as_saved(bank, path, next_id)
 
 

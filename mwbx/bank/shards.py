@@ -158,6 +158,26 @@ class BankDirectory:
         same[row] = key is not None and np.array_equal(key, keys[row])
     return same
 
+  def written_by(self, token: str) -> dict[int, tuple[int, bytes]]:
+    """The worlds stored here (not dropped) that saves marked ``token`` wrote
+    (``saved_by`` in their shards' entries): id in the saving bank -> (id
+    here, key u32[2]); reads those shards' ``world_ids`` and ``keys``."""
+    if self.manifest is None:
+      return {}
+    stored = self.stored_ids()
+    written = {}
+    for entry in self.manifest["shards"]:
+      mark = entry.get("saved_by") or {}  # checked by read_manifest
+      if mark.get("token") != token:
+        continue
+      back = {int(new): int(old) for new, old in mark.get("renumbered", [])}
+      arrays = _load_arrays(self.path, entry, ["world_ids", "keys"])
+      keys = arrays["keys"].reshape(len(arrays["world_ids"]), -1)
+      for here, key in zip(arrays["world_ids"].tolist(), keys):
+        if here in stored:
+          written[back.get(here, here)] = (here, key)
+    return written
+
   def unfinished_runs(self) -> list[dict]:
     """Run records not finished (of one or of several processes)."""
     if self.manifest is None:
@@ -226,14 +246,19 @@ class BankDirectory:
       self._append_locked(bank, rows, run)
       self.commit()
 
-  def _append_locked(self, bank, rows: np.ndarray, run: dict | None = None) -> None:
-    """:meth:`append` with the lock held and the manifest not yet committed."""
+  def _append_locked(self, bank, rows: np.ndarray, run: dict | None = None, saved_by: dict | None = None) -> None:
+    """:meth:`append` with the lock held and the manifest not yet committed;
+    ``saved_by`` marks the shard (a save's family token and renumbering:
+    :meth:`written_by`)."""
     history = self.manifest["scene"].get("versions", [])
     if len(bank.versions) < len(history):  # sampled from the current scene, without the bank's history
       bank = dataclasses.replace(bank, versions=list(history),
                                  scene_version=np.full(bank.n_worlds, len(history), np.int16))
     if rows.size:
-      self.manifest["shards"].append(_write_shard(self.path, bank, rows, self._next_shard_name()))
+      entry = _write_shard(self.path, bank, rows, self._next_shard_name())
+      if saved_by is not None:
+        entry["saved_by"] = saved_by
+      self.manifest["shards"].append(entry)
       self._written.append(self.manifest["shards"][-1]["name"])
     if run is not None:
       self._put_run(run)
@@ -339,6 +364,13 @@ def read_manifest(path: pathlib.Path) -> dict:
     for key in list(entry.get("checksums", {})):
       if not _PLAIN_NAME.fullmatch(key):
         raise MwbxError(f"{file}: shards[{i}].checksums: {key!r} is not an array name (never a path)")
+    mark = entry.get("saved_by")
+    if mark is not None and not (isinstance(mark, dict) and isinstance(mark.get("token"), str)
+                                 and isinstance(mark.get("renumbered", []), list)
+                                 and all(isinstance(pair, list) and len(pair) == 2
+                                         and all(type(i) is int for i in pair) for pair in mark.get("renumbered", []))):
+      raise MwbxError(f"{file}: shards[{i}].saved_by: {short_repr(mark)} is not a save's mark (a token and"
+                      f" [id here, id before] pairs)")
   for i, run in enumerate(manifest.get("runs", [])):
     run_id = run.get("id") if isinstance(run, dict) else None
     # A run's id names its liveness lock file (runs/<id>.lock), which is unlinked.

@@ -8,6 +8,7 @@ processes (`python -m mwbx.cli ...`), started together."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import fcntl
 import json
@@ -150,6 +151,36 @@ def test_saving_returns_the_bank_as_saved_and_leaves_the_bank_as_it_was(small_ba
   assert fresh.world_ids.tolist() == ids == [0, 1] and fresh.origin is None
   assert placed.world_ids.tolist() == [12, 13] and fresh.save(small_bank).world_ids.tolist() == [12, 13]
   assert mwbx.Bank.load(small_bank).n_worlds == 14
+
+
+def test_a_save_changes_no_field_of_the_bank_and_marks_its_shard_on_disk(small_bank, tiny_native):
+  # Saving recorded what it wrote in a memo inside the bank it was given.
+  more, _ = tiny_native.run(2, jax.random.key(5))
+  mine = mwbx.Bank.load(small_bank).append(more)  # ids 4, 5
+  mwbx.Bank.load(small_bank).append(more).save(small_bank)  # another writer takes 4, 5 first
+  before = {f.name: getattr(mine, f.name) for f in dataclasses.fields(mine)}
+  contents = {name: copy.deepcopy(value) for name, value in before.items() if isinstance(value, (dict, list))}
+  saved = mine.save(small_bank)
+  for name, value in before.items():
+    assert getattr(mine, name) is value, name
+  for name, value in contents.items():
+    assert getattr(mine, name) == value, name
+  assert saved.world_ids.tolist() == [0, 1, 2, 3, 6, 7] and saved.save_token != mine.save_token
+  mark = _manifest(small_bank)["shards"][-1]["saved_by"]
+  assert mark == {"token": mine.save_token, "renumbered": [[6, 4], [7, 5]]}
+  # The record is the directory's: a bank of the same family finds its worlds there, another does not.
+  family = mine.append(more)
+  assert family.save(small_bank).world_ids.tolist() == [0, 1, 2, 3, 6, 7, 8, 9]
+  stranger = dataclasses.replace(mine, save_token="another")
+  assert stranger.save(small_bank).world_ids.tolist()[-2:] == [10, 11]
+  assert mwbx.Bank.load(small_bank).n_worlds == 12
+  # A crafted mark is named in one line.
+  manifest = _manifest(small_bank)
+  manifest["shards"][-1]["saved_by"] = {"token": 3}
+  (small_bank / "manifest.json").write_text(json.dumps(manifest))
+  with pytest.raises(MwbxError, match=r"shards\[\d+\]\.saved_by: .* is not a save's mark") as err:
+    mwbx.Bank.load(small_bank)
+  assert "\n" not in str(err.value)
 
 
 def test_two_sampling_runs_started_together_get_distinct_ids(tmp_path):
