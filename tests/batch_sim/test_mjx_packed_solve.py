@@ -16,9 +16,21 @@ from mujoco.mjx._src import solver
 
 from test_mjx_solver_limits import TIMES, _states
 
-# Packed and full solves agree to this share of the world's largest |qacc|
-# (and |efc_force|): the same problem, summed in another order in float32.
+# Packed and full solves minimize one cost (MJX's, over every row) equally well:
+# their costs agree to this share (float32's epsilon is 1.2e-7).
+COST_TOLERANCE = 1e-6
+# A world whose solve stopped with its gradient (rescaled as MJX's stopping test
+# rescales it) below this is converged: there both solves' accelerations (and
+# constraint forces) agree to QACC_TOLERANCE of the world's largest |qacc|
+# (|efc_force|): the same problem, summed in another order in float32.
+CONVERGED_GRADIENT = 1e-4
 QACC_TOLERANCE = 1e-4
+# A heaped world whose cost is flat along a valley stops on MJX's improvement
+# test, and where along the valley depends on the summation order: measured on
+# the pile at 2.0 s, one world's two solves 2.6e-4 of |qacc| apart at costs
+# 1e-7 apart (on jax 0.12.0.1 with tolerance 0, on 0.12.1 with the model's),
+# rescaled gradients up to 4.8e-4. Worlds not converged agree to this.
+UNCONVERGED_TOLERANCE = 1e-3
 # One whole step's velocity, as a share of dt |qacc| + |qvel| (see below).
 STEP_TOLERANCE = 1e-2
 
@@ -44,9 +56,35 @@ def test_packing_is_the_default(siggraph):
   assert every_row.batched_step is not mjx_collision.batched_step  # MJX's solve, world by world
 
 
-def _scaled_error(a, b):
-  scale = np.abs(b).max(axis=-1, keepdims=True)
-  return float((np.abs(a - b) / np.maximum(scale, 1e-6)).max())
+def _world_errors(a, b) -> np.ndarray:
+  """f[W]: each world's largest |a - b| as a share of its largest |b|."""
+  a, b = np.asarray(a), np.asarray(b)
+  return (np.abs(a - b) / np.maximum(np.abs(b).max(axis=-1, keepdims=True), 1e-6)).max(axis=-1)
+
+
+@jax.jit
+def _cost_and_gradient(mx, ready, qacc):
+  """f[W] MJX's solver cost at ``qacc`` over every row of ``ready``, and its
+  gradient's norm rescaled as MJX's stopping test rescales it."""
+  def one(d, q):
+    ctx = solver.Context.create(mx, d.replace(qacc=q))
+    return ctx.cost, solver._rescale(mx, d, jnp.linalg.norm(ctx.grad))
+  return jax.vmap(one)(ready, qacc)
+
+
+def _assert_same_solution(mx, ready, solved, reference, label):
+  """``solved`` minimizes the cost of ``ready`` as well as ``reference`` does,
+  with the same accelerations and forces where both solves converged."""
+  cost, gradient = map(np.asarray, _cost_and_gradient(mx, ready, solved.qacc))
+  cost_ref, gradient_ref = map(np.asarray, _cost_and_gradient(mx, ready, reference.qacc))
+  assert (np.abs(cost - cost_ref) <= COST_TOLERANCE * np.abs(cost_ref)).all(), (label, cost, cost_ref)
+  converged = np.maximum(gradient, gradient_ref) <= CONVERGED_GRADIENT
+  assert converged.mean() >= 0.5, (label, gradient, gradient_ref)  # the tight check is not vacuous
+  for name in ("qacc", "efc_force"):
+    pick = (lambda d: d.qacc) if name == "qacc" else (lambda d: d._impl.efc_force)
+    errors = _world_errors(pick(solved), pick(reference))
+    assert (errors[converged] <= QACC_TOLERANCE).all(), (label, name, errors, converged)
+    assert (errors <= UNCONVERGED_TOLERANCE).all(), (label, name, errors, converged)
 
 
 @pytest.mark.parametrize("seconds", TIMES)
@@ -64,19 +102,18 @@ def test_packed_step_matches_the_full_step(siggraph, seconds):
   assert seconds > TIMES[0] or used.max() <= caps[1]  # in the peg board: a quarter of the rows or fewer
   full = jax.jit(jax.vmap(solver.solve, in_axes=(None, 0)))(mx, ready)
   packed = jax.jit(mjx_packed_solve.solve_batch)(mx, ready)
-  assert _scaled_error(np.asarray(packed.qacc), np.asarray(full.qacc)) <= QACC_TOLERANCE
-  assert _scaled_error(np.asarray(packed._impl.efc_force), np.asarray(full._impl.efc_force)) <= QACC_TOLERANCE
+  _assert_same_solution(mx, ready, packed, full, "packed")
   assert packed._impl.efc_J.shape == full._impl.efc_J.shape  # every row kept in the data
   # Each cap that holds the rows in use gives the same answer; the whole step too.
   for cap in caps:
     if cap >= used.max():
       solve = jax.vmap(mjx_packed_solve.solve_rows, in_axes=(None, 0, None))
       one = jax.jit(solve, static_argnums=2)(mx, ready, cap)
-      assert _scaled_error(np.asarray(one.qacc), np.asarray(full.qacc)) <= QACC_TOLERANCE, cap
+      _assert_same_solution(mx, ready, one, full, f"cap {cap}")
   stepped = jax.jit(mjx_collision.batched_step)(mx, d)
   reference = jax.jit(jax.vmap(mjx_collision.step, in_axes=(None, 0)))(mx, d)
   qacc = np.asarray(reference.qacc)
-  assert _scaled_error(np.asarray(stepped.qacc), qacc) <= QACC_TOLERANCE
+  _assert_same_solution(mx, ready, stepped, reference, "step")
   # The step's velocity: dt times a force. The solver can stop at its 20
   # iterations short of convergence (a heaped world), and its constraint
   # force, which Euler's damping uses, then depends on the row order more
@@ -102,7 +139,7 @@ def test_a_too_small_cap_is_not_chosen(siggraph):
   assert int(jax.vmap(mjx_packed_solve.rows_in_use)(ready).max()) == dense.shape[-2]
   full = jax.jit(jax.vmap(solver.solve, in_axes=(None, 0)))(mx, ready)
   packed = jax.jit(mjx_packed_solve.solve_batch)(mx, ready)
-  assert _scaled_error(np.asarray(packed.qacc), np.asarray(full.qacc)) <= QACC_TOLERANCE
+  _assert_same_solution(mx, ready, packed, full, "packed")
 
 
 def test_a_world_is_the_same_bits_in_any_batch(siggraph):
