@@ -40,6 +40,16 @@ def _timed(cmd: list[str], cwd: pathlib.Path, env: dict, label: str) -> float:
   return seconds
 
 
+def _versions(clone: pathlib.Path, env: dict) -> dict:
+  """The versions the clone's ``.venv`` resolved for the packages its figures depend on most."""
+  names = ["jax", "jaxlib", "mujoco", "mujoco-mjx", "numba", "numpy"]
+  code = ("import importlib.metadata as m, json; "
+          f"print(json.dumps({{n: m.version(n) for n in {names!r}}}))")
+  out = subprocess.run([str(clone / ".venv" / "bin" / "python"), "-c", code], cwd=clone, env=env,
+                       capture_output=True, text=True, check=True)
+  return json.loads(out.stdout)
+
+
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
   parser.add_argument("--keep-home", action="store_true", help="use this HOME (its caches) instead of a fresh one")
@@ -60,6 +70,7 @@ def main() -> None:
               "fresh_home": not args.keep_home}
     result["first_make_run_s"] = _timed(["make", "run"], clone, env, "first make run")
     result["second_make_run_s"] = _timed(["make", "run"], clone, env, "second make run")
+    result["versions"] = _versions(clone, env)
     if args.test:
       result["make_test_s"] = _timed(["make", "test"], clone, env, "make test")
     result["load_average"] = os.getloadavg()[0]
