@@ -362,8 +362,7 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
     lines += ["", f"Play (a sorter click, {p['bodies']}-body scene `tests/scenes/twenty.yaml`, {p['clicks']} clicks): "
               f"decode + forward kinematics {p['decode_fk_ms']:.1f} ms, click → poses sent to the page "
               f"{p['play_ms']:.1f} ms median (p95 {p['play_p95_ms']:.1f}); a slot's {p['meshes_per_slot']} meshes "
-              "go to the page once and are reused (before, every click uploaded them again: 28-30 ms on the "
-              "server per click, and the client rebuilt every mesh)."]
+              "go to the page once and are reused."]
     if "path_segments_drawn" in p:
       lines[-1] += (f" The page redraws the paths' {p['path_segments_drawn']:,} segments every frame (of "
                     f"{p['path_segments_recorded']:,} recorded; `display.simplify_polylines`).")
@@ -391,12 +390,6 @@ def browse(d: dict) -> tuple[list[str], list[str]]:
       elif "load_average" in p:
         lines[-1] += (f" Goal ≤ 200 ms ({'met' if b['median'] <= 200 else 'missed'}). On busy cores the same "
                       "click takes several times as long: software WebGL shares them.")
-      before = d.get("play_before")
-      if before:
-        lines += ["", f"Before ({before['code']}): mouse click {before['median']:.0f} ms median, locator click "
-                  f"{before['locator_click_median']:.0f} ms, {before['idle_frames_per_s']:.1f} frames/s idle and "
-                  f"{before['playing_frames_per_s']:.1f} playing: the environment map and the shadow passes cost "
-                  "software WebGL seconds per frame, and a click's answer waited for the frame."]
     elif b:
       lines += ["", f"In headless Chromium (software WebGL on the shared CPUs): click → the page says the world "
                 f"plays {b['median']:.0f} ms median (p95 {b['p95']:.0f}), of which {b['click_to_server_median']:.0f} ms "
@@ -429,7 +422,9 @@ def geometry(d: dict) -> tuple[list[str], list[str]]:
            "bodies' whole geometry and, as the baseline measured in the same run, on their COM paths "
            "(`mwbx.queries.evaluate_each`, after a warm-up that compiles and builds the indexes).", "",
            f"Machine: {d['machine']}; commit {d.get('commit', '?')}; load average "
-           f"{d.get('load_average', float('nan')):.1f} when it ended.", "",
+           f"{d.get('load_average', float('nan')):.1f} when it ended"
+           + ("; resolved " + ", ".join(f"{k} {v}" for k, v in d["versions"].items()) if "versions" in d else "")
+           + ".", "",
            "| worlds | bodies | boxes | COM query median / p95 (ms) | geometry query median / p95 (ms) | "
            "geometry / COM | geometry index build (s) | include matches COM → geometry | "
            "exclude matches COM → geometry |",
@@ -478,7 +473,9 @@ def geometry_tightness(d: dict) -> tuple[list[str], list[str]]:
            "plus the codec's bound). An extra is an answer the exact reference does not have; its distance is "
            "how near its geoms came to the box.", "",
            f"Machine: {d['machine']}; commit {d.get('commit', '?')}; load average "
-           f"{d.get('load_average', float('nan')):.1f} when it ended.", "",
+           f"{d.get('load_average', float('nan')):.1f} when it ended"
+           + ("; resolved " + ", ".join(f"{k} {v}" for k, v in d["versions"].items()) if "versions" in d else "")
+           + ".", "",
            "| answers | include answers | false negatives | extras | extra distance median / p90 / max (mm) | "
            "beyond the margin reference |",
            "|---|---:|---:|---:|---:|---:|",
@@ -499,7 +496,9 @@ def setup(d: dict) -> tuple[list[str], list[str]]:
            "(the second, which installs and compiles nothing, is the baseline)"
            + (", then `make test`" if "make_test_s" in d else "") + ".", "",
            f"Machine: {d['machine']}; commit {d.get('commit', '?')}; load average "
-           f"{d.get('load_average', float('nan')):.1f} when it ended.", "",
+           f"{d.get('load_average', float('nan')):.1f} when it ended"
+           + ("; resolved " + ", ".join(f"{k} {v}" for k, v in d["versions"].items()) if "versions" in d else "")
+           + ".", "",
            "| first `make run` (s) | second `make run` (s) | first / second |"
            + (" `make test` (min) |" if "make_test_s" in d else ""),
            "|---:|---:|---:|" + ("---:|" if "make_test_s" in d else ""),
