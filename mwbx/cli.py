@@ -302,8 +302,8 @@ def _cmd_refine(args) -> int:
   active = [len(new.lineage[str(int(i))]["active"]) for i in new.world_ids]
   print(f"mwbx: saving {total.n_worlds} worlds to {out}", file=sys.stderr)
   total = total.save(out)  # the new worlds' ids on disk (another process may have taken theirs meanwhile)
-  saved = total.world_ids[total.n_worlds - new.n_worlds:]
-  ids = f"{int(saved[0])}..{int(saved[-1])}"
+  saved = [total.origin.id_on_disk(i) for i in new.world_ids]
+  ids = f"{saved[0]}..{saved[-1]}"
   print(f"refined worlds      {new.n_worlds} of world {args.world} from t_min = {new.refine_time[0]:.4f} s"
         f" (ids {ids}, seed {seed}; {int(new.valid.sum())} valid)")
   print(f"active objects      {min(active)}..{max(active)} per world (asked: {args.objects or 'none'})")
@@ -342,9 +342,8 @@ def _cmd_solve(args) -> int:
                    reseed_rounds=args.reseed_rounds, progress=update)
   out = pathlib.Path(args.out or args.bank)
   print(f"mwbx: saving {result.bank.n_worlds} worlds to {out}", file=sys.stderr)
-  row = result.bank.row_of(result.world)
   saved = result.bank.save(out)  # the new worlds' ids on disk (another process may have taken theirs meanwhile)
-  result = result._replace(bank=saved, world=int(saved.world_ids[row]))
+  result = result._replace(bank=saved, world=saved.origin.id_on_disk(result.world))
   plot = pathlib.Path(args.plot) if args.plot else out.parent / f"{out.name}-solve.png"
   plot.parent.mkdir(parents=True, exist_ok=True)
   progress_plot(result.steps, plot, title=f"mwbx solve {pathlib.Path(args.queries).name}")

@@ -384,17 +384,7 @@ class Bank:
     start = first.next_world_id
     if not self.n_worlds or self.world_ids.min() >= start:
       return self
-    new_ids = np.arange(start, start + self.n_worlds, dtype=np.int64)
-    mapping = dict(zip(self.world_ids.tolist(), new_ids.tolist()))
-    parents = np.array([mapping.get(int(p), int(p)) for p in self.parent_world], np.int64)
-    lineage = {}
-    for key, entry in self.lineage.items():
-      entry = dict(entry)
-      if "parent" in entry:
-        entry["parent"] = mapping.get(int(entry["parent"]), int(entry["parent"]))
-      lineage[str(mapping.get(int(key), int(key)))] = entry
-    return dataclasses.replace(self, world_ids=new_ids, parent_world=parents, lineage=lineage,
-                               next_id=int(new_ids[-1]) + 1)
+    return saving.renumbered(self, dict(zip(self.world_ids.tolist(), range(start, start + self.n_worlds))))
 
   # -- persistence --------------------------------------------------------------
 

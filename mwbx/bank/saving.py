@@ -58,7 +58,8 @@ def save(bank, path: str | os.PathLike):
   returned holds the same worlds under the ids they have on disk (new worlds
   renumbered if another process took their ids meanwhile; parent ids and
   lineage follow), the directory's ``next_id``, and an origin naming every
-  world it holds there: saving it again writes nothing. Saving ``bank`` (or a
+  world it holds there and the ids this save changed
+  (``origin.id_on_disk(id)``): saving it again writes nothing. Saving ``bank`` (or a
   bank made from it) into ``path`` again writes none of the worlds this save
   wrote, as long as they are stored there.
 
@@ -72,6 +73,7 @@ def save(bank, path: str | os.PathLike):
   Example:
     >>> bank = mwbx.Bank.load("out/quick").append(more)
     >>> saved = bank.save("out/quick")   # its new worlds' ids may differ from bank's
+    >>> saved.origin.id_on_disk(12)      # the id world 12 of ``bank`` has on disk
     >>> saved.save("out/quick")          # writes nothing new
   """
   path = pathlib.Path(path).absolute()
@@ -100,7 +102,7 @@ def save(bank, path: str | os.PathLike):
     directory.commit()
     next_id = int(directory.manifest["next_id"])
   write_readables(path, bank)
-  return _as_saved(out, path, next_id)
+  return _as_saved(out, path, next_id, {old: disk for old, disk in mapping.items() if old != disk})
 
 
 def write_readables(path: pathlib.Path, bank) -> None:
@@ -139,11 +141,12 @@ def _saved_by(bank, out, rows: np.ndarray) -> dict:
   return {"token": bank.save_token, "renumbered": moved}
 
 
-def _as_saved(bank, path: pathlib.Path, next_id: int):
+def _as_saved(bank, path: pathlib.Path, next_id: int, renamed: dict | None = None):
   """``bank`` (ids as on disk) with the directory's ``next_id``, an origin of
-  all its ids there, and a family token of its own."""
+  all its ids there and of the ids this save ``renamed`` (old -> on disk),
+  and a family token of its own."""
   return dataclasses.replace(bank, next_id=max(bank.next_world_id, next_id),
-                             origin=shards.Origin(str(path), np.sort(bank.world_ids)),
+                             origin=shards.Origin(str(path), np.sort(bank.world_ids), dict(renamed or {})),
                              save_token=uuid.uuid4().hex)
 
 

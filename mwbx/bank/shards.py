@@ -68,10 +68,18 @@ class Origin(typing.NamedTuple):
     path: the bank directory (absolute).
     ids: the world ids the bank held there; a save into ``path`` writes
       worlds not among them and drops those of them the bank no longer holds.
+    renamed: for the bank a save returns, the ids that save changed: id in
+      the bank saved -> id on disk (worlds whose ids another writer took, or
+      written there before under other ids); empty for a loaded bank.
   """
 
   path: str
   ids: np.ndarray  # i64[k], sorted
+  renamed: dict = {}
+
+  def id_on_disk(self, world: int) -> int:
+    """The id world ``world`` of the bank saved has on disk."""
+    return self.renamed.get(int(world), int(world))
 
 
 def com_step(config: dict) -> float | None:

@@ -234,7 +234,7 @@ class Browser:
       scene.remove_rect_select_callback(_)
       self._add_box(sign, event)
 
-    self.ui.status_md.content = f"drag a box in the view for an {sign} query"
+    self._say(f"drag a box in the view for an {sign} query")
 
   def _add_box(self, sign: str, event) -> None:
     camera = camera_from_client(event.client.camera)
@@ -247,15 +247,15 @@ class Browser:
                               name=f"q{len(self.session.entries)}", shape=shape)
       index = self.session.add(query)
     except MwbxError as err:
-      self.ui.status_md.content = f"error: {err}"
+      self._say(f"error: {err}")
       return
     count = self.refresh()
-    self.ui.status_md.content = f"q{index}: {count.per_query[index]} worlds"
-    LOG.info(f"query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
-          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.ui.mode.value} window={window}"
-          f" camera eye={camera.eye.tolist()} right={camera.right.tolist()} up={camera.up.tolist()}"
-          f" forward={camera.forward.tolist()} fovy={camera.fovy} aspect={camera.aspect}"
-          f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={shape}")
+    detail = (f"query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
+              f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.ui.mode.value}"
+              f" window={window} camera eye={camera.eye.tolist()} right={camera.right.tolist()}"
+              f" up={camera.up.tolist()} forward={camera.forward.tolist()} fovy={camera.fovy} aspect={camera.aspect}"
+              f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={shape}")
+    self._say(f"q{index}: {count.per_query[index]} worlds", detail)
 
   def add_orientation(self, upright: bool) -> None:
     bodies = self._selection()
@@ -269,11 +269,11 @@ class Browser:
       self._say(f"error: {err}")
       return
     count = self.refresh()
-    self.ui.status_md.content = f"q{index}: {count.per_query[index]} worlds"
     what = f"upright axis={self.ui.axis.value}" if upright else "initial"
-    LOG.info(f"query {index} orientation {what} within_deg={query.within_deg}"
-          f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.ui.mode.value} window={window}"
-          f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}")
+    detail = (f"query {index} orientation {what} within_deg={query.within_deg}"
+              f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.ui.mode.value}"
+              f" window={window} -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}")
+    self._say(f"q{index}: {count.per_query[index]} worlds", detail)
 
   def add_touch(self, include: bool) -> None:
     a, b = self.ui.touch_a.value, self.ui.touch_b.value
@@ -412,7 +412,7 @@ class Browser:
     with self.lock:
       world, frame = self.playing_world, self.player.frame
     if world is None:
-      self.ui.status_md.content = "play a world first (the one to refine)"
+      self._say("play a world first (the one to refine)")
       return
     objects = () if self.ui.objects.value == NO_OBJECTS else self.ui.objects.value
     add, remove = _names(self.ui.add_objects.value), _names(self.ui.remove_objects.value)
@@ -421,7 +421,7 @@ class Browser:
       t_min = (self.session.first_entry_of_last_box(world, entering) if self.ui.start.value == FIRST_ENTRY
                else frame / self.session.bank.record_fps)
     except MwbxError as err:
-      self.ui.status_md.content = f"error: {err}"
+      self._say(f"error: {err}")
       return
     n = self.ui.samples.value  # any number a client sends: the session checks it
     try:
@@ -461,10 +461,11 @@ class Browser:
     job = self.session.cancel()
     self._say("no refinement is running" if job is None else f"cancelling the refinement of world {job.world}")
 
-  def _say(self, message: str) -> None:
-    """The page's one way to report: its status line, and the log (``mwbx browse:`` lines)."""
+  def _say(self, message: str, detail: str | None = None) -> None:
+    """The page's one way to report: ``message`` on its status line, and
+    ``detail`` (default: the message) in the log (``mwbx browse:`` lines)."""
     self.ui.status_md.content = message
-    LOG.info(message)
+    LOG.info(message if detail is None else detail)
 
   def parent(self) -> None:
     world = self.playing_world
@@ -472,7 +473,7 @@ class Browser:
       return
     parent = self.session.parent(world)
     if parent is None:
-      self.ui.status_md.content = f"world {world} was sampled: it has no parent"
+      self._say(f"world {world} was sampled: it has no parent")
     else:
       self.play(parent)
 

@@ -18,6 +18,7 @@ import numpy as np
 from mwbx import queries as mq
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
+from mwbx.queries.bank_cache import PerBank
 from mwbx.refinement import RefineRequest
 from mwbx.refinement import refinement
 
@@ -150,7 +151,7 @@ class Session:
   _undo: list = dataclasses.field(default_factory=list)
   _redo: list = dataclasses.field(default_factory=list)
   _lock: threading.Lock = dataclasses.field(default_factory=threading.Lock)
-  _cache: tuple | None = None
+  _answers: PerBank = dataclasses.field(default_factory=PerBank)  # bool[W, Q] per bank and stack
   job: RefineJob | None = None
   unsaved: list = dataclasses.field(default_factory=list)  # ids refined here and not saved yet
 
@@ -207,12 +208,9 @@ class Session:
     """bool[W, Q] every entry (enabled or not) on the current bank, evaluated
     once per bank and stack (a redraw asks several times)."""
     queries = tuple(e.query for e in self.entries)
-    key = (id(self.bank), self.bank.n_worlds, queries)
-    if self._cache is None or self._cache[0] != key:
-      each = (np.asarray(mq.evaluate_each(self.bank, list(queries)), bool) if queries
-              else np.zeros((self.bank.n_worlds, 0), bool))
-      self._cache = (key, each)
-    return self._cache[1]
+    return self._answers.get(self.bank, "each", (self.bank.n_worlds, queries), lambda: (
+        np.asarray(mq.evaluate_each(self.bank, list(queries)), bool) if queries
+        else np.zeros((self.bank.n_worlds, 0), bool)))
 
   def view(self) -> View:
     """The answers the page draws (see :class:`View`)."""
@@ -326,8 +324,10 @@ class Session:
       raise MwbxError("save: this session has no bank directory (pass path=)")
     with self._lock:
       before, self.bank = self.bank, self.bank.save(self.path)
-      if self._cache is not None and self._cache[0][0] == id(before):  # the same worlds in the same rows
-        self._cache = ((id(self.bank), *self._cache[0][1:]), self._cache[1])
+      state = (before.n_worlds, tuple(e.query for e in self.entries))
+      kept = self._answers.peek(before, "each", state)
+      if kept is not None:  # the same worlds in the same rows
+        self._answers.put(self.bank, "each", state, kept)
       self.unsaved.clear()
       return pathlib.Path(self.bank.origin.path)
 

@@ -317,9 +317,7 @@ def _restart_goal(bank, row: int, world: int, query, met: np.ndarray) -> float:
   an include query's bodies that part from every meeting path before they
   settle: in a crowd (letters through a peg board) paths part early by
   chance, and restarting there re-rolls every body the crowd touches, while
-  where a body settles is decided by its last bounces (on SIGGRAPH, 2 of 211
-  refinements restarting before 0.5 s met more queries than their parent,
-  against 9 of 110 restarting from 0.5 to 2 s)."""
+  where a body settles is decided by its last bounces (docs/search.md)."""
   if query.goal == "pose":
     return min(settle_time(bank, row, selection_mask(bank, query.bodies)), deadline(bank, world, query))
   bodies = query.body_mask(bank)
@@ -394,6 +392,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     result = mwbx.solve(bank, queries, budget=mwbx.search.Budget(seconds=600))
     print(result.message)
     bank = result.bank.save("out/siggraph")  # the bank as stored: its new worlds' ids as on disk
+    world = bank.origin.id_on_disk(result.world)  # the solved world's id there
   """
   queries = as_queries(queries)
   if not queries:

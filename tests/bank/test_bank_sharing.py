@@ -166,6 +166,8 @@ def test_a_save_changes_no_field_of_the_bank_and_marks_its_shard_on_disk(small_b
   for name, value in contents.items():
     assert getattr(mine, name) == value, name
   assert saved.world_ids.tolist() == [0, 1, 2, 3, 6, 7] and saved.save_token != mine.save_token
+  assert saved.origin.renamed == {4: 6, 5: 7} and [saved.origin.id_on_disk(i) for i in (0, 4, 5)] == [0, 6, 7]
+  assert mwbx.Bank.load(small_bank).origin.renamed == {}
   mark = _manifest(small_bank)["shards"][-1]["saved_by"]
   assert mark == {"token": mine.save_token, "renumbered": [[6, 4], [7, 5]]}
   # The record is the directory's: a bank of the same family finds its worlds there, another does not.
