@@ -166,7 +166,7 @@ class BankDirectory:
         same[row] = key is not None and np.array_equal(key, keys[row])
     return same
 
-  def written_by(self, token: str) -> dict[int, tuple[int, bytes]]:
+  def written_by(self, token: str) -> dict[int, tuple[int, np.ndarray]]:
     """The worlds stored here (not dropped) that saves marked ``token`` wrote
     (``saved_by`` in their shards' entries): id in the saving bank -> (id
     here, key u32[2]); reads those shards' ``world_ids`` and ``keys``."""
