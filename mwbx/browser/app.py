@@ -477,6 +477,22 @@ class Browser:
     else:
       self.play(parent)
 
+  def save(self) -> str:
+    """Saves the bank (:meth:`Session.save`); worlds playing whose ids the
+    save changed (another writer took them) play on under their ids on disk.
+    Returns what to tell the user."""
+    unsaved = list(self.session.unsaved)
+    path = self.session.save()
+    origin = self.session.bank.origin
+    if origin.renamed:
+      with self.lock:
+        self.player.renamed(origin.renamed)
+        if self.playing_world is not None:
+          self.playing_world = origin.id_on_disk(self.playing_world)
+    ids = [origin.id_on_disk(i) for i in unsaved]
+    what = f"{len(ids)} refined world{'s' if len(ids) > 1 else ''} (ids {ids[0]}..{ids[-1]})" if ids else "the bank"
+    return f"saved {what} to {path}"
+
   def leave(self, autosave: bool = False) -> list[str]:
     """What is left when the page goes away: a running refinement is
     cancelled, refined worlds not saved are saved (``autosave``) or named.
@@ -492,7 +508,7 @@ class Browser:
     span = f"{len(unsaved)} refined world{'s' if len(unsaved) > 1 else ''} (ids {unsaved[0]}..{unsaved[-1]})"
     if autosave and self.session.path is not None:
       try:
-        lines.append(f"saved {span} to {self.session.save()}")
+        lines.append(self.save())
       except MwbxError as err:
         lines.append(f"could not save {span}: {err}")
     else:

@@ -140,6 +140,6 @@ def build(page) -> Widgets:
     parent = gui.add_button("Go to parent")
     parent.on_click(lambda _: page.parent())
     save = gui.add_button("Save bank")
-    save.on_click(lambda _: page.report(lambda: f"saved {page.session.save()}"))
+    save.on_click(lambda _: page.report(page.save))
     w.status_md = gui.add_markdown("")
   return w

@@ -103,6 +103,15 @@ class Player:
         self._drop(w)
       self.stage.refresh_copies()
 
+  def renamed(self, renamed: dict[int, int]) -> None:
+    """The same worlds under new ids (a save gave them: old id -> id on
+    disk): the played and decoded worlds follow, their labels too."""
+    with self.lock:
+      self.played = {renamed.get(w, w): slot for w, slot in self.played.items()}
+      self._poses = collections.OrderedDict((renamed.get(w, w), v) for w, v in self._poses.items())
+      for world, slot in self.played.items():
+        self.stage.show(slot, world)
+
   def forget(self) -> None:
     """Drops the decoded worlds kept (the bank's model changed)."""
     with self.lock:

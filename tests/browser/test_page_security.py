@@ -13,6 +13,7 @@ import urllib.error
 import urllib.request
 
 import jax
+import numpy as np
 import pytest
 
 import mwbx
@@ -194,6 +195,30 @@ def test_unsaved_refinements_are_named_or_autosaved_on_exit(bank_dir, tmp_path):
     else:
       assert lines[0].startswith("2 refined worlds (ids 4..5) were not saved")
       assert mwbx.Bank.load(copy).n_worlds == 4
+
+
+def test_a_save_that_renumbers_plays_on_under_the_ids_on_disk(bank_dir, tmp_path):
+  # The page kept playing, and named, the ids its worlds had before the save.
+  import shutil
+  copy = tmp_path / "bank"
+  shutil.copytree(bank_dir, copy)
+  page = browse(mwbx.Bank.load(copy), path=copy, block=False)
+  try:
+    job = page.session.refine(0, "capsule", t_min=0.5, n_samples=2, key=jax.random.key(1), wait=True)
+    assert job.error is None and job.new_ids.tolist() == [4, 5]
+    page.play(5)
+    page.play(4, add=True)
+    decoded = page.player.poses(5)
+    other = mwbx.Bank.load(copy)
+    other.append(other._take(np.array([0, 1]))).save(copy)  # another writer takes ids 4 and 5 meanwhile
+    said = page.save()
+    assert said.startswith("saved 2 refined worlds (ids 6..7) to"), said
+    assert page.playing_world == 6 and page.player.played == {7: 0, 6: 1}
+    assert page.player.poses(7) is decoded  # the same world, under its id on disk
+    np.testing.assert_array_equal(mwbx.Bank.load(copy).qpos_frames(7), page.session.bank.qpos_frames(7))
+    assert page.session.bank.parent_world[page.session.bank.row_of(7)] == 0
+  finally:
+    page.close()
 
 
 def _listening(pid: int) -> list[tuple[str, int]]:
