@@ -490,8 +490,7 @@ class Browser:
         if self.playing_world is not None:
           self.playing_world = origin.id_on_disk(self.playing_world)
     ids = [origin.id_on_disk(i) for i in unsaved]
-    what = f"{len(ids)} refined world{'s' if len(ids) > 1 else ''} (ids {ids[0]}..{ids[-1]})" if ids else "the bank"
-    return f"saved {what} to {path}"
+    return f"saved {_refined_span(ids) if ids else 'the bank'} to {path}"
 
   def leave(self, autosave: bool = False) -> list[str]:
     """What is left when the page goes away: a running refinement is
@@ -505,7 +504,7 @@ class Browser:
     unsaved = list(self.session.unsaved)
     if not unsaved:
       return lines
-    span = f"{len(unsaved)} refined world{'s' if len(unsaved) > 1 else ''} (ids {unsaved[0]}..{unsaved[-1]})"
+    span = _refined_span(unsaved)
     if autosave and self.session.path is not None:
       try:
         lines.append(self.save())
@@ -520,6 +519,12 @@ class Browser:
     """Stops playback and the server."""
     self.player.stop()
     self.server.stop()
+
+
+
+def _refined_span(ids: list[int]) -> str:
+  """``N refined worlds (ids a..b)`` for a page's message."""
+  return f"{len(ids)} refined world{'s' if len(ids) > 1 else ''} (ids {ids[0]}..{ids[-1]})"
 
 
 def browse(bank, *, path=None, host: str = "127.0.0.1", port: int | None = None,

@@ -208,9 +208,13 @@ class Session:
     """bool[W, Q] every entry (enabled or not) on the current bank, evaluated
     once per bank and stack (a redraw asks several times)."""
     queries = tuple(e.query for e in self.entries)
-    return self._answers.get(self.bank, "each", (self.bank.n_worlds, queries), lambda: (
+    return self._answers.get(self.bank, "each", self._answers_state(self.bank), lambda: (
         np.asarray(mq.evaluate_each(self.bank, list(queries)), bool) if queries
         else np.zeros((self.bank.n_worlds, 0), bool)))
+
+  def _answers_state(self, bank) -> tuple:
+    """What the kept answers of ``bank`` were evaluated for: its world count and the stack."""
+    return (bank.n_worlds, tuple(e.query for e in self.entries))
 
   def view(self) -> View:
     """The answers the page draws (see :class:`View`)."""
@@ -324,7 +328,7 @@ class Session:
       raise MwbxError("save: this session has no bank directory (pass path=)")
     with self._lock:
       before, self.bank = self.bank, self.bank.save(self.path)
-      state = (before.n_worlds, tuple(e.query for e in self.entries))
+      state = self._answers_state(before)
       kept = self._answers.peek(before, "each", state)
       if kept is not None:  # the same worlds in the same rows
         self._answers.put(self.bank, "each", state, kept)
