@@ -68,7 +68,7 @@ def load(text: str, source: str, malformed: str = "malformed YAML"):
     the parsed value (None for an empty document).
 
   Raises:
-    MwbxError: malformed YAML (PyYAML's message, which quotes at most a line),
+    MwbxError: malformed YAML (one line: where, and PyYAML's problem),
       or a document whose tree, aliases expanded, has more than
       :data:`MAX_NODES` nodes or nests deeper than :data:`MAX_DEPTH`.
   """
@@ -83,11 +83,26 @@ def load(text: str, source: str, malformed: str = "malformed YAML"):
     except (ValueError, OverflowError) as err:  # e.g. an int of more than 4300 digits
       raise MwbxError(f"{source}: a value YAML cannot convert ({short_repr_text(str(err), 120)})") from None
   except yaml.YAMLError as err:
-    raise MwbxError(f"{source}: {malformed}: {short_repr_text(str(err), 600)}") from None
+    raise MwbxError(f"{source}: {malformed}: {short_repr_text(yaml_error_line(err), 300)}") from None
   except RecursionError:  # PyYAML's composer recurses once per nesting level
     raise MwbxError(f"{source}: YAML nested too deeply (more than {MAX_DEPTH} levels)") from None
   finally:
     loader.dispose()
+
+
+def yaml_error_line(err: yaml.YAMLError) -> str:
+  """PyYAML's error on one line: where (line and column, 1-based) and what
+  went wrong, without the snippet and caret it draws under it.
+
+  >>> yaml_error_line(yaml.YAMLError("bad"))
+  'bad'
+  """
+  if not isinstance(err, yaml.MarkedYAMLError):
+    return " ".join(str(err).split())
+  mark = err.problem_mark or err.context_mark
+  where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+  what = "; ".join(p for p in (err.context, err.problem) if p)
+  return where + " ".join(what.split())
 
 
 def short_repr_text(text: str, limit: int) -> str:

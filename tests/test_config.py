@@ -59,6 +59,9 @@ def test_malformed_yaml(tmp_path):
   with pytest.raises(mwbx.MwbxError, match="malformed YAML") as err:
     mwbx.load_config(path)
   assert str(path) in str(err.value)
+  # One line: where and what, not PyYAML's snippet, caret and "<unicode string>".
+  assert "\n" not in str(err.value) and "unicode string" not in str(err.value)
+  assert "line 2, column 1" in str(err.value), err.value
 
 
 def test_missing_config_file(tmp_path):

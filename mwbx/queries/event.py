@@ -372,7 +372,8 @@ class OrderQuery(Query):
         gap = gap + np.where(missing, approach_gap(bank, a, b, self.window), 0.0)
     frame = 1.0 / float(bank.record_fps)
     both = np.isfinite(t[:, 1:]) & np.isfinite(t[:, :-1])
-    late = np.where(both, np.maximum(t[:, :-1] - t[:, 1:] + frame, 0.0), 0.0)
+    ahead = np.subtract(t[:, :-1], t[:, 1:], out=np.zeros_like(t[:, 1:]), where=both)  # no inf - inf
+    late = np.where(both, np.maximum(ahead + frame, 0.0), 0.0)
     return gap + late.sum(axis=1)
 
   def objects(self, owner) -> list[str]:
