@@ -13,7 +13,8 @@ axis-aligned boxes, grown by the pair's margin (:func:`box_gap`); a pair whose
 grown boxes do not overlap cannot have a contact within its margin, so a cap
 that holds every overlapping pair drops nothing, and whether it did is exact:
 more overlapping pairs than the cap (``contact_budget.JaxOverflowCheck``).
-Everything else is MJX's: the collision functions, contact parameters, the
+Everything else is MJX's: the collision functions (but capsule-box:
+:mod:`mwbx.batch_sim.mjx_capsule_box`), contact parameters, the
 per-condim ``max_contact_points`` cut (the most penetrating contacts), and the
 contact array's size and order (``collision_driver.make_condim``, which
 ``mjx.make_data`` sizes it by), so a budgeted ``mjx.Data`` serves both.
@@ -26,13 +27,19 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco.mjx._src import collision_driver, constraint, forward as mjx_forward, sensor, smooth
 from mujoco.mjx._src import solver
-from mujoco.mjx._src.types import IntegratorType
+from mujoco.mjx._src.types import GeomType, IntegratorType
 
-from mwbx.batch_sim import mjx_packed_solve
+from mwbx.batch_sim import mjx_capsule_box, mjx_packed_solve
 from mwbx.errors import MwbxError
 
 # A gap this close to zero counts as overlap (float32 rounding), m.
 GAP_TOLERANCE = 1e-5
+
+# Collision functions used in place of MJX's for these geom-type pairs (where
+# MJX's misses contacts MuJoCo C finds; each module says which and how often).
+COLLISION_FUNC = {
+    (GeomType.CAPSULE, GeomType.BOX): mjx_capsule_box.capsule_box,
+}
 
 
 def world_boxes(geom_xpos, geom_xmat, geom_aabb):
@@ -72,7 +79,7 @@ def collision(m, d):
       gap = box_gap(contact.geom[:, 0], contact.geom[:, 1], *boxes, contact.includemargin)
       _, idx = jax.lax.top_k(-gap, k=max_geom_pairs)
       contact = jax.tree_util.tree_map(lambda x, idx=idx: x[idx], contact)
-    func = collision_driver._COLLISION_FUNC[key.types]  # pylint: disable=protected-access
+    func = COLLISION_FUNC.get(key.types) or collision_driver._COLLISION_FUNC[key.types]  # pylint: disable=protected-access
     dist, pos, frame = func(m, d, key, contact.geom)
     if func.ncon > 1:  # one row per contact point the function emits
       contact = jax.tree_util.tree_map(lambda x, r=func.ncon: jnp.repeat(x, r, axis=0), contact)
