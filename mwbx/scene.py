@@ -199,7 +199,10 @@ def flex_bodies(model: mujoco.MjModel) -> dict[str, tuple[int, ...]]:
   """Flex name -> ids (ascending) of the moving bodies that carry it: its
   vertex bodies, or the node bodies of an interpolated flex
   (``dof="trilinear"``/``"quadratic"``). Vertices pinned to the world or to a
-  static body (no degrees of freedom) are left out. Unnamed flexes get no
+  static body (no degrees of freedom) are left out, and so are vertices pinned
+  to a moving body: MuJoCo gives a pinned vertex the flexcomp's parent body,
+  which is not the flex's (it is the parent of the flex's own bodies, or has
+  geoms of its own, which a flex's bodies never do). Unnamed flexes get no
   entry here (:func:`find_objects` refuses them)."""
   out: dict[str, tuple[int, ...]] = {}
   for f in range(model.nflex):
@@ -209,7 +212,8 @@ def flex_bodies(model: mujoco.MjModel) -> dict[str, tuple[int, ...]]:
     verts = model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]
     nodes = model.flex_nodebodyid[model.flex_nodeadr[f]:model.flex_nodeadr[f] + model.flex_nodenum[f]]
     ids = {int(b) for b in np.concatenate([verts, nodes]) if b > 0 and model.body_dofnum[b] > 0}
-    out[name] = tuple(sorted(ids))
+    pinned_to = {int(model.body_parentid[b]) for b in ids} | {b for b in ids if model.body_geomnum[b] > 0}
+    out[name] = tuple(sorted(ids - pinned_to))
   return out
 
 

@@ -85,6 +85,40 @@ def test_pinned_vertices_are_not_part_of_it(tmp_path):
   assert len(scene.objects["cloth"]) == 23
 
 
+FLAG = """<mujoco>
+  <option timestep="0.0020833333333333333" integrator="implicitfast"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="pole" pos="0 0 0.8">
+      <freejoint/>
+      <geom type="capsule" size="0.02 0.2" mass="0.5"/>
+      <flexcomp name="flag" type="grid" dim="2" count="4 4 1" spacing="0.05 0.05 0.05" pos="0.1 0 0.1"
+                radius="0.005" mass="0.05">
+        <edge equality="true" damping="0.01"/>
+        <pin id="0 1 2 3"/>
+      </flexcomp>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_a_flex_pinned_to_a_moving_body_stays_part_of_that_body(tmp_path):
+  # MuJoCo gives the pinned vertices the pole's body id: the pole must stay
+  # the pole (its name, its joints, randomized and refined as a rigid body).
+  (tmp_path / "flag.xml").write_text(FLAG)
+  (tmp_path / "flag.yaml").write_text(
+      "scene: {mjcf: flag.xml}\nsim: {end_time: 0.2}\n"
+      "randomize: {pole: {angular_velocity: {dist: uniform, scale: 0.5}}}\n")
+  scene = Scene(mwbx.load_config(tmp_path / "flag.yaml"))
+  model = scene.model
+  pole = model.body("pole").id
+  assert scene.object_names == ("pole",)
+  assert scene.objects["pole"] == ("pole",) + tuple(model.body(b).name for b in range(model.nbody)
+                                                   if model.body_parentid[b] == pole)
+  assert pole not in mwbx.scene.flex_bodies(model)["flag"]
+
+
 def test_flex_randomization_moves_every_vertex_together(tmp_path):
   scene = Scene(flex_config(tmp_path))
   m = scene.model
