@@ -36,8 +36,11 @@ class Progress(NamedTuple):
 
 ProgressFn = Callable[[Progress], None]
 
-# Plain (non-terminal) output: a line per phase change and per this fraction.
+# Plain (non-terminal) output: a line per phase change and per this fraction,
+# at most one a this many seconds in between (a phase of a tenth of a second
+# prints its first and last lines, not eleven).
 PLAIN_STEP = 0.1
+PLAIN_MIN_SECONDS = 1.0
 # Phases that step worlds: the only ones a world-steps/s rate describes.
 STEPPING_PHASES = ("simulating", "refining", "guided sampling", "solving")
 # What ``done`` counts, where it is not worlds.
@@ -59,12 +62,16 @@ class reporter:
       bank = mwbx.sample(config, 256, key, progress=report)
   """
 
-  def __init__(self, label: str, stream: TextIO | None = None, interactive: bool | None = None):
+  def __init__(self, label: str, stream: TextIO | None = None, interactive: bool | None = None,
+               min_seconds: float = PLAIN_MIN_SECONDS):
     self.label = label
     self.stream = stream or sys.stderr
     self.interactive = self.stream.isatty() if interactive is None else interactive
+    self.min_seconds = min_seconds
     self.bars: dict = {}        # phase -> tqdm bar (terminal)
     self.next_line: dict = {}   # phase -> fraction at which the next plain line is due
+    self.line_at: dict = {}     # phase -> when its last plain line was printed
+    self.phase_start: dict = {}  # phase -> when it was first reported (its ETA's clock)
     self.last: dict[str, Progress] = {}
     self.phase = None
     self.start = None  # (time, world_steps) at the first report: rates leave compilation out
@@ -88,6 +95,7 @@ class reporter:
       self.start = (now, p.world_steps)
     changed = p.phase != self.phase
     self.phase = p.phase
+    self.phase_start.setdefault(p.phase, now)
     self.last[p.phase] = p
     frac = p.done / max(p.total, 1)
     if self.interactive:
@@ -100,18 +108,23 @@ class reporter:
       bar.set_postfix_str(", ".join(x for x in (self._rate(p, now), p.note) if x), refresh=False)
       bar.refresh()
       return
-    if changed or frac >= self.next_line.get(p.phase, 0.0):
+    due = frac >= self.next_line.get(p.phase, 0.0) and (
+        frac >= 1 or now - self.line_at.get(p.phase, -1e9) >= self.min_seconds)
+    if changed or due:
       self._line(p, now)
+      self.line_at[p.phase] = now
       # The next line at the next multiple of PLAIN_STEP; none after 100 %.
       self.next_line[p.phase] = 2.0 if frac >= 1 else min(1.0, (frac // PLAIN_STEP + 1) * PLAIN_STEP)
 
   def _line(self, p: Progress, now: float) -> None:
     elapsed = now - self.start[0]
     frac = p.done / max(p.total, 1)
-    eta = f", ETA {elapsed * (1 - frac) / frac:.0f} s" if 0 < frac < 1 else ""
+    in_phase = now - self.phase_start.get(p.phase, self.start[0])
+    eta = f", ETA {in_phase * (1 - frac) / frac:.0f} s" if 0 < frac < 1 else ""
     rate = self._rate(p, now)
     note = f"; {p.note}" if p.note else ""
-    print(f"{self.label}: {p.phase} {p.done:.0f}/{p.total} {_unit(p.phase)}s ({frac:.0%}), {elapsed:.1f} s"
+    done = f"{p.done:.1f}" if p.done % 1 else f"{p.done:.0f}"  # 0.5 of 1 world, not "0/1 (50%)"
+    print(f"{self.label}: {p.phase} {done}/{p.total} {_unit(p.phase)}s ({frac:.0%}), {elapsed:.1f} s"
           f"{', ' + rate if rate else ''}{eta}{note}", file=self.stream, flush=True)
 
   def close(self, finished: bool = True) -> None:

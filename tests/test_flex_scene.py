@@ -373,3 +373,64 @@ def test_whole_geometry_queries_on_a_flex_against_its_vertices(tmp_path):
     assert not (ours & ~loose).any(), f"box {k}: an answer beyond the stated margin"
     hits += int(exact.sum())
   assert hits > 5
+
+
+ROPE = """<mujoco>
+  <option timestep="0.0020833333333333333" integrator="implicitfast"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <geom name="crate" type="box" size="0.1 0.1 0.1" pos="0 0 0.1"/>
+    <flexcomp name="rope" type="grid" dim="1" count="8 1 1" spacing="0.05 0.05 0.05" pos="0 0 0.4"
+              radius="0.01" mass="0.05">
+      <edge equality="true" damping="0.01"/>
+    </flexcomp>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_a_rope_is_drawn_and_exported_around_its_vertices(tmp_path):
+  # A rope (dim 1) has no triangles of its own: it is drawn, and written to
+  # USD, as three crossed ribbons a radius either side of each vertex.
+  pytest.importorskip("pxr")
+  from pxr import Usd, UsdGeom
+
+  from mwbx.viewer.flex import flex_surfaces, path_bodies
+  (tmp_path / "rope.xml").write_text(ROPE)
+  (tmp_path / "rope.yaml").write_text("scene: {mjcf: rope.xml}\nsim: {end_time: 0.3}\n")
+  bank = mwbx.sample(mwbx.load_config(tmp_path / "rope.yaml"), n_worlds=2, key=jax.random.key(0),
+                     backend="native")
+  model = bank.model()
+  (rope,) = flex_surfaces(model)
+  assert rope.name == "rope" and rope.faces.shape == (7 * 12, 3)  # 7 segments, 3 ribbons, 2 sides, 2 triangles
+  assert [bank.body_names[i] for i in path_bodies(bank)] == ["rope_3"]  # one path (a middle vertex), not eight
+  world = int(bank.world_ids[1])
+  path = mwbx.export_usd(bank, world, tmp_path / "rope.usda")
+  stage = Usd.Stage.Open(str(path))  # held: a prim outlives no stage
+  mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/flexes/rope"))
+  data = mujoco.MjData(model)
+  for frame in (0, 20, 36):
+    data.qpos[:] = bank.qpos_frames(world)[frame]
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_flex(model, data)
+    ribbons = np.asarray(mesh.GetPointsAttr().Get(float(frame))).reshape(8, 6, 3)
+    np.testing.assert_allclose(ribbons.mean(axis=1), data.flexvert_xpos, atol=1e-6)
+    half_width = np.linalg.norm(ribbons - ribbons.mean(axis=1, keepdims=True), axis=-1)
+    np.testing.assert_allclose(half_width, 0.01, atol=1e-6)
+
+
+def test_usd_export_writes_the_cloth_where_mujoco_puts_its_vertices(tmp_path):
+  pytest.importorskip("pxr")
+  from pxr import Usd, UsdGeom
+  bank = mwbx.sample(flex_config(tmp_path), n_worlds=1, key=jax.random.key(0), backend="native")
+  world = int(bank.world_ids[0])
+  stage = Usd.Stage.Open(str(mwbx.export_usd(bank, world, tmp_path / "cloth.usdc")))
+  mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/flexes/cloth"))
+  assert len(mesh.GetFaceVertexCountsAttr().Get()) == 32
+  model = bank.model()
+  data = mujoco.MjData(model)
+  frame = int(bank.frame_count[0]) - 1
+  data.qpos[:] = bank.qpos_frames(world)[frame]
+  mujoco.mj_kinematics(model, data)
+  mujoco.mj_flex(model, data)
+  np.testing.assert_allclose(mesh.GetPointsAttr().Get(float(frame)), data.flexvert_xpos, atol=1e-6)

@@ -10,7 +10,7 @@ from mwbx.progress import Progress, reporter
 
 def test_plain_lines_are_few_and_end_at_100_percent():
   out = io.StringIO()
-  with reporter("sample", stream=out, interactive=False) as report:
+  with reporter("sample", stream=out, interactive=False, min_seconds=0) as report:
     for done in range(257):
       report(Progress("simulating", done, 256, done * 1000))
     report(Progress("compressing", 256, 256, 256000))
@@ -21,9 +21,27 @@ def test_plain_lines_are_few_and_end_at_100_percent():
   assert "ETA" in lines[3] and "world-steps/s" in lines[3]
 
 
+def test_a_fast_phase_prints_its_first_and_last_lines_only():
+  out = io.StringIO()
+  with reporter("export", stream=out, interactive=False, min_seconds=60) as report:
+    for k in range(11):
+      report(Progress("writing USD", k / 10, 1, 0))
+  lines = out.getvalue().splitlines()
+  assert len(lines) == 2, lines
+  assert lines[0].startswith("export: writing USD 0/1 worlds (0%)") and "1/1 worlds (100%)" in lines[1]
+
+
+def test_a_fraction_of_a_world_is_shown_as_one():
+  out = io.StringIO()
+  with reporter("export", stream=out, interactive=False, min_seconds=0) as report:
+    report(Progress("writing USD", 0.0, 1, 0))
+    report(Progress("writing USD", 0.5, 1, 0))
+  assert "writing USD 0.5/1 worlds (50%)" in out.getvalue().splitlines()[1]
+
+
 def test_a_report_note_follows_the_rate():
   out = io.StringIO()
-  with reporter("solve", stream=out, interactive=False) as report:
+  with reporter("solve", stream=out, interactive=False, min_seconds=0) as report:
     report(Progress("solving", 0, 10, 0, note="best world 3: 1 of 2 met"))
     report(Progress("solving", 5, 10, 5000, note="best world 7: 2 of 2 met"))
   lines = out.getvalue().splitlines()

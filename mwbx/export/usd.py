@@ -11,6 +11,8 @@ time code k = clip frame k)::
                               frame, time-sampled for bodies that move;
                               visibility time-sampled where its object is absent
       /<geom>                 the body's geoms at their poses in the body frame
+    /flexes/<flex>            one Mesh per flex (cloth, soft solid, rope): its
+                              points time-sampled in the world frame
 
 Each geom is a USD primitive where USD has one (Sphere, Cube, Capsule,
 Cylinder, Plane; an ellipsoid is a scaled Sphere) and a Mesh otherwise (mesh
@@ -38,6 +40,7 @@ from mwbx.errors import MwbxError
 from mwbx.export.poses import WorldPoses, world_poses
 from mwbx.files import remove_quietly, why
 from mwbx.progress import Progress, ProgressFn
+from mwbx.viewer import flex as flex_lib
 from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS
 from mwbx.viewer.geometry import geom_rgba, hfield_mesh
 
@@ -206,6 +209,34 @@ def _time_samples(layer, xformable, poses: WorldPoses, b: int) -> None:
                             UsdGeom.Tokens.inherited if present[k] else UsdGeom.Tokens.invisible)
 
 
+def _write_flexes(stage, layer, model: mujoco.MjModel, poses: WorldPoses) -> None:
+  """Each flex as a Mesh under /World/flexes, its points time-sampled (world
+  frame): the surface the viewers draw (:func:`mwbx.viewer.flex.flex_surfaces`:
+  a cloth's triangles, a soft solid's shell, a rope's ribbons)."""
+  surfaces = flex_lib.flex_surfaces(model)
+  if not surfaces:
+    return
+  Gf, Sdf, _, UsdGeom, _, Vt = _pxr()
+  UsdGeom.Scope.Define(stage, "/World/flexes")
+  taken = set()
+  for f, surface in enumerate(surfaces):
+    mesh = UsdGeom.Mesh.Define(stage, f"/World/flexes/{_unique(surface.name, taken, f'flex{f}')}")
+    mesh.GetPrim().SetCustomDataByKey("mujoco:flex_id", int(f))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(surface.faces)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(surface.faces.ravel().tolist()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDisplayColorPrimvar().Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, surface.rgba[:3]))]))
+    mesh.CreateDisplayOpacityPrimvar().Set(Vt.FloatArray([float(surface.rgba[3])]))
+    points = mesh.CreatePointsAttr().GetPath()
+    extent = mesh.CreateExtentAttr().GetPath()
+    with Sdf.ChangeBlock():
+      for k in range(len(poses.times)):
+        vertices = surface.vertices(poses.xpos[k, surface.bodies], poses.xquat[k, surface.bodies])
+        layer.SetTimeSample(points, float(k), Vt.Vec3fArray.FromNumpy(vertices))
+        layer.SetTimeSample(extent, float(k), Vt.Vec3fArray([Gf.Vec3f(*map(float, vertices.min(axis=0))),
+                                                             Gf.Vec3f(*map(float, vertices.max(axis=0)))]))
+
+
 def write_stage(model: mujoco.MjModel, poses: WorldPoses, path: str | os.PathLike,
                 progress: ProgressFn | None = None) -> pathlib.Path:
   """Writes the USD stage of ``poses`` (of a world of ``model``) to ``path``.
@@ -246,6 +277,7 @@ def write_stage(model: mujoco.MjModel, poses: WorldPoses, path: str | os.PathLik
     _write_geoms(stage, f"/World/bodies/{name}", model, geoms_of[b], materials)
     if progress is not None:
       progress(Progress(PHASE, b / model.nbody, 1, 0))
+  _write_flexes(stage, layer, model, poses)
   tmp = path.parent / f".{path.stem}.tmp-{uuid.uuid4().hex[:12]}{path.suffix}"
   try:
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -2,7 +2,10 @@
 its vertices placed by its vertex bodies' poses.
 
 A cloth (``dim=2``) shows its elements, a soft solid (``dim=3``) its shell
-(boundary faces); a rope (``dim=1``) has no surface drawn here. A flex whose
+(boundary faces), a rope (``dim=1``) three crossed ribbons along its
+segments, each as wide as the rope (its radius either side of its vertices
+along a world axis, both faces), so that every renderer that draws triangles
+draws it, from any side. A flex whose
 vertices are interpolated from node bodies (``dof="trilinear"``) is placed by
 its nodes: MuJoCo's ``mj_flex`` puts each vertex at a fixed weighted sum of
 the nodes' positions, and those weights are read off ``mj_flex`` itself
@@ -30,7 +33,7 @@ class FlexSurface(NamedTuple):
   Attributes:
     name: the flex's (and its object's) name.
     faces: i32[F, 3] triangles over its vertices.
-    bodies: i64[V] each vertex's body id (an interpolated flex: i64[N] its
+    bodies: i64[V] each drawn vertex's body id (an interpolated flex: i64[N] its
       node bodies).
     offsets: f64[V, 3] each vertex in its body's frame, m (zero when centred;
       an interpolated flex: the constant term of its vertices' positions).
@@ -77,14 +80,39 @@ def interpolation_weights(model: mujoco.MjModel, f: int) -> tuple[np.ndarray, np
   return nodes, weights, base - weights @ data.xpos[nodes]
 
 
+def rope_ribbons(segments: np.ndarray, n_vertices: int, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+  """(faces i32[12 E, 3], copy_of i64[6 V], offsets f64[6 V, 3] m) of a rope's
+  ribbons: vertex v copied six times (copy 2k + s at ``(2 s - 1) * radius``
+  along world axis k), and for each segment (a, b) i32[E, 2] and axis a quad
+  from a's two copies to b's, as two triangles each way round."""
+  copy_of = np.repeat(np.arange(n_vertices, dtype=np.int64), 6)
+  offsets = np.zeros((n_vertices, 6, 3))
+  for k in range(3):
+    offsets[:, 2 * k, k], offsets[:, 2 * k + 1, k] = -radius, radius
+  a, b = (6 * np.asarray(segments, np.int64)[:, i:i + 1] for i in (0, 1))
+  faces = []
+  for k in range(3):
+    a_lo, a_hi, b_lo, b_hi = a + 2 * k, a + 2 * k + 1, b + 2 * k, b + 2 * k + 1
+    faces += [np.hstack([a_lo, a_hi, b_hi]), np.hstack([a_lo, b_hi, b_lo]),   # one side
+              np.hstack([a_lo, b_hi, a_hi]), np.hstack([a_lo, b_lo, b_hi])]   # the other
+  return np.concatenate(faces).astype(np.int32), copy_of, offsets.reshape(-1, 3)
+
+
 def flex_surfaces(model: mujoco.MjModel) -> list[FlexSurface]:
   """The drawable surfaces of a model's flexes (see the module)."""
   out = []
   for f in range(model.nflex):
     dim = int(model.flex_dim[f])
-    if dim not in (2, 3):  # a rope
-      continue
     adr, n = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f) or f"flex{f}"
+    if dim == 1:
+      start, count = int(model.flex_elemdataadr[f]), int(model.flex_elemnum[f])
+      faces, copy_of, ribbon = rope_ribbons(model.flex_elem[start:start + 2 * count].reshape(count, 2), n,
+                                            float(model.flex_radius[f]))
+      bodies = np.asarray(model.flex_vertbodyid[adr:adr + n], np.int64)[copy_of]
+      offsets = ribbon + (0.0 if bool(model.flex_centered[f]) else np.asarray(model.flex_vert[adr:adr + n])[copy_of])
+      out.append(FlexSurface(name, faces, bodies, offsets, np.asarray(model.flex_rgba[f])))
+      continue
     if dim == 2:
       start, count = int(model.flex_elemdataadr[f]), int(model.flex_elemnum[f])
       faces = model.flex_elem[start:start + 3 * count].reshape(count, 3)
@@ -98,7 +126,6 @@ def flex_surfaces(model: mujoco.MjModel) -> list[FlexSurface]:
       bodies = np.asarray(model.flex_vertbodyid[adr:adr + n], np.int64)
       offsets = (np.zeros((n, 3)) if bool(model.flex_centered[f])
                  else np.asarray(model.flex_vert[adr:adr + n], np.float64))
-    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f) or f"flex{f}"
     out.append(FlexSurface(name, np.asarray(faces, np.int32), bodies, offsets, np.asarray(model.flex_rgba[f]),
                            weights))
   return out
@@ -118,29 +145,15 @@ def path_bodies(bank) -> np.ndarray:
   centres = []
   data = mujoco.MjData(model)
   mujoco.mj_kinematics(model, data)
-  for surface in flex_surfaces(model) + _other_flexes(model):
-    rows = [tracked[int(b)] for b in surface.bodies if int(b) in tracked]
+  for surface in flex_surfaces(model):
+    bodies = np.unique(surface.bodies)
+    rows = [tracked[int(b)] for b in bodies if int(b) in tracked]
     if not rows:
       continue
     keep[rows] = False
-    points = data.xpos[surface.bodies]
-    centre = int(surface.bodies[np.argmin(np.linalg.norm(points - points.mean(axis=0), axis=1))])
+    points = data.xpos[bodies]
+    centre = int(bodies[np.argmin(np.linalg.norm(points - points.mean(axis=0), axis=1))])
     if centre in tracked:
       centres.append(tracked[centre])
   return np.sort(np.concatenate([np.flatnonzero(keep), np.asarray(centres, np.int64)])).astype(np.int64)
 
-
-def _other_flexes(model: mujoco.MjModel) -> list[FlexSurface]:
-  """Flexes without a drawn surface (ropes), for their one path."""
-  drawn = {s.name for s in flex_surfaces(model)}
-  out = []
-  for f in range(model.nflex):
-    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_FLEX, f) or f"flex{f}"
-    if name in drawn:
-      continue
-    adr, n = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
-    bodies = np.unique(np.asarray(model.flex_vertbodyid[adr:adr + n], np.int64))
-    bodies = bodies[model.body_dofnum[bodies] > 0]
-    out.append(FlexSurface(name, np.zeros((0, 3), np.int32), bodies, np.zeros((len(bodies), 3)),
-                           np.asarray(model.flex_rgba[f])))
-  return out
