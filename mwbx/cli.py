@@ -4,7 +4,7 @@
               [--num-processes N --process-id I --coordinator HOST:PORT | --distributed]
   mwbx info DIR [--json]
   mwbx query BANK QUERIES.yaml [--rank METRIC[:sum|max]] [--top K] [--under ID] [--json]
-  mwbx view BANK [--worlds 3,17 | --top K --rank METRIC] [--queries Q.yaml] [--html OUT.html] [--no-browser]
+  mwbx view BANK [--worlds 3,17 | --top K [--rank METRIC]] [--queries Q.yaml] [--html OUT.html] [--no-browser]
   mwbx refine BANK --world ID --objects NAMES (--box u0,v0,u1,v1 --camera CAM | --time T) --samples N
               [--seed S] [--out DIR] [--scene NEW.yaml --add NAMES] [--remove NAMES]
   mwbx solve BANK QUERIES.yaml [--budget N] [--time-budget S] [--step-budget N] [--samples N] [--seed S]
@@ -244,7 +244,11 @@ def _cmd_view(args) -> int:
   if args.queries:
     queries = load_queries(args.queries, bank=bank)
   ids = parse_world_ids(args.worlds, known=bank.world_ids) if args.worlds else None
-  ids, _ = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
+  ids, match = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
+  if args.top is not None or args.rank is not None:
+    note = mwbx.viewer.select.closest_note(match, bank)
+    if note:
+      print(f"mwbx: {note}", file=sys.stderr)
   paths = None if args.paths == "none" else True if args.paths == "all" else args.paths.split(",")
   kwargs = dict(worlds=ids, paths=paths, layout=args.layout, camera=args.camera,
                 queries=queries.queries if queries is not None else None)
@@ -518,7 +522,8 @@ def _add_view(sub) -> None:
   p = sub.add_parser("view", help="show worlds, paths and queries in meshcat (or write HTML)")
   p.add_argument("bank")
   p.add_argument("--worlds", default=None, help="world ids to play back, e.g. 3,17")
-  p.add_argument("--top", type=int, default=None, help="play back the best K worlds by --rank")
+  p.add_argument("--top", type=int, default=None,
+                 help="play back the best K worlds by --rank (or the query file's rank; else the first K matching)")
   p.add_argument("--rank", default=None, help="metric to rank by, NAME[:sum|max]")
   p.add_argument("--queries", default=None, help="query file (YAML): frustums drawn, paths coloured")
   p.add_argument("--paths", default="all", help="COM paths: all, none, or body/object/group names a,b")

@@ -22,10 +22,14 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
                   rank: str | None = None, queries=None) -> tuple[np.ndarray | None, np.ndarray | None]:
   """The world ids to play back and the worlds matching the queries.
 
-  ids: explicit world ids. top/rank: the best `top` worlds by a metric
-  ("NAME[:sum|max]", mwbx.queries.rank), among those matching `queries` when
-  given; rank None with top uses the query file's ranking. queries: a
-  mwbx.queries.QuerySet or None.
+  As ``mwbx query`` lists them: the best ``top`` worlds by a metric
+  ("NAME[:sum|max]", mwbx.queries.rank) among those matching ``queries``;
+  rank None: the query file's ranking, else the first matches in world
+  order; and where no valid world matches every query, the worlds meeting
+  the most of them (:func:`closest_note` says so).
+
+  ids: explicit world ids. top: how many (default :data:`DEFAULT_TOP` with a
+  rank). queries: a mwbx.queries.QuerySet or None.
   Returns (ids i64[n] or None for the viewer's default, match bool[W] or None).
   """
   if ids is not None and (top is not None or rank is not None):
@@ -45,17 +49,31 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
       first = np.asarray(bank.world_ids)[np.flatnonzero(match)[:1]]
       return (first if first.size else None), match
     return None, match
-  by = rank
-  if by is None:
-    if queries is None or not queries.rank:
-      raise ViewerError("--top needs --rank METRIC (or a query file with a 'rank' section)")
-    by = queries.rank
   k = DEFAULT_TOP if top is None else int(top)
   if k <= 0:
     raise ViewerError(f"--top: must be a positive number of worlds, got {k}")
-  descending = True if queries is None else queries.descending
+  valid = np.asarray(bank.valid, bool)
+  if match is not None and not (match & valid).any():
+    if not valid.any():
+      raise ViewerError("no valid world in the bank; nothing to show")
+    met = np.sum(mq.evaluate_each(bank, queries.queries), axis=1).astype(np.float64)
+    ids, _ = mq.rank(bank, met, match=valid, top=k)
+    return np.asarray(ids, np.int64), match
+  by = rank if rank is not None else (queries.rank if queries is not None and queries.rank else None)
+  if by is None:  # unranked: the first matches (or valid worlds) in world order
+    rows = np.flatnonzero(valid if match is None else match & valid)[:k]
+    return np.asarray(bank.world_ids, np.int64)[rows], match
+  descending = True if queries is None or rank is not None else queries.descending
   qs = () if queries is None else queries.queries
   ids, _ = mq.rank(bank, by, queries=qs, match=match, top=k, descending=descending)
   if len(ids) == 0:
-    raise ViewerError("--rank: no valid world matches the queries; nothing to show")
+    raise ViewerError("--rank: no valid world has that metric; nothing to show")
   return np.asarray(ids, np.int64), match
+
+
+def closest_note(match: np.ndarray | None, bank) -> str:
+  """What to tell a user whose shown worlds meet not every query: "" when
+  some valid world does (or there are no queries)."""
+  if match is None or (match & np.asarray(bank.valid, bool)).any():
+    return ""
+  return "no valid world meets every query; showing the worlds that meet the most"

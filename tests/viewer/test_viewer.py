@@ -493,10 +493,29 @@ def test_cli_view_writes_html_for_ranked_worlds(real_bank, bank_dir, tmp_path, c
   assert f"(worlds {', '.join(str(int(i)) for i in ids)})" in capsys.readouterr().out
 
 
+def test_cli_view_top_without_a_rank_shows_what_mwbx_query_lists(real_bank, bank_dir, tmp_path, capsys):
+  # Unranked: the first matching worlds in world order; no world matching
+  # every query: the worlds meeting the most, said in one line.
+  from mwbx import cli
+  from mwbx import queries as mq
+  out = tmp_path / "view.html"
+  assert cli.main(["view", str(bank_dir), "--top", "2", "--html", str(out)]) == 0
+  first = np.asarray(real_bank.world_ids)[np.flatnonzero(real_bank.valid)[:2]]
+  assert f"(worlds {', '.join(str(int(i)) for i in first)})" in capsys.readouterr().out
+  never = tmp_path / "never.yaml"
+  never.write_text("queries:\n  - {region: {min: [50, 50, 50], max: [51, 51, 51]}, bodies: [round]}\n"
+                   "  - {region: {min: [-50, -50, -50], max: [50, 50, 50]}, bodies: [round]}\n")
+  assert cli.main(["view", str(bank_dir), "--top", "2", "--queries", str(never), "--html", str(out)]) == 0
+  captured = capsys.readouterr()
+  assert "no valid world meets every query; showing the worlds that meet the most" in captured.err
+  met = np.sum(mq.evaluate_each(real_bank, mq.load_queries(never, bank=real_bank).queries), axis=1)
+  shown = [int(i) for i in captured.out.split("(worlds ")[1].rstrip(")\n").split(", ")]
+  assert all(met[real_bank.row_of(i)] == 1 for i in shown) and len(shown) == 2
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--worlds", "0,x"], "--worlds: 'x' is not a world id"),
     (["--worlds", "999"], "--worlds: world 999: no world with this id"),
-    (["--top", "2"], "--top needs --rank"),
     (["--worlds", "0", "--top", "1", "--rank", "path_length"], "cannot be combined"),
     (["--paths", "nonexistent"], "nonexistent"),
 ])
