@@ -195,7 +195,7 @@ def _cmd_info(args) -> int:
     counts = [int((bank.scene_version == v).sum()) for v in range(len(bank.versions) + 1)]
     print(f"scene versions      {len(bank.versions) + 1} (worlds per version: {', '.join(map(str, counts))};"
           f" version 0 had {', '.join(bank.versions[0]['objects'])})")
-  print(f"bodies              {', '.join(bank.body_names)}")
+  print(f"bodies              {_bodies_line(bank)}")
   print(f"groups              {', '.join(f'{k}={list(v)}' for k, v in bank.groups.items()) or 'none'}")
   print(f"cameras             {', '.join(_cameras(bank)) or 'none (screen queries need a named MJCF camera)'}")
   print(f"metrics             {', '.join(bank.metric_names)}")
@@ -224,6 +224,18 @@ def _load_bank(args):
 def _id_span(bank) -> str:
   ids = bank.world_ids
   return f"{int(ids.min())}..{int(ids.max())} (next {bank.next_world_id})" if bank.n_worlds else "none"
+
+
+def _bodies_line(bank) -> str:
+  """The tracked bodies, a flex's vertex bodies as one span ("cloth_0 … cloth_224
+  (225 bodies of flex cloth)"), not hundreds of names."""
+  spans = {}
+  for name in bank.flex_objects:
+    members = bank.objects[name]
+    if len(members) > 2:
+      spans.update({b: None for b in members})
+      spans[members[0]] = f"{members[0]} … {members[-1]} ({len(members)} bodies of flex {name})"
+  return ", ".join(spans[b] if b in spans else b for b in bank.body_names if spans.get(b, b) is not None)
 
 
 def _cameras(bank) -> list[str]:

@@ -165,6 +165,15 @@ def test_flex_scene_samples_on_the_native_backend(tmp_path):
     frames = bank.qpos_frames(w)
     assert frames.shape[0] > 1 and np.isfinite(frames).all()
   assert np.isfinite(bank.com).all() and bank.valid.all()
+  # A flex's impacts are its most-struck vertex's, not the sum over 25 vertices.
+  assert bank.flex_objects == ("cloth",)
+  per_body = bank.metric("collisions")
+  cloth = bank.select_bodies("cloth")
+  np.testing.assert_array_equal(bank.object_collisions(),
+                                per_body[:, bank.select_bodies("box")].sum(-1) + per_body[:, cloth].max(-1))
+  assert np.all(per_body[:, cloth].sum(-1) > per_body[:, cloth].max(-1))  # the sum would count each vertex
+  from mwbx.cli import _bodies_line
+  assert _bodies_line(bank) == "box, cloth_0 … cloth_24 (25 bodies of flex cloth)"
   # The cloth's contacts are the cloth's: MuJoCo reports them by flex, not by geom.
   assert mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "dome")]).all()
   assert not mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "cloth")]).any()

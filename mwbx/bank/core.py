@@ -314,6 +314,32 @@ class Bank:
       raise MwbxError(f"metric: unknown metric {name!r} (have: {', '.join(self.metric_names)})")
     return self.metrics[..., self.metric_names.index(name)]
 
+  @property
+  def flex_objects(self) -> tuple[str, ...]:
+    """The objects that are flexes (cloth, soft solids, ropes); () for a
+    scene without ``<flexcomp>`` or whose MJCF does not compile here."""
+    texts = [self.mjcf_text or ""] + [str(t) for t in self.mjcf_includes.values()]
+    if not any("flex" in t for t in texts):
+      return ()
+    try:
+      flexes = scene_lib.flex_bodies(self.model())
+    except MwbxError:
+      return ()
+    return tuple(name for name in self.objects if name in flexes)
+
+  def object_collisions(self) -> np.ndarray:
+    """f64[W] impacts per world: each rigid body's, and for a flex those of
+    its most-struck vertex (its vertices land together: counting each would
+    give a cloth hundreds)."""
+    per_body = np.asarray(self.metric("collisions"), np.float64)
+    flex_columns = [self.select_bodies(name) for name in self.flex_objects]
+    rigid = np.ones(per_body.shape[-1], bool)
+    total = np.zeros(per_body.shape[:-1])
+    for columns in flex_columns:
+      rigid[columns] = False
+      total += per_body[..., columns].max(axis=-1) if len(columns) else 0.0
+    return total + per_body[..., rigid].sum(-1)
+
   def summary(self) -> dict:
     """Counts for ``mwbx info`` and the sampling summary."""
     valid = self.valid
@@ -324,7 +350,7 @@ class Bank:
         "sim_errors": int(((self.flags & FLAG_SIM_ERROR) != 0).sum()),
         "contact_overflow": int(((self.flags & FLAG_CONTACT_OVERFLOW) != 0).sum()),
         "at_rest_fraction": float(self.at_rest.mean()) if self.n_worlds else 0.0,
-        "mean_collisions": float(self.metric("collisions").sum(-1)[valid].mean()) if valid.any() else 0.0,
+        "mean_collisions": float(self.object_collisions()[valid].mean()) if valid.any() else 0.0,
         "perturbations": int(self.perturbations.sum()),
         "storage_bytes": int(self.nbytes),
         "qpos": self.qpos_store.stats(),
