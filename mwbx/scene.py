@@ -461,20 +461,24 @@ class Scene:
   def _object_inits(self, source, subtree) -> tuple[ObjectInit, ...]:
     m = self.model
     per_object: dict[str, dict] = {}
+    spelled: dict[tuple[str, str], str] = {}  # (object, field) -> the randomize key that set it (a group's name)
     for key, randomization in self.config.randomize.items():
       for obj in self.objects_of(key, f"randomize.{key}"):
-        per_object.setdefault(obj, {}).update(randomization.model_dump(exclude_none=True))
+        fields = randomization.model_dump(exclude_none=True)
+        per_object.setdefault(obj, {}).update(fields)
+        spelled.update({(obj, field): key for field in fields})
+    at = lambda obj, field: f"randomize.{spelled.get((obj, field), obj)}.{field}"  # noqa: E731
     inits = []
     for obj, fields in per_object.items():
       flex = None
       if obj in self.flex_objects:
         free, scalar = [], []
         if "joint_noise" in fields:
-          raise MwbxError(f"{source}: randomize.{obj}.joint_noise: object {obj!r} is a flex; its vertices are"
+          raise MwbxError(f"{source}: {at(obj, 'joint_noise')}: object {obj!r} is a flex; its vertices are"
                           f" not randomized one by one (position, rotation and the velocities move it whole)")
         flex = flex_motion(m, subtree[obj])
         if isinstance(flex, str):
-          raise MwbxError(f"{source}: randomize.{obj}.{next(iter(fields))}: flex {obj!r}: {flex}")
+          raise MwbxError(f"{source}: {at(obj, next(iter(fields)))}: flex {obj!r}: {flex}")
       else:
         root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, obj)
         joints = [j for j in range(m.njnt) if m.body_rootid[m.jnt_bodyid[j]] == root]
@@ -482,9 +486,9 @@ class Scene:
         scalar = [j for j in joints if int(m.jnt_type[j]) in (JNT_HINGE, JNT_SLIDE)]
         for field in ("position", "rotation", "linear_velocity", "angular_velocity"):
           if field in fields and not free:
-            raise MwbxError(f"{source}: randomize.{obj}.{field}: object {obj!r} has no free joint at its root")
+            raise MwbxError(f"{source}: {at(obj, field)}: object {obj!r} has no free joint at its root")
         if "joint_noise" in fields and not scalar:
-          raise MwbxError(f"{source}: randomize.{obj}.joint_noise: object {obj!r} has no hinge or slide joints")
+          raise MwbxError(f"{source}: {at(obj, 'joint_noise')}: object {obj!r} has no hinge or slide joints")
       dist = {k: Distribution.model_validate(v) for k, v in fields.items()}
       for k, d in dist.items():
         width = len(scalar) if k == "joint_noise" else 3
@@ -492,7 +496,7 @@ class Scene:
           size = np.atleast_1d(getattr(d, field)).size
           if size not in (1, width):
             raise MwbxError(
-                f"{source}: randomize.{obj}.{k}.{field}: expected 1 or {width} values, got {size}")
+                f"{source}: {at(obj, k)}.{field}: expected 1 or {width} values, got {size}")
       inits.append(ObjectInit(
           name=obj,
           free_qpos=int(m.jnt_qposadr[free[0]]) if free else -1,

@@ -152,6 +152,12 @@ def test_flexes_refuse_what_they_cannot_do(tmp_path):
     Scene(flex_config(tmp_path, "cloth: {joint_noise: {scale: 0.01}}"))
   with pytest.raises(MwbxError, match=r"randomize\.cloth\.position: flex 'cloth': .* not three independent slide"):
     Scene(flex_config(tmp_path, "cloth: {position: {scale: 0.01}}", dof='dof="radial"'))
+  # Randomized through a group, the error names the key the user wrote.
+  flex_config(tmp_path, "{}", dof='dof="radial"')
+  (tmp_path / "group.yaml").write_text("scene: {mjcf: scene.xml, groups: {soft: [cloth]}}\n"
+                                       "randomize: {soft: {position: {scale: 0.01}}}\n")
+  with pytest.raises(MwbxError, match=r"randomize\.soft\.position: flex 'cloth': .* not three independent slide"):
+    Scene(mwbx.load_config(tmp_path / "group.yaml"))
   with pytest.raises(MwbxError, match=r"scene\.objects: 'cloth_3' is not a moving body"):
     Scene(flex_config(tmp_path, "{}").model_copy(
         update={"scene": flex_config(tmp_path, "{}").scene.model_copy(update={"objects": ("cloth_3",)})}))
