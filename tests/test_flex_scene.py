@@ -449,3 +449,21 @@ def test_usd_export_writes_the_cloth_where_mujoco_puts_its_vertices(tmp_path):
   mujoco.mj_kinematics(model, data)
   mujoco.mj_flex(model, data)
   np.testing.assert_allclose(mesh.GetPointsAttr().Get(float(frame)), data.flexvert_xpos, atol=1e-6)
+
+
+def test_turning_metrics_leave_a_flex_out_and_refuse_it_by_name(tmp_path):
+  bank = mwbx.sample(flex_config(tmp_path), n_worlds=2, key=jax.random.key(0), backend="native")
+  for name in ("angular_travel", "orientation_error"):
+    np.testing.assert_array_equal(mwbx.queries.metric(bank, name), mwbx.queries.metric(bank, name, ["box"]))
+    with pytest.raises(MwbxError, match=rf"metric '{name}': bodies: cloth is a flex's vertices") as err:
+      mwbx.queries.metric(bank, name, ["cloth"])
+    assert "\n" not in str(err.value)
+  assert np.all(mwbx.queries.metric(bank, "path_length", ["cloth"]) > 0)  # a flex's paths are its own
+  # A body a flex is pinned to keeps its orientation: queries and metrics on it stand.
+  (tmp_path / "flag.xml").write_text(FLAG)
+  (tmp_path / "flag.yaml").write_text("scene: {mjcf: flag.xml}\nsim: {end_time: 0.2}\n")
+  flag = mwbx.sample(mwbx.load_config(tmp_path / "flag.yaml"), n_worlds=1, key=jax.random.key(0), backend="native")
+  assert not flag.flex_body_mask()[list(flag.body_names).index("pole")]
+  assert np.isfinite(mwbx.queries.metric(flag, "angular_travel", ["pole"])).all()
+  upright = mwbx.OrientationQuery(bodies=("pole",), axis=(0, 0, 1), within_deg=180)
+  assert mwbx.evaluate(flag, [upright]).all()

@@ -327,6 +327,19 @@ class Bank:
       return ()
     return tuple(name for name in self.objects if name in flexes)
 
+  def flex_body_mask(self) -> np.ndarray:
+    """bool[B] the tracked bodies that are a flex's own (vertex or node)
+    bodies, which have no orientation; not a body a flex is pinned to."""
+    mask = np.zeros(len(self.body_names), bool)
+    texts = [self.mjcf_text or ""] + [str(t) for t in self.mjcf_includes.values()]
+    if not any("flex" in t for t in texts):
+      return mask
+    try:
+      own = {b for ids in scene_lib.flex_bodies(self.model()).values() for b in ids}
+    except MwbxError:
+      return mask
+    return np.isin(np.asarray(self.body_ids), list(own))
+
   def object_collisions(self) -> np.ndarray:
     """f64[W] impacts per world: each rigid body's, and for a flex those of
     its most-struck vertex (its vertices land together: counting each would

@@ -96,8 +96,12 @@ def build(page) -> Widgets:
     touches.on_click(lambda _: page.add_touch(include=True))
     never.on_click(lambda _: page.add_touch(include=False))
   with gui.add_folder("Sorter"):
+    # A scene of flexes only has no turning to sort by: start on the path length.
+    first = bank.metric_names[0]
+    if first in mq.metrics.ROTATIONAL and bank.flex_body_mask().all() and "path_length" in bank.metric_names:
+      first = "path_length"
     w.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS, ORIENTATION_ERROR),
-                                   initial_value=bank.metric_names[0])
+                                   initial_value=first)
     w.reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
     w.metric.on_update(lambda _: page.sorter())
     w.reduce.on_update(lambda _: page.sorter())

@@ -25,6 +25,7 @@ import numpy as np
 from mwbx.errors import MwbxError
 from mwbx.queries import query as query_lib
 from mwbx.queries.selection import selection_mask
+from mwbx.queries.selection import turning_mask
 
 CONSTRAINTS = "constraints_satisfied"
 REDUCTIONS = ("sum", "max")
@@ -68,6 +69,10 @@ def as_terms(by) -> tuple[Term, ...]:
   return terms
 
 
+# Metrics of a body's turning, which a flex's vertex bodies (slide joints only) never do.
+ROTATIONAL = ("angular_travel", "orientation_error")
+
+
 def metric(bank, name: str, bodies=None, reduce: str = "sum") -> np.ndarray:
   """One precomputed metric combined over a selection: f64[W].
 
@@ -77,13 +82,18 @@ def metric(bank, name: str, bodies=None, reduce: str = "sum") -> np.ndarray:
     bodies: body/object/group names, or None for every tracked body.
     reduce: "sum" or "max" over the selected bodies (an empty selection
       gives 0 for sum and -inf for max).
+
+  A flex's vertex bodies never turn: the rotational metrics (:data:`ROTATIONAL`)
+  leave them out and refuse a name that selects only them
+  (:func:`~mwbx.queries.selection.turning_mask`), as orientation queries do.
   """
   names = tuple(bank.metric_names)
   if name not in names:
     raise MwbxError(f"metric: unknown metric {name!r} (known: {', '.join(names + (CONSTRAINTS,))})")
   if reduce not in REDUCTIONS:
     raise MwbxError(f"metric {name!r}: reduce must be one of {REDUCTIONS}, got {reduce!r}")
-  mask = selection_mask(bank, bodies)
+  # A flex's vertices have no orientation: left out, or refused by name.
+  mask = turning_mask(bank, bodies, f"metric {name!r}") if name in ROTATIONAL else selection_mask(bank, bodies)
   column = np.asarray(bank.metrics[:, :, names.index(name)], np.float64)[:, mask]  # [W, k]
   if reduce == "sum":
     return np.sum(column, axis=1)

@@ -42,7 +42,7 @@ from mwbx.queries.query import Query
 from mwbx.queries.query import unexpected_fields
 from mwbx.queries.query import who
 from mwbx.queries.intervals import checked_interval
-from mwbx.queries.selection import selection_mask
+from mwbx.queries.selection import turning_mask
 
 AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 BLOCK = 128  # worlds decoded at once
@@ -137,10 +137,10 @@ class OrientationQuery(Query):
 
   def check(self, bank) -> None:
     super().check(bank)
-    _refuse_flexes(bank, selection_mask(bank, self.bodies), self)
+    _mask(bank, self)
 
   def evaluate(self, bank) -> np.ndarray:
-    return evaluate_orientation(bank, self, selection_mask(bank, self.bodies))
+    return evaluate_orientation(bank, self, _mask(bank, self))
 
   @classmethod
   def evaluate_many(cls, bank, queries) -> np.ndarray:
@@ -149,7 +149,7 @@ class OrientationQuery(Query):
     return super().evaluate_many(bank, queries)
 
   def gap(self, bank) -> np.ndarray:
-    return orientation_gap(bank, self, selection_mask(bank, self.bodies))
+    return orientation_gap(bank, self, _mask(bank, self))
 
   @classmethod
   def gap_many(cls, bank, queries) -> np.ndarray:
@@ -161,7 +161,7 @@ class OrientationQuery(Query):
     """f64[W] the angle to the goal, radians, per body at the world's last
     frame (no window) or the largest over the window, combined over the
     query's bodies (or ``bodies``) by ``max`` or ``sum``."""
-    mask = selection_mask(bank, self.bodies if bodies is None else bodies)
+    mask = _mask(bank, self, bodies)
     err = body_errors(bank, self, mask)[:, mask]
     return np.sum(err, axis=1) if reduce == "sum" else np.max(err, axis=1, initial=-np.inf)
 
@@ -273,9 +273,7 @@ def _decode_together(bank, queries) -> None:
     return
   chosen = np.zeros(len(bank.body_names), bool)
   for query in queries:
-    mask = selection_mask(bank, query.bodies)
-    _refuse_flexes(bank, mask, query)
-    chosen |= mask
+    chosen |= _mask(bank, query)
   all_quats(bank, np.flatnonzero(chosen).tolist())
 
 
@@ -332,24 +330,16 @@ def _closeness(query: OrientationQuery, quats: np.ndarray) -> np.ndarray:
   return np.abs(w * t[0] + x * t[1] + y * t[2] + z * t[3])
 
 
-def _refuse_flexes(bank, mask: np.ndarray, query: OrientationQuery) -> None:
-  """MwbxError if the query selects a flex's vertex bodies: a cloth has no orientation."""
-  model = bank.model()
-  if not model.nflex:
-    return
-  vertex = np.zeros(model.nbody, bool)
-  vertex[model.flex_vertbodyid] = True
-  chosen = np.asarray(bank.body_ids)[mask]
-  if vertex[chosen].any():
-    label = f"query {query.name!r}" if query.name else "query"
-    raise MwbxError(f"{label}: bodies: {', '.join(query.bodies or ('every body',))} include a flex's vertices;"
-                    " a flex (cloth, soft solid) has no orientation to ask about")
+def _mask(bank, query: OrientationQuery, bodies=None) -> np.ndarray:
+  """bool[B] the query's bodies (or ``bodies``), without a flex's vertices;
+  MwbxError where a name selects only those (a cloth has no orientation)."""
+  label = f"query {query.name!r}" if query.name else "query"
+  return turning_mask(bank, query.bodies if bodies is None else bodies, label)
 
 
 def body_errors(bank, query: OrientationQuery, mask: np.ndarray) -> np.ndarray:
   """f64[W, B] each selected body's largest error over the query's frames,
   radians (NaN for unselected bodies)."""
-  _refuse_flexes(bank, mask, query)
   out = np.full((bank.n_worlds, len(mask)), np.nan)
   f0, f1 = frame_range(bank, query.window)
   rows = np.arange(bank.n_worlds)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mwbx.scene import select_bodies
+from mwbx.errors import MwbxError
+from mwbx.scene import flex_bodies, select_bodies
 
 
 def selection_mask(bank, bodies) -> np.ndarray:
@@ -29,3 +30,30 @@ def chosen_bodies(owner, bodies) -> list[str]:
   """
   rows = select_bodies(list(bodies), tuple(owner.body_names), owner.objects, owner.groups)
   return [owner.body_names[b] for b in np.asarray(rows).tolist()]
+
+
+def turning_mask(bank, bodies, label: str) -> np.ndarray:
+  """:func:`selection_mask` without a flex's vertex bodies, which never turn
+  (orientation queries and turning metrics): a name that selects only a
+  flex's vertices (``cloth``), or a selection left empty, is refused; an
+  object that holds a flex among its rigid bodies keeps those bodies.
+
+  Raises:
+    MwbxError: one line, starting with ``label``.
+  """
+  mask = selection_mask(bank, bodies)
+  model = bank.model()
+  if not model.nflex:
+    return mask
+  own = [b for ids in flex_bodies(model).values() for b in ids]
+  vertices = np.isin(np.asarray(bank.body_ids), own)
+  names = () if bodies is None else ((bodies,) if isinstance(bodies, str) else tuple(bodies))
+  for name in names:
+    if not (selection_mask(bank, (name,)) & ~vertices).any():
+      raise MwbxError(f"{label}: bodies: {name} is a flex's vertices; a flex (cloth, soft solid, rope) has no"
+                      " orientation")
+  mask = mask & ~vertices
+  if not mask.any():
+    raise MwbxError(f"{label}: every tracked body is a flex's vertex; a flex (cloth, soft solid, rope) has no"
+                    " orientation")
+  return mask
