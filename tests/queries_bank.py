@@ -71,6 +71,9 @@ class StandInBank:
     self.keys = np.zeros((self.com.shape[0], 2), np.uint32)
     self.frame_count = self.com_count * 4
 
+  def flex_body_mask(self) -> np.ndarray:
+    return np.zeros(len(self.body_names), bool)  # no flexes here
+
   @property
   def n_worlds(self) -> int:
     return self.com.shape[0]

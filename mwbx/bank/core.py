@@ -314,31 +314,28 @@ class Bank:
       raise MwbxError(f"metric: unknown metric {name!r} (have: {', '.join(self.metric_names)})")
     return self.metrics[..., self.metric_names.index(name)]
 
-  @property
-  def flex_objects(self) -> tuple[str, ...]:
-    """The objects that are flexes (cloth, soft solids, ropes); () for a
-    scene without ``<flexcomp>`` or whose MJCF does not compile here."""
+  def _flex_bodies(self) -> dict[str, tuple[int, ...]]:
+    """:func:`mwbx.scene.flex_bodies` of the bank's model; {} for a scene
+    without ``<flexcomp>`` (no model built) or whose MJCF does not compile here."""
     texts = [self.mjcf_text or ""] + [str(t) for t in self.mjcf_includes.values()]
     if not any("flex" in t for t in texts):
-      return ()
+      return {}
     try:
-      flexes = scene_lib.flex_bodies(self.model())
+      return scene_lib.flex_bodies(self.model())
     except MwbxError:
-      return ()
+      return {}
+
+  @property
+  def flex_objects(self) -> tuple[str, ...]:
+    """The objects that are flexes (cloth, soft solids, ropes)."""
+    flexes = self._flex_bodies()
     return tuple(name for name in self.objects if name in flexes)
 
   def flex_body_mask(self) -> np.ndarray:
     """bool[B] the tracked bodies that are a flex's own (vertex or node)
     bodies, which have no orientation; not a body a flex is pinned to."""
-    mask = np.zeros(len(self.body_names), bool)
-    texts = [self.mjcf_text or ""] + [str(t) for t in self.mjcf_includes.values()]
-    if not any("flex" in t for t in texts):
-      return mask
-    try:
-      own = {b for ids in scene_lib.flex_bodies(self.model()).values() for b in ids}
-    except MwbxError:
-      return mask
-    return np.isin(np.asarray(self.body_ids), list(own))
+    own = [b for ids in self._flex_bodies().values() for b in ids]
+    return np.isin(np.asarray(self.body_ids), own)
 
   def object_collisions(self) -> np.ndarray:
     """f64[W] impacts per world: each rigid body's, and for a flex those of

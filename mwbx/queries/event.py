@@ -226,8 +226,10 @@ def _say(side: Side) -> str:
 
 
 def _check_actors(context, sides, where: str) -> None:
-  if context.bank is None or context.bank.events is None:
+  """MwbxError naming the file and entry: a bank without events, or an actor it does not know."""
+  if context.bank is None:
     return
+  _events(context.bank, f"{context.path}: {where}")
   for side in sides:
     try:
       actor_mask(context.bank, side)

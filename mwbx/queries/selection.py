@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from mwbx.errors import MwbxError
-from mwbx.scene import flex_bodies, select_bodies
+from mwbx.scene import select_bodies
 
 
 def selection_mask(bank, bodies) -> np.ndarray:
@@ -42,11 +42,9 @@ def turning_mask(bank, bodies, label: str) -> np.ndarray:
     MwbxError: one line, starting with ``label``.
   """
   mask = selection_mask(bank, bodies)
-  model = bank.model()
-  if not model.nflex:
+  vertices = bank.flex_body_mask()
+  if not vertices.any():
     return mask
-  own = [b for ids in flex_bodies(model).values() for b in ids]
-  vertices = np.isin(np.asarray(bank.body_ids), own)
   names = () if bodies is None else ((bodies,) if isinstance(bodies, str) else tuple(bodies))
   for name in names:
     if not (selection_mask(bank, (name,)) & ~vertices).any():

@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from mwbx.queries.poses import quat_rotate
+from mwbx.scene import flex_bodies
 
 
 class FlexSurface(NamedTuple):
@@ -145,8 +146,9 @@ def path_bodies(bank) -> np.ndarray:
   centres = []
   data = mujoco.MjData(model)
   mujoco.mj_kinematics(model, data)
+  own = flex_bodies(model)
   for surface in flex_surfaces(model):
-    bodies = np.unique(surface.bodies)
+    bodies = np.asarray(own.get(surface.name, ()), np.int64)  # not the world or a body it is pinned to
     rows = [tracked[int(b)] for b in bodies if int(b) in tracked]
     if not rows:
       continue

@@ -204,6 +204,10 @@ def test_events_are_saved_checked_and_refused_in_one_line_without_them(drop_bank
   with pytest.raises(MwbxError, match=r"no contact events .* sample it again") as err:
     mwbx.evaluate(without, [mwbx.TouchQuery("low", "floor")])
   assert "\n" not in str(err.value)
+  query_file = tmp_path / "touch.yaml"
+  query_file.write_text("queries:\n  - {touch: [low, floor]}\n")
+  with pytest.raises(MwbxError, match=rf"{query_file}: queries\[0\]: this bank has no contact events"):
+    mwbx.load_queries(query_file, without)
 
 
 def test_event_query_files_round_trip_and_name_mistakes(drop_bank, tmp_path):
