@@ -104,12 +104,14 @@ def test_packed_step_matches_the_full_step(siggraph, seconds):
   packed = jax.jit(mjx_packed_solve.solve_batch)(mx, ready)
   _assert_same_solution(mx, ready, packed, full, "packed")
   assert packed._impl.efc_J.shape == full._impl.efc_J.shape  # every row kept in the data
-  # Each cap that holds the rows in use gives the same answer; the whole step too.
-  for cap in caps:
-    if cap >= used.max():
-      solve = jax.vmap(mjx_packed_solve.solve_rows, in_axes=(None, 0, None))
-      one = jax.jit(solve, static_argnums=2)(mx, ready, cap)
-      _assert_same_solution(mx, ready, one, full, f"cap {cap}")
+  # The smallest cap that holds the rows in use and the largest (every row)
+  # give the same answer (each cap is a compile of its own: the ones between
+  # add minutes, not coverage); the whole step too.
+  holding = [cap for cap in caps if cap >= used.max()]
+  for cap in sorted({holding[0], holding[-1]}):
+    solve = jax.vmap(mjx_packed_solve.solve_rows, in_axes=(None, 0, None))
+    one = jax.jit(solve, static_argnums=2)(mx, ready, cap)
+    _assert_same_solution(mx, ready, one, full, f"cap {cap}")
   stepped = jax.jit(mjx_collision.batched_step)(mx, d)
   reference = jax.jit(jax.vmap(mjx_collision.step, in_axes=(None, 0)))(mx, d)
   qacc = np.asarray(reference.qacc)
