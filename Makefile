@@ -13,7 +13,7 @@ $(PY):
 
 # Installs into the venv with uv (seconds: it fetches and unpacks in parallel; pip took
 # 50 s of a first `make run` on 2 cores), or with pip where uv cannot be had or fails.
-INSTALL = $(PY) -m pip install -q uv && $(VENV)/bin/uv pip install -q --python $(PY) $(1) \
+INSTALL = $(PY) -m pip install -q uv && $(VENV)/bin/uv pip install -q --compile-bytecode --python $(PY) $(1) \
 	|| { $(PY) -m pip install -q --upgrade pip && $(PY) -m pip install -q $(1); }
 
 # What running needs; the tests' extras (browser, property tests, Warp, linter) only for `make test`.
