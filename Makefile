@@ -11,18 +11,14 @@ $(PY):
 	@test -n "$(PYTHON)" || { echo "python3.12 not found: install Python 3.12 or pass PYTHON=/path/to/python3.12"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 
-# Installs into the venv with uv (seconds: it fetches and unpacks in parallel; pip took
-# 50 s of a first `make run` on 2 cores), or with pip where uv cannot be had or fails.
-INSTALL = $(PY) -m pip install -q uv && $(VENV)/bin/uv pip install -q --compile-bytecode --python $(PY) $(1) \
-	|| { $(PY) -m pip install -q --upgrade pip && $(PY) -m pip install -q $(1); }
-
 # What running needs; the tests' extras (browser, property tests, Warp, linter) only for `make test`.
 $(STAMP): $(PY) pyproject.toml
-	$(call INSTALL,-e .)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e .
 	@touch $(STAMP)
 
 $(DEV_STAMP): $(STAMP) pyproject.toml
-	$(call INSTALL,-e ".[dev]")
+	$(PY) -m pip install -q -e ".[dev]"
 	@touch $(DEV_STAMP)
 
 venv: $(DEV_STAMP)
@@ -41,7 +37,7 @@ test: $(DEV_STAMP)
 
 # Every benchmark: tables on stdout, JSON (and plots) in out/bench/, then docs/benchmarks.md from them.
 bench: $(DEV_STAMP)
-	$(call INSTALL,-e ".[dev,bench]")
+	$(PY) -m pip install -q -e ".[dev,bench]"
 	$(PY) scripts/bench_sampler.py
 	$(PY) scripts/bench_codec.py
 	$(PY) scripts/bench_queries.py --real 1024
