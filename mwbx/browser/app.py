@@ -521,7 +521,6 @@ class Browser:
     self.server.stop()
 
 
-
 def _refined_span(ids: list[int]) -> str:
   """``N refined worlds (ids a..b)`` for a page's message."""
   return f"{len(ids)} refined world{'s' if len(ids) > 1 else ''} (ids {ids[0]}..{ids[-1]})"

@@ -53,15 +53,15 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
   if k <= 0:
     raise ViewerError(f"--top: must be a positive number of worlds, got {k}")
   valid = np.asarray(bank.valid, bool)
-  if match is not None and not (match & valid).any():
+  if match is not None and not match.any():  # (match holds valid worlds only)
     if not valid.any():
       raise ViewerError("no valid world in the bank; nothing to show")
-    met = np.sum(mq.evaluate_each(bank, queries.queries), axis=1).astype(np.float64)
+    met = mq.constraints_satisfied(bank, queries.queries).astype(np.float64)
     ids, _ = mq.rank(bank, met, match=valid, top=k)
     return np.asarray(ids, np.int64), match
   by = rank if rank is not None else (queries.rank if queries is not None and queries.rank else None)
   if by is None:  # unranked: the first matches (or valid worlds) in world order
-    rows = np.flatnonzero(valid if match is None else match & valid)[:k]
+    rows = np.flatnonzero(valid if match is None else match)[:k]
     return np.asarray(bank.world_ids, np.int64)[rows], match
   descending = True if queries is None or rank is not None else queries.descending
   qs = () if queries is None else queries.queries
@@ -74,6 +74,6 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
 def closest_note(match: np.ndarray | None, bank) -> str:
   """What to tell a user whose shown worlds meet not every query: "" when
   some valid world does (or there are no queries)."""
-  if match is None or (match & np.asarray(bank.valid, bool)).any():
+  if match is None or match.any():  # match: valid worlds meeting every query
     return ""
   return "no valid world meets every query; showing the worlds that meet the most"
