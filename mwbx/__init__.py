@@ -13,6 +13,8 @@ Example::
 
 # First: it tells numba where to keep compiled kernels before any is decorated.
 from mwbx import host_jit as _host_jit  # noqa: F401
+# Before anything imports mujoco: MUJOCO_GL is read when rendering, not at import.
+from mwbx import mujoco_gl as _mujoco_gl  # noqa: F401
 from mwbx.bank import Bank
 from mwbx.bank import FLAG_AT_REST
 from mwbx.bank import FLAG_CONTACT_OVERFLOW

@@ -80,14 +80,27 @@ def load(text: str, source: str, malformed: str = "malformed YAML"):
     _check_size(node, source)
     try:
       return loader.construct_document(node)
-    except (ValueError, OverflowError) as err:  # e.g. an int of more than 4300 digits
-      raise MwbxError(f"{source}: a value YAML cannot convert ({short_repr_text(str(err), 120)})") from None
+    except (ValueError, OverflowError, KeyError, TypeError) as err:  # an int of 5000 digits, `!!bool maybe`
+      raise MwbxError(f"{source}: a value YAML cannot convert ({_why_not_converted(err)})") from None
   except yaml.YAMLError as err:
     raise MwbxError(f"{source}: {malformed}: {short_repr_text(yaml_error_line(err), 300)}") from None
   except RecursionError:  # PyYAML's composer recurses once per nesting level
     raise MwbxError(f"{source}: YAML nested too deeply (more than {MAX_DEPTH} levels)") from None
   finally:
     loader.dispose()
+
+
+def _why_not_converted(err: Exception) -> str:
+  """Why a scalar did not convert, without the scalar: Python's messages
+  quote the value after a colon (``invalid literal for int() with base 10:
+  'hunter2'``), and a file's content is never echoed.
+
+  >>> _why_not_converted(ValueError("could not convert string to float: 'x'"))
+  'could not convert string to float'
+  """
+  if isinstance(err, (ValueError, OverflowError)):
+    return short_repr_text(str(err).split(": ", 1)[0], 120)
+  return "a tagged value that is not of its tag's type"
 
 
 def yaml_error_line(err: yaml.YAMLError) -> str:

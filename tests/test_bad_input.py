@@ -1,10 +1,14 @@
 """Bad input gets one short, clear line naming the file, field or value: YAML
-alias bombs, non-finite and huge config values, out-of-range CLI counts and
-world ids, id ranges far past a bank, and runs that cannot fit in memory."""
+alias bombs, non-finite and huge config values, query windows no frame index
+holds (from files and from Python), out-of-range CLI counts and world ids, id
+ranges far past a bank, and runs that cannot fit in memory. Errors about a
+file name its fields, never what the file holds."""
 
 from __future__ import annotations
 
+import math
 import os
+import re
 import subprocess
 import sys
 
@@ -244,3 +248,119 @@ def test_available_memory_comes_from_the_machine(monkeypatch):
   monkeypatch.setenv(memory.ENV_AVAILABLE, "lots")
   with pytest.raises(mwbx.MwbxError, match=memory.ENV_AVAILABLE):
     memory.available_bytes()
+
+
+# --- query windows -----------------------------------------------------------------
+
+@pytest.mark.parametrize("entry, needles", [
+    ("{touch: [cube, floor], window: [0, .inf]}", ("window t1", "inf")),
+    ("{touch: [cube, floor], window: [1e300, null]}", ("window t0", "1e+300")),
+    ("{touch: [cube, floor], sign: exclude, window: [0, .inf]}", ("window t1", "inf")),
+    ("{touch: [cube, floor], window: [-1, 1]}", ("window t0", "-1.0")),
+    ("{then: [[cube, floor], [ball, floor]], window: [1e300, null]}", ("window t0", "1e+300")),
+    ("{then: [[cube, floor], [ball, floor]], window: [null, .inf]}", ("window t1", "inf")),
+    ("{region: {min: [0, 0, 0], max: [1, 1, 1]}, window: [0, .inf]}", ("window t1", "inf")),
+    ("{joint: hinge, turn: [0.5, null], window: [1e300, null]}", ("window t0", "1e+300")),
+])
+def test_query_windows_are_checked_where_they_enter(tmp_path, entry, needles):
+  # An event window of [0, .inf] or [1e300, null] ended in an OverflowError
+  # traceback at evaluation; every kind now refuses it on loading, in one line.
+  path = tmp_path / "q.yaml"
+  path.write_text(f"queries:\n  - {entry}\n")
+  with pytest.raises(mwbx.MwbxError) as err:
+    load_queries(path)
+  message = str(err.value)
+  assert message.startswith(f"{path}: queries[0]") and "\n" not in message and len(message) < 400, message
+  for needle in needles:
+    assert needle in message, message
+
+
+def test_an_event_window_past_any_frame_is_one_line_on_the_command_line(bank_dir, tmp_path):
+  path = tmp_path / "q.yaml"
+  path.write_text("queries:\n  - {touch: [cube, floor], window: [1e300, null]}\n")
+  assert_one_line(run_cli("query", str(bank_dir), str(path)), str(path), "queries[0]", "window t0", "1e+300")
+
+
+def test_query_windows_from_python_are_checked_in_the_constructor():
+  # mwbx.TouchQuery(window=(0, inf)) was accepted and failed at evaluation.
+  for make, needle in (
+      (lambda: mwbx.TouchQuery("cube", "floor", window=(0, math.inf)), "window t1"),
+      (lambda: mwbx.TouchQuery("cube", "floor", window=(1e300, None), sign="exclude"), "window t0"),
+      (lambda: mwbx.OrderQuery([("cube", "floor"), ("ball", "floor")], window=(None, math.inf)), "window t1"),
+      (lambda: mwbx.Query.region([0, 0, 0], [1, 1, 1], window=(-0.5, None)), "window t0"),
+      (lambda: mwbx.OrientationQuery(bodies="cube", axis="z", window=(0, math.inf)), "window t1"),
+      (lambda: mwbx.TouchQuery("cube", "floor", window=(math.nan, 1.0)), "window must not be NaN"),
+      (lambda: mwbx.TouchQuery("cube", "floor", window=(2.0, 1.0)), "window is empty"),
+  ):
+    with pytest.raises(mwbx.MwbxError, match=needle) as err:
+      make()
+    assert "\n" not in str(err.value) and str(err.value).startswith("query")
+  assert mwbx.TouchQuery("cube", "floor", window=(0, 1e9)).window == (0.0, 1e9)  # the largest time taken
+
+
+def test_event_functions_check_the_window_they_are_given(tiny_native_bank):
+  from mwbx.queries.event import first_touch, touch_seconds
+  for function in (first_touch, touch_seconds):
+    with pytest.raises(mwbx.MwbxError, match="window t1"):
+      function(tiny_native_bank, ("cube",), ("floor",), (0.0, math.inf))
+  assert first_touch(tiny_native_bank, ("cube",), ("floor",), (0.0, 1e9)).shape == (tiny_native_bank.n_worlds,)
+
+
+@pytest.mark.parametrize("entry, field", [
+    ("{then: null}", "then"),
+    ("{touch: null}", "touch"),
+    ("{joint: null, turn: [0.5, null]}", "joint"),
+    ("{box: null}", "box"),
+])
+def test_a_kind_key_set_to_null_is_named(tmp_path, entry, field):
+  # `then: null` read as no `then` and was answered "give exactly one of 'box' or 'region'".
+  path = tmp_path / "q.yaml"
+  path.write_text(f"queries:\n  - {entry}\n")
+  with pytest.raises(mwbx.MwbxError, match=rf"^{re.escape(str(path))}: queries\[0\]\.{field}: must be .*got null$"):
+    load_queries(path)
+
+
+# --- errors name files and fields, never what they hold ------------------------------
+
+SECRET = "sk-live-0a1b2c3d4e5f"  # lower case: PyYAML lowers some scalars before echoing them
+
+
+def test_config_errors_name_fields_not_values(tmp_path):
+  # A file of secrets read as a config echoed them: `scene: Field required (got {'api_key': ...})`.
+  path = tmp_path / "secret.yaml"
+  path.write_text(f"api_key: {SECRET}\ndb: {{user: admin, password: {SECRET}}}\n")
+  with pytest.raises(mwbx.MwbxError) as err:
+    mwbx.load_config(path)
+  assert f"{path}: scene: Field required" in str(err.value) and SECRET not in str(err.value), str(err.value)
+  path.write_text(f"scene: {{mjcf: {SECRET}}}\nsim: {{end_time: {SECRET}}}\nrandomize: {SECRET}\n")
+  with pytest.raises(mwbx.MwbxError) as err:
+    mwbx.load_config(path)
+  assert "sim.end_time" in str(err.value) and "randomize" in str(err.value) and SECRET not in str(err.value)
+
+
+def test_query_file_errors_name_fields_not_values(tmp_path):
+  path = tmp_path / "q.yaml"
+  for text, field in ((f"queries: {{api_key: {SECRET}}}\n", "queries"),
+                      (f"queries:\n  - {{box: {SECRET}}}\n", "queries[0].box"),
+                      (f"queries: []\ntop: {SECRET}\n", "top")):
+    path.write_text(text)
+    with pytest.raises(mwbx.MwbxError) as err:
+      load_queries(path)
+    assert str(err.value).startswith(f"{path}: {field}: ") and SECRET not in str(err.value), str(err.value)
+
+
+def test_yaml_errors_name_the_place_not_the_content(tmp_path):
+  # A tagged scalar that did not convert was echoed (`invalid literal for
+  # int() with base 10: '...'`), or was a KeyError traceback (`!!bool`).
+  path = tmp_path / "c.yaml"
+  for text in (f"sim: {{end_time: !!int {SECRET}}}\n",
+               f"sim: {{end_time: !!float {SECRET}}}\n",
+               f"sim: {{end_time: !!bool {SECRET}}}\n",
+               f"scene: [{SECRET}\nsim: {{end_time: 1}}\n",  # malformed: the place, not the line
+               f"scene: \"{SECRET}\\q\"\n"):
+    path.write_text(text)
+    for load in (mwbx.load_config, load_queries):
+      with pytest.raises(mwbx.MwbxError) as err:
+        load(path)
+      assert str(err.value).startswith(str(path)) and SECRET not in str(err.value), str(err.value)
+      assert "\n" not in str(err.value)

@@ -23,6 +23,7 @@ paths and volumes :mod:`mwbx.browser.drawing`; this module is the GUI.
 from __future__ import annotations
 
 import logging
+import math
 import pathlib
 import socket
 import sys
@@ -42,6 +43,7 @@ from mwbx.browser.session import ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
 from mwbx.viewer import display, framing
 from mwbx.viewer import flex as flex_lib
+from mwbx.yaml_input import short_repr, short_repr_text
 
 # The page's log: what each action did, one line each (``mwbx browse: ...`` on
 # stdout once :func:`browse` serves; research code configures it as it likes).
@@ -188,7 +190,7 @@ class Browser:
       for name in names[1:]:
         if name not in self.ui.several:
           self.ui.several[name] = self.server.gui.add_checkbox(name, False)
-          self.ui.several[name].on_update(lambda _: self.refresh())
+          gui.wire(self, self.ui.several[name], lambda _: self.refresh())
     self.ui.playing_md.content = "no world playing (the scene changed)"
 
   # -- GUI --------------------------------------------------------------------------------
@@ -209,18 +211,47 @@ class Browser:
       return ticked
     return None if self.ui.bodies.value == ALL_BODIES else (self.ui.bodies.value,)
 
-  def report(self, action) -> None:
-    try:
+  def report(self, action, what: str = "") -> None:
+    """Runs ``action`` (which returns what to tell the user), redraws, and
+    says what it returned, or why it failed (:meth:`guarded`)."""
+
+    def run():
       message = action()
       self.refresh()
+      self._say(message)
+
+    self.guarded(run, what)
+
+  def guarded(self, action, what: str = "") -> None:
+    """Runs ``action`` for a page callback: whatever a client sent, a failure
+    ends as one ``error:`` line in the status line, never as an exception in
+    viser's thread (which left the page saying nothing, or something stale).
+
+    Args:
+      action: the callback's work (its return value is ignored).
+      what: the widget that asked, for messages (``Refine playing world``).
+    """
+    try:
+      action()
     except MwbxError as err:
-      message = f"error: {err}"
-    self._say(message)
+      self._say(f"error: {err}")
+    except Exception as err:  # noqa: BLE001 - any value a client sends lands here, not in a traceback
+      where = f"{what}: " if what else ""
+      self._say(f"error: {where}refused ({type(err).__name__}: {short_repr_text(str(err), 200)})",
+                f"error: {where}{type(err).__name__}: {err}")
+      LOG.debug("the refused callback", exc_info=True)
 
   def with_pick(self, action) -> None:
-    label = self.ui.query_pick.value
-    if label.startswith("q"):
-      self.report(lambda: action(int(label[1:].split(" ")[0])) or f"{label}: done")
+    label = str(self.ui.query_pick.value)
+    if not label.startswith("q"):
+      self._say("pick a query first")
+      return
+    try:
+      index = int(label[1:].split(" ")[0])
+    except ValueError:
+      self._say(f"error: query: no query {short_repr(label, 80)}")
+      return
+    self.report(lambda: action(index) or f"{label}: done")
 
   def _window(self):
     lo, hi = self.ui.window.value
@@ -232,17 +263,17 @@ class Browser:
     @scene.on_rect_select()
     def _(event):
       scene.remove_rect_select_callback(_)
-      self._add_box(sign, event)
+      self.guarded(lambda: self._add_box(sign, event), f"{sign} box")
 
     self._say(f"drag a box in the view for an {sign} query")
 
   def _add_box(self, sign: str, event) -> None:
-    camera = camera_from_client(event.client.camera)
-    box = mq.ScreenBox.from_corners(event.screen_min, event.screen_max)
-    bodies = self._selection()
-    window = self._window()
-    shape = "geometry" if self.ui.geometry.value else "com"
-    try:
+    try:  # every part of the event is the client's: a NaN or huge box is refused here, in one line
+      camera = camera_from_client(event.client.camera)
+      box = mq.ScreenBox.from_corners(event.screen_min, event.screen_max)
+      bodies = self._selection()
+      window = self._window()
+      shape = "geometry" if self.ui.geometry.value else "com"
       query = mq.Query.screen(camera, box, sign=sign, bodies=bodies, mode=self.ui.mode.value, window=window,
                               name=f"q{len(self.session.entries)}", shape=shape)
       index = self.session.add(query)
@@ -258,10 +289,10 @@ class Browser:
     self._say(f"q{index}: {count.per_query[index]} worlds", detail)
 
   def add_orientation(self, upright: bool) -> None:
-    bodies = self._selection()
-    window = self._window()
-    goal = dict(axis=self.ui.axis.value) if upright else dict(target="initial")
     try:
+      bodies = self._selection()
+      window = self._window()
+      goal = dict(axis=self.ui.axis.value) if upright else dict(target="initial")
       query = mq.OrientationQuery(bodies=bodies, within_deg=self.ui.within.value, window=window, mode=self.ui.mode.value,
                                   name=f"q{len(self.session.entries)}", **goal)
       index = self.session.add(query)
@@ -347,7 +378,7 @@ class Browser:
         label = (f"world {r.world} · {r.satisfied} · {r.value:.4g}"
                  + ("" if r.parent < 0 else f" · from {r.parent}"))
         button = self.server.gui.add_button(label)
-        button.on_click(lambda _, world=r.world: self.play(world, add=self.ui.compare.value))
+        gui.wire(self, button, lambda _, world=r.world: self.play(world, add=self.ui.compare.value))
         self.ui.row_buttons.append(button)
 
   # -- playback ---------------------------------------------------------------------------
@@ -404,7 +435,12 @@ class Browser:
     self._say(f"side by side: {', '.join(f'world {w}' for w in worlds)}")
 
   def seek(self) -> None:
-    self.player.seek(int(round(self.ui.time_slider.value * self.session.bank.record_fps)))
+    t = float(self.ui.time_slider.value)
+    if not math.isfinite(t):  # a client may send any number; the slider's span holds the rest
+      self._say(f"error: time: must be a finite number of seconds, got {t}")
+      return
+    t = min(max(t, 0.0), self.ui.end_time)
+    self.player.seek(int(round(t * self.session.bank.record_fps)))
 
   # -- refinement ---------------------------------------------------------------------------
 
@@ -462,8 +498,10 @@ class Browser:
     self._say("no refinement is running" if job is None else f"cancelling the refinement of world {job.world}")
 
   def _say(self, message: str, detail: str | None = None) -> None:
-    """The page's one way to report: ``message`` on its status line, and
-    ``detail`` (default: the message) in the log (``mwbx browse:`` lines)."""
+    """The page's one way to report: ``message`` on its status line (one
+    line: an error of several lines is joined with ``; ``), and ``detail``
+    (default: the message) in the log (``mwbx browse:`` lines)."""
+    message = "; ".join(line.strip() for line in str(message).splitlines() if line.strip())
     self.ui.status_md.content = message
     LOG.info(message if detail is None else detail)
 

@@ -26,8 +26,17 @@ MAX_PLAYED = MAX_SLOTS
 class Widgets(types.SimpleNamespace):
   """The page's widgets that the :class:`~mwbx.browser.app.Browser` reads or
   updates (``bodies``, ``several``, ``geometry``, ``window``, ``metric``,
-  ``sorter``, ``time_slider``, ``status_md``, ...), and ``end_time``, the
-  time sliders' span (s)."""
+  ``sorter``, ``time_slider``, ``status_md``, ...), ``buttons`` (label ->
+  button, the sorter's rows aside), and ``end_time``, the time sliders' span
+  (s)."""
+
+
+def wire(page, handle, action) -> None:
+  """Calls ``action(event)`` when ``handle`` is clicked (a button) or changed,
+  through ``page.guarded``: whatever value a client sends, a failure is one
+  ``error:`` line in the status line, never an exception in viser's thread."""
+  register = handle.on_click if hasattr(handle, "on_click") else handle.on_update
+  register(lambda event: page.guarded(lambda: action(event), handle.label))
 
 
 def build(page) -> Widgets:
@@ -35,7 +44,14 @@ def build(page) -> Widgets:
   actions (``page.refresh``, ``page.arm_box``, ``page.refine``, ...), and
   returns the ones read later."""
   w = Widgets()
+  w.buttons = {}
   gui = page.server.gui
+
+  def on(handle, action) -> None:
+    wire(page, handle, action)
+    if hasattr(handle, "on_click"):
+      w.buttons[handle.label] = handle
+
   bank = page.session.bank
   names = page.body_names()
   end = float((int(bank.frame_count.max()) - 1) / bank.record_fps) if bank.n_worlds else 1.0
@@ -49,34 +65,34 @@ def build(page) -> Widgets:
       w.several = {}
       for name in names[1:]:
         w.several[name] = gui.add_checkbox(name, False)
-        w.several[name].on_update(lambda _: page.refresh())
+        on(w.several[name], lambda _: page.refresh())
     w.mode = gui.add_dropdown("Mode", ("any", "all"), initial_value="any")
     w.geometry = gui.add_checkbox("Whole geometry", False,
                                      hint="a box asks about any point of the bodies' geoms, not their COM")
     w.only_matches = gui.add_checkbox("Only matching paths", False)
-    w.only_matches.on_update(lambda _: page.refresh())
-    w.bodies.on_update(lambda _: page.refresh())
+    on(w.only_matches, lambda _: page.refresh())
+    on(w.bodies, lambda _: page.refresh())
     w.window = gui.add_multi_slider("Time window (s)", 0.0, max(end, 1e-3), max(end, 1e-3) / 100,
                                        (0.0, max(end, 1e-3)))
     include = gui.add_button("Draw include box")
     exclude = gui.add_button("Draw exclude box")
-    include.on_click(lambda event: page.arm_box("include", event.client))
-    exclude.on_click(lambda event: page.arm_box("exclude", event.client))
+    on(include, lambda event: page.arm_box("include", event.client))
+    on(exclude, lambda event: page.arm_box("exclude", event.client))
     w.query_pick = gui.add_dropdown("Query", ("(none)",), initial_value="(none)")
     toggle = gui.add_button("Toggle query")
     remove = gui.add_button("Remove query")
-    toggle.on_click(lambda _: page.with_pick(page.session.toggle))
-    remove.on_click(lambda _: page.with_pick(page.session.remove))
+    on(toggle, lambda _: page.with_pick(page.session.toggle))
+    on(remove, lambda _: page.with_pick(page.session.remove))
     undo = gui.add_button("Undo")
     redo = gui.add_button("Redo")
-    undo.on_click(lambda _: page.session.undo() and page.refresh())
-    redo.on_click(lambda _: page.session.redo() and page.refresh())
+    on(undo, lambda _: page.session.undo() and page.refresh())
+    on(redo, lambda _: page.session.redo() and page.refresh())
     w.query_file = gui.add_text("Query file", "queries.yaml",
                                    hint=f"a .yaml file under {page.session.query_dir}")
     save_q = gui.add_button("Save queries")
     open_q = gui.add_button("Open queries")
-    save_q.on_click(lambda _: page.report(lambda: f"saved {page.session.save_queries(w.query_file.value)}"))
-    open_q.on_click(lambda _: page.report(lambda: page.session.open_queries(w.query_file.value)
+    on(save_q, lambda _: page.report(lambda: f"saved {page.session.save_queries(w.query_file.value)}"))
+    on(open_q, lambda _: page.report(lambda: page.session.open_queries(w.query_file.value)
                                            or f"opened {w.query_file.value.strip()}"))
   with gui.add_folder("Orientation"):
     gui.add_markdown("for the chosen bodies; the window as above (whole span: at the end)")
@@ -84,8 +100,8 @@ def build(page) -> Widgets:
     w.within = gui.add_number("Within (deg)", 15.0, min=0.0, max=180.0, step=1.0)
     upright = gui.add_button("Upright at the end")
     initial = gui.add_button("Near its initial orientation")
-    upright.on_click(lambda _: page.add_orientation(upright=True))
-    initial.on_click(lambda _: page.add_orientation(upright=False))
+    on(upright, lambda _: page.add_orientation(upright=True))
+    on(initial, lambda _: page.add_orientation(upright=False))
   with gui.add_folder("Contacts"):
     gui.add_markdown("two sides that touch, or never touch, in the time window above")
     actors = tuple(bank.event_actors) + tuple(bank.groups) or ("(no contact events in this bank)",)
@@ -93,8 +109,8 @@ def build(page) -> Widgets:
     w.touch_b = gui.add_dropdown("touches", actors, initial_value=actors[min(1, len(actors) - 1)])
     touches = gui.add_button("Add: they touch")
     never = gui.add_button("Add: they never touch")
-    touches.on_click(lambda _: page.add_touch(include=True))
-    never.on_click(lambda _: page.add_touch(include=False))
+    on(touches, lambda _: page.add_touch(include=True))
+    on(never, lambda _: page.add_touch(include=False))
   with gui.add_folder("Sorter"):
     # A scene of flexes only has no turning to sort by: start on the path length.
     first = bank.metric_names[0]
@@ -103,17 +119,17 @@ def build(page) -> Widgets:
     w.metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS, ORIENTATION_ERROR),
                                    initial_value=first)
     w.reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
-    w.metric.on_update(lambda _: page.sorter())
-    w.reduce.on_update(lambda _: page.sorter())
+    on(w.metric, lambda _: page.sorter())
+    on(w.reduce, lambda _: page.sorter())
     w.sorter_md = gui.add_markdown("")
     w.compare = gui.add_checkbox("Add to the playing worlds", False,
                                     hint=f"play up to {MAX_PLAYED} worlds at once, each labelled with its id")
     w.side_by_side = gui.add_checkbox("Side by side", False,
                                          hint="the played worlds in a grid of copies of the scene, not overlaid")
-    w.side_by_side.on_update(lambda _: page.layout())
+    on(w.side_by_side, lambda _: page.layout())
     w.chosen = gui.add_text("Worlds to compare", "", hint=f"2 to {MAX_PLAYED} world ids, e.g. 3, 7, 12")
     compare = gui.add_button("Show side by side")
-    compare.on_click(lambda _: page.compare())
+    on(compare, lambda _: page.compare())
     w.sorter = gui.add_folder("Worlds (click to play)")
     w.row_buttons: list = []
   with gui.add_folder("Playback"):
@@ -121,11 +137,11 @@ def build(page) -> Widgets:
     w.lineage_md = gui.add_markdown("")
     w.paused = gui.add_checkbox("Pause", False)
     w.time_slider = gui.add_slider("Time (s)", 0.0, max(end, 1e-3), 1.0 / bank.record_fps, 0.0)
-    w.time_slider.on_update(lambda _: page.seek())
+    on(w.time_slider, lambda _: page.seek())
     w.export_file = gui.add_text("Export file", "world.usd", hint="a .usd, .mp4 or .npz file under "
                                     f"{page.session.query_dir}")
     export = gui.add_button("Export playing world")
-    export.on_click(lambda _: page.export())
+    on(export, lambda _: page.export())
   with gui.add_folder("Refine"):
     w.objects = gui.add_dropdown("Objects", tuple(bank.objects) + tuple(bank.groups) + (NO_OBJECTS,),
                                     initial_value=next(iter(bank.objects)))
@@ -137,13 +153,13 @@ def build(page) -> Widgets:
     w.add_objects = gui.add_text("Add objects", "", hint="objects of the scene file, inserted at the start time")
     w.remove_objects = gui.add_text("Remove objects", "", hint="objects parked from the start time on")
     refine = gui.add_button("Refine playing world")
-    refine.on_click(lambda _: page.refine())
+    on(refine, lambda _: page.refine())
     cancel = gui.add_button("Cancel refinement")
-    cancel.on_click(lambda _: page.cancel())
+    on(cancel, lambda _: page.cancel())
     w.progress = gui.add_progress_bar(0.0, visible=False)
     parent = gui.add_button("Go to parent")
-    parent.on_click(lambda _: page.parent())
+    on(parent, lambda _: page.parent())
     save = gui.add_button("Save bank")
-    save.on_click(lambda _: page.report(page.save))
+    on(save, lambda _: page.report(page.save))
     w.status_md = gui.add_markdown("")
   return w

@@ -16,11 +16,13 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from mwbx import queries as mq
+from mwbx.bank.shards import SHARDS
 from mwbx.errors import MwbxError
 from mwbx.progress import Progress
 from mwbx.queries.bank_cache import PerBank
 from mwbx.refinement import RefineRequest
 from mwbx.refinement import refinement
+from mwbx.yaml_input import short_repr
 
 REDUCTIONS = ("sum", "max")
 # The sorter lists at most this many worlds.
@@ -108,21 +110,49 @@ class RefineJob:
     self.progress = progress
 
 
-def query_file_path(workdir, name, suffixes=QUERY_SUFFIXES, what: str = "query file") -> pathlib.Path:
+def query_file_path(workdir, name, suffixes=QUERY_SUFFIXES, what: str = "query file",
+                    write: bool = False) -> pathlib.Path:
   """The query file ``name`` (relative to ``workdir``, or absolute) as an
   absolute path, refused unless it is a .yaml/.yml file (or one of
-  ``suffixes``) under ``workdir`` (symbolic links followed)."""
+  ``suffixes``) under ``workdir`` (symbolic links followed).
+
+  Names come from any client of the page, so the checks hold for any string:
+  a NUL or other control character, a part starting with ``~`` (never a home
+  folder here) or ``.`` (hidden: the bank's lock and temporary files), and
+  the bank's own ``shards`` folder are refused. With ``write`` the file's
+  folder must exist already: the page writes into ``workdir`` and the
+  folders someone made there, and never makes one.
+
+  Raises:
+    MwbxError: one line naming the file and what is wrong with it.
+  """
   if workdir is None:
     raise MwbxError(f"{what}s: this session has no directory to keep them in (pass path= or workdir=)")
   root = pathlib.Path(workdir).resolve()
   raw = str(name).strip()
   if not raw:
     raise MwbxError(f"{what}: give a file name, e.g. {'queries' if what == 'query file' else 'world'}{suffixes[0]}")
-  full = (root / raw).resolve()
+  shown = short_repr(raw, 120)
+  if any(ord(c) < 32 or ord(c) == 127 for c in raw):
+    raise MwbxError(f"{what} {shown}: the name holds a NUL or other control character")
+  if any(part.startswith("~") for part in pathlib.PurePath(raw).parts):
+    raise MwbxError(f"{what} {shown}: a name starting with '~' is refused (it is no home folder here)")
+  try:
+    full = (root / raw).resolve()
+  except (OSError, RuntimeError, ValueError) as err:  # a symbolic link loop, a name too long
+    raise MwbxError(f"{what} {shown}: not a usable file name ({type(err).__name__})") from None
   if full == root or not full.is_relative_to(root):
-    raise MwbxError(f"{what} {raw!r}: outside {root}; {what}s stay under that directory")
+    raise MwbxError(f"{what} {shown}: outside {root}; {what}s stay under that directory")
   if full.suffix.lower() not in suffixes:
-    raise MwbxError(f"{what} {raw!r}: the name must end in {' or '.join(suffixes)}")
+    raise MwbxError(f"{what} {shown}: the name must end in {' or '.join(suffixes)}")
+  inside = full.relative_to(root).parts
+  if any(part.startswith((".", "~")) for part in inside):
+    raise MwbxError(f"{what} {shown}: hidden files and folders (names starting with '.') are refused")
+  if SHARDS in inside[:-1]:
+    raise MwbxError(f"{what} {shown}: inside a bank's own {SHARDS}/ folder; {what}s stay out of it")
+  if write and not full.parent.is_dir():
+    raise MwbxError(f"{what} {shown}: no folder {full.parent.relative_to(root)} under {root}; files are"
+                    f" written into it and its existing folders only (none is made)")
   return full
 
 
@@ -290,7 +320,7 @@ class Session:
     (``.usd``/``.usda``/``.usdc``), an mp4 video or an npz of its decoded qpos
     and body poses (:mod:`mwbx.export`); returns the path written."""
     from mwbx import export  # lazy: usd-core and imageio-ffmpeg load on first export
-    full = query_file_path(self.query_dir, name, EXPORT_SUFFIXES, "export file")
+    full = query_file_path(self.query_dir, name, EXPORT_SUFFIXES, "export file", write=True)
     world = int(world)
     suffix = full.suffix.lower()
     if suffix == ".mp4":
@@ -303,7 +333,7 @@ class Session:
 
   def save_queries(self, name) -> str:
     """Writes the enabled queries to ``name`` under :attr:`query_dir`; returns its path."""
-    return self.query_set().save(query_file_path(self.query_dir, name))
+    return self.query_set().save(query_file_path(self.query_dir, name, write=True))
 
   def open_queries(self, name) -> None:
     """Replaces the stack with the queries of file ``name`` under
@@ -369,7 +399,8 @@ class Session:
       raise MwbxError(f"refine: samples must be a whole number from 1 to {MAX_REFINE_SAMPLES}, got {n_samples!r}")
     # Every argument is checked before the job slot is taken: a refused one
     # never leaves a job that is not done (which would refuse every later one).
-    scene_path = None if scene is None or not str(scene).strip() else query_file_path(self.query_dir, scene)
+    scene_path = (None if scene is None or not str(scene).strip()
+                  else query_file_path(self.query_dir, scene, what="scene file"))
     if scene_path is not None and not scene_path.is_file():
       raise MwbxError(f"refine: scene file {str(scene).strip()!r}: no such file under {self.query_dir}")
     with self._lock:

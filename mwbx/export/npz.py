@@ -8,8 +8,8 @@ import pathlib
 
 import numpy as np
 
+from mwbx.export import target
 from mwbx.export.poses import world_poses
-from mwbx.files import write_atomic
 
 
 def export_npz(bank, world: int, path: str | os.PathLike, *, start: float = 0.0,
@@ -32,22 +32,24 @@ def export_npz(bank, world: int, path: str | os.PathLike, *, start: float = 0.0,
   Args:
     bank: a :class:`mwbx.Bank`.
     world: world id.
-    path: the file to write (replaced whole or not at all).
+    path: the ``.npz`` file to write: a new file, or a regular file replaced
+      whole or not at all (a symlink, FIFO, device or directory is refused).
     start, stop: time span, s (default: the whole recording).
 
   Returns:
     the path written.
 
   Raises:
-    MwbxError: naming the world, span or file at fault.
+    MwbxError: naming the world, span, file or folder at fault.
 
   Example:
     >>> export_npz(bank, 3, "world3.npz")
     >>> np.load("world3.npz")["xpos"].shape     # (T, nbody, 3)
   """
+  target.check_target(path, "npz")  # before decoding: a bad name costs nothing
   poses = world_poses(bank, world, start=start, stop=stop)
   buffer = io.BytesIO()
   np.savez_compressed(buffer, qpos=poses.qpos, xpos=poses.xpos, xquat=poses.xquat, present=poses.present,
                       times=poses.times, frames=poses.frames, body_names=np.asarray(poses.body_names, str),
                       fps=np.float64(poses.fps), world=np.int64(poses.world))
-  return write_atomic(path, buffer.getvalue(), what="npz export")
+  return target.write_bytes(path, buffer.getvalue(), "npz", what="npz export")

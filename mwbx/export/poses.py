@@ -21,6 +21,9 @@ from mwbx.viewer.kinematics import body_trajectories
 # Slack on frame boundaries (frames): a time given to the microsecond still
 # lands on its frame.
 _FRAME_SLACK = 1e-6
+# Highest clip rate, Hz, unless the recording's own rate is higher: beyond
+# it frames only repeat, and their arrays would fill memory.
+MAX_FPS = 1000.0
 
 
 class WorldPoses(NamedTuple):
@@ -79,7 +82,7 @@ def clip_frames(n_frames: int, record_fps: float, fps: float | None = None, star
 
   Raises:
     MwbxError: naming fps, start or stop when they are not finite, fps is
-      not positive, or the span holds no frame.
+      not positive or above max(MAX_FPS, record_fps), or the span holds no frame.
 
   Example:
     >>> clip_frames(601, 120.0, fps=30.0)[0][:3]   # every 4th frame
@@ -92,6 +95,9 @@ def clip_frames(n_frames: int, record_fps: float, fps: float | None = None, star
       raise MwbxError(f"{name}: must be a finite number, got {value!r}")
   if fps is not None and fps <= 0:
     raise MwbxError(f"fps: must be positive, got {fps!r}")
+  most = max(MAX_FPS, float(record_fps))
+  if fps is not None and fps > most:  # every clip frame is kept in memory: a huge rate would exhaust it
+    raise MwbxError(f"fps: must be at most {most:g} frames per second, got {fps!r}")
   if stop is not None and stop < 0:
     raise MwbxError(f"stop: must be >= 0 s, got {stop!r}")
   stop = duration if stop is None else min(float(stop), duration)

@@ -31,12 +31,12 @@ from __future__ import annotations
 
 import os
 import pathlib
-import uuid
 
 import mujoco
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.export import target
 from mwbx.export.poses import WorldPoses, world_poses
 from mwbx.files import remove_quietly, why
 from mwbx.progress import Progress, ProgressFn
@@ -44,7 +44,7 @@ from mwbx.viewer import flex as flex_lib
 from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS
 from mwbx.viewer.geometry import geom_rgba, hfield_mesh
 
-USD_SUFFIXES = (".usd", ".usda", ".usdc")
+USD_SUFFIXES = target.SUFFIXES["usd"]
 PHASE = "writing USD"
 _T = mujoco.mjtGeom
 
@@ -56,6 +56,12 @@ def _pxr():
   except ImportError:
     raise MwbxError("export_usd: needs usd-core (pip install usd-core, or pip install 'mwbx[export]')") from None
   return Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
+
+
+def _pxr_reason(err: Exception) -> str:
+  """The message of a pxr error without its C++ location: what after the last ' : '."""
+  text = str(err).strip().splitlines()[-1] if str(err).strip() else type(err).__name__
+  return text.rsplit(" : ", 1)[-1].strip().strip("'")
 
 
 def _unique(name: str, taken: set, fallback: str) -> str:
@@ -242,12 +248,23 @@ def write_stage(model: mujoco.MjModel, poses: WorldPoses, path: str | os.PathLik
   """Writes the USD stage of ``poses`` (of a world of ``model``) to ``path``.
 
   The format follows the suffix: ``.usda`` text, ``.usd``/``.usdc`` binary.
-  The file is written beside its target and renamed over it (whole or not at all).
+  The file is written beside its target and renamed over it (whole or not at
+  all); the target must be a new file or a regular one (see
+  :mod:`mwbx.export.target`).
   """
+  _pxr()  # a missing usd-core is named before anything is created
+  path = target.check_target(path, "usd")
+  tmp = target.reserve_temp(path)  # the folder is writable before the stage is built
+  try:
+    return _write_stage(model, poses, path, tmp, progress)
+  finally:
+    remove_quietly(tmp)  # gone after the rename; left by a failure
+
+
+def _write_stage(model: mujoco.MjModel, poses: WorldPoses, path: pathlib.Path, tmp: pathlib.Path,
+                 progress: ProgressFn | None) -> pathlib.Path:
+  """write_stage's body: the stage built in memory, exported to ``tmp``, renamed over ``path``."""
   Gf, Sdf, Usd, UsdGeom, _, _ = _pxr()
-  path = pathlib.Path(path)
-  if path.suffix.lower() not in USD_SUFFIXES:
-    raise MwbxError(f"{path}: a USD file name ends in {', '.join(USD_SUFFIXES)}")
   stage = Usd.Stage.CreateInMemory()
   UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
   UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -278,18 +295,14 @@ def write_stage(model: mujoco.MjModel, poses: WorldPoses, path: str | os.PathLik
     if progress is not None:
       progress(Progress(PHASE, b / model.nbody, 1, 0))
   _write_flexes(stage, layer, model, poses)
-  tmp = path.parent / f".{path.stem}.tmp-{uuid.uuid4().hex[:12]}{path.suffix}"
   try:
-    path.parent.mkdir(parents=True, exist_ok=True)
     if not layer.Export(str(tmp)):
       raise OSError(f"USD could not write {tmp}")
-    os.replace(tmp, path)
   except OSError as err:
-    remove_quietly(tmp)
     raise MwbxError(f"{path}: cannot write USD export ({why(err)})") from None
   except Exception as err:  # pxr's Tf.ErrorException: one line naming the file
-    remove_quietly(tmp)
-    raise MwbxError(f"{path}: cannot write USD export ({str(err).strip().splitlines()[-1]})") from None
+    raise MwbxError(f"{path}: cannot write USD export ({_pxr_reason(err)})") from None
+  target.replace(tmp, path, "USD export")
   if progress is not None:
     progress(Progress(PHASE, 1, 1, 0))
   return path
@@ -302,8 +315,9 @@ def export_usd(bank, world: int, path: str | os.PathLike, *, fps: float | None =
   Args:
     bank: a :class:`mwbx.Bank`.
     world: world id.
-    path: ``.usda`` (text), ``.usd`` or ``.usdc`` (binary) file; replaced
-      whole or not at all.
+    path: ``.usda`` (text), ``.usd`` or ``.usdc`` (binary) file: a new file,
+      or a regular file replaced whole or not at all (a symlink, FIFO,
+      device or directory is refused).
     fps: time samples per second; None (default) writes every recorded
       frame (``bank.record_fps``), else the nearest recorded frame to each
       ``start + k / fps``.
@@ -327,6 +341,7 @@ def export_usd(bank, world: int, path: str | os.PathLike, *, fps: float | None =
     >>> body.ComputeLocalToWorldTransform(120.0).ExtractTranslation()  # m, at 1 s (120 fps)
   """
   _pxr()
+  target.check_target(path, "usd")  # before decoding: a bad name costs nothing
   poses = world_poses(bank, world, fps=fps, start=start, stop=stop)
   return write_stage(bank.model(), poses, path, progress)
 

@@ -85,6 +85,8 @@ class Camera:
             f" aspect={self.aspect:.4g}{kind})")
 
   def __post_init__(self):
+    for field in ("eye", "right", "up", "forward"):  # checked here, not as a frustum's planes later
+      object.__setattr__(self, field, _vec3(getattr(self, field), field))
     if not (math.isfinite(self.aspect) and 0 < self.aspect <= MAX_COORDINATE):
       raise MwbxError(f"camera: aspect must be a positive number up to {MAX_COORDINATE:g}, got {self.aspect}")
     limit = MAX_COORDINATE if self.orthographic else 180.0

@@ -35,7 +35,7 @@ from mwbx.errors import MwbxError
 from mwbx.events.record import ROW
 from mwbx.queries import paths
 from mwbx.queries import selection
-from mwbx.queries.intervals import checked_interval
+from mwbx.queries.intervals import checked_window
 from mwbx.queries.query import Query
 from mwbx.queries.query import unexpected_fields
 
@@ -55,10 +55,6 @@ def _pair(label: str, field: str, pair) -> tuple[Side, Side]:
   if isinstance(pair, str) or len(pair) != 2:
     raise MwbxError(f"{label}: {field} must be two sides [A, B] (each a name or a list of names), got {pair!r}")
   return _side(label, field, pair[0]), _side(label, field, pair[1])
-
-
-def _window(label: str, window):
-  return None if window is None else checked_interval(label, "window", window, ("t0", "t1"), "seconds")
 
 
 def actor_mask(bank, side: Side, label: str = "query") -> np.ndarray:
@@ -98,6 +94,7 @@ def first_touch(bank, a: Side, b: Side, window=None, label: str = "query") -> np
     a, b: the sides (names; any of each).
     window: (t0, t1) seconds, None ends open; None: the whole world.
   """
+  window = checked_window(label, window)  # a time no frame index holds fails here, in one line
   record = _events(bank, label)
   ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
   rows = record.rows
@@ -125,6 +122,7 @@ def first_touch(bank, a: Side, b: Side, window=None, label: str = "query") -> np
 def touch_seconds(bank, a: Side, b: Side, window=None, label: str = "query") -> np.ndarray:
   """f64[W] how long sides ``a`` and ``b`` touch inside ``window``, seconds
   (stored frames touching / record_fps; a touch on at a world's end counts to it)."""
+  window = checked_window(label, window)
   record = _events(bank, label)
   ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
   rows = record.rows
@@ -265,7 +263,7 @@ class TouchQuery(Query):
     label = f"query {self.name!r}" if self.name else "query"
     object.__setattr__(self, "a", _side(label, "touch", self.a))
     object.__setattr__(self, "b", _side(label, "touch", self.b))
-    object.__setattr__(self, "window", _window(label, self.window))
+    object.__setattr__(self, "window", checked_window(label, self.window))
     if self.sign not in ("include", "exclude"):
       raise MwbxError(f"{label}: sign must be include or exclude, got {self.sign!r}")
 
@@ -347,7 +345,7 @@ class OrderQuery(Query):
     if len(events) < 2:
       raise MwbxError(f"{label}: then needs at least two touches in order, got {len(events)}")
     object.__setattr__(self, "events", events)
-    object.__setattr__(self, "window", _window(label, self.window))
+    object.__setattr__(self, "window", checked_window(label, self.window))
 
   @property
   def label(self) -> str:

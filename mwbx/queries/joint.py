@@ -30,6 +30,7 @@ from mwbx.queries.bank_cache import PerBank
 from mwbx.queries.query import Query
 from mwbx.queries.query import unexpected_fields
 from mwbx.queries.intervals import checked_interval
+from mwbx.queries.intervals import checked_window
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -61,7 +62,7 @@ class JointQuery(Query):
     if self.of not in MEASURES:
       raise MwbxError(f"{label}: of must be one of {MEASURES}, got {self.of!r}")
     if self.window is not None:
-      object.__setattr__(self, "window", checked_interval(label, "window", self.window, ("t0", "t1"), "seconds"))
+      object.__setattr__(self, "window", checked_window(label, self.window))
 
 
   # -- the Query interface -----------------------------------------------------------

@@ -41,7 +41,7 @@ from mwbx.queries.bank_cache import PerBank
 from mwbx.queries.query import Query
 from mwbx.queries.query import unexpected_fields
 from mwbx.queries.query import who
-from mwbx.queries.intervals import checked_interval
+from mwbx.queries.intervals import checked_window
 from mwbx.queries.selection import turning_mask
 
 AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -122,7 +122,7 @@ class OrientationQuery(Query):
       raise MwbxError(f"{label}: within_deg must be an angle in [0, 180] degrees, got {self.within_deg!r}")
     object.__setattr__(self, "within_deg", within)
     if self.window is not None:
-      object.__setattr__(self, "window", checked_interval(label, "window", self.window, ("t0", "t1"), "seconds"))
+      object.__setattr__(self, "window", checked_window(label, self.window))
     if self.sign not in ("include", "exclude"):
       raise MwbxError(f"{label}: sign must be include or exclude, got {self.sign!r}")
     if self.mode not in ("any", "all"):

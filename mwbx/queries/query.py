@@ -49,7 +49,7 @@ from mwbx.queries.camera import Camera
 from mwbx.queries.camera import MAX_COORDINATE
 from mwbx.queries.camera import ScreenBox
 from mwbx.queries.frustum import Frustum
-from mwbx.queries.intervals import checked_interval
+from mwbx.queries.intervals import checked_window
 
 SIGNS = ("include", "exclude")
 MODES = ("any", "all")
@@ -273,7 +273,7 @@ class VolumeQuery(Query):
     if self.mode not in MODES:
       raise MwbxError(f"{label}: mode must be one of {MODES}, got {self.mode!r}")
     if self.window is not None:
-      object.__setattr__(self, "window", checked_interval(label, "window", self.window, ("t0", "t1"), "seconds"))
+      object.__setattr__(self, "window", checked_window(label, self.window))
     if isinstance(self.radius, str):
       if self.radius != "auto":
         raise MwbxError(f"{label}: radius must be a number of metres or 'auto', got {self.radius!r}")

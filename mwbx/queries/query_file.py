@@ -253,10 +253,11 @@ def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
   try:
     spec = _FileSpec.model_validate(raw)
   except pydantic.ValidationError as err:
-    # With unions, the deepest error is the one about the intended member.
+    # With unions, the deepest error is the one about the intended member. The
+    # message names the field, never the value: a file holding anything (a
+    # secret) is refused without showing it (the page shows errors to everyone).
     first = max(err.errors(), key=lambda e: len(e["loc"]))
-    raise MwbxError(f"{path}: {_location(first['loc'])}: {first['msg']}"
-                    f" (got {yaml_input.short_repr(first.get('input'))})") from None
+    raise MwbxError(f"{path}: {_location(first['loc'])}: {first['msg']}") from None
   if model is None and bank is not None:
     model = bank.model()
   default_camera = None if spec.camera is None else _camera(spec.camera, "camera", path, model)
@@ -293,7 +294,23 @@ class FileContext(NamedTuple):
       raise MwbxError(f"{self.path}: {where}{'.bodies' if field else ''}: {err}") from None
 
 
+# The keys that say which kind an entry is, and what each must hold: one set
+# to null would otherwise read as absent, and the entry as some other kind.
+KIND_KEYS = {
+    "box": "a screen box [u0, v0, u1, v1]",
+    "region": "a world box {min: [x, y, z], max: [x, y, z]}",
+    "joint": "a joint name",
+    "upright": "a body axis (x, y, z, -x, ...) or {axis, up}",
+    "orientation": "'initial' or a quaternion [w, x, y, z]",
+    "touch": "two sides [A, B]",
+    "then": "a list of touches in order [[A, B], [C, D], ...]",
+}
+
+
 def _query(entry: _QuerySpec, index: int, context: FileContext) -> Query:
+  for key in entry.model_fields_set & KIND_KEYS.keys():
+    if getattr(entry, key) is None:
+      raise MwbxError(f"{context.path}: queries[{index}].{key}: must be {KIND_KEYS[key]}, got null")
   kind = next(k for k in QUERY_KINDS if k.claims(entry))
   return kind.from_entry(entry, index, context)
 

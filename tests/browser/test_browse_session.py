@@ -126,6 +126,7 @@ def test_touch_queries_and_export_from_the_session(tmp_path):
   each = mwbx.evaluate_each(session.bank, [touch, never])
   assert session.counts().per_query == tuple(int(n) for n in each.sum(axis=0))
   world = int(session.bank.world_ids[1])
+  (tmp_path / "bank" / "exports").mkdir()  # the page writes into folders that exist, and makes none
   written = session.export(world, "exports/w1.npz")
   with np.load(written) as f:
     np.testing.assert_array_equal(f["qpos"], session.bank.qpos_frames(world))

@@ -1,14 +1,20 @@
 """Who may use the browsing page and what it may touch: the URL's token
 (HTTP 403 and a refused websocket without it), foreign Origins refused, the
 port printed being the one bound, hosts checked, query files kept under the
-session's directory, refinement limits held by the server, unsaved
-refinements named or saved on exit, and meshcat's server on loopback."""
+session's directory and written only into folders that exist there (never
+the bank's own), errors naming files but never showing what they hold, every
+page handler answering bad values in one status line, refinement limits held
+by the server, unsaved refinements named or saved on exit, and meshcat's
+server on loopback."""
 
 from __future__ import annotations
 
+import math
 import os
 import pathlib
 import socket
+import time
+import types
 import urllib.error
 import urllib.request
 
@@ -121,9 +127,13 @@ def test_query_files_stay_under_the_directory(bank_dir, tmp_path):
   work.mkdir()
   session = Session(bank, bank_dir, work)
   session.add(mwbx.Query.region([0, 0, 0], [1, 1, 1]))
+  (work / "sub").mkdir()  # a folder someone made there: written into
   saved = pathlib.Path(session.save_queries("sub/q.yaml"))
   assert saved == work / "sub" / "q.yaml" and saved.is_file()
   session.open_queries("sub/q.yaml")
+  with pytest.raises(mwbx.MwbxError, match="no folder new under"):
+    session.save_queries("new/q.yaml")  # none is made
+  assert not (work / "new").exists()
   (tmp_path / "outside").mkdir()
   (work / "escape").symlink_to(tmp_path / "outside")
   for name in ("../escaped/dir/pwned.yaml", str(tmp_path / "abs" / "pwned.yaml"), "escape/pwned.yaml",
@@ -256,3 +266,129 @@ def test_meshcat_server_listens_on_loopback_only():
   finally:
     _stop(proc)
   assert proc.poll() is not None
+
+
+# --- the page's handlers, driven as a client's clicks drive them -------------------------
+
+SECRET = "sk-live-0a1b2c3d4e5f"
+
+
+def _click(page, label: str) -> str:
+  """Clicks the page's button ``label`` (its callbacks run at once, as for a
+  client's click); returns the status line it left."""
+  page.ui.status_md.content = "(stale)"
+  page.ui.buttons[label].value = True
+  return page.ui.status_md.content
+
+
+def _refused(status: str, *needles: str) -> None:
+  assert status.startswith("error: ") and "\n" not in status and len(status) < 500, status
+  for needle in needles:
+    assert needle in status, status
+
+
+def _first_world(page) -> int:
+  world = int(page.session.bank.world_ids[0])
+  page.play(world)
+  return world
+
+
+def test_the_page_shows_file_names_never_their_content(page, bank_dir):
+  # A file of secrets as Scene file: the status line, sent to every client,
+  # printed `scene: Field required (got {'api_key': ...})`.
+  (bank_dir / "secret.yaml").write_text(f"api_key: {SECRET}\ndb: {{user: admin, password: {SECRET}}}\n")
+  _first_world(page)
+  page.ui.scene_file.value = "secret.yaml"
+  try:
+    assert _click(page, "Refine playing world") == "(stale)"  # started; the watcher reports
+    assert page.session.job.done.wait(TIMEOUT)
+    deadline = time.monotonic() + TIMEOUT
+    while page.ui.status_md.content == "(stale)" and time.monotonic() < deadline:
+      time.sleep(0.05)
+    _refused(page.ui.status_md.content, "secret.yaml", "scene")
+    assert SECRET not in page.ui.status_md.content and SECRET not in page.session.job.error
+  finally:
+    page.ui.scene_file.value = ""
+    (bank_dir / "secret.yaml").unlink()
+
+
+def test_every_file_field_refuses_a_nul_byte_in_one_line(page):
+  # A NUL raised ValueError in the handler and left the status line stale.
+  _first_world(page)
+  job = page.session.job
+  for field, name, button in (("query_file", "q\x00.yaml", "Save queries"),
+                              ("query_file", "q\x00.yaml", "Open queries"),
+                              ("export_file", "w\x00.npz", "Export playing world"),
+                              ("scene_file", "s\x00.yaml", "Refine playing world")):
+    widget = getattr(page.ui, field)
+    before = widget.value
+    widget.value = name
+    try:
+      _refused(_click(page, button), field.replace("_", " "), "control character")
+    finally:
+      widget.value = before
+  assert page.session.job is job  # no refinement started
+
+
+def test_a_dragged_box_of_bad_corners_is_refused_in_one_line(page, monkeypatch):
+  # A NaN or huge box failed outside _add_box's try: the page said nothing.
+  armed = []
+  monkeypatch.setattr(page.server.scene, "on_rect_select", lambda **_: lambda f: armed.append(f) or f)
+  monkeypatch.setattr(page.server.scene, "remove_rect_select_callback", lambda f: None)
+  camera = types.SimpleNamespace(wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, 0.0, 3.0), fov=0.8, aspect=1.5)
+  bad_camera = types.SimpleNamespace(wxyz=(1.0, 0.0, 0.0, 0.0), position=(math.nan, 0.0, 3.0), fov=0.8, aspect=1.5)
+  queries = len(page.session.entries)
+  for cam, a, b, needle in ((camera, (math.nan, 0.2), (0.5, 0.6), "box"),
+                            (camera, (0.1, 0.2), (1e300, 0.6), "box"),
+                            (camera, (0.1,), (0.5, 0.6), "include box"),
+                            (bad_camera, (0.1, 0.2), (0.5, 0.6), "camera")):
+    _click(page, "Draw include box")
+    page.ui.status_md.content = "(stale)"
+    armed.pop()(types.SimpleNamespace(client=types.SimpleNamespace(camera=cam), screen_min=a, screen_max=b))
+    _refused(page.ui.status_md.content, needle)
+  assert len(page.session.entries) == queries
+
+
+def test_every_handler_answers_bad_values_in_the_status_line(page):
+  # Values a client can send that no widget offers: each is one error line.
+  queries = len(page.session.entries)
+  window = page.ui.window.value
+  page.ui.window.value = (math.nan, 1.0)
+  try:
+    for button in ("Upright at the end", "Near its initial orientation", "Add: they touch"):
+      _refused(_click(page, button), "window")
+  finally:
+    page.ui.window.value = window
+  page.ui.query_pick.value = "qzz"
+  _refused(_click(page, "Toggle query"), "qzz")
+  page.ui.query_pick.value = "(none)"
+  page.ui.status_md.content = "(stale)"
+  page.ui.time_slider.value = math.nan
+  _refused(page.ui.status_md.content, "time")
+  page.ui.time_slider.value = 0.0
+  assert len(page.session.entries) == queries
+
+
+def test_the_page_writes_only_into_folders_it_owns(page, bank_dir):
+  # A client made any folder in the bank (`sub/deep`, `~`) and wrote into shards/.
+  _first_world(page)
+  shards = sorted(p.name for p in (bank_dir / "shards").iterdir())
+  before = sorted(p.name for p in bank_dir.iterdir())
+  for name, needle in (("sub/deep/q.yaml", "no folder sub/deep"), ("~/q.yaml", "'~'"), ("~", "'~'"),
+                       ("shards/q.yaml", "shards/"), ("shards/00000/q.yaml", "shards/"),
+                       (".lock.yaml", "hidden"), ("manifest.json", "must end in")):
+    page.ui.query_file.value = name
+    _refused(_click(page, "Save queries"), name, needle)
+  for name, needle in (("shards/w.npz", "shards/"), ("exports/w.npz", "no folder exports")):
+    page.ui.export_file.value = name
+    _refused(_click(page, "Export playing world"), needle)
+  assert sorted(p.name for p in bank_dir.iterdir()) == before
+  assert sorted(p.name for p in (bank_dir / "shards").iterdir()) == shards
+  (bank_dir / "saved").mkdir()  # a folder someone made: written into
+  try:
+    page.ui.query_file.value = "saved/q.yaml"
+    assert _click(page, "Save queries") == f"saved {bank_dir / 'saved' / 'q.yaml'}"
+  finally:
+    page.ui.query_file.value = "queries.yaml"
+    (bank_dir / "saved" / "q.yaml").unlink(missing_ok=True)
+    (bank_dir / "saved").rmdir()
