@@ -186,6 +186,14 @@ class SimSection(_Strict):
       8; a run needing fewer simulates fewer).
     threads: native backend threads (0: one per CPU core).
     max_speed: a body faster than this (m/s) marks its world unstable.
+    sleep: MuJoCo 4's island sleep in the native engine: resting islands
+      sleep (no contacts computed inside them, no perturbation), contact
+      wakes them, a world whose every island sleeps is at rest and stops.
+      ``auto`` (default): on where it is measured to agree with sleep off
+      (:mod:`mwbx.batch_sim.sleep`); ``true``/``on`` or ``false``/``off``.
+    sleep_tolerance: velocity below which a tree may sleep (MuJoCo's
+      ``opt.sleep_tolerance``, m/s or rad/s scaled by ``dof_length``).
+      Unset: the MJCF's own (MuJoCo's default 1e-3).
     mjx: contact budgets of the MJX backend (:class:`MjxSection`).
   """
 
@@ -198,7 +206,20 @@ class SimSection(_Strict):
   chunk_size: int = pydantic.Field(256, gt=0, le=1 << 24)
   threads: int = pydantic.Field(0, ge=0, le=4096)
   max_speed: float = pydantic.Field(100.0, gt=0)
+  sleep: bool | Literal["auto"] = "auto"
+  sleep_tolerance: float | None = pydantic.Field(None, gt=0, lt=1)
   mjx: MjxSection = MjxSection()
+
+  @pydantic.field_validator("sleep", mode="before")
+  @classmethod
+  def _sleep_words(cls, value):
+    # YAML 1.1 reads on/off/yes/no as booleans; the same words quoted mean the same.
+    words = {"on": True, "yes": True, "true": True, "off": False, "no": False, "false": False}
+    if isinstance(value, str) and value.strip().lower() in words:
+      return words[value.strip().lower()]
+    if not isinstance(value, (bool, str)):
+      raise ValueError("expected auto, true (on) or false (off)")
+    return value
 
 
 class RestSection(_Strict):
@@ -353,6 +374,9 @@ class Config(_Strict):
     resolved.pop("source", None)
     if resolved["sim"].get("mjx") == MjxSection().model_dump(mode="json"):
       resolved["sim"].pop("mjx")  # banks from before the section keep their digest
+    for name, default in (("sleep", "auto"), ("sleep_tolerance", None)):  # likewise for sleep's fields
+      if resolved["sim"].get(name, default) == default:
+        resolved["sim"].pop(name, None)
     blob = json.dumps(resolved, sort_keys=True) + "\0" + mjcf_text
     for name in sorted(includes or {}):
       blob += "\0" + name + "\0" + includes[name]
@@ -393,6 +417,8 @@ def _deepest_branches(errors: list[dict]) -> list[dict]:
 
 
 def _format_error(source: str, err: pydantic.ValidationError) -> str:
+  """One line per error (at most :data:`MAX_ERROR_LINES`): the file, the
+  field and what is wrong, never the value found there."""
   lines = []
   errors = _deepest_branches(err.errors())
   for e in errors[:MAX_ERROR_LINES]:
@@ -400,7 +426,9 @@ def _format_error(source: str, err: pydantic.ValidationError) -> str:
     if e["type"] == "extra_forbidden":
       lines.append(f"{source}: {field}: unknown key")
     else:
-      lines.append(f"{source}: {field}: {e['msg']} (got {yaml_input.short_repr(e.get('input'))})")
+      # The field, never the value: any file may be named (a secret read as a
+      # scene config must not be shown, the page shows errors to everyone).
+      lines.append(f"{source}: {field}: {e['msg']}")
   if len(errors) > MAX_ERROR_LINES:
     lines.append(f"{source}: … and {len(errors) - MAX_ERROR_LINES} more errors")
   return "\n".join(lines)

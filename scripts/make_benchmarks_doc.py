@@ -880,11 +880,44 @@ def events(d: dict) -> tuple[list[str], list[str]]:
   return lines, head
 
 
+def tower(d: dict) -> tuple[list[str], list[str]]:
+  off, on, a = d["sample_sleep_off"], d["sample_sleep_on"], d["agreement"]
+  r, b = d["refine"], d["refine_baseline"]
+  lines = ["## The tower: sleep and refinement", "",
+           f"`scripts/bench_tower.py`: `configs/trebuchet_tower.yaml` on the native engine, {d['worlds']} worlds "
+           f"with `sim.sleep: false` (seed 1) and {d['worlds']} with `sim.sleep: true` (seed 2), then "
+           f"`--objects rock --time 0.8 --samples {d['samples']}` of world 2 of the sleep-on bank against the "
+           "same request with every channel fitted anew and every contact pair tested (the baseline). "
+           f"Machine: {d['machine']}.", "",
+           "| sampling | wall s | physics s | world-steps/s | compression s | contact events s | at rest |"
+           " 1549 worlds (min, projected) |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|"]
+  for label, t, key in (("sleep off", off, "sleep_off"), ("sleep on", on, "sleep_on")):
+    lines.append(f"| {label} | {t['wall_seconds']:.1f} | {t['physics_seconds']:.1f} | "
+                 f"{t['world_steps_per_second']:,.0f} | {t['compression_seconds']:.1f} | {t['events_seconds']:.1f} | "
+                 f"{t['at_rest']} | {d['projected_1549_worlds_minutes'][key]} |")
+  lines += ["", f"Sleep: {d['sleep_speedup_physics']}× the world-steps/s, {d['sleep_speedup_wall']}× the wall. "
+            f"Agreement of the outcomes, sleep on against off (Welch z of the means, Bonferroni over "
+            f"{len(a['outcomes'])} outcomes at a family-wise 1 %: |z| < {a['z_crit']}): largest |z| "
+            f"{a['max_abs_z']}, smallest KS p {a['min_ks_p']}, {'all pass' if a['all_pass'] else 'NOT all pass'}.", "",
+            "| outcome | mean off | mean on | z | KS p |", "|---|---:|---:|---:|---:|"]
+  for name, row in a["outcomes"].items():
+    lines.append(f"| {name} | {row['mean_off']} | {row['mean_on']} | {row['z']} | {row['ks_p']} |")
+  lines += ["", "| refinement | wall s | physics s | compression s | contact events s | bytes per world |"
+            " active objects (median, max) |", "|---|---:|---:|---:|---:|---:|---:|"]
+  for label, t in (("parent channels reused, active pairs only", r), ("baseline", b)):
+    lines.append(f"| {label} | {t['wall_seconds']:.1f} | {t['physics_seconds']:.1f} | "
+                 f"{t['compression_seconds']:.2f} | {t['events_seconds']:.2f} | {t['bytes_per_world']:,} | "
+                 f"{t['active_objects']['median']:g}, {t['active_objects']['max']} |")
+  lines += ["", f"Refinement wall: {d['refine_speedup_wall']}× faster than the baseline."]
+  return lines, []
+
+
 SECTIONS = (("setup", setup), ("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
             ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry),
             ("geometry_tightness", geometry_tightness), ("scale", scale),
             ("scenes", scenes), ("backends", backends), ("gpu", gpu),
-            ("solve", solve), ("events", events), ("flex", flex))
+            ("solve", solve), ("events", events), ("flex", flex), ("tower", tower))
 
 
 def main() -> None:

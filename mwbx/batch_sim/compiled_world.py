@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
-from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c
+from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, sleep, world
 from mwbx.host_jit import host_jit
 
 
@@ -40,6 +40,8 @@ class WorldInputs(NamedTuple):
       steps without sensors); False to read MuJoCo's sensors.
     free_bodies: :class:`free_bodies.FreeBodies` of the tracked bodies
       (:func:`free_bodies.host_arrays`; empty arrays unless ``free``).
+    rest_when_asleep: a world whose every tree sleeps (MuJoCo's island
+      sleep, :mod:`sleep`) is at rest and stops.
   """
 
   ctrl_table: np.ndarray
@@ -48,6 +50,7 @@ class WorldInputs(NamedTuple):
   gravity: np.ndarray
   free: bool
   free_bodies: free_bodies_lib.FreeBodies
+  rest_when_asleep: bool = False
 
 
 _step = mujoco_c.mj_step
@@ -126,5 +129,8 @@ def run_world(row, data, inputs, initial_states, buffers, running):
       host_loops.observe_free_bodies(rows, before, after, inputs.timestep, inputs.gravity, 1, 1 + nq,
                                      inputs.free_bodies, b.sensordata)
     host_bookkeeping.frame_update(rows, b, before, 1, frame, running)
+    if inputs.rest_when_asleep and running[row] and sleep.all_asleep(data.tree_asleep):
+      b.carry.status[row] = world.AT_REST  # nothing moves until something wakes it: nothing will
+      running[row] = False
     frame += 1
   return physics

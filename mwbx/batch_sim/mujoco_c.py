@@ -81,6 +81,7 @@ class MjDataViews(NamedTuple):
       (world frame, at each body's COM).
     sensordata: f64[nsensordata] view of ``sensordata`` (the sensors' units).
     ctrl: f64[nu] view of ``ctrl`` (the actuators' units).
+    tree_asleep: i32[ntree] view of ``tree_asleep`` (< 0: awake; MuJoCo 4's sleep).
   """
 
   model_adr: int
@@ -90,12 +91,13 @@ class MjDataViews(NamedTuple):
   xfrc_applied: np.ndarray
   sensordata: np.ndarray
   ctrl: np.ndarray
+  tree_asleep: np.ndarray
 
 
 def data_views(model: mujoco.MjModel, data: mujoco.MjData) -> MjDataViews:
   """``data`` (made for ``model``, or a model of the same sizes) for the compiled loops."""
   return MjDataViews(model._address, data._address, data.qpos, data.qvel, data.xfrc_applied,
-                     data.sensordata, data.ctrl)
+                     data.sensordata, data.ctrl, data.tree_asleep)
 
 
 # -- MuJoCo errors inside compiled loops ---------------------------------------------

@@ -232,7 +232,8 @@ class NativeBackend:
     model = self.quiet_model if free else m
     inputs = compiled_world.WorldInputs(
         ctrl_table=controls.scene_table(scene, n_frames * params.steps_per_frame), n_frames=n_frames,
-        timestep=m.opt.timestep, gravity=np.asarray(m.opt.gravity, np.float64), free=free, free_bodies=bodies)
+        timestep=m.opt.timestep, gravity=np.asarray(m.opt.gravity, np.float64), free=free, free_bodies=bodies,
+        rest_when_asleep=bool(m.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)))
 
     def run(row, data, running_flags):
       return compiled_world.run_world(row, mujoco_c.data_views(model, data), inputs, initial, buffers,

@@ -20,6 +20,7 @@ from mwbx import bank as bank_lib
 from mwbx import rates as rates_lib
 from mwbx.bank.stores import store_for
 from mwbx.batch_sim import engine_probe, memory, world
+from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.batch_sim import rows as rows_lib
 from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_impl
 from mwbx.batch_sim.native_backend import NativeBackend
@@ -151,10 +152,13 @@ class Sampler:
       :class:`~mwbx.batch_sim.warp_solver.WarpSolverSettings` (or its dict, as
       a bank's ``run`` stores it) to use; default: chosen from the model and
       the config's ``sim.mjx`` (:func:`~mwbx.batch_sim.warp_solver.warp_solver_settings`).
+    sleep: native: the :class:`~mwbx.batch_sim.sleep.SleepSettings` (or its
+      dict, as a bank's ``run`` stores it) to step with; default: resolved
+      from the config's ``sim.sleep`` (:func:`~mwbx.batch_sim.sleep.resolve`).
   """
 
   def __init__(self, scene: Scene | Config, backend: str | None = None, chunk_size: int | None = None,
-               store: QposStore | None = None, contact_budget=None, warp_solver=None):
+               store: QposStore | None = None, contact_budget=None, warp_solver=None, sleep=None):
     self.scene = scene if isinstance(scene, Scene) else Scene(scene)
     self.store = store if store is not None else store_for(self.scene)
     cfg = self.scene.config
@@ -173,6 +177,7 @@ class Sampler:
     self.n_frames = end_frame + 1
     self.params = world.world_params(self.scene, spf, end_frame)
     self.contact_budget = None
+    self.sleep = None  # native: the SleepSettings it steps with
     self.warp_solver = None  # mjx:warp: the WarpSolverSettings it runs with
     self.pack_rows = False  # MJX jax: each world's solve over its rows in use (sim.mjx.pack_rows)
     if self.backend_name == "mjx":
@@ -186,7 +191,9 @@ class Sampler:
       self.warp_solver = self.backend.warp_solver
       self.backend_label = f"mjx:{impl}" + (" (every row)" if impl == "jax" and not self.pack_rows else "")
     else:
-      self.backend = NativeBackend(model, cfg.sim.threads)
+      self.sleep = (sleep_lib.SleepSettings.from_record(sleep) if isinstance(sleep, dict) else sleep
+                    or sleep_lib.resolve(model, cfg.sim.sleep, cfg.sim.sleep_tolerance))
+      self.backend = NativeBackend(sleep_lib.sleeping_copy(model, self.sleep), cfg.sim.threads)
       self.backend_label = "native"
     self.event_actors = events_lib.actors_of(self.scene.model, self.scene.object_names)
     self._init = per_world(self.scene.initial_state)
@@ -350,12 +357,14 @@ class Sampler:
     """
     return self.events_of_frames(store.frames_of_rows(None), progress=progress)
 
-  def events_of_frames(self, frames, first_frame=0, progress=None) -> EventRecord:
+  def events_of_frames(self, frames, first_frame=0, progress=None, active=None) -> EventRecord:
     """The contact events of worlds' stored frames (each f32[T, nq], from
-    ``first_frame``: one for all or one per world)."""
+    ``first_frame``: one for all or one per world); ``active``: optional
+    bool[W, n_actors], pairs to test (:func:`mwbx.events.detect.detect_events`)."""
     return events_lib.detect_events(self.scene.model, self.event_actors, frames,
                                     events_lib.touch_margin(self.scene.config.codec.e_pos),
-                                    progress=progress, total=len(frames), first_frame=first_frame)
+                                    progress=progress, total=len(frames), first_frame=first_frame,
+                                    active=active)
 
   def _assemble(self, ids, keys, results: list[ChunkResult], store, events: EventRecord) -> bank_lib.Bank:
     scene = self.scene
@@ -375,12 +384,14 @@ class Sampler:
   def run_record(self) -> dict:
     """What a bank's ``run`` keeps of this sampler's engine settings so that
     refinement replays them: the MJX contact budget and mjx:warp's solver
-    settings (each only where used)."""
+    settings, the native engine's sleep settings (each only where used)."""
     run = {}
     if self.contact_budget is not None:
       run["contact_budget"] = self.contact_budget._asdict()
     if self.warp_solver is not None:
       run["warp_solver"] = self.warp_solver._asdict()
+    if self.sleep is not None:
+      run["sleep"] = self.sleep.as_record()
     return run
 
 

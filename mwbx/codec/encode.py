@@ -19,6 +19,7 @@ from mwbx.codec import eval_kernels
 from mwbx.codec.batch import BatchCode, parse_batch, serialize_batch
 from mwbx.codec.decode import KIND_ID, decode_code, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
+from mwbx.codec.splice import ParentChannels
 from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
                                initial_steps, parse, quantize_initial, serialize)
 from mwbx.host_device import host_cpu
@@ -87,15 +88,16 @@ class _FitJob(NamedTuple):
 
 def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
              initial: np.ndarray, finite: np.ndarray, e: float, step: float, quad: float,
-             coarse: int, g_fp: int) -> _FitJob:
+             coarse: int, g_fp: int, skip: np.ndarray | None = None) -> _FitJob:
   """The fit of every path of one kind, FIT_BATCH paths per call.
 
   qpos: f32[W, T, nq] recordings; adrs: qpos address of each channel of this kind
   (path p is channel ``p % C`` of world ``p // C``); n: i64[P] valid frames;
   initial: f64[P, width] frame-0 values on their grid (the fit starts there);
   finite: bool[P], paths with non-finite values are fitted as zeros (they are
-  stored raw). Each call returns the segment ends (path i64[S], frame i64[S])
-  of its paths with the velocity i64[S, D] and gravity flag bool[S] of each.
+  stored raw); skip: bool[P] paths not fitted (no segments). Each call returns
+  the segment ends (path i64[S], frame i64[S]) of its paths with the velocity
+  i64[S, D] and gravity flag bool[S] of each.
   """
   width = WIDTH[kind]
   t = qpos.shape[1]
@@ -134,7 +136,9 @@ def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
   if n.size == 0 or t == 0:
     return _FitJob(kind, fit_batch, [])
   order = np.argsort(n, kind="stable")
-  return _FitJob(kind, fit_batch, [order[lo:lo + FIT_BATCH] for lo in range(0, n.size, FIT_BATCH)])
+  if skip is not None:
+    order = order[~skip[order]]
+  return _FitJob(kind, fit_batch, [order[lo:lo + FIT_BATCH] for lo in range(0, order.size, FIT_BATCH)])
 
 
 def _run_fits(jobs: Sequence[_FitJob]) -> list[tuple]:
@@ -173,8 +177,14 @@ def _measure(code: WorldCode, stream: bytes, qpos_w: np.ndarray):
 def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: ChannelLayout,
                          bounds: CodecBounds, fps: float = 120.0,
                          gravity: float = DEFAULT_GRAVITY,
-                         quanta: Quanta | None = None) -> EncodedBatch:
+                         quanta: Quanta | None = None,
+                         parent: ParentChannels | None = None) -> EncodedBatch:
   """Encode many worlds and report the largest decoded error of each.
+
+  Refined worlds pass ``parent``: the channels it marks are not fitted; the
+  parent's segments stand for them (a refinement's fit then costs what its
+  active objects cost, not the scene), checked on the decoded data as the
+  fitted ones are.
 
   Args:
     qpos: f32[W, T, nq] padded recordings (frames >= frame_count[w] ignored).
@@ -183,6 +193,8 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     fps: recording rate (frames per second).
     gravity: vertical gravity (m/s**2) for the global quadratic term.
     quanta: quantization override (defaults from ``fps`` and ``gravity``).
+    parent: optional :class:`~mwbx.codec.splice.ParentChannels` (same
+      layout, bounds and quanta).
   """
   qpos = np.asarray(qpos, np.float32)
   frame_count = np.asarray(frame_count, np.int64).reshape(-1)
@@ -209,9 +221,17 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
   # less a margin for float32 rounding.
   bound = {"pos": bounds.e_pos, "rot": bounds.e_rot, "scalar": bounds.e_scalar}
   kinds = (("pos", layout.pos_adr), ("rot", layout.rot_adr), ("scalar", layout.scalar_adr))
+  as_stored = lambda b: tuple(np.float32(x) for x in (b.e_pos, b.e_rot, b.e_scalar))  # float32 in a stream
+  if parent is not None and (parent.code.quanta != quanta or as_stored(parent.code.bounds) != as_stored(bounds)
+                             or parent.take.shape != (num_w, layout.n_channels)):
+    raise CodecError("encode: the parent's stream was coded with other codec settings")
   inputs, jobs = [], []
+  first_channel = 0
   for kind, adrs in kinds:
     width = WIDTH[kind]
+    take = (None if parent is None else
+            parent.take[:, first_channel:first_channel + len(adrs)].reshape(-1))
+    first_channel += len(adrs)
     columns = _columns(adrs)
     n = np.repeat(frame_count, len(adrs))
     finite = eval_kernels.finite_paths(qpos, frame_count, columns, width).reshape(-1)
@@ -220,18 +240,22 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
         (num_w, len(adrs), width), np.float32)
     initial = quantize_initial(kind, frame0.reshape(-1, width), bounds) * initial_steps(bounds)[kind]
     initial[n == 0] = 0.0
-    inputs.append((kind, adrs, columns, n, finite, initial))
+    inputs.append((kind, adrs, columns, n, finite, initial, take))
     jobs.append(_fit_job(kind, qpos, adrs, n, initial, finite, bound[kind] * (1 - FIT_MARGIN), steps[kind],
-                         quanta.quad, quanta.coarse()[kind], quanta.g_fp(bounds)))
+                         quanta.quad, quanta.coarse()[kind], quanta.g_fp(bounds), skip=take))
   per_kind = {}
-  for (kind, adrs, columns, n, finite, initial), (p_idx, f_idx, vel, flag) in zip(inputs, _run_fits(jobs)):
+  for (kind, adrs, columns, n, finite, initial, take), (p_idx, f_idx, vel, flag) in zip(inputs, _run_fits(jobs)):
     seg_per_path = np.bincount(p_idx, minlength=n.size)
     first = np.ones(p_idx.size, bool)
     first[1:] = p_idx[1:] != p_idx[:-1]
     prev = np.where(first, 0, np.concatenate([[0], f_idx[:-1]]))
+    lengths = f_idx - prev
+    if take is not None and take.any():
+      seg_per_path, lengths, vel, flag = _with_parent_segments(
+          kind, take, len(adrs), parent, frame_count, seg_per_path, lengths, vel, flag, initial)
     per_kind[kind] = dict(columns=columns, finite=finite, seg=seg_per_path, initial=initial,
                           seg_off=np.concatenate([[0], np.cumsum(seg_per_path)]),
-                          lengths=f_idx - prev, vel=vel, flag=flag,
+                          lengths=lengths, vel=vel, flag=flag,
                           n_ch=len(adrs))
   streams, max_err = [None] * num_w, np.zeros((num_w, 3))
   raw_count = np.zeros(num_w, np.int64)
@@ -268,6 +292,35 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
       off += k["n_ch"]
       max_err[w, j] = float(part.max()) if part.size else 0.0
   return EncodedBatch(streams, max_err, raw_count)
+
+
+def _with_parent_segments(kind, take, n_ch, parent, frame_count, seg, lengths, vel, flag, initial):
+  """The fitted segments of one kind (path-major: path p is channel p % n_ch of
+  world p // n_ch) with the parent's in the paths of ``take`` (bool[P]), and
+  their frame-0 values the parent's (``initial`` f64[P, width], in place)."""
+  first_channel = {"pos": 0, "rot": len(parent.code.layout.pos_adr),
+                   "scalar": len(parent.code.layout.pos_adr) + len(parent.code.layout.rot_adr)}[kind]
+  held = {}  # frames -> the parent's channels held to that length
+  offsets = np.concatenate([[0], np.cumsum(seg)])
+  parts, counts = [], seg.copy()
+  width = WIDTH[kind]
+  for p in range(take.size):
+    if take[p]:
+      w, c = divmod(p, n_ch)
+      n_w = int(frame_count[w])
+      if n_w not in held:
+        held[n_w] = parent.segments(kind, n_w)
+      part = held[n_w][first_channel + c]
+      initial[p] = parent.code.initial[first_channel + c, :width]
+    else:
+      lo, hi = offsets[p], offsets[p + 1]
+      part = (lengths[lo:hi], vel[lo:hi], flag[lo:hi])
+    counts[p] = len(part[0])
+    parts.append(part)
+  dim = vel.shape[1] if vel.ndim == 2 else DIM[kind]
+  return (counts, np.concatenate([q[0] for q in parts]).astype(np.int64),
+          np.concatenate([np.reshape(q[1], (-1, dim)) for q in parts]).astype(np.int64),
+          np.concatenate([q[2] for q in parts]).astype(bool))
 
 
 def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec, streams,

@@ -12,11 +12,13 @@ decoded values (held past the parent's last frame).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from mwbx.codec.decode import normalize
 from mwbx.codec.layout import CodecError
-from mwbx.codec.stream import (KINDS, MODE_FIT, MODE_RAW, WIDTH, Segments, channel_starts,
+from mwbx.codec.stream import (KINDS, MODE_FIT, MODE_RAW, WIDTH, Segments, WorldCode, channel_starts,
                                gravity_increment, lattice_exponent, parse, serialize)
 
 
@@ -156,3 +158,36 @@ def channel_map(new_layout, old_layout) -> np.ndarray:
     return [(k, int(a)) for k in KINDS for a in getattr(layout, f"{k}_adr")]
   old = {entry: c for c, entry in enumerate(order(old_layout))}
   return np.array([old.get(entry, -1) for entry in order(new_layout)], np.int64)
+
+
+class ParentChannels(NamedTuple):
+  """Channels refined worlds take from their parent's stream instead of a fit
+  (:func:`mwbx.codec.encode.encode_batch_checked`'s ``parent``).
+
+  Attributes:
+    code: the parent's parsed stream (:func:`mwbx.codec.stream.parse`), in
+      the refined worlds' layout.
+    take: bool[W, C] per refined world and channel (stream order): the
+      parent's segments, held past its last frame, stand for the channel.
+  """
+
+  code: WorldCode
+  take: np.ndarray
+
+  @classmethod
+  def of(cls, parent_stream: np.ndarray, keep_qpos: np.ndarray, frame_count: np.ndarray) -> "ParentChannels":
+    """The channels of ``keep_qpos`` (bool[W, nq]) each refined world can take
+    verbatim: fitted in the parent, and the world at least as long as it
+    (frame_count: i[W]); the others are fitted (and spliced raw if kept)."""
+    code = parse(parent_stream)
+    adrs = np.asarray(code.addresses(), np.int64)
+    fitted = np.asarray(code.modes) == MODE_FIT
+    long_enough = np.asarray(frame_count)[:, None] >= code.n_frames
+    take = np.asarray(keep_qpos, bool)[:, adrs] & fitted[None, :] & long_enough
+    return cls(code, take)
+
+  def segments(self, kind: str, n_frames: int) -> dict:
+    """Per fitted channel of ``kind``: the parent's (lengths, vel, flags),
+    held to ``n_frames`` frames."""
+    extra = n_frames - self.code.n_frames
+    return {c: _extended(seg, extra, kind, self.code) for c, seg in _channel_segments(self.code, kind).items()}

@@ -13,7 +13,7 @@ from mwbx.codec.batch import decode_batch
 from mwbx.codec.decode import decode_world
 from mwbx.codec.encode import DEFAULT_GRAVITY, encode_batch_checked
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
-from mwbx.codec.splice import channel_map, splice_stream
+from mwbx.codec.splice import ParentChannels, channel_map, splice_stream
 
 
 class CompressedQposStore:
@@ -76,10 +76,11 @@ class CompressedQposStore:
 
   # -- the qpos-store protocol ----------------------------------------------------
 
-  def append(self, qpos: np.ndarray, frame_count: np.ndarray) -> None:
-    """Compresses and adds worlds: qpos f32[W, T, nq] (padded), frame_count i32[W]."""
+  def append(self, qpos: np.ndarray, frame_count: np.ndarray, parent: ParentChannels | None = None) -> None:
+    """Compresses and adds worlds: qpos f32[W, T, nq] (padded), frame_count i32[W];
+    ``parent``: channels refined worlds take from their parent's stream."""
     res = encode_batch_checked(qpos, frame_count, self.layout, self.bounds, self.fps,
-                               self.gravity)
+                               self.gravity, parent=parent)
     sizes = np.array([len(s) for s in res.streams], np.int64)
     self.data = np.concatenate([self.data, np.frombuffer(b"".join(res.streams), np.uint8)])
     self.offsets = np.concatenate([self.offsets, self.offsets[-1] + np.cumsum(sizes)])
@@ -123,9 +124,12 @@ class CompressedQposStore:
               parent_frames: np.ndarray, keep_qpos: np.ndarray) -> "CompressedQposStore":
     """A new store (same settings) of refined worlds of the parent at row ``parent``.
 
-    The refined worlds are encoded as usual, then the channels of ``keep_qpos``
-    are spliced from the parent's stream (:func:`mwbx.codec.splice.splice_stream`),
-    so they decode to the parent's stored frames exactly.
+    The channels of ``keep_qpos`` are the parent's own segments (not fitted
+    again: the cost grows with the refined objects, not the scene), so they
+    decode to the parent's stored frames exactly; where the parent stored a
+    channel raw, or a refined world is shorter than it, the world is encoded
+    as usual and the parent's channels spliced in
+    (:func:`mwbx.codec.splice.splice_stream`).
 
     Args:
       qpos: f32[W, F, nq] refined frames (padded); frame_count: i32[W].
@@ -134,12 +138,22 @@ class CompressedQposStore:
       keep_qpos: bool[W, nq] coordinates that follow the parent exactly.
     """
     out = self.empty()
-    out.append(qpos, frame_count)
     if not keep_qpos.any():
+      out.append(qpos, frame_count)
       return out
     parent_stream = self.stream(parent)
-    out._set_streams([splice_stream(out.stream(w), parent_stream, parent_frames, keep_qpos[w])
-                      if keep_qpos[w].any() else out.stream(w).tobytes() for w in range(out.n_worlds)])
+    # Kept coordinates are the parent's stored frames (held past its last one), whatever was passed.
+    held = np.asarray(parent_frames, np.float32)[np.minimum(np.arange(qpos.shape[1]), len(parent_frames) - 1)]
+    qpos = np.where(keep_qpos[:, None, :], held[None], qpos)
+    reuse = ParentChannels.of(parent_stream, keep_qpos, frame_count)
+    out.append(qpos, frame_count, parent=reuse)
+    kept = keep_qpos[:, np.asarray(reuse.code.addresses(), np.int64)]
+    rest = np.flatnonzero((kept & ~reuse.take).any(axis=1))  # kept channels not taken whole
+    if rest.size:
+      streams = [out.stream(w).tobytes() for w in range(out.n_worlds)]
+      for w in rest:
+        streams[w] = splice_stream(out.stream(w), parent_stream, parent_frames, keep_qpos[w])
+      out._set_streams(streams)
     out.max_error = np.maximum(out.max_error, self.max_error[parent][None, :])
     return out
 

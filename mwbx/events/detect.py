@@ -118,8 +118,36 @@ def episodes(n_actors: int, frame: np.ndarray, sides: np.ndarray, dist: np.ndarr
   return np.stack([p // n_actors, p % n_actors, frame[first], frame[last]], axis=1).astype(np.int32)
 
 
+# contype/conaffinity bits a pair filter can re-plane (MuJoCo's masks are 32-bit).
+_MASK_BITS = 16
+
+
+def active_pairs_model(model: mujoco.MjModel, actors: Actors, active: np.ndarray) -> mujoco.MjModel | None:
+  """A copy of ``model`` whose collision reports only contacts with a geom of
+  an ``active`` actor (bool[n_actors]) on at least one side, as far as the
+  original filter allows them; None where the masks do not fit (then every
+  pair is tested).
+
+  Geoms of inactive actors keep ``contype | conaffinity << 16`` and lose their
+  affinity; active ones get ``conaffinity | contype << 16`` as well: an
+  inactive pair then never passes the filter ``(ct1 & ca2) | (ct2 & ca1)``,
+  and a pair with an active side passes exactly when it did before. Explicit
+  ``<pair>`` contacts and flexes are not filtered (callers keep only the
+  pairs they asked for).
+  """
+  contype = np.asarray(model.geom_contype, np.int64)
+  conaffinity = np.asarray(model.geom_conaffinity, np.int64)
+  if (contype >> _MASK_BITS).any() or (conaffinity >> _MASK_BITS).any():
+    return None
+  on = np.asarray(active, bool)[actors.geom_actor]
+  out = copy.copy(model)
+  out.geom_contype[:] = contype | (conaffinity << _MASK_BITS)
+  out.geom_conaffinity[:] = np.where(on, conaffinity | (contype << _MASK_BITS), 0)
+  return out
+
+
 def detect_events(model: mujoco.MjModel, actors: Actors, frames: Iterable[np.ndarray], margin: float,
-                  progress=None, total: int | None = None, first_frame=0) -> EventRecord:
+                  progress=None, total: int | None = None, first_frame=0, active=None) -> EventRecord:
   """The contact events of worlds from their stored frames.
 
   Args:
@@ -133,6 +161,10 @@ def detect_events(model: mujoco.MjModel, actors: Actors, frames: Iterable[np.nda
     total: how many worlds ``frames`` holds (for progress).
     first_frame: the frame number of the first frame given: one for every
       world, or i64[W] one per world.
+    active: optional bool[W, n_actors]: each world's collision tests only
+      pairs with an active actor (:func:`active_pairs_model`; refined
+      worlds, whose other pairs are their parent's). Other pairs may still
+      be reported.
 
   Example::
 
@@ -140,13 +172,18 @@ def detect_events(model: mujoco.MjModel, actors: Actors, frames: Iterable[np.nda
     record = detect_events(bank.model(), actors, bank.qpos_store.frames_of_rows(None), touch_margin(1e-3))
   """
   model = margin_model(model, margin)
-  scratch = threading.local()  # an MjData per thread of the pool
+  scratch = threading.local()  # an MjData per thread of the pool (every model here has the same sizes)
+  filtered = {}  # an active set -> its model
+  if active is not None:
+    for row in np.unique(np.asarray(active, bool), axis=0):
+      filtered[row.tobytes()] = active_pairs_model(model, actors, row) or model
 
   def one_world(w: int, world_frames: np.ndarray) -> np.ndarray:
     data = getattr(scratch, "data", None)
     if data is None:
       data = scratch.data = mujoco.MjData(model)
-    rows = world_episodes(model, data, actors, world_frames, margin)
+    world_model = model if active is None else filtered[np.asarray(active[w], bool).tobytes()]
+    rows = world_episodes(world_model, data, actors, world_frames, margin)
     rows[:, 2:] += int(first_frame if np.ndim(first_frame) == 0 else first_frame[w])
     return rows
 

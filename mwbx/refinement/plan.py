@@ -211,16 +211,17 @@ def run_plan(bank, plan: RefinePlan, sampler, progress=None, start_wall: float |
     progress(Progress("refining", n_samples, n_samples, stats.world_steps))
     progress(Progress("compressing", 0, n_samples, stats.world_steps))
   codec_start = time.perf_counter()
-  new = _assemble(bank, plan, sampler, parent, keys, outputs)
-  stats.codec_seconds = time.perf_counter() - codec_start
+  new = _assemble(bank, plan, sampler, parent, keys, outputs, stats)
+  stats.codec_seconds = time.perf_counter() - codec_start - stats.events_seconds
   if progress is not None:
     progress(Progress("compressing", n_samples, n_samples, stats.world_steps))
   stats.wall_seconds = time.perf_counter() - start_wall
   return new, stats
 
 
-def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -> bank_lib.Bank:
-  """The refined worlds as a bank (same scene, config and digest as ``bank``)."""
+def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs, stats) -> bank_lib.Bank:
+  """The refined worlds as a bank (same scene, config and digest as ``bank``);
+  the time finding their contact events goes to ``stats.events_seconds``."""
   f0, row = plan.first_frame, plan.row
   object_names = tuple(sampler.scene.object_names)
   chunks = [o.chunk for o in outputs]
@@ -243,7 +244,12 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -
   qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
   keep_qpos = (~active).astype(np.float32) @ parent.qpos_object.astype(np.float32) > 0.5
   store = bank.qpos_store.refined(qpos, count, row, parent.frames, keep_qpos)
-  events, event_actors = refined_events(bank, row, f0, store, sampler) if plan.events else (None, ())
+  # Removed objects count as active: their stored contacts after t_min are not theirs any more.
+  touched = active | np.isin(np.asarray(object_names), plan.removed)[None, :]
+  events_start = time.perf_counter()
+  events, event_actors = (refined_events(bank, row, f0, store, sampler, active=touched) if plan.events
+                          else (None, ()))
+  stats.events_seconds = time.perf_counter() - events_start
 
   # Inactive bodies keep the parent's polylines; a removed object keeps the
   # parent's metrics too (what it did while it was there).
@@ -275,7 +281,7 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs) -
       _model=None)
 
 
-def refined_events(bank, row: int, first_frame: int, store, sampler):
+def refined_events(bank, row: int, first_frame: int, store, sampler, active=None):
   """(EventRecord, actor names) of refined worlds of the world at ``row``,
   as :meth:`Sampler.events_of` finds them on their whole stored frames: the
   parent's episodes before ``first_frame`` (the frames they share with it),
@@ -287,6 +293,10 @@ def refined_events(bank, row: int, first_frame: int, store, sampler):
     first_frame: the frame the refinement restarts at.
     store: the refined worlds' stored qpos (any of the refinement's worlds,
       in any order). sampler: the bank scene's.
+    active: optional bool[W, n_objects] the objects each refined world
+      moved itself (store order): only pairs with one of them are looked
+      for; the others follow the parent's stored paths, so their episodes
+      are the parent's.
   """
   if bank.events is None:
     return None, ()
@@ -298,10 +308,41 @@ def refined_events(bank, row: int, first_frame: int, store, sampler):
   # first_frame, less those the codec fitted anew) keep the parent's episodes.
   shared = bank.qpos_store.row_frames(row, 0, first_frame)
   starts = np.array([_shared_frames(shared, f) for f in frames], np.int64)
-  after = sampler.events_of_frames([f[s:] for f, s in zip(frames, starts)], first_frame=starts)
   parent = bank.events.world(row)
-  worlds = [events_lib.spliced(parent, after.world(i), int(s)) for i, s in enumerate(starts)]
+  if active is None:
+    after = sampler.events_of_frames([f[s:] for f, s in zip(frames, starts)], first_frame=starts)
+    worlds = [events_lib.spliced(parent, after.world(i), int(s)) for i, s in enumerate(starts)]
+    return EventRecord.from_worlds(worlds), actors
+  moved = np.zeros((len(frames), len(actors)), bool)  # static actors never move
+  moved[:, :np.shape(active)[1]] = active
+  after = sampler.events_of_frames([f[s:] for f, s in zip(frames, starts)], first_frame=starts, active=moved)
+  n_parent = int(bank.frame_count[row])
+  worlds = [events_lib.spliced(parent, _with_parent_pairs(parent, after.world(i), moved[i], int(s), n_parent,
+                                                          len(f)), int(s))
+            for i, (f, s) in enumerate(zip(frames, starts))]
   return EventRecord.from_worlds(worlds), actors
+
+
+def _with_parent_pairs(parent: np.ndarray, found: np.ndarray, moved: np.ndarray, start: int, n_parent: int,
+                       n_frames: int) -> np.ndarray:
+  """A refined world's episodes from ``start`` on: those ``found`` with a
+  ``moved`` actor (bool[n_actors]) on a side, and the parent's between
+  actors that did not move (their stored paths are the parent's; the last
+  frame is held where the world outlasts its parent).
+
+  Args:
+    parent: i32[n, 4] the parent's ``(a, b, first, last)``.
+    found: i32[m, 4] found on the refined world's frames from ``start``.
+    n_parent: the parent's frames. n_frames: the refined world's frames.
+  """
+  found = found[moved[found[:, 0]] | moved[found[:, 1]]]
+  kept = parent[~moved[parent[:, 0]] & ~moved[parent[:, 1]] & (parent[:, 3] >= start)].copy()
+  kept[:, 2] = np.maximum(kept[:, 2], start)
+  kept[kept[:, 3] == n_parent - 1, 3] = max(n_parent, n_frames) - 1  # on at the parent's end: on while held
+  kept[:, 3] = np.minimum(kept[:, 3], n_frames - 1)
+  kept = kept[kept[:, 2] <= kept[:, 3]]
+  rows = np.concatenate([found, kept]).astype(np.int32)
+  return rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
 
 
 def _shared_frames(parent: np.ndarray, frames: np.ndarray) -> int:

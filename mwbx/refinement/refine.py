@@ -232,12 +232,15 @@ def sampler_for(bank, backend: str | None = None) -> Sampler:
   (its thread pool and compiled kernels are reused)."""
   # MJX refines under the contact budget and mjx:warp's solver settings its bank was sampled with, if any.
   budget, warp_solver = bank.run.get("contact_budget"), bank.run.get("warp_solver")
+  # The native engine sleeps as the bank's worlds did (off for banks sampled without sleep).
+  sleep = bank.run.get("sleep") or {"enabled": False, "tolerance": 1e-3, "reason": "the bank was sampled awake"}
   frozen = lambda record: None if record is None else tuple(sorted(record.items()))
-  cache_key = (_stored_scene_key(bank), backend, frozen(budget), frozen(warp_solver))
+  cache_key = (_stored_scene_key(bank), backend, frozen(budget), frozen(warp_solver), frozen(sleep))
   if cache_key not in _SAMPLERS:
     if len(_SAMPLERS) >= 4:
       _SAMPLERS.pop(next(iter(_SAMPLERS))).close()
-    _SAMPLERS[cache_key] = Sampler(bank.scene(), backend, contact_budget=budget, warp_solver=warp_solver)
+    _SAMPLERS[cache_key] = Sampler(bank.scene(), backend, contact_budget=budget, warp_solver=warp_solver,
+                                   sleep=sleep)
   return _SAMPLERS[cache_key]
 
 

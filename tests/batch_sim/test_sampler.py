@@ -173,7 +173,8 @@ def test_cli_sample_continue_and_info(tmp_path):
   info = run_cli("info", str(out), "--json")
   assert info.returncode == 0, info.stderr
   summary = json.loads(info.stdout)
-  assert summary["worlds"] == 10 and summary["run"] == {"seed": 3}
+  assert summary["worlds"] == 10 and summary["run"]["seed"] == 3
+  assert summary["run"]["sleep"]["enabled"] is False  # auto: a scene of few bodies stays awake
   bank = mwbx.Bank.load(out)
   assert list(bank.world_ids) == list(range(10))
   direct = mwbx.sample(mwbx.load_config(config), n_worlds=10, key=jax.random.key(3), backend="native")
