@@ -217,7 +217,7 @@ class SimSection(_Strict):
     words = {"on": True, "yes": True, "true": True, "off": False, "no": False, "false": False}
     if isinstance(value, str) and value.strip().lower() in words:
       return words[value.strip().lower()]
-    if not isinstance(value, (bool, str)):
+    if not isinstance(value, bool) and value != "auto":
       raise ValueError("expected auto, true (on) or false (off)")
     return value
 

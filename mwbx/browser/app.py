@@ -43,6 +43,7 @@ from mwbx.browser.session import ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
 from mwbx.viewer import display, framing
 from mwbx.viewer import flex as flex_lib
+from mwbx.viewer.kinematics import body_trajectories
 from mwbx.yaml_input import short_repr, short_repr_text
 
 # The page's log: what each action did, one line each (``mwbx browse: ...`` on
@@ -169,6 +170,10 @@ class Browser:
     self.frustum_depth = 3.0 * max(diagonal / 2, 0.2)
     self.path_simplifier = display.PathSimplifier(drawing.PATH_TOLERANCE * diagonal)
     self.stage = Stage(self.server, self.model, extent)
+    if rows.size:  # the scene as its first valid world starts, dimmed, until a world plays
+      qpos = bank.qpos_frames(int(bank.world_ids[rows[0]]))[:1].astype(np.float64)
+      pos, quat = body_trajectories(self.model, qpos, self.stage.pose_ids)
+      self.stage.show_start(pos[0], quat[0])
 
   def _scene_changed(self) -> None:
     """After a refinement moved the bank to a later scene version (new
@@ -331,17 +336,22 @@ class Browser:
     bank = session.bank
     view = session.view()
     selection = self._selection()
-    bodies = (flex_lib.path_bodies(bank) if selection is None  # one path per flex, not one per vertex
+    every = flex_lib.path_bodies(bank)  # one path per flex, not one per vertex
+    bodies = (drawing.most_moving(bank, every) if selection is None
               else np.asarray(bank.select_bodies(list(selection))))
+    note = ""
+    if len(bodies) < len(every):
+      names = ", ".join(bank.body_names[b] for b in bodies[:4]) + (", …" if len(bodies) > 4 else "")
+      note = f"(paths of the {len(bodies)} of {len(every)} bodies that move most: {names})"
     with self.lock:
       left_out = drawing.draw_paths(self.server, self._handles, bank, bodies, view.match, view.rejected,
                                     self.ui.only_matches.value, simplify=self.path_simplifier)
       drawing.draw_frustums(self.server, self._handles, session.entries, self.frustum_depth)
-      self._counts_text(view.counts, left_out)
+      self._counts_text(view.counts, left_out, note)
       self.sorter(view.counts)
     return view.counts
 
-  def _counts_text(self, counts, left_out: dict) -> None:
+  def _counts_text(self, counts, left_out: dict, note: str = "") -> None:
     session = self.session
     lines = [f"**{counts.all} of {counts.valid} worlds** satisfy all queries"]
     for i, (e, n) in enumerate(zip(session.entries, counts.per_query)):
@@ -350,6 +360,8 @@ class Browser:
     hidden = [f"{n} {name}" for name, n in left_out.items() if n]
     if hidden:
       lines.append(f"(paths not drawn: {', '.join(hidden)} worlds)")
+    if note:
+      lines.append(note)
     self.ui.counts_md.content = "\n".join(lines)
     labels = tuple(f"q{i} {e.query.sign}{'' if e.enabled else ' (off)'}" for i, e in enumerate(session.entries))
     self.ui.query_pick.options = labels or ("(none)",)

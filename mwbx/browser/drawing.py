@@ -34,6 +34,24 @@ NATIVE_THICKNESS = 1.0
 PATH_TOLERANCE = 1e-3
 
 
+def most_moving(bank, bodies: np.ndarray, budget: int = MAX_PATH_SEGMENTS) -> np.ndarray:
+  """i64[k] of ``bodies``: as many as fit ``budget`` segments in every
+  valid world (each path counted at its stored points), those that travel
+  furthest on average first, so a scene of many bodies (a tower of blocks)
+  opens on the paths of what moves (the rock) in every world rather than on
+  every body of a few worlds."""
+  bodies = np.asarray(bodies, np.int64)
+  valid = np.flatnonzero(np.asarray(bank.valid, bool))
+  if not valid.size or "path_length" not in bank.metric_names:
+    return bodies
+  per_path = max(1.0, float(np.asarray(bank.com_count)[valid].mean()) - 1.0)
+  fit = int(budget // (len(valid) * per_path))
+  if fit >= len(bodies):
+    return bodies
+  length = np.asarray(bank.metrics[valid][:, bodies, list(bank.metric_names).index("path_length")]).mean(axis=0)
+  return np.sort(bodies[np.argsort(-length, kind="stable")[:max(1, fit)]])
+
+
 def path_rgb(rgba: display.Rgba) -> tuple[int, int, int]:
   """The opaque colour the page draws a path class in: viser's lines have no
   opacity, so a translucent class is blended over the page's white background."""

@@ -27,6 +27,8 @@ from mwbx.viewer import triangles
 # but the first when overlaid.
 MAX_SLOTS = 4
 GHOST_OPACITY = 0.45
+# The scene as a world starts, drawn while no world plays.
+START_OPACITY = 0.3
 # Grid cells side by side: columns along world x, rows down world z; the gap
 # between cells, as a fraction of the scene's extent.
 GRID_COLUMNS = 2
@@ -148,6 +150,7 @@ class Stage:
     self.side_by_side = False
     self.uploads = 0
     self._slots: list = []  # per slot: (root frame, {body id: frame}, [mesh handles], label)
+    self._start = None  # (root frame, {body id: frame}, [meshes]): the scene as it starts (show_start)
     self._copies: dict = {}  # slot -> frame holding a copy of the static scene
     for item in self.static:
       self._add_static(f"/scene/{item.name}", item)
@@ -183,14 +186,23 @@ class Stage:
     return self._slots[k][1]
 
   def _make_slot(self, k: int):
+    root, frames, meshes = self._make_bodies(f"/play/s{k}", self.offset(k), self._opacity(k))
+    label = None
+    if self.body_ids.size:  # the label rides on the slot's first body
+      label = self.server.scene.add_label(f"/play/s{k}/b{self.body_ids[0]}/label", "")
+    return root, frames, meshes, label
+
+  def _make_bodies(self, path: str, position, opacity: float | None):
+    """(root frame, {body id: frame}, [meshes]) of every moving body and flex
+    under ``path``, hidden, where the model starts."""
     scene = self.server.scene
-    root = scene.add_frame(f"/play/s{k}", show_axes=False, position=self.offset(k), visible=False)
+    root = scene.add_frame(path, show_axes=False, position=position, visible=False)
     frames, meshes = {}, []
     for body in self.body_ids:
-      frames[int(body)] = scene.add_frame(f"/play/s{k}/b{body}", show_axes=False)
-      for name, verts, faces, rgb, wxyz, position in self.moving[int(body)]:
-        meshes.append(scene.add_mesh_simple(f"/play/s{k}/b{body}/{name}", verts, faces, color=rgb, wxyz=wxyz,
-                                            position=position, opacity=self._opacity(k), **NO_SHADOWS))
+      frames[int(body)] = scene.add_frame(f"{path}/b{body}", show_axes=False)
+      for name, verts, faces, rgb, wxyz, pos in self.moving[int(body)]:
+        meshes.append(scene.add_mesh_simple(f"{path}/b{body}/{name}", verts, faces, color=rgb, wxyz=wxyz,
+                                            position=pos, opacity=opacity, **NO_SHADOWS))
         self.uploads += 1
     data = mujoco.MjData(self.model) if self.flexes else None
     if data is not None:
@@ -198,13 +210,31 @@ class Stage:
     for f in self.flexes:  # drawn where the model starts; every pose moves its vertices
       vertices = f.vertices(data.xpos[f.bodies], data.xquat[f.bodies])
       rgb = tuple(int(c) for c in np.clip(np.round(f.rgba[:3] * 255), 0, 255))
-      meshes.append(scene.add_mesh_simple(f"/play/s{k}/flex/{f.name}", vertices, f.faces, color=rgb,
-                                          side="double", opacity=self._opacity(k), **NO_SHADOWS))
+      meshes.append(scene.add_mesh_simple(f"{path}/flex/{f.name}", vertices, f.faces, color=rgb,
+                                          side="double", opacity=opacity, **NO_SHADOWS))
       self.uploads += 1
-    label = None
-    if self.body_ids.size:  # the label rides on the slot's first body
-      label = scene.add_label(f"/play/s{k}/b{self.body_ids[0]}/label", "")
-    return root, frames, meshes, label
+    return root, frames, meshes
+
+  def show_start(self, pos: np.ndarray, quat: np.ndarray) -> None:
+    """Draws every moving body where a world starts (pos f64[N, 3], quat
+    f64[N, 4] in pose_ids order), dimmed, while no world plays: the page
+    opens on the scene, not on an empty grid."""
+    if self._start is None:
+      self._start = self._make_bodies("/start", np.zeros(3), START_OPACITY)
+    root, frames, meshes = self._start
+    for i, b in enumerate(self.body_ids):
+      frames[int(b)].position = pos[i]
+      frames[int(b)].wxyz = quat[i]
+    at = len(self.body_ids)
+    for f, mesh in zip(self.flexes, meshes[-len(self.flexes):] if self.flexes else ()):
+      n = len(f.bodies)
+      mesh.vertices = f.vertices(pos[at:at + n], quat[at:at + n])
+      at += n
+    self._update_start()
+
+  def _update_start(self) -> None:
+    if self._start is not None:
+      self._start[0].visible = not any(slot[0].visible for slot in self._slots)
 
   def _opacity(self, k: int) -> float | None:
     return GHOST_OPACITY if k and not self.side_by_side else None
@@ -216,6 +246,7 @@ class Stage:
     root.visible = world is not None
     if label is not None and world is not None:
       label.text = f"world {world}"
+    self._update_start()
 
   def pose(self, k: int, pos: np.ndarray, quat: np.ndarray) -> None:
     """Moves slot ``k``'s bodies and flexes: pos f64[N, 3] metres, quat f64[N, 4] (w, x, y, z), in
@@ -258,6 +289,6 @@ class Stage:
 
   def remove(self) -> None:
     """Takes everything this stage drew off the page (the model changed)."""
-    for path in ("/play", "/copies", "/scene"):
+    for path in ("/play", "/copies", "/scene", "/start"):
       self.server.scene.remove_by_name(path)
-    self._slots, self._copies = [], {}
+    self._slots, self._copies, self._start = [], {}, None
