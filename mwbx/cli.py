@@ -152,6 +152,18 @@ def _print_run(run) -> None:
   print(f"bank                {run.out} ({run.stored} worlds, {size / 1e6:.1f} MB on disk)")
 
 
+def _rest_saved(bank) -> str:
+  """What stopping worlds at rest (or asleep) saved: the share of frames to
+  the end time that were not simulated."""
+  end_time = (bank.config.get("sim") or {}).get("end_time")
+  if not end_time or not bank.n_worlds:
+    return ""
+  full = round(float(end_time) * bank.record_fps) + 1  # frames of a world that runs to the end
+  total = full * bank.n_worlds
+  saved = 1.0 - float(sum(min(int(n), full) for n in bank.frame_count)) / total
+  return f" (stopping there saved {saved:.1%} of the frames to the end time)" if saved > 0 else ""
+
+
 def _budget_line(record: dict) -> str:
   """The MJX contact budget a bank's worlds were sampled under (its ``run`` record)."""
   from mwbx.batch_sim.contact_budget import ContactBudget  # lazy: imports mujoco.mjx (seconds)
@@ -182,10 +194,13 @@ def _cmd_info(args) -> int:
   print(f"worlds              {s['worlds']} ({s['valid']} valid, {s['unstable']} unstable{errors}{overflow})")
   if bank.run.get("contact_budget"):
     print(f"contact budget      {_budget_line(bank.run['contact_budget'])}")
-  print(f"at rest             {s['at_rest_fraction']:.1%}")
+  print(f"at rest             {s['at_rest_fraction']:.1%}{_rest_saved(bank)}")
+  if bank.run.get("sleep"):
+    from mwbx.batch_sim.sleep import SleepSettings  # lazy: the bank alone needs no engine
+    print(f"sleep               {SleepSettings.from_record(bank.run['sleep']).describe()}")
   print(f"mean collisions     {s['mean_collisions']:.2f} per world")
   print(f"perturbations       {s['perturbations']}")
-  print(f"storage             {s['storage_bytes']:,} bytes")
+  print(f"storage             {s['storage_bytes']:,} bytes in memory")
   for key, value in s["qpos"].items():
     print(f"qpos {key:<22}{value:,.4g}" if isinstance(value, float) else f"qpos {key:<22}{value}")
   print(f"world ids           {_id_span(bank)}")
@@ -328,8 +343,8 @@ def _cmd_refine(args) -> int:
           f" (scene version {int(new.scene_version[0])})")
   print(f"world-steps/s       {stats.world_steps_per_second:,.0f} ({stats.backend};"
         f" {stats.world_steps:,} steps in {stats.run_seconds:.2f} s, compile {stats.compile_seconds:.1f} s,"
-        f" compression {stats.codec_seconds:.1f} s)")
-  print(f"bank                {out} ({total.n_worlds} worlds, {total.nbytes / 1e6:.1f} MB)")
+        f" compression {stats.codec_seconds:.1f} s, contact events {stats.events_seconds:.1f} s)")
+  print(f"bank                {out} ({total.n_worlds} worlds, {total.nbytes / 1e6:.1f} MB in memory)")
   return 0
 
 
@@ -347,16 +362,26 @@ def _solve_budget(args, budget_type):
 
 
 def _cmd_solve(args) -> int:
-  from mwbx.search import Budget, progress_plot, solve  # lazy: optax
+  from mwbx.search import Budget, SolveInterrupted, progress_plot, solve  # lazy: optax
   bank = _load_bank(args)
   queries = mwbx.load_queries(args.queries, bank=bank)
   budget = _solve_budget(args, Budget)
-  with _reporter_with_safe_points("solve") as update:
-    result = solve(bank, queries, budget=budget, key=jax.random.key(args.seed), samples=args.samples,
-                   keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
-                   guided_rounds=args.guided_rounds, guided_batch=args.guided_batch,
-                   reseed_rounds=args.reseed_rounds, progress=update)
+  interrupted = False
+  try:
+    with _reporter_with_safe_points("solve") as update:
+      result = solve(bank, queries, budget=budget, key=jax.random.key(args.seed), samples=args.samples,
+                     keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
+                     guided_rounds=args.guided_rounds, guided_batch=args.guided_batch,
+                     reseed_rounds=args.reseed_rounds, progress=update)
+  except SolveInterrupted as stop:  # Ctrl-C: the refinements done are kept, as sampling keeps its chunks
+    result, interrupted = stop.result, True
   out = pathlib.Path(args.out or args.bank)
+  before = set(bank.world_ids.tolist())
+  new = [(int(i), int(p)) for i, p in zip(result.bank.world_ids.tolist(), result.bank.parent_world.tolist())
+         if int(i) not in before]
+  if interrupted and not new:
+    print("mwbx: interrupted before a refinement finished; nothing was written", file=sys.stderr)
+    return 130
   print(f"mwbx: saving {result.bank.n_worlds} worlds to {out}", file=sys.stderr)
   saved = result.bank.save(out)  # the new worlds' ids on disk (another process may have taken theirs meanwhile)
   result = result._replace(bank=saved, world=saved.origin.id_on_disk(result.world))
@@ -366,6 +391,14 @@ def _cmd_solve(args) -> int:
   history = plot.with_suffix(".json")
   history.write_text(json.dumps({"message": result.message, "world": result.world, "solved": result.solved,
                                  "steps": [s._asdict() for s in result.steps]}, indent=1))
+  if interrupted:
+    refined = [saved.origin.id_on_disk(i) for i, parent in new if parent >= 0]
+    spans = ", ".join(f"{a}..{b}" if b > a else f"{a}" for a, b in runs.id_ranges(refined)) or "none"
+    guided = len(new) - len(refined)
+    print(f"mwbx: interrupted after {result.steps[-1].refinements} refinements; kept {len(refined)} refined worlds"
+          f" (ids {spans}){f' and {guided} guided worlds' if guided else ''} in {out}; best world so far"
+          f" {result.world} ({result.satisfied} of {result.n_queries} queries met)", file=sys.stderr)
+    return 130
   lineage = [int(i) for i in result.bank.ancestors(result.world)][::-1] + [result.world]
   print(result.message)
   print(f"world               {result.world} ({result.satisfied} of {result.n_queries} queries;"
@@ -398,9 +431,9 @@ def _cmd_browse(args) -> int:
 def _cmd_export(args) -> int:
   # lazy: mwbx.export brings the viewer's kinematics and framing, and usd-core / imageio-ffmpeg on first call
   from mwbx.export import export_npz, export_usd, render_video
+  from mwbx.export import target  # lazy: with mwbx.export above
   from mwbx.export.poses import clip_frames  # lazy: with mwbx.export above
-  from mwbx.export.usd import USD_SUFFIXES  # lazy: with mwbx.export above
-  from mwbx.export.video import free_camera  # lazy: with mwbx.export above
+  from mwbx.export.video import check_fps, check_size, free_camera, gl_backend_name  # lazy: as above
   # Every flag checked before anything is written: a bad one leaves no file behind.
   if not (args.usd or args.mp4 or args.npz):
     raise MwbxError("export: name at least one file to write: --usd FILE, --mp4 FILE or --npz FILE")
@@ -409,11 +442,15 @@ def _cmd_export(args) -> int:
   if not args.mp4 and (args.camera is not None or args.look_at is not None):
     raise MwbxError(f"{'--camera' if args.camera is not None else '--look-at'}: places the video's camera;"
                     f" give it with --mp4 FILE")
-  if args.usd and pathlib.Path(args.usd).suffix.lower() not in USD_SUFFIXES:
-    raise MwbxError(f"--usd: {args.usd}: a USD file name ends in {', '.join(USD_SUFFIXES)}")
-  for flag, value in (("--width", args.width), ("--height", args.height)):
-    if args.mp4 and (value < 2 or value % 2):
-      raise MwbxError(f"{flag}: must be an even number of pixels >= 2 (H.264, yuv420p), got {value}")
+  # Each file: its suffix, nothing special at its name (a symlink, FIFO, device), a folder that takes it.
+  for kind in ("npz", "usd", "mp4"):
+    if getattr(args, kind):
+      target.check_target(getattr(args, kind), kind, flag=f"--{kind}")
+      target.check_folder(getattr(args, kind), flag=f"--{kind}")
+  if args.mp4:
+    check_size(args.width, args.height, prefix="--")  # the bank's MJCF may allow more: checked again below
+    check_fps(30.0 if args.fps is None else args.fps, prefix="--")
+    gl_backend_name()  # a bad MUJOCO_GL is named before anything is written
   look_at = None
   if args.look_at is not None:
     look_at = (args.look_at[:3], args.look_at[3:])
@@ -423,6 +460,8 @@ def _cmd_export(args) -> int:
       raise MwbxError(f"--look-at: {str(err).split(': ', 1)[-1]}") from None
   bank = _load_bank(args)
   n_frames = int(bank.frame_count[bank.row_of(args.world)])  # names an id the bank does not hold
+  if args.mp4:
+    check_size(args.width, args.height, bank.model(), prefix="--")  # up to the MJCF's offscreen buffer
   if args.camera is not None and mujoco.mj_name2id(bank.model(), mujoco.mjtObj.mjOBJ_CAMERA, args.camera) < 0:
     model = bank.model()
     names = [model.camera(c).name for c in range(model.ncam) if model.camera(c).name]
@@ -628,20 +667,23 @@ def _add_export(sub) -> None:
   p.add_argument("--world", type=int, required=True, metavar="ID", help="id of the world to export")
   p.add_argument("--usd", default=None, metavar="FILE",
                  help="USD stage with time-sampled body poses: .usda (text), .usd or .usdc (binary)")
-  p.add_argument("--mp4", default=None, metavar="FILE", help="H.264 video (MuJoCo's offscreen renderer)")
+  p.add_argument("--mp4", default=None, metavar="FILE",
+                 help="H.264 video (MuJoCo's offscreen renderer; OpenGL backend from MUJOCO_GL: egl, osmesa, glfw)")
   p.add_argument("--npz", default=None, metavar="FILE",
-                 help="decoded qpos and every body's pose, every recorded frame")
+                 help="decoded qpos and every body's pose, every recorded frame (.npz)")
   p.add_argument("--fps", type=float, default=None, metavar="F",
-                 help="USD samples and video frames per second (default: USD every recorded frame, video 30);"
-                      " the npz keeps every recorded frame")
+                 help="USD samples and video frames per second (default: USD every recorded frame, video 30;"
+                      " video 1 to 1000); the npz keeps every recorded frame")
   p.add_argument("--start", type=float, default=0.0, metavar="S", help="from this time on, s (default 0)")
   p.add_argument("--stop", type=float, default=None, metavar="S", help="up to this time, s (default: the end)")
   p.add_argument("--camera", default=None, metavar="NAME", help="MJCF camera the video is rendered from")
   p.add_argument("--look-at", type=float, nargs=6, default=None, metavar=("EX", "EY", "EZ", "TX", "TY", "TZ"),
                  help="video camera at eye EX EY EZ looking at target TX TY TZ, m (instead of --camera;"
                       " neither: the viewer's first view)")
-  p.add_argument("--width", type=int, default=1280, help="video width, pixels, even (default 1280)")
-  p.add_argument("--height", type=int, default=720, help="video height, pixels, even (default 720)")
+  p.add_argument("--width", type=int, default=1280,
+                 help="video width, pixels, even, at most 8192 or the MJCF's offwidth (default 1280)")
+  p.add_argument("--height", type=int, default=720,
+                 help="video height, pixels, even, at most 8192 or the MJCF's offheight (default 720)")
   _skip_corrupt(p)
   p.set_defaults(func=_cmd_export)
 

@@ -16,8 +16,10 @@ import dataclasses
 import functools
 import fnmatch
 import pathlib
+import posixpath
+import re
 import xml.etree.ElementTree
-from typing import Sequence
+from typing import Callable, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -84,7 +86,7 @@ def find_includes(path: pathlib.Path) -> dict[str, str]:
   return out
 
 
-def stored_includes_only(mjcf_text: str, includes: dict[str, str]) -> None:
+def stored_includes_only(mjcf_text: str, includes: Mapping[str, str]) -> None:
   """MwbxError if the MJCF (or an included text) includes a file not among
   ``includes``: a model is built only from the texts given with it (a bank's
   own, stored in it), never from a file a (crafted) MJCF names on disk."""
@@ -93,12 +95,181 @@ def stored_includes_only(mjcf_text: str, includes: dict[str, str]) -> None:
     try:
       root = xml.etree.ElementTree.fromstring(text)
     except xml.etree.ElementTree.ParseError:
-      continue  # MuJoCo names the syntax error
+      continue  # named by mjcf_files
     for node in root.iter("include"):
       name = node.get("file")
       if name not in includes:
-        raise MwbxError(f"MJCF: {where} includes {name!r}, which is not stored with it; a bank's model is"
-                        f" built only from the MJCF text stored in it")
+        raise MwbxError(f"MJCF: {where} includes {name!r}, which is not stored with it; {STORED_ONLY}")
+
+
+# Elements whose files MuJoCo finds through the compiler's meshdir (height
+# fields, skins and flexcomp meshes as meshes are), or through its texturedir;
+# either falls back to assetdir. Other files (a <model>'s) are found from the
+# folder of the MJCF naming them.
+_MESHDIR_TAGS = frozenset({"mesh", "skin", "hfield", "flexcomp"})
+_TEXTUREDIR_TAGS = frozenset({"texture"})
+_FOLDERS = ("meshdir", "texturedir", "assetdir")
+# Files MuJoCo reads while it parses the XML; the others when it compiles.
+_PARSED_TAGS = frozenset({"include", "model", "flexcomp"})
+STORED_ONLY = "a bank's model is built only from the MJCF text and files stored in it"
+
+
+@dataclasses.dataclass(frozen=True)
+class FileReference:
+  """One file an MJCF names: a mesh, texture, height field, skin, ``<model>``, ...
+
+  Attributes:
+    tag, attribute, written: its element, the attribute (``file``,
+      ``fileright``, ...) and the path as written.
+    folder: the folder it is found in, as written: the MJCF's naming it (a
+      ``<model>`` file's) and the compiler's ``meshdir``/``texturedir``/``assetdir``.
+    name: its path from the main MJCF's folder, normalized
+      (``assets/tet.obj``); None where it is absolute or leaves that folder.
+  """
+
+  tag: str
+  attribute: str
+  written: str
+  folder: str
+  name: str | None
+
+  def __str__(self) -> str:
+    where = f" (in folder {self.folder!r})" if self.folder else ""
+    return f"<{self.tag} {self.attribute}={self.written!r}>{where}"
+
+
+def _escapes(path: str) -> bool:
+  """A written path that is absolute, or that could be on another system
+  (a drive letter, a backslash, a NUL)."""
+  return path.startswith("/") or "\\" in path or "\0" in path or re.match(r"[A-Za-z]:", path) is not None
+
+
+def _resolve(base: str, folder: str, written: str) -> str | None:
+  """The path from the main MJCF's folder of ``written`` found in ``folder``
+  of an MJCF in folder ``base``; None where it is absolute or leaves that folder."""
+  if _escapes(folder) or _escapes(written):
+    return None
+  name = posixpath.normpath(posixpath.join(base, folder, written))
+  return None if name == ".." or name.startswith("../") else name
+
+
+def _xml_root(text: str | bytes, where: str):
+  try:
+    return xml.etree.ElementTree.fromstring(text)
+  except xml.etree.ElementTree.ParseError as err:
+    raise MwbxError(f"MJCF failed to load: {where} is not well-formed XML ({err})") from None
+
+
+def _references(text: str | bytes, base: str, includes: Mapping[str, str] | None,
+                where: str) -> list[FileReference]:
+  """The files one MJCF text names (every ``file*`` attribute of every
+  element), with the texts of ``includes`` spliced in where it includes them
+  (the main MJCF; a ``<model>`` file's ``<include>`` is a file it names)."""
+  folders: dict[str, str] = {}
+  found = []
+  expanded = set()
+  stack = [iter([_xml_root(text, where)])]
+  while stack:  # document order, without recursion (kinematic trees nest deep)
+    node = next(stack[-1], None)
+    if node is None:
+      stack.pop()
+      continue
+    if not isinstance(node.tag, str):
+      continue
+    if node.tag == "include" and includes is not None:
+      name = node.get("file")
+      if name in includes and name not in expanded:
+        expanded.add(name)
+        stack.append(iter([_xml_root(includes[name], repr(name))]))
+      continue
+    if node.tag == "compiler":  # the last one wins, as in MuJoCo
+      folders.update({key: node.get(key) for key in _FOLDERS if node.get(key) is not None})
+    found.extend((node.tag, key, value) for key, value in node.attrib.items()
+                 if key.lower().startswith("file") and value)
+    stack.append(iter(node))
+  refs = []
+  for tag, attribute, written in found:
+    folder = ""
+    if tag in _MESHDIR_TAGS:
+      folder = folders.get("meshdir") or folders.get("assetdir") or ""
+    elif tag in _TEXTUREDIR_TAGS:
+      folder = folders.get("texturedir") or folders.get("assetdir") or ""
+    shown = posixpath.join(base, folder) if base or folder else ""
+    refs.append(FileReference(tag, attribute, written, shown, _resolve(base, folder, written)))
+  return refs
+
+
+def _walk_files(mjcf_text: str, includes: Mapping[str, str],
+                fetch: Callable[[FileReference], bytes]) -> tuple[dict[str, bytes], set[str]]:
+  """(:func:`mjcf_files`, the names of those MuJoCo reads while parsing)."""
+  out: dict[str, bytes] = {}
+  parsed: set[str] = set()
+  pending = [(mjcf_text, "", includes, "the MJCF")]
+  while pending:
+    text, base, included, where = pending.pop()
+    for ref in _references(text, base, included, where):
+      if ref.name is None or ref.name not in out:
+        out[ref.name] = fetch(ref)
+        if ref.tag == "model":  # an MJCF of its own: its files are found from its folder
+          pending.append((out[ref.name], posixpath.dirname(ref.name), None, repr(ref.name)))
+      if ref.tag in _PARSED_TAGS:
+        parsed.add(ref.name)
+  return out, parsed
+
+
+def mjcf_files(mjcf_text: str, includes: Mapping[str, str],
+               fetch: Callable[[FileReference], bytes]) -> dict[str, bytes]:
+  """Every file the MJCF and its included texts name, and the files the
+  ``<model>`` files among them name in turn: name (:attr:`FileReference.name`)
+  -> bytes, each given by ``fetch``.
+
+  Raises:
+    MwbxError: a reference ``fetch`` refuses (it must refuse those whose name
+      is None), or a text that is not well-formed XML, naming it.
+  """
+  return _walk_files(mjcf_text, includes, fetch)[0]
+
+
+def find_assets(path: pathlib.Path, mjcf_text: str, includes: Mapping[str, str]) -> dict[str, bytes]:
+  """The bytes of every file the MJCF at ``path`` names (meshes, textures,
+  height fields, skins, models), read from its folder: a bank stores them.
+
+  Raises:
+    MwbxError: a file that cannot be read, or one outside the MJCF's folder
+      (an absolute path, or ``..`` past it), which a bank does not store.
+  """
+  base = path.parent
+
+  def fetch(ref: FileReference) -> bytes:
+    if ref.name is None:
+      raise MwbxError(f"{ref}: outside the MJCF's folder; a bank stores the files an MJCF names from its"
+                      f" folder and below only: move the file there")
+    try:
+      return (base / ref.name).read_bytes()
+    except OSError as err:
+      raise MwbxError(f"{ref}: cannot read {base / ref.name}: {err.strerror}") from None
+
+  return mjcf_files(mjcf_text, includes, fetch)
+
+
+def _stored(assets: Mapping[str, bytes]) -> Callable[[FileReference], bytes]:
+  """A :func:`mjcf_files` fetch that finds files in ``assets`` alone."""
+
+  def fetch(ref: FileReference) -> bytes:
+    if ref.name is None:
+      raise MwbxError(f"MJCF: {ref} names a file outside the bank (an absolute path, or one leaving its"
+                      f" folder); {STORED_ONLY}")
+    if ref.name not in assets:
+      raise MwbxError(f"MJCF: {ref} names {ref.name!r}, which is not stored with it; {STORED_ONLY} (a bank"
+                      f" saved before banks stored these files gets them when sampled into again from its config)")
+    return assets[ref.name]
+
+  return fetch
+
+
+def _base_name(name: str) -> str:
+  """The name MuJoCo's parser finds a file by: its base name, lower case."""
+  return posixpath.basename(name.replace("\\", "/")).lower()
 
 
 def one_line(err: BaseException) -> str:
@@ -106,32 +277,55 @@ def one_line(err: BaseException) -> str:
   return "; ".join(line.strip() for line in str(err).splitlines() if line.strip())
 
 
-def parse_mjcf(mjcf_text: str, base_dir: str | None = None,
-               includes: dict[str, str] | None = None) -> mujoco.MjSpec:
-  """The MjSpec of MJCF text; ``includes`` are the texts of files it includes
-  (every one: no file is read from disk for an include), ``base_dir`` where
-  meshes and textures are found.
+def parse_mjcf(mjcf_text: str, base_dir: str | None = None, includes: Mapping[str, str] | None = None,
+               assets: Mapping[str, bytes] | None = None) -> mujoco.MjSpec:
+  """The MjSpec of MJCF text, built only from the texts and files given:
+  nothing is read from disk.
+
+  Args:
+    mjcf_text: the MJCF.
+    base_dir: the folder it was read from; nothing is read there (the files
+      come from ``assets``), kept for the callers that name it.
+    includes: file name -> text of every file it includes.
+    assets: name (:attr:`FileReference.name`) -> bytes of every other file it
+      names: meshes, textures, height fields, skins, ``<model>`` files
+      (none by default: such a reference is then refused).
 
   Raises:
-    MwbxError: an include not among ``includes``.
+    MwbxError: a file it names that is not given (an include, an asset), or
+      an absolute path or one leaving the MJCF's folder, naming it.
     ValueError: MuJoCo's parser error.
   """
-  stored_includes_only(mjcf_text, includes or {})
-  include = {k: v.encode() for k, v in (includes or {}).items()} or None
-  spec = mujoco.MjSpec.from_string(mjcf_text, include=include)
-  if base_dir is not None:
-    spec.modelfiledir = base_dir
-  return spec
+  del base_dir
+  includes = dict(includes or {})
+  assets = {} if assets is None else assets
+  stored_includes_only(mjcf_text, includes)
+  files, parsed = _walk_files(mjcf_text, includes, _stored(assets))
+  # MuJoCo finds the files it reads while parsing (includes, <model> and flexcomp files) by base name
+  # alone, and looks on disk for any it does not find there (every file named is looked up while
+  # parsing); those it reads when compiling it finds by path. Every file is given both ways.
+  parse_vfs = {name: text.encode() for name, text in includes.items()}
+  by_base = {_base_name(name): name for name in parse_vfs}
+  for name in sorted(files, key=lambda n: (n not in parsed, n)):
+    first = by_base.setdefault(_base_name(name), name)
+    if first == name:
+      parse_vfs[name] = files[name]
+    elif name in parsed:
+      raise MwbxError(f"MJCF: {first!r} and {name!r} have one file name, by which MuJoCo tells apart the files it"
+                      f" reads while parsing; rename one")
+  return mujoco.MjSpec.from_string(mjcf_text, include=parse_vfs or None, assets=files or None)
 
 
 def build_model(mjcf_text: str, tracked: Sequence[str], base_dir: str | None = None,
-                includes: dict[str, str] | None = None) -> mujoco.MjModel:
-  """Compiles the MJCF with the observation sensors of every tracked body.
+                includes: Mapping[str, str] | None = None,
+                assets: Mapping[str, bytes] | None = None) -> mujoco.MjModel:
+  """Compiles the MJCF with the observation sensors of every tracked body,
+  from the texts and files given alone (:func:`parse_mjcf`).
 
   Sensors already in the MJCF are removed so that ``sensordata`` is exactly
   ``f32[B, SENSOR_WIDTH]`` in :data:`SENSORS` order.
   """
-  spec = parse_mjcf(mjcf_text, base_dir, includes)
+  spec = parse_mjcf(mjcf_text, base_dir, includes, assets)
   for sensor in list(spec.sensors):
     spec.delete(sensor)
   for body in tracked:
@@ -324,7 +518,11 @@ class Scene:
     rates: the :class:`~mwbx.rates.Rates` it samples at.
     mjcf_text: the MJCF file's text, stored in every bank.
     mjcf_includes: file name -> text of every MJCF file it includes.
-    mjcf_dir: where its meshes and textures are found.
+    mjcf_assets: name (:attr:`FileReference.name`) -> bytes of every other
+      file it names (meshes, textures, ...), stored in every bank: the model
+      is built from these, never from files on disk.
+    mjcf_dir: the folder the MJCF was read from (None: given as text); its
+      files are read once, when the scene is loaded from a config.
     digest: sha256 of the config, the MJCF and its includes.
     model: ``MjModel`` with the observation sensors added.
     object_names: names of the objects (root bodies and flexes).
@@ -343,10 +541,10 @@ class Scene:
   """
 
   def __init__(self, config: Config, mjcf_text: str | None = None, mjcf_dir: str | None = None,
-               mjcf_includes: dict[str, str] | None = None):
+               mjcf_includes: dict[str, str] | None = None, mjcf_assets: Mapping[str, bytes] | None = None):
     self.config = config
     source = config.source or "<config>"
-    if mjcf_text is None:
+    if mjcf_text is None:  # the user's own files: read from the MJCF's folder, once
       path = config.mjcf_path()
       self.mjcf_dir = str(path.parent)
       try:
@@ -354,12 +552,17 @@ class Scene:
         mjcf_includes = find_includes(path)
       except OSError as err:
         raise MwbxError(f"{source}: scene.mjcf: cannot read {path}: {err.strerror}") from None
-    else:
-      self.mjcf_dir = mjcf_dir  # where its relative file names resolve, if given
+      try:
+        mjcf_assets = find_assets(path, mjcf_text, mjcf_includes)
+      except MwbxError as err:
+        raise MwbxError(f"{source}: scene.mjcf: {err}") from None
+    else:  # given (a bank's stored text and files): nothing is read from disk
+      self.mjcf_dir = mjcf_dir
     self.mjcf_text = mjcf_text
     self.mjcf_includes = dict(mjcf_includes or {})
+    self.mjcf_assets = dict(mjcf_assets or {})
     try:
-      plain_model = parse_mjcf(mjcf_text, self.mjcf_dir, self.mjcf_includes).compile()
+      plain_model = parse_mjcf(mjcf_text, self.mjcf_dir, self.mjcf_includes, self.mjcf_assets).compile()
     except MwbxError as err:
       raise MwbxError(f"{source}: scene.mjcf: {err}") from None
     except Exception as err:  # MuJoCo raises ValueError with the parser's text.
@@ -397,7 +600,7 @@ class Scene:
     }
     self.groups = self._resolve_groups(source)
 
-    self.model = build_model(mjcf_text, self.body_names, self.mjcf_dir, self.mjcf_includes)
+    self.model = build_model(mjcf_text, self.body_names, self.mjcf_dir, self.mjcf_includes, self.mjcf_assets)
     if config.sim.timestep is not None:  # the config's step, set once here (else the MJCF's own)
       self.model.opt.timestep = config.sim.timestep
     self.body_ids = np.array(

@@ -15,9 +15,10 @@ Every public function takes ids; a bank row is internal (:meth:`Bank.row_of`).
 from __future__ import annotations
 
 import dataclasses
+import os
 import pathlib
 import uuid
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -69,6 +70,10 @@ class Bank:
     record_fps, query_fps, timestep: rates (Hz) and physics step (s).
     config: resolved config (dict); mjcf_text: the MJCF; mjcf_includes: file name ->
       text of each MJCF file it includes; digest: sha256 of all three.
+    mjcf_assets: name -> bytes of every other file the MJCF names (meshes,
+      textures, height fields, skins, ``<model>`` files; :mod:`mwbx.bank.assets`):
+      the bank's model is built from its MJCF text, includes and these alone
+      (none if left out).
     lineage: per refined world (keyed by its id as a string): parent id, t_min,
       the objects asked for, the final active set, objects added or removed.
     scene_version: i16[W] the version of the scene each world belongs to
@@ -108,6 +113,7 @@ class Bank:
   mjcf_text: str
   digest: str
   mjcf_includes: dict = dataclasses.field(default_factory=dict)
+  mjcf_assets: Mapping | None = dataclasses.field(default=None, compare=False)
   lineage: dict = dataclasses.field(default_factory=dict)
   run: dict = dataclasses.field(default_factory=dict)
   next_id: int = 0
@@ -125,6 +131,8 @@ class Bank:
   save_token: str = dataclasses.field(default_factory=lambda: uuid.uuid4().hex, repr=False, compare=False)
 
   def __post_init__(self):
+    if self.mjcf_assets is None:
+      self.mjcf_assets = {}
     if self.scene_version is None:  # banks of one scene version, and those saved before versions
       self.scene_version = np.full(len(self.world_ids), len(self.versions), np.int16)
 
@@ -255,45 +263,50 @@ class Bank:
     return scene_lib.select_bodies(names, self.body_names, self.objects, self.groups, "selection", "bank")
 
   def mjcf_dir(self) -> str | None:
-    """Directory the MJCF's relative file names (meshes, textures, includes)
-    resolve against: where it was when the bank was sampled, if it still exists."""
+    """The folder the MJCF was in when the bank was sampled, as its config
+    names it (for people; nothing is read there, nor is it looked up: the
+    model is built from what the bank stores)."""
     source = self.config.get("source")
     mjcf = (self.config.get("scene") or {}).get("mjcf")
-    if not mjcf:
+    if not isinstance(mjcf, str) or not mjcf:
       return None
-    candidates = ([pathlib.Path(source).parent / mjcf] if source and not source.startswith("<")
-                  else []) + [ASSET_DIR / mjcf]
-    for path in candidates:
-      if path.exists():
-        return str(path.resolve().parent)
-    return None
+    base = os.path.dirname(source) if isinstance(source, str) and not source.startswith("<") else str(ASSET_DIR)
+    return os.path.normpath(os.path.join(os.path.abspath(base), os.path.dirname(mjcf)))
 
   def scene(self) -> scene_lib.Scene:
-    """The bank's :class:`mwbx.Scene`, built only from the config and MJCF
-    text stored in it (what refinement and solve resample).
+    """The bank's :class:`mwbx.Scene`, built only from the config, MJCF text
+    and files stored in it (what refinement and solve resample).
 
     Raises:
-      MwbxError: the stored MJCF includes a file the bank does not store, or
-        its tracked bodies no longer match its own config.
+      MwbxError: the stored MJCF names a file the bank does not store (or an
+        absolute path, or one leaving its folder), or its tracked bodies no
+        longer match its own config.
     """
     data = dict(self.config)
     data.pop("source", None)
     scene = scene_lib.Scene(config_from_dict(data, source="<bank config>"), mjcf_text=self.mjcf_text,
-                            mjcf_includes=self.mjcf_includes, mjcf_dir=self.mjcf_dir())
+                            mjcf_includes=self.mjcf_includes, mjcf_dir=self.mjcf_dir(),
+                            mjcf_assets=self.mjcf_assets)
     if scene.body_names != tuple(self.body_names):
       raise MwbxError("bank: the tracked bodies do not match its own config")
     return scene
 
   def model(self):
-    """The scene's ``MjModel`` (with the mwbx observation sensors)."""
+    """The scene's ``MjModel`` (with the mwbx observation sensors), built from
+    the MJCF text, includes and files stored in the bank alone.
+
+    Raises:
+      MwbxError: the MJCF names a file the bank does not store (or an
+        absolute path, or one leaving its folder), naming it, or does not compile.
+    """
     if self._model is None:
       try:
-        self._model = scene_lib.build_model(self.mjcf_text, self.body_names, self.mjcf_dir(), self.mjcf_includes)
+        self._model = scene_lib.build_model(self.mjcf_text, self.body_names, includes=self.mjcf_includes,
+                                            assets=self.mjcf_assets)
       except MwbxError as err:
         raise MwbxError(f"bank: {err}") from None
       except ValueError as err:
-        raise MwbxError(f"bank: its MJCF does not compile here ({scene_lib.one_line(err)}); files it names are "
-                        f"looked up relative to {self.mjcf_dir() or 'the working directory'}") from None
+        raise MwbxError(f"bank: its MJCF does not compile ({scene_lib.one_line(err)})") from None
 
       self._model.opt.timestep = self.timestep
     return self._model

@@ -63,6 +63,7 @@ def load(cls, path: pathlib.Path):
         metric_names=tuple(meta["metric_names"]), record_fps=meta["record_fps"],
         query_fps=meta["query_fps"], timestep=meta["timestep"], config=meta["config"],
         mjcf_text=meta["mjcf_text"], mjcf_includes=meta.get("mjcf_includes", {}),
+        mjcf_assets={},  # this format stored no files: a model naming one is refused
         digest=meta["digest"], lineage=meta.get("lineage", {}), run=meta.get("run", {}),
         next_id=int(meta.get("next_id", 0)))
   except MwbxError:

@@ -4,6 +4,7 @@
 
   BANK/manifest.json          format, scene (config, MJCF, layout), runs, shards, dropped ids
   BANK/shards/00000/          one shard per chunk of worlds: <array>.npy per array, lineage.json
+  BANK/assets/<sha256>        the files the MJCF names (meshes, textures, ...; mwbx.bank.assets)
   BANK/config.resolved.json   for people (every default filled in)
   BANK/scene.xml              for people
 
@@ -43,6 +44,7 @@ import uuid
 import numpy as np
 
 from mwbx import files
+from mwbx.bank import assets as assets_lib
 from mwbx.bank import checks
 from mwbx.bank import lazy as lazy_lib
 from mwbx.bank import runs
@@ -96,7 +98,8 @@ def scene_meta(bank) -> dict:
   _, store_meta = bank.qpos_store.empty().state()
   return {
       "digest": bank.digest, "config": bank.config, "mjcf_text": bank.mjcf_text,
-      "mjcf_includes": bank.mjcf_includes, "body_names": list(bank.body_names),
+      "mjcf_includes": bank.mjcf_includes, "mjcf_assets": assets_lib.table(bank.mjcf_assets or {}),
+      "body_names": list(bank.body_names),
       "body_ids": [int(b) for b in bank.body_ids],
       "objects": {k: list(v) for k, v in bank.objects.items()},
       "groups": {k: list(v) for k, v in bank.groups.items()},
@@ -233,8 +236,12 @@ class BankDirectory:
     if self.manifest is None:
       self.manifest = {"format": FORMAT, "scene": scene_meta(bank), "next_id": 0, "dropped": [],
                        "runs": [], "shards": [], "run": {}}
+      assets_lib.write(self.path, bank.mjcf_assets or {})
     elif self.manifest["scene"]["digest"] != bank.digest:
       raise MwbxError(f"{self.path}: holds a bank of a different config or MJCF; choose another directory")
+    elif "mjcf_assets" not in self.manifest["scene"] and bank.mjcf_assets:
+      # Saved before banks stored the files their MJCF names: stored now, from this bank of its scene.
+      self.manifest["scene"]["mjcf_assets"] = assets_lib.write(self.path, bank.mjcf_assets)
 
   def append(self, bank, rows=None, run: dict | None = None) -> None:
     """Writes the worlds ``rows`` of ``bank`` (default all) as one new shard.
@@ -456,10 +463,12 @@ def _read_qpos(path: pathlib.Path, entry: dict, kind, meta: dict):
 
 def verify(path: str | pathlib.Path) -> list[str]:
   """Reads every array of every shard of a bank directory (one shard at a
-  time) and returns one line per corrupt shard, naming its arrays."""
+  time) and every file its MJCF names, and returns one line per corrupt
+  shard (naming its arrays) or file."""
   path = pathlib.Path(path).absolute()
-  problems = []
-  for entry in read_manifest(path)["shards"]:
+  manifest = read_manifest(path)
+  problems = assets_lib.verify(path, manifest["scene"].get("mjcf_assets"))
+  for entry in manifest["shards"]:
     try:
       _read_small(path, entry)
       _read_com(path, entry)
@@ -473,6 +482,10 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   """The bank of a shard directory (see :meth:`mwbx.bank.Bank.load`)."""
   manifest = read_manifest(path)
   scene = manifest["scene"]
+  stored = assets_lib.stored(path, scene.get("mjcf_assets"))  # the files its MJCF names, read when used
+  if not lazy:
+    for name in stored:
+      stored[name]  # read and checked now
   store_meta = scene["qpos_store"]
   kind = store_class(store_meta["kind"])
   entries, smalls, corrupt, corrupt_ids = [], [], [], []
@@ -527,7 +540,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       groups={k: tuple(v) for k, v in scene["groups"].items()},
       metric_names=tuple(scene["metric_names"]), record_fps=scene["record_fps"],
       query_fps=scene["query_fps"], timestep=scene["timestep"], config=scene["config"],
-      mjcf_text=scene["mjcf_text"], mjcf_includes=scene.get("mjcf_includes", {}),
+      mjcf_text=scene["mjcf_text"], mjcf_includes=scene.get("mjcf_includes", {}), mjcf_assets=stored,
       digest=scene["digest"], lineage=lineage, run=run, next_id=int(manifest["next_id"]),
       versions=list(scene.get("versions", [])), events=events, event_actors=event_actors)
   ids, counts = np.unique(bank.world_ids, return_counts=True)

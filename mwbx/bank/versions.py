@@ -161,6 +161,7 @@ def upgrade(bank, scene, progress=None):
       bank, com=com, metrics=metrics, qpos_store=store, body_names=tuple(scene.body_names),
       body_ids=np.asarray(scene.body_ids), objects=dict(scene.objects), groups=dict(scene.groups),
       config=scene.config.resolved(), mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes),
+      mjcf_assets=dict(scene.mjcf_assets),
       digest=scene.digest, versions=list(bank.versions) + [scene_record(bank)],
       scene_version=np.asarray(bank.scene_version, np.int16).copy(), _model=None)
 

@@ -206,7 +206,7 @@ def given(settings) -> dict:
 def budgeted_model(scene, budget: ContactBudget, timestep: float | None = None) -> mujoco.MjModel:
   """The scene's model with MJX's ``max_geom_pairs`` and ``max_contact_points``
   numerics (MJX reads them from the model; nothing else changes)."""
-  spec = scene_lib.parse_mjcf(scene.mjcf_text, scene.mjcf_dir, scene.mjcf_includes)
+  spec = scene_lib.parse_mjcf(scene.mjcf_text, scene.mjcf_dir, scene.mjcf_includes, scene.mjcf_assets)
   for numeric in list(spec.numerics):
     if numeric.name in ("max_geom_pairs", "max_contact_points"):
       spec.delete(numeric)

@@ -377,6 +377,7 @@ class Sampler:
         objects=dict(scene.objects), groups=dict(scene.groups), metric_names=world.METRIC_NAMES,
         record_fps=cfg.sim.record_fps, query_fps=cfg.sim.query_fps, timestep=float(scene.model.opt.timestep),
         config=cfg.resolved(), mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes),
+        mjcf_assets=dict(scene.mjcf_assets),
         digest=scene.digest,
         run=self.run_record(), events=events, event_actors=self.event_actors.names,
     )
@@ -484,7 +485,8 @@ def empty_bank(scene: Scene, store: QposStore | None = None) -> bank_lib.Bank:
       body_names=scene.body_names, body_ids=scene.body_ids, objects=dict(scene.objects),
       groups=dict(scene.groups), metric_names=world.METRIC_NAMES, record_fps=cfg.sim.record_fps,
       query_fps=cfg.sim.query_fps, timestep=float(timestep), config=cfg.resolved(),
-      mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes), digest=scene.digest,
+      mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes), mjcf_assets=dict(scene.mjcf_assets),
+      digest=scene.digest,
       events=EventRecord.empty(0), event_actors=events_lib.actors_of(scene.model, scene.object_names).names)
 
 

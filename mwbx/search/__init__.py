@@ -15,6 +15,7 @@ from mwbx.search.objects import involved_objects
 from mwbx.search.proposal import Proposal
 from mwbx.search.proposal import init_proposal
 from mwbx.search.solver import Budget
+from mwbx.search.solver import SolveInterrupted
 from mwbx.search.solver import SolveResult
 from mwbx.search.solver import SolveStep
 from mwbx.search.solver import place_queries

@@ -49,7 +49,9 @@ best-first over the bank's refinement tree:
 Every step is an ordinary :func:`mwbx.refine`: the result is an ordinary,
 plausible world with its full lineage, viewable and refinable by hand.
 A budget that runs out ends with the best world found and a message saying so
-(``solved=False``); ``throw=True`` raises instead.
+(``solved=False``); ``throw=True`` raises instead. Ctrl-C (KeyboardInterrupt)
+ends it with :class:`SolveInterrupted`, which holds the result so far: the
+refinements already done are kept, to be saved as at any end.
 """
 
 from __future__ import annotations
@@ -251,6 +253,20 @@ class SolveResult(NamedTuple):
   steps: tuple[SolveStep, ...]
 
 
+class SolveInterrupted(KeyboardInterrupt):
+  """Ctrl-C (or SIGTERM through the CLI) during :func:`solve`.
+
+  Attributes:
+    result: the :class:`SolveResult` so far: every refinement finished
+      before the interrupt is in ``result.bank``, its best world in
+      ``result.world``; save it as a finished search's.
+  """
+
+  def __init__(self, result: SolveResult):
+    super().__init__(f"solve: {result.message}")
+    self.result = result
+
+
 def deadline(bank, world: int, query) -> float:
   """Seconds by which a query's objects must be right, in one world
   (:meth:`mwbx.Query.deadline`): an include query's window start (else the
@@ -385,6 +401,10 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
   Returns:
     a :class:`SolveResult`; ``result.bank`` holds every kept world.
 
+  Raises:
+    SolveInterrupted: on Ctrl-C (KeyboardInterrupt), holding the result so
+      far (every refinement finished is in its bank).
+
   Example::
 
     bank = mwbx.Bank.load("out/siggraph")
@@ -403,6 +423,17 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
                     f" {tries_per_world}")
   key = jax.random.key(0) if key is None else key
   search = _Search(bank, queries, budget, key, tie_metric, backend, progress)
+  try:
+    return _search_loop(search, guided_rounds, guided_batch, samples, keep, tries_per_world, patience,
+                        reseed_rounds, throw)
+  except KeyboardInterrupt:  # Ctrl-C: what was found so far is kept
+    raise SolveInterrupted(search.interrupted()) from None
+
+
+def _search_loop(search: "_Search", guided_rounds: int, guided_batch: int, samples: int, keep: int,
+                 tries_per_world: int, patience: int, reseed_rounds: int, throw: bool) -> SolveResult:
+  """:func:`solve`'s search, from the bank ``search`` starts with."""
+  queries, key = search.queries, search.key
   if guided_rounds > 0:
     search.add_guided(queries, guided_rounds, guided_batch, stream_key(key, KeyStream.GUIDED))
   search.note()
@@ -546,11 +577,25 @@ class _Search:
     return query_gaps(bank, [query for _, _, query in self.alone]) == 0
 
   def _add(self, new: Bank, gaps: np.ndarray, ties: np.ndarray) -> None:
-    self.bank = self.bank.append(new)
-    self.gaps = np.concatenate([self.gaps, gaps])
-    self.met = self.gaps == 0
-    self.ties = np.concatenate([self.ties, ties])
-    self.alone_met = np.concatenate([self.alone_met, self._alone_met(new)])
+    # Everything computed first and the bank set last: an interrupt on the way leaves rows past the
+    # bank's, which interrupted() drops, never a bank row without its gaps.
+    bank = self.bank.append(new)
+    all_gaps = np.concatenate([self.gaps, gaps])
+    all_ties = np.concatenate([self.ties, ties])
+    alone_met = np.concatenate([self.alone_met, self._alone_met(new)])
+    self.gaps, self.met, self.ties, self.alone_met = all_gaps, all_gaps == 0, all_ties, alone_met
+    self.bank = bank
+
+  def interrupted(self) -> SolveResult:
+    """What the search holds when interrupted: its bank (every refinement
+    finished), its best world and a message saying so; reported to no
+    progress callback (the interrupt may come from it)."""
+    n = self.bank.n_worlds
+    self.gaps, self.met, self.ties, self.alone_met = (self.gaps[:n], self.met[:n], self.ties[:n],
+                                                      self.alone_met[:n])
+    self.progress = None
+    self.note()  # the best world among every row kept
+    return self.result("interrupted", throw=False)
 
   def repair_target(self, row: int, q: int) -> tuple[list[str], object, np.ndarray]:
     """What repairing query ``q`` in world ``row`` changes: (objects, the
