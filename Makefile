@@ -5,23 +5,30 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 DEV_STAMP := $(VENV)/.installed-dev
 
-.PHONY: run test venv bench clean
+.PHONY: run test venv lock bench clean
 
 $(PY):
 	@test -n "$(PYTHON)" || { echo "python3.12 not found: install Python 3.12 or pass PYTHON=/path/to/python3.12"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 
-# What running needs; the tests' extras (browser, property tests, Warp, linter) only for `make test`.
-$(STAMP): $(PY) pyproject.toml
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e .
+# What running needs, at the versions and hashes of requirements.lock (pip and setuptools
+# included: mwbx itself installs without build isolation); the tests' extras (browser,
+# property tests, Warp, linter) only for `make test`, from requirements-dev.lock.
+$(STAMP): $(PY) pyproject.toml requirements.lock
+	$(PY) -m pip install -q --require-hashes -r requirements.lock
+	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
 	@touch $(STAMP)
 
-$(DEV_STAMP): $(STAMP) pyproject.toml
-	$(PY) -m pip install -q -e ".[dev]"
+$(DEV_STAMP): $(STAMP) requirements-dev.lock
+	$(PY) -m pip install -q --require-hashes -r requirements-dev.lock
 	@touch $(DEV_STAMP)
 
 venv: $(DEV_STAMP)
+
+# Re-resolve pyproject.toml into requirements.lock and requirements-dev.lock (commit both):
+# keeps the locked versions and adds what is new; UPGRADE=1 takes the newest ones allowed.
+lock: $(PY)
+	UPGRADE=$(UPGRADE) PY=$(PY) bash scripts/lock.sh
 
 # Sample the default scene and print a summary.
 run: $(STAMP)
