@@ -884,8 +884,8 @@ def tower(d: dict) -> tuple[list[str], list[str]]:
   off, on, a = d["sample_sleep_off"], d["sample_sleep_on"], d["agreement"]
   r, b = d["refine"], d["refine_baseline"]
   lines = ["## The tower: sleep and refinement", "",
-           f"`scripts/bench_tower.py`: `configs/trebuchet_tower.yaml` on the native engine, {d['worlds']} worlds "
-           f"with `sim.sleep: false` (seed 1) and {d['worlds']} with `sim.sleep: true` (seed 2), then "
+           f"`scripts/bench_tower.py`: `configs/trebuchet_tower.yaml` on the native engine, the same {d['worlds']} "
+           "worlds (seed 1) with `sim.sleep: false` and with `sim.sleep: true`, then "
            f"`--objects rock --time 0.8 --samples {d['samples']}` of world 2 of the sleep-on bank against the "
            "same request with every channel fitted anew and every contact pair tested (the baseline). "
            f"Machine: {d['machine']}.", "",
@@ -900,9 +900,11 @@ def tower(d: dict) -> tuple[list[str], list[str]]:
             f"Agreement of the outcomes, sleep on against off (Welch z of the means, Bonferroni over "
             f"{len(a['outcomes'])} outcomes at a family-wise 1 %: |z| < {a['z_crit']}): largest |z| "
             f"{a['max_abs_z']}, smallest KS p {a['min_ks_p']}, {'all pass' if a['all_pass'] else 'NOT all pass'}.", "",
-            "| outcome | mean off | mean on | z | KS p |", "|---|---:|---:|---:|---:|"]
+            "| outcome | mean off | mean on | z | KS p | paired: mean, largest difference |",
+            "|---|---:|---:|---:|---:|---:|"]
   for name, row in a["outcomes"].items():
-    lines.append(f"| {name} | {row['mean_off']} | {row['mean_on']} | {row['z']} | {row['ks_p']} |")
+    lines.append(f"| {name} | {row['mean_off']} | {row['mean_on']} | {row['z']} | {row['ks_p']} | "
+                 f"{row['paired_mean_abs_diff']}, {row['paired_max_abs_diff']} |")
   lines += ["", "| refinement | wall s | physics s | compression s | contact events s | bytes per world |"
             " active objects (median, max) |", "|---|---:|---:|---:|---:|---:|---:|"]
   for label, t in (("parent channels reused, active pairs only", r), ("baseline", b)):

@@ -260,8 +260,11 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
   streams, max_err = [None] * num_w, np.zeros((num_w, 3))
   raw_count = np.zeros(num_w, np.int64)
   bound_vec = np.concatenate([np.full(k["n_ch"], bound[name]) for name, k in per_kind.items()])
+  # A channel taken from the parent decodes to the parent's stored frames (held past its end
+  # within a quantum): the parent's bound is its bound, so only the fitted channels are checked.
+  taken = None if parent is None else np.asarray(parent.take, bool)
   slow = _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec,
-                      streams, max_err)
+                      streams, max_err, taken)
   for w in slow:
     n_w = int(frame_count[w])
     raw_ok = np.concatenate([per_kind[name]["finite"][w * k["n_ch"]:(w + 1) * k["n_ch"]]
@@ -278,6 +281,8 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
         code = _world_code(qpos, w, n_w, layout, bounds, fps, quanta, per_kind, modes)
         stream = serialize(code)
       errs = _measure(code, stream, qpos[w, :n_w])
+      if taken is not None:
+        errs = np.where(taken[w], 0.0, errs)
       bad = ~(errs <= bound_vec)
       if not np.any(bad):
         break
@@ -324,11 +329,12 @@ def _with_parent_segments(kind, take, n_ch, parent, frame_count, seg, lengths, v
 
 
 def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec, streams,
-                 max_err) -> np.ndarray:
+                 max_err, taken=None) -> np.ndarray:
   """All worlds with finite data through the batched writer and reader.
 
   Fills ``streams`` and ``max_err`` for the worlds whose decoded data meet the
-  bound on every channel; returns the other worlds (for the per-world path).
+  bound on every channel (``taken``: bool[W, C] channels not checked);
+  returns the other worlds (for the per-world path).
   """
   num_w = frame_count.size
   n_ch = layout.n_channels
@@ -360,6 +366,8 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
       out, row_off, qpos if parsed_worlds.size == num_w else qpos[parsed_worlds],
       frame_count[parsed_worlds], parsed.channel_kinds(),
       np.asarray(parsed.addresses(), np.int64))
+  if taken is not None:
+    world_err[taken] = 0.0
   ok = finite & np.all(world_err <= bound_vec[None, :], axis=1)
   c = 0
   for j, (kind, k) in enumerate(per_kind.items()):

@@ -142,9 +142,6 @@ class CompressedQposStore:
       out.append(qpos, frame_count)
       return out
     parent_stream = self.stream(parent)
-    # Kept coordinates are the parent's stored frames (held past its last one), whatever was passed.
-    held = np.asarray(parent_frames, np.float32)[np.minimum(np.arange(qpos.shape[1]), len(parent_frames) - 1)]
-    qpos = np.where(keep_qpos[:, None, :], held[None], qpos)
     reuse = ParentChannels.of(parent_stream, keep_qpos, frame_count)
     out.append(qpos, frame_count, parent=reuse)
     kept = keep_qpos[:, np.asarray(reuse.code.addresses(), np.int64)]
