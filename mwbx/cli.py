@@ -30,6 +30,7 @@ import pathlib
 import secrets
 import signal
 import sys
+import textwrap
 import threading
 
 import jax
@@ -401,6 +402,8 @@ def _cmd_solve(args) -> int:
     return 130
   lineage = [int(i) for i in result.bank.ancestors(result.world)][::-1] + [result.world]
   print(result.message)
+  if result.advice:
+    print(textwrap.fill(result.advice, width=100))
   print(f"world               {result.world} ({result.satisfied} of {result.n_queries} queries;"
         f" lineage {' -> '.join(str(i) for i in lineage)})")
   print(f"bank                {out} ({result.bank.n_worlds} worlds)")

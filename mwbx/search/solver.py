@@ -241,6 +241,8 @@ class SolveResult(NamedTuple):
     unmet: names (or indices) of the queries it does not meet.
     message: one line saying what happened.
     steps: the search's progress, one :class:`SolveStep` per step.
+    advice: unsolved: one short paragraph on what is closest, which queries
+      block it and what to try (a larger budget, more sampled worlds); "" if solved.
   """
 
   bank: Bank
@@ -251,6 +253,7 @@ class SolveResult(NamedTuple):
   unmet: tuple[str, ...]
   message: str
   steps: tuple[SolveStep, ...]
+  advice: str = ""
 
 
 class SolveInterrupted(KeyboardInterrupt):
@@ -710,7 +713,35 @@ class _Search:
       if throw:
         raise MwbxError(f"solve: {message}")
     return SolveResult(self.bank, last.world, last.satisfied, self.n_queries, solved, unmet, message,
-                       tuple(self.steps))
+                       tuple(self.steps), "" if solved else self.advice(row))
+
+  def advice(self, row: int) -> str:
+    """What is closest to a solution, what blocks it and what to try, in one
+    short paragraph (the best world at ``row``)."""
+    valid = np.asarray(self.bank.valid, bool)
+    n_valid = int(valid.sum())
+    meeting = self.met[valid].sum(axis=0)  # worlds meeting each query
+    unmet = [q for q in range(self.n_queries) if not self.met[row, q]]
+    blocking = sorted(unmet, key=lambda q: (int(meeting[q]), q))[:4]
+    named = ", ".join(f"{_label(self.queries[q], q)} ({int(meeting[q])} of {n_valid} worlds)" for q in blocking)
+    best = int(self.met[row].sum())
+    runner_up = int((valid & (self.met.sum(axis=1) == best - 1)).sum()) if best else 0
+    close = f"; {runner_up} more worlds meet one query fewer" if runner_up else ""
+    sampled = int((np.asarray(self.bank.parent_world) < 0).sum())
+    gains = [s for prev, s in zip(self.steps, self.steps[1:]) if s.satisfied > prev.satisfied]
+    last_gain = gains[-1] if gains else self.steps[0]
+    share = last_gain.seconds / max(self.elapsed(), 1e-9)
+    budget = ("the best world was still improving late (its last gain at "
+              f"{share:.0%} of the time spent): a larger budget may finish it" if share > 0.5 else
+              f"the best world last improved at {share:.0%} of the time spent: more budget alone may not help")
+    none_meet = [q for q in blocking if meeting[q] == 0]
+    one = len(none_meet) == 1
+    loosen = (f"; no world meets {', '.join(_label(self.queries[q], q) for q in none_meet)}: loosen"
+              f" {'it' if one else 'them'} or refine the objects {'it names' if one else 'they name'} by hand"
+              ) if none_meet else ""
+    return (f"Closest: world {self.steps[-1].world} ({best} of {self.n_queries} queries{close})."
+            f" Blocking: {named}. To try: {budget}; more sampled"
+            f" worlds ({sampled} now: `mwbx sample CONFIG --worlds {sampled} --out BANK` adds as many){loosen}.")
 
 
 def progress_plot(steps: Sequence[SolveStep], path, title: str = "") -> str:

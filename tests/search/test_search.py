@@ -201,6 +201,13 @@ def test_solve_out_of_budget_ends_with_the_best_world_and_a_message(tiny_bank):
   assert result.world in result.bank.world_ids
   with pytest.raises(mwbx.MwbxError, match="solve: not solved"):
     mwbx.solve(tiny_bank, UNREACHABLE, budget=1, samples=4, backend="native", throw=True)
+  # What to try, in one paragraph: the blocking query with how many worlds meet it (none), more worlds.
+  valid = int(np.asarray(result.bank.valid, bool).sum())
+  sampled = int((np.asarray(tiny_bank.parent_world) < 0).sum())
+  assert f"Closest: world {result.world} ({result.satisfied} of 2 queries" in result.advice, result.advice
+  assert f"far_flies (0 of {valid} worlds)" in result.advice, result.advice
+  assert f"--worlds {sampled}" in result.advice and "far_flies: loosen" in result.advice, result.advice
+  assert "\n" not in result.advice
 
 
 def test_solve_refuses_bad_arguments(tiny_bank):
