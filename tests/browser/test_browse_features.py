@@ -189,13 +189,14 @@ def test_replaying_uploads_no_meshes_and_side_by_side_cells(tmp_path):
   try:
     page.play(0)
     first = page.stage.uploads
-    assert first == sum(len(g) for g in page.stage.moving.values())  # one slot's meshes
+    per_set = sum(len(g) for g in page.stage.moving.values())
+    assert first == 2 * per_set  # the scene as it starts (drawn while nothing plays), and one slot
     for w in (1, 2, 3, 0):
       page.play(w)
     assert page.stage.uploads == first
     page.play(1, add=True)
     page.play(2, add=True)
-    assert list(page.player.played) == [0, 1, 2] and page.stage.uploads == 3 * first
+    assert list(page.player.played) == [0, 1, 2] and page.stage.uploads == 4 * per_set
     # The poses shown are the decoded world's at the shared frame.
     from mwbx.viewer.kinematics import body_trajectories
     pos, _ = body_trajectories(page.model, bank.qpos_frames(2).astype(np.float64), page.stage.body_ids)
