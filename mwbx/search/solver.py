@@ -504,6 +504,7 @@ class _Search:
     self.tie_metric, self.backend, self.progress = tie_metric, backend, progress
     self.start = time.perf_counter()
     self.n_queries = len(queries)
+    self.sampled = int((np.asarray(bank.parent_world) < 0).sum())  # the sampled worlds it started from
     self.gaps = query_gaps(bank, queries)  # f[W, Q]
     self.met = self.gaps == 0  # query_gaps is 0 exactly where evaluate_each holds
     # mode-any queries over several objects, as each object alone meets them
@@ -727,7 +728,7 @@ class _Search:
     best = int(self.met[row].sum())
     runner_up = int((valid & (self.met.sum(axis=1) == best - 1)).sum()) if best else 0
     close = f"; {runner_up} more worlds meet one query fewer" if runner_up else ""
-    sampled = int((np.asarray(self.bank.parent_world) < 0).sum())
+    sampled = self.sampled
     gains = [s for prev, s in zip(self.steps, self.steps[1:]) if s.satisfied > prev.satisfied]
     last_gain = gains[-1] if gains else self.steps[0]
     share = last_gain.seconds / max(self.elapsed(), 1e-9)
@@ -741,7 +742,8 @@ class _Search:
               ) if none_meet else ""
     return (f"Closest: world {self.steps[-1].world} ({best} of {self.n_queries} queries{close})."
             f" Blocking: {named}. To try: {budget}; more sampled"
-            f" worlds ({sampled} now: `mwbx sample CONFIG --worlds {sampled} --out BANK` adds as many){loosen}.")
+            f" worlds (the search started from {sampled}: `mwbx sample CONFIG --worlds {sampled} --out BANK` adds as"
+            f" many){loosen}.")
 
 
 def progress_plot(steps: Sequence[SolveStep], path, title: str = "") -> str:
