@@ -899,7 +899,9 @@ def tower(d: dict) -> tuple[list[str], list[str]]:
   lines += ["", f"Sleep: {d['sleep_speedup_physics']}× the world-steps/s, {d['sleep_speedup_wall']}× the wall. "
             f"Agreement of the outcomes, sleep on against off (Welch z of the means, Bonferroni over "
             f"{len(a['outcomes'])} outcomes at a family-wise 1 %: |z| < {a['z_crit']}): largest |z| "
-            f"{a['max_abs_z']}, smallest KS p {a['min_ks_p']}, {'all pass' if a['all_pass'] else 'NOT all pass'}.", "",
+            f"{a['max_abs_z']}, {'every z passes' if a['all_pass'] else 'NOT every z passes'}; KS below "
+            f"{0.01 / len(a['outcomes']):.4f}: {', '.join(n for n, r in a['outcomes'].items() if r['ks_p'] < 0.01 / len(a['outcomes'])) or 'none'}. "
+            "The paired columns compare each world with itself (same initial state and perturbation draws).", "",
             "| outcome | mean off | mean on | z | KS p | paired: mean, largest difference |",
             "|---|---:|---:|---:|---:|---:|"]
   for name, row in a["outcomes"].items():
