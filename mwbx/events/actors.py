@@ -93,3 +93,19 @@ def actors_of(model: mujoco.MjModel, objects: Sequence[str]) -> Actors:
       if found:
         flex_actor[f] = found[0]
   return Actors(names, geom_actor, len(objects), flex_actor)
+
+
+def qpos_actors(model: mujoco.MjModel, actors: Actors) -> np.ndarray | None:
+  """i64[nq] the actor each qpos coordinate moves (an object: the tree or
+  flex its joint's body belongs to); None where a joint moves no actor."""
+  owner = {b: actors.names.index(name) for name, ids in scene_lib.find_objects(model, "contact events").items()
+           if name in actors.names[:actors.n_objects] for b in ids}
+  out = np.full(model.nq, -1, np.int64)
+  widths = {int(mujoco.mjtJoint.mjJNT_FREE): 7, int(mujoco.mjtJoint.mjJNT_BALL): 4}
+  for j in range(model.njnt):
+    body = int(model.jnt_bodyid[j])
+    actor = owner.get(body, owner.get(int(model.body_rootid[body]), -1))
+    adr = int(model.jnt_qposadr[j])
+    out[adr:adr + widths.get(int(model.jnt_type[j]), 1)] = actor
+  return None if (out < 0).any() else out
+
