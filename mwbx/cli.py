@@ -161,7 +161,7 @@ def _rest_saved(bank) -> str:
     return ""
   full = round(float(end_time) * bank.record_fps) + 1  # frames of a world that runs to the end
   total = full * bank.n_worlds
-  saved = 1.0 - float(sum(min(int(n), full) for n in bank.frame_count)) / total
+  saved = 1.0 - float(bank.frame_count.clip(max=full).sum()) / total
   return f" (stopping there saved {saved:.1%} of the frames to the end time)" if saved > 0 else ""
 
 

@@ -336,13 +336,15 @@ class Browser:
     bank = session.bank
     view = session.view()
     selection = self._selection()
-    every = flex_lib.path_bodies(bank)  # one path per flex, not one per vertex
-    bodies = (drawing.most_moving(bank, every) if selection is None
-              else np.asarray(bank.select_bodies(list(selection))))
     note = ""
-    if len(bodies) < len(every):
-      names = ", ".join(bank.body_names[b] for b in bodies[:4]) + (", …" if len(bodies) > 4 else "")
-      note = f"(paths of the {len(bodies)} of {len(every)} bodies that move most: {names})"
+    if selection is not None:
+      bodies = np.asarray(bank.select_bodies(list(selection)))
+    else:
+      every = flex_lib.path_bodies(bank)  # one path per flex, not one per vertex
+      bodies = drawing.most_moving(bank, every)
+      if len(bodies) < len(every):
+        names = ", ".join(bank.body_names[b] for b in bodies[:4]) + (", …" if len(bodies) > 4 else "")
+        note = f"(paths of the {len(bodies)} of {len(every)} bodies that move most: {names})"
     with self.lock:
       left_out = drawing.draw_paths(self.server, self._handles, bank, bodies, view.match, view.rejected,
                                     self.ui.only_matches.value, simplify=self.path_simplifier)

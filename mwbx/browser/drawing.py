@@ -48,7 +48,9 @@ def most_moving(bank, bodies: np.ndarray, budget: int = MAX_PATH_SEGMENTS) -> np
   fit = int(budget // (len(valid) * per_path))
   if fit >= len(bodies):
     return bodies
-  length = np.asarray(bank.metrics[valid][:, bodies, list(bank.metric_names).index("path_length")]).mean(axis=0)
+  # One metric of the valid worlds (not every metric of them copied): this runs at every redraw.
+  metric = list(bank.metric_names).index("path_length")
+  length = np.asarray(bank.metrics)[valid, :, metric][:, bodies].mean(axis=0)
   return np.sort(bodies[np.argsort(-length, kind="stable")[:max(1, fit)]])
 
 

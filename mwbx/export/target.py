@@ -140,12 +140,18 @@ def check_folder(path: str | os.PathLike, flag: str | None = None) -> None:
     raise MwbxError(f"{_label(path, flag)}: {folder} is not a folder")
   # A file made and removed at once: os.access answers yes to root, even on a read-only folder.
   probe = folder / f".mwbx-probe-{_host()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+  _create_new(probe, 0o600, path, flag)
+  remove_quietly(probe)
+
+
+def _create_new(file: pathlib.Path, mode: int, path: pathlib.Path, flag: str | None) -> None:
+  """Creates the empty new ``file`` (never through a link), or raises one line
+  naming ``path``'s flag and the folder that would not take it."""
   try:
-    os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o600))
+    os.close(os.open(file, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, mode))
   except OSError as err:
     reason = "it takes no new files" if err.errno == errno.ENOENT else why(err)  # ENOENT: e.g. under /proc
-    raise MwbxError(f"{_label(path, flag)}: cannot write in the folder {folder} ({reason})") from None
-  remove_quietly(probe)
+    raise MwbxError(f"{_label(path, flag)}: cannot write in the folder {file.parent} ({reason})") from None
 
 
 def reserve_temp(path: pathlib.Path, flag: str | None = None) -> pathlib.Path:
@@ -165,11 +171,7 @@ def reserve_temp(path: pathlib.Path, flag: str | None = None) -> pathlib.Path:
     raise MwbxError(f"{_label(path, flag)}: cannot make the folder {folder} ({why(err)})") from None
   remove_stale_temps(path)
   tmp = folder / f".{path.name}{_TMP_TAG}{_host()}-{os.getpid()}-{uuid.uuid4().hex[:8]}{path.suffix}"
-  try:
-    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666))
-  except OSError as err:
-    reason = "it takes no new files" if err.errno == errno.ENOENT else why(err)  # ENOENT: e.g. under /proc
-    raise MwbxError(f"{_label(path, flag)}: cannot write in the folder {folder} ({reason})") from None
+  _create_new(tmp, 0o666, path, flag)
   return tmp
 
 
