@@ -56,17 +56,32 @@ if _load(_library()):
   mj_resetData = types.ExternalFunction("mj_resetData", types.void(_intp, _intp))
   mj_getState = types.ExternalFunction("mj_getState", types.void(_intp, _intp, _intp, types.int32))
   mj_setState = types.ExternalFunction("mj_setState", types.void(_intp, _intp, _intp, types.int32))
+  mj_kinematics = types.ExternalFunction("mj_kinematics", types.void(_intp, _intp))
   # clock_gettime(CLOCK_MONOTONIC, int64[2]) from the C library already in the
   # process: the compiled loop times its physics.
   clock_gettime = types.ExternalFunction("clock_gettime", types.int32(types.int32, _intp))
 else:  # pragma: no cover - platforms without the shared library next to the bindings
-  mj_step = mj_resetData = mj_getState = mj_setState = clock_gettime = None
+  mj_step = mj_resetData = mj_getState = mj_setState = mj_kinematics = clock_gettime = None
+# mj_updateSleep (the sleep arrays from ``tree_asleep``) is exported by the
+# library but not declared in its public header: bound only where present.
+_HAS_UPDATE_SLEEP = mj_step is not None and hasattr(ctypes.CDLL(_library()), "mj_updateSleep")
+# Where it is absent a stand-in keeps compiled loops that name it compiling;
+# they call it only when can_put_to_sleep() is True.
+mj_updateSleep = types.ExternalFunction("mj_updateSleep" if _HAS_UPDATE_SLEEP else "mj_kinematics",
+                                        types.void(_intp, _intp)) if mj_step is not None else None
+# tree_asleep of a fully awake tree (-(1 + mjMINAWAKE), engine_sleep.c).
+TREE_AWAKE = -(1 + mujoco.mjMINAWAKE)
 CLOCK_MONOTONIC = int(getattr(time, "CLOCK_MONOTONIC", 1))
 
 
 def available() -> bool:
   """Whether the compiled per-world loop can call MuJoCo's C library here."""
   return mj_step is not None
+
+
+def can_put_to_sleep() -> bool:
+  """Whether compiled loops can put chosen trees to sleep (``mj_updateSleep`` bound)."""
+  return _HAS_UPDATE_SLEEP
 
 
 class MjDataViews(NamedTuple):

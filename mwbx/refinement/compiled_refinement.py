@@ -11,10 +11,11 @@ per-frame work on it:
 
 1. objects inactive before the frame are put on their stored state (decoded
    ``qpos[f]``, chord ``qvel[f]``);
-2. the frame's S physics steps, objects inactive during the frame put back
-   on the stored path before every step after the first
-   (``playback="step"``), in a model where they collide with nothing
-   (:class:`stored_motion.ContactFreeModels`);
+2. the frame's S physics steps in a model where objects inactive during the
+   frame collide with nothing (:class:`stored_motion.ContactFreeModels`):
+   their trees asleep where MuJoCo's island sleep allows it (``mj_step``
+   skips them; what is recorded of them is the stored frame), else put back
+   on the stored path before every step after the first (``playback="step"``);
 3. the observations (MuJoCo's sensors, or the states of free bodies), with
    inactive bodies reporting their stored motion (COM along the chord, chord
    velocities, no contact acceleration);
@@ -32,6 +33,7 @@ the parent, t_min, the objects and ``(key, i)``.
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
 import time
@@ -53,7 +55,10 @@ from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR
 
 
 _get_state = mujoco_c.mj_getState
+_kinematics = mujoco_c.mj_kinematics
+_update_sleep = mujoco_c.mj_updateSleep
 _FULLPHYSICS = mujoco_c.STATE_FULLPHYSICS
+_TREE_AWAKE = mujoco_c.TREE_AWAKE
 
 # What a call of run_refined_world ended with.
 FINISHED = 0
@@ -96,6 +101,12 @@ class RefineObjects(NamedTuple):
     flex_perturbable: bool[F] the scene's perturbable flexes (alike).
     flex_object: i64[F] the object of each flex.
     interaction: :class:`interactions.HostInteraction` of the interaction test.
+    tree_object: bool[O, ntree] the kinematic trees of each object.
+    tree_dofadr: i64[ntree], tree_dofnum: i64[ntree] each tree's dofs.
+    sleep_inactive: inactive objects are held asleep (their trees put to
+      sleep where they are, the stored path written only into what is
+      recorded), not moved along the stored path every step: the models
+      (:class:`stored_motion.ContactFreeModels` with ``sleeps``) enable sleeping.
   """
 
   qpos_object: np.ndarray
@@ -104,6 +115,10 @@ class RefineObjects(NamedTuple):
   flex_perturbable: np.ndarray
   flex_object: np.ndarray
   interaction: interactions.HostInteraction
+  tree_object: np.ndarray
+  tree_dofadr: np.ndarray
+  tree_dofnum: np.ndarray
+  sleep_inactive: bool
 
 
 class RefinedWorlds(NamedTuple):
@@ -118,6 +133,7 @@ class RefinedWorlds(NamedTuple):
     audit_ratio: f64[C] largest ``‖dv‖ / (α‖Δv‖)`` (or angular alike) of
       the perturbations applied.
     audit_stray: i64[C] perturbations applied to bodies not perturbable.
+    asleep: i64[C] frames x inactive objects whose trees were asleep.
   """
 
   frame_of: np.ndarray
@@ -126,6 +142,7 @@ class RefinedWorlds(NamedTuple):
   activated: np.ndarray
   audit_ratio: np.ndarray
   audit_stray: np.ndarray
+  asleep: np.ndarray
 
 
 @host_jit
@@ -140,6 +157,84 @@ def _put_on_path(data_qpos, data_qvel, inactive, qpos_object, dof_object, qpos_t
     for a in range(data_qvel.size):
       if dof_object[o, a]:
         data_qvel[a] = qvel_target[a]
+
+
+@host_jit
+def _hold_inactive_asleep(data, active, prev_inactive, objects, qpos_target, qvel_target):
+  """At a frame start (``sleep_inactive``): objects active since the last
+  frame start from their stored state (``qpos_target``, ``qvel_target``)
+  awake; inactive objects not yet asleep are put on their stored state and
+  to sleep there, each tree its own sleeping island (velocity zero).
+  Returns how many inactive objects are asleep.
+
+  MuJoCo wakes a sleeping body whose pose no longer matches its ``qpos``, so
+  the bodies' poses are computed (``mj_kinematics``) before their trees sleep.
+  """
+  n_objects, n_trees = objects.tree_object.shape
+  changed = False
+  for o in range(n_objects):
+    if not (prev_inactive[o] and active[o]):
+      continue
+    for a in range(data.qpos.size):
+      if objects.qpos_object[o, a]:
+        data.qpos[a] = qpos_target[a]
+    for a in range(data.qvel.size):
+      if objects.dof_object[o, a]:
+        data.qvel[a] = qvel_target[a]
+    for t in range(n_trees):
+      if objects.tree_object[o, t] and data.tree_asleep[t] >= 0:
+        data.tree_asleep[t] = _TREE_AWAKE  # a tree of its own island: wakes alone
+        changed = True
+  if changed:
+    _update_sleep(data.model_adr, data.data_adr)
+  falling = False
+  for o in range(n_objects):
+    if active[o]:
+      continue
+    for t in range(n_trees):
+      if objects.tree_object[o, t] and data.tree_asleep[t] < 0:
+        falling = True
+  if falling:
+    _fall_asleep(data, active, objects, qpos_target)
+  asleep = 0
+  for o in range(n_objects):
+    if active[o]:
+      continue
+    awake = False
+    for t in range(n_trees):
+      if objects.tree_object[o, t] and data.tree_asleep[t] < 0:
+        awake = True
+    asleep += not awake
+  return asleep
+
+
+@host_jit
+def _fall_asleep(data, active, objects, qpos_target):
+  """Inactive objects that are awake put on their stored pose and to sleep
+  (those asleep stay where they fell asleep: moving them would wake them)."""
+  n_objects, n_trees = objects.tree_object.shape
+  for o in range(n_objects):
+    if active[o]:
+      continue
+    awake = False
+    for t in range(n_trees):
+      if objects.tree_object[o, t] and data.tree_asleep[t] < 0:
+        awake = True
+    if not awake:
+      continue
+    for a in range(data.qpos.size):
+      if objects.qpos_object[o, a]:
+        data.qpos[a] = qpos_target[a]
+  _kinematics(data.model_adr, data.data_adr)
+  for o in range(n_objects):
+    if active[o]:
+      continue
+    for t in range(n_trees):
+      if objects.tree_object[o, t] and data.tree_asleep[t] < 0:
+        data.tree_asleep[t] = t
+        for a in range(objects.tree_dofadr[t], objects.tree_dofadr[t] + objects.tree_dofnum[t]):
+          data.qvel[a] = 0.0
+  _update_sleep(data.model_adr, data.data_adr)
 
 
 @host_jit
@@ -262,16 +357,24 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
     p.perturbable[i] = objects.perturbable[i] and active[row, inter.body_object[i]]
   for f in range(objects.flex_perturbable.size):
     p.flex_perturbable[f] = objects.flex_perturbable[f] and active[row, objects.flex_object[f]]
+  nv = data.qvel.size
   while running[row] and frame_of[row] < inputs.n_frames:
     frame = frame_of[row]
-    _put_on_path(data.qpos, data.qvel, prev_inactive[row], objects.qpos_object, objects.dof_object,
-                 parent.qpos[frame], parent.qvel[frame])
-    _get_state(data.model_adr, data.data_adr, before[0].ctypes.data, _FULLPHYSICS)
     for o in range(n_objects):
       inactive[o] = not active[row, o]
+    if objects.sleep_inactive:
+      refined.asleep[row] += _hold_inactive_asleep(data, active[row], prev_inactive[row], objects,
+                                                   parent.qpos[frame], parent.qvel[frame])
+    else:
+      _put_on_path(data.qpos, data.qvel, prev_inactive[row], objects.qpos_object, objects.dof_object,
+                   parent.qpos[frame], parent.qvel[frame])
+    _get_state(data.model_adr, data.data_adr, before[0].ctypes.data, _FULLPHYSICS)
+    if objects.sleep_inactive:  # asleep where they were put: what is recorded is the stored frame
+      _put_on_path(before[0, 1:1 + nq], before[0, 1 + nq:1 + nq + nv], inactive, objects.qpos_object,
+                   objects.dof_object, parent.qpos[frame], parent.qvel[frame])
     start = _now(ts)
     for s in range(n_steps):
-      if s > 0:
+      if s > 0 and not objects.sleep_inactive:
         _put_on_path(data.qpos, data.qvel, inactive, objects.qpos_object, objects.dof_object,
                      parent.step_targets[frame * n_steps + s], parent.qvel[frame])
       physics_step(data, b.wrench_full[row, s], inputs.ctrl_table, frame * n_steps + s, after[0, s], free,
@@ -336,7 +439,7 @@ def run_compiled(backend, inp, progress=None):
   refined = RefinedWorlds(
       frame_of=np.full(c, f0, np.int64), active=active, prev_inactive=~np.asarray(inp.active0, bool),
       activated=np.where(active, f0, -1).astype(np.int32), audit_ratio=np.zeros(c),
-      audit_stray=np.zeros(c, np.int64))
+      audit_stray=np.zeros(c, np.int64), asleep=np.zeros(c, np.int64))
   buffers = ChunkBuffers(
       params=p, key_data=np.asarray(jax.random.key_data(inp.step_keys), np.uint32), tracked_ids=body_ids,
       states=np.zeros((c, backend.nstate)), warmstart=np.zeros((c, m.nv)),
@@ -356,7 +459,9 @@ def run_compiled(backend, inp, progress=None):
       dof_object=np.ascontiguousarray(inp.dof_object, bool), perturbable=p.perturbable.copy(),
       flex_perturbable=p.flex_perturbable.copy(),
       flex_object=np.array([interaction.body_object[np.flatnonzero(w)[0]] for w in p.flex_weight], np.int64),
-      interaction=interaction)
+      interaction=interaction, tree_object=np.ascontiguousarray(inp.models.tree_object),
+      tree_dofadr=m.tree_dofadr.astype(np.int64), tree_dofnum=m.tree_dofnum.astype(np.int64),
+      sleep_inactive=inp.models.sleeps)
   models_lock = threading.Lock()
   thread_buffers = threading.local()
 
@@ -371,6 +476,14 @@ def run_compiled(backend, inp, progress=None):
     return run_refined_world(row, mujoco_c.data_views(model, data), inputs, parent, objects, thread_buffers.b,
                              refined, flags)
 
+  # Where inactive objects sleep, MuJoCo computes the poses of static geoms
+  # only while nothing sleeps (they never move): once per world, before any
+  # tree is put to sleep, with sleeping off.
+  awake_model = None
+  if objects.sleep_inactive:
+    awake_model = copy.copy(m)  # mj_copyModel
+    awake_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+
   def work(row, data):
     mujoco.mj_resetData(m, data)
     data.qpos[:] = inp.qpos0[row]
@@ -378,6 +491,8 @@ def run_compiled(backend, inp, progress=None):
     if inp.act0 is not None:
       data.act[:] = inp.act0[row]
     data.time = f0 * spf * m.opt.timestep
+    if awake_model is not None:
+      mujoco.mj_kinematics(awake_model, data)
     physics = 0.0
     while True:
       code, seconds = call(row, model_for(row), data, running)
@@ -407,4 +522,4 @@ def run_compiled(backend, inp, progress=None):
       run_seconds=run_seconds)
   return RefineOutput(chunk=chunk, active=active, activated=refined.activated,
                       max_perturbation_ratio=refined.audit_ratio.astype(np.float32),
-                      inactive_perturbations=refined.audit_stray)
+                      inactive_perturbations=refined.audit_stray, asleep_object_frames=refined.asleep)

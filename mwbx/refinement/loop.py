@@ -98,6 +98,8 @@ class RefineOutput(NamedTuple):
     activated: i32[C, O] frame each object became active (-1: never).
     max_perturbation_ratio: f32[C] largest ‖perturbation‖ / (α‖Δv‖) applied.
     inactive_perturbations: i64[C] perturbations drawn for inactive bodies (0).
+    asleep_object_frames: i64[C] frames x inactive objects held asleep
+      (MuJoCo's island sleep, the compiled native loop; 0 elsewhere).
   """
 
   chunk: ChunkResult
@@ -105,6 +107,7 @@ class RefineOutput(NamedTuple):
   activated: np.ndarray
   max_perturbation_ratio: np.ndarray
   inactive_perturbations: np.ndarray
+  asleep_object_frames: np.ndarray
 
   def first(self, n: int) -> RefineOutput:
     """The output of the first ``n`` worlds (a padded batch without its padding)."""
@@ -187,7 +190,8 @@ def _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, r
       perturbations=np.asarray(carry.perturbations), steps=np.where(inp.running0, steps, 0).astype(np.int32),
       compile_seconds=compile_seconds, run_seconds=run_seconds, contact_overflow=contact_overflow)
   return RefineOutput(chunk=chunk, active=np.asarray(active), activated=activated,
-                      max_perturbation_ratio=np.asarray(audit[0]), inactive_perturbations=np.asarray(audit[1]))
+                      max_perturbation_ratio=np.asarray(audit[0]), inactive_perturbations=np.asarray(audit[1]),
+                      asleep_object_frames=np.zeros(len(np.asarray(audit[1])), np.int64))
 
 
 _KERNELS: dict = {}

@@ -53,12 +53,14 @@ def object_coordinates(model: mujoco.MjModel, object_names) -> tuple[np.ndarray,
 @dataclasses.dataclass
 class RefineStats(SampleStats):
   """Timing of a refinement run, plus per refined world the largest applied
-  ``‖perturbation‖ / (α‖Δv‖)`` (at most 1) and the perturbations drawn for
-  inactive bodies (always 0); ``first_frame`` is the frame at t_min."""
+  ``‖perturbation‖ / (α‖Δv‖)`` (at most 1), the perturbations drawn for
+  inactive bodies (always 0) and the frames × inactive objects held asleep;
+  ``first_frame`` is the frame at t_min."""
 
   first_frame: int = 0
   max_perturbation_ratio: np.ndarray | None = None
   inactive_perturbations: np.ndarray | None = None
+  asleep_object_frames: np.ndarray | None = None
 
 
 class RefinePlan(NamedTuple):
@@ -207,6 +209,7 @@ def run_plan(bank, plan: RefinePlan, sampler, progress=None, start_wall: float |
     stats.compile_seconds += out.chunk.compile_seconds
   stats.max_perturbation_ratio = np.concatenate([o.max_perturbation_ratio for o in outputs])
   stats.inactive_perturbations = np.concatenate([o.inactive_perturbations for o in outputs])
+  stats.asleep_object_frames = np.concatenate([o.asleep_object_frames for o in outputs])
   if progress is not None:
     progress(Progress("refining", n_samples, n_samples, stats.world_steps))
     progress(Progress("compressing", 0, n_samples, stats.world_steps))

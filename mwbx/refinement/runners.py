@@ -26,7 +26,7 @@ import numpy as np
 from mwbx import scene as scene_lib
 
 from mwbx.bank.versions import parked_columns
-from mwbx.batch_sim import free_bodies
+from mwbx.batch_sim import free_bodies, mujoco_c
 from mwbx.errors import MwbxError
 from mwbx.refinement import stored_motion
 from mwbx.refinement import loop as refine_loop
@@ -76,8 +76,11 @@ class NativeRunner:
     # Free bodies are observed from their states, so the rollout models (and
     # their contact-free copies) step with sensors disabled.
     bodies = free_bodies.free_bodies(model, scene.body_ids)
+    # The compiled loop keeps MjData from step to step, so inactive objects can sleep there.
+    sleep_inactive = self.playback == "step" and self.compiled and mujoco_c.can_put_to_sleep()
     models = stored_motion.ContactFreeModels(
-        removal_model(model if bodies is None else self.backend.quiet_model, parked), tuple(scene.object_names))
+        removal_model(model if bodies is None else self.backend.quiet_model, parked), tuple(scene.object_names),
+        sleep_inactive=sleep_inactive)
     return LoopExtras(targets, models, bodies)
 
   def run(self, inp, progress=None):

@@ -181,20 +181,41 @@ class ContactFreeModels:
   touch an object (a moving body that is not an object of the scene, or a
   flex), the model is used unchanged.
 
+  With ``sleep_inactive`` (the compiled loop) the copies also let MuJoCo's
+  island sleep hold the inactive objects: the loop puts their trees to sleep
+  (:attr:`sleeps`), so ``mj_step`` skips them altogether instead of moving
+  bodies whose motion is overwritten. The copies enable sleeping with the
+  inactive trees allowed to sleep; every other tree keeps the scene's policy
+  where the scene sleeps, and never sleeps where it does not, so the active
+  objects step exactly as without it (MuJoCo: awake trees are bit-identical
+  with sleep on or off). Only where no equality or tendon ties trees
+  together (a sleeping tree tied to an awake one wakes) and the integrator
+  is not RK4 (which does not sleep).
+
   Args:
     model: the scene model.
     object_names: the O objects (root body names).
+    sleep_inactive: put inactive objects to sleep where the scene allows.
   """
 
   MAX_CACHED = 256  # sets of objects kept; beyond that the cache starts over
 
-  def __init__(self, model: mujoco.MjModel, object_names):
+  def __init__(self, model: mujoco.MjModel, object_names, sleep_inactive: bool = False):
     self.model = model
-    self.geom_object = scene_lib.object_body_mask(model, object_names)[:, model.geom_bodyid]  # bool[O, ngeom]
+    body_object = scene_lib.object_body_mask(model, object_names)  # bool[O, nbody]
+    self.geom_object = body_object[:, model.geom_bodyid]  # bool[O, ngeom]
     body_moves = (model.body_weldid != 0) | (model.body_mocapid >= 0)
     may_collide = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
     stranger = body_moves[model.geom_bodyid] & ~self.geom_object.any(axis=0) & may_collide
     self.enabled = model.nflex == 0 and not stranger.any()
+    # bool[O, ntree] the kinematic trees of each object (static bodies have none)
+    self.tree_object = np.zeros((len(body_object), model.ntree), bool)
+    for o, bodies in enumerate(body_object):
+      trees = model.body_treeid[bodies]
+      self.tree_object[o, trees[trees >= 0]] = True
+    self.sleeps = bool(sleep_inactive and self.enabled and model.neq == 0 and model.ntendon == 0
+                       and model.opt.integrator != mujoco.mjtIntegrator.mjINT_RK4)
+    self._scene_sleeps = bool(model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP))
     self._cache: dict = {}
 
   def __call__(self, inactive: np.ndarray) -> list:
@@ -217,5 +238,10 @@ class ContactFreeModels:
       off = self.geom_object[inactive].any(axis=0)
       variant.geom_contype[off] = 0
       variant.geom_conaffinity[off] = 0
+      if self.sleeps:
+        variant.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+        if not self._scene_sleeps:
+          variant.tree_sleep_policy[:] = mujoco.mjtSleepPolicy.mjSLEEP_NEVER
+        variant.tree_sleep_policy[self.tree_object[inactive].any(axis=0)] = mujoco.mjtSleepPolicy.mjSLEEP_ALLOWED
     self._cache[key] = variant
     return variant

@@ -267,6 +267,34 @@ def test_compiled_loop_matches_the_lockstep_loop(bank, case, request):
   np.testing.assert_allclose(c_stats.max_perturbation_ratio, l_stats.max_perturbation_ratio, rtol=1e-4)
 
 
+@pytest.mark.parametrize("case", ["case_a", "case_b"])
+def test_inactive_objects_held_asleep_change_nothing(bank, case, request, monkeypatch):
+  """The compiled loop holds inactive objects asleep (MuJoCo's island sleep)
+  instead of moving them along the stored path: the refined worlds are the
+  same bit for bit, also where an object wakes when it is activated (case b:
+  the target is hit)."""
+  from mwbx.batch_sim import mujoco_c
+  if not mujoco_c.can_put_to_sleep():
+    pytest.skip("this MuJoCo library does not export mj_updateSleep")
+  parent = request.getfixturevalue(case)[0]
+  run = lambda: refine_run(bank, parent, ["striker"], t_min=T_MIN, n_samples=N, key=jax.random.key(1),
+                           backend="native")
+  asleep, a_stats = run()
+  monkeypatch.setattr(mujoco_c, "can_put_to_sleep", lambda: False)
+  awake, w_stats = run()
+  n_objects = len(bank.objects)
+  assert np.all(a_stats.asleep_object_frames > 0) and np.all(w_stats.asleep_object_frames == 0)
+  # never more than the inactive objects of the frames simulated
+  frames = np.array([len(asleep.qpos_frames(i)) for i in asleep.world_ids]) - a_stats.first_frame
+  assert np.all(a_stats.asleep_object_frames <= (n_objects - 1) * frames)
+  assert asleep.lineage == {k: v for k, v in awake.lineage.items()}
+  for w in range(N):
+    np.testing.assert_array_equal(asleep.qpos_frames(asleep.world_ids[w]), awake.qpos_frames(awake.world_ids[w]))
+  np.testing.assert_array_equal(asleep.metrics, awake.metrics)
+  if case == "case_b":
+    assert any("target" in v["active"] for v in asleep.lineage.values())
+
+
 def test_sphere_test_never_activates_fewer_than_an_exact_test(bank, case_a, case_b):
   """The conservative sphere test against MuJoCo's geom distance with the same
   margin (mwbx.refinement.exact_active): never fewer objects."""
