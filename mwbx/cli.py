@@ -339,6 +339,9 @@ def _cmd_refine(args) -> int:
   print(f"refined worlds      {new.n_worlds} of world {args.world} from t_min = {new.refine_time[0]:.4f} s"
         f" (ids {ids}, seed {seed}; {int(new.valid.sum())} valid)")
   print(f"active objects      {min(active)}..{max(active)} per world (asked: {args.objects or 'none'})")
+  for world_id, message in stats.sim_errors[:5]:  # the flag is in the bank; the first few messages here
+    print(f"mwbx: refined world {saved[int(world_id - new.world_ids[0])]} stopped by a MuJoCo error:"
+          f" {message.splitlines()[0] if message else '(no message)'}", file=sys.stderr)
   if args.add or args.remove:
     print(f"scene changes       added: {args.add or 'none'}; removed: {args.remove or 'none'}"
           f" (scene version {int(new.scene_version[0])})")

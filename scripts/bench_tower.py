@@ -18,9 +18,11 @@ sleep moves them; the paired worlds show what sleep itself changes.
 
 Refinement (``--objects rock --time 0.8 --samples 64`` of world 2 of the
 sleep-on bank): wall, physics, compression and contact events, and the
-bytes per refined world, against a baseline in the same process: the same
-request (same key) with every channel fitted anew and every contact pair
-tested (the parent-channel reuse and the active-pair filter patched off).
+bytes per refined world, against the same request (same key) in the same
+process with inactive objects moved along the stored path every step
+instead of held asleep, and against a baseline with that and every channel
+fitted anew and every contact pair tested (the sleeping of inactive
+objects, the parent-channel reuse and the active-pair filter patched off).
 
   .venv/bin/python scripts/bench_tower.py [--worlds 64] [--samples 64] [--out out/bench/tower.json]
 """
@@ -43,6 +45,7 @@ import numpy as np
 from scipy import stats
 
 import mwbx
+from mwbx.batch_sim import mujoco_c
 from mwbx.codec import splice
 from mwbx.refinement import plan
 
@@ -108,9 +111,11 @@ def agreement(off: dict, on: dict) -> dict:
           "min_ks_p": min(r["ks_p"] for r in rows.values())}
 
 
-def refine(bank, samples: int, baseline: bool, seed: int = 7) -> dict:
+def refine(bank, samples: int, baseline: bool, seed: int = 7, inactive_asleep: bool = True) -> dict:
   request = refine_lib.RefineRequest(2, "rock", t_min=0.8, n_samples=samples, key=jax.random.key(seed))
   with contextlib.ExitStack() as stack:
+    if baseline or not inactive_asleep:  # inactive objects moved along the stored path every step
+      stack.enter_context(mock.patch.object(mujoco_c, "can_put_to_sleep", lambda: False))
     if baseline:  # every channel fitted anew, every contact pair tested
       find_events = plan.refined_events
       stack.enter_context(mock.patch.object(splice.ParentChannels, "of", staticmethod(_nothing_taken)))
@@ -124,6 +129,7 @@ def refine(bank, samples: int, baseline: bool, seed: int = 7) -> dict:
   return {"wall_seconds": round(wall, 2), "physics_seconds": round(st.run_seconds, 2),
           "compile_seconds": round(st.compile_seconds, 2), "compression_seconds": round(st.codec_seconds, 2),
           "events_seconds": round(st.events_seconds, 2), "world_steps": int(st.world_steps),
+          "asleep_object_frames_per_world": int(np.mean(st.asleep_object_frames)),
           "bytes_per_world": int(done.new.qpos_store.nbytes / done.new.n_worlds),
           "active_objects": {"min": min(active), "median": float(np.median(active)), "max": max(active)}}
 
@@ -162,6 +168,8 @@ def main():
   refine(bank_on, args.samples, baseline=False, seed=3)
   result["refine"] = refine(bank_on, args.samples, baseline=False)
   print("refine  ", result["refine"], flush=True)
+  result["refine_inactive_awake"] = refine(bank_on, args.samples, baseline=False, inactive_asleep=False)
+  print("awake   ", result["refine_inactive_awake"], flush=True)
   result["refine_baseline"] = refine(bank_on, args.samples, baseline=True)
   print("baseline", result["refine_baseline"], flush=True)
   result["refine_speedup_wall"] = round(result["refine_baseline"]["wall_seconds"] / result["refine"]["wall_seconds"], 2)

@@ -510,7 +510,7 @@ def run_compiled(backend, inp, progress=None):
       progress(int((carry.step - f0 * spf)[inp.running0].sum()), int((~running & inp.running0).sum()))
 
   t0 = time.perf_counter()
-  backend.run_per_world(np.flatnonzero(inp.running0), work, base, running, carry.status, poll)
+  _, _, sim_errors = backend.run_per_world(np.flatnonzero(inp.running0), work, base, running, carry.status, poll)
   run_seconds = time.perf_counter() - t0
   frame_count = carry.frame_count.astype(np.int32)
   steps = np.where(inp.running0, carry.step - f0 * spf, 0).astype(np.int32)
@@ -519,7 +519,7 @@ def run_compiled(backend, inp, progress=None):
       frame_count=frame_count, status=carry.status.astype(np.int32),
       metrics=world.finalize_metrics(carry).astype(np.float32),
       perturbations=carry.perturbations.astype(np.int32), steps=steps, compile_seconds=compile_seconds,
-      run_seconds=run_seconds)
+      run_seconds=run_seconds, errors=tuple(sim_errors))
   return RefineOutput(chunk=chunk, active=active, activated=refined.activated,
                       max_perturbation_ratio=refined.audit_ratio.astype(np.float32),
                       inactive_perturbations=refined.audit_stray, asleep_object_frames=refined.asleep)

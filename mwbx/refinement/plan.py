@@ -204,6 +204,7 @@ def run_plan(bank, plan: RefinePlan, sampler, progress=None, start_wall: float |
 
     out = runner.run(inp, progress=report).first(n)
     outputs.append(out)
+    stats.sim_errors.extend((plan.first_id + lo + row, message) for row, message in out.chunk.errors if row < n)
     stats.world_steps += int(out.chunk.steps.sum())
     stats.run_seconds += out.chunk.run_seconds
     stats.compile_seconds += out.chunk.compile_seconds
