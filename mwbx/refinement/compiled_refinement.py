@@ -90,18 +90,34 @@ class ParentMotion(NamedTuple):
   ang_vel: np.ndarray
 
 
+class Members(NamedTuple):
+  """What belongs to each object (its ``qpos`` coordinates, dofs or trees)
+  as lists: object o's are ``ids[adr[o]:adr[o + 1]]`` (per-frame loops walk
+  an object's few members, not a mask over the whole model)."""
+
+  adr: np.ndarray
+  ids: np.ndarray
+
+
+def members(mask: np.ndarray) -> Members:
+  """:class:`Members` of ``mask: bool[O, n]``."""
+  mask = np.asarray(mask, bool)
+  return Members(adr=np.concatenate([[0], np.cumsum(mask.sum(axis=1))]).astype(np.int64),
+                 ids=np.nonzero(mask)[1].astype(np.int64))
+
+
 class RefineObjects(NamedTuple):
   """The scene's objects as the refined worlds see them (read only).
 
   Attributes:
-    qpos_object: bool[O, nq] the ``qpos`` coordinates of each object.
-    dof_object: bool[O, nv] the dofs of each object.
+    qpos: :class:`Members`, the ``qpos`` coordinates of each object.
+    dofs: :class:`Members`, the dofs of each object.
     perturbable: bool[B] the scene's perturbable tracked bodies (only those
       of active objects are perturbed).
     flex_perturbable: bool[F] the scene's perturbable flexes (alike).
     flex_object: i64[F] the object of each flex.
     interaction: :class:`interactions.HostInteraction` of the interaction test.
-    tree_object: bool[O, ntree] the kinematic trees of each object.
+    trees: :class:`Members`, the kinematic trees of each object.
     tree_dofadr: i64[ntree], tree_dofnum: i64[ntree] each tree's dofs.
     sleep_inactive: inactive objects are held asleep (their trees put to
       sleep where they are, the stored path written only into what is
@@ -109,13 +125,13 @@ class RefineObjects(NamedTuple):
       (:class:`stored_motion.ContactFreeModels` with ``sleeps``) enable sleeping.
   """
 
-  qpos_object: np.ndarray
-  dof_object: np.ndarray
+  qpos: Members
+  dofs: Members
   perturbable: np.ndarray
   flex_perturbable: np.ndarray
   flex_object: np.ndarray
   interaction: interactions.HostInteraction
-  tree_object: np.ndarray
+  trees: Members
   tree_dofadr: np.ndarray
   tree_dofnum: np.ndarray
   sleep_inactive: bool
@@ -146,17 +162,30 @@ class RefinedWorlds(NamedTuple):
 
 
 @host_jit
-def _put_on_path(data_qpos, data_qvel, inactive, qpos_object, dof_object, qpos_target, qvel_target):
-  """Sets the coordinates of the ``inactive`` objects (bool[O]) to the targets."""
-  for o in range(inactive.size):
-    if not inactive[o]:
-      continue
-    for a in range(data_qpos.size):
-      if qpos_object[o, a]:
-        data_qpos[a] = qpos_target[a]
-    for a in range(data_qvel.size):
-      if dof_object[o, a]:
-        data_qvel[a] = qvel_target[a]
+def _put_on(data_qpos, data_qvel, o, objects, qpos_target, qvel_target):
+  """Sets object ``o``'s coordinates (and, with ``data_qvel``, velocities) to the targets."""
+  q, v = objects.qpos, objects.dofs
+  for i in range(q.adr[o], q.adr[o + 1]):
+    data_qpos[q.ids[i]] = qpos_target[q.ids[i]]
+  for i in range(v.adr[o], v.adr[o + 1]):
+    data_qvel[v.ids[i]] = qvel_target[v.ids[i]]
+
+
+@host_jit
+def _put_on_path(data_qpos, data_qvel, chosen, objects, qpos_target, qvel_target):
+  """Sets the coordinates of the ``chosen`` objects (bool[O]) to the targets."""
+  for o in range(chosen.size):
+    if chosen[o]:
+      _put_on(data_qpos, data_qvel, o, objects, qpos_target, qvel_target)
+
+
+@host_jit
+def _awake(tree_asleep, o, trees):
+  """Whether a tree of object ``o`` is awake."""
+  for i in range(trees.adr[o], trees.adr[o + 1]):
+    if tree_asleep[trees.ids[i]] < 0:
+      return True
+  return False
 
 
 @host_jit
@@ -168,73 +197,45 @@ def _hold_inactive_asleep(data, active, prev_inactive, objects, qpos_target, qve
   Returns how many inactive objects are asleep.
 
   MuJoCo wakes a sleeping body whose pose no longer matches its ``qpos``, so
-  the bodies' poses are computed (``mj_kinematics``) before their trees sleep.
+  the bodies' poses are computed (``mj_kinematics``) before their trees sleep;
+  those asleep stay where they fell asleep (moving them would wake them).
   """
-  n_objects, n_trees = objects.tree_object.shape
+  trees = objects.trees
+  n_objects = active.size
   changed = False
   for o in range(n_objects):
     if not (prev_inactive[o] and active[o]):
       continue
-    for a in range(data.qpos.size):
-      if objects.qpos_object[o, a]:
-        data.qpos[a] = qpos_target[a]
-    for a in range(data.qvel.size):
-      if objects.dof_object[o, a]:
-        data.qvel[a] = qvel_target[a]
-    for t in range(n_trees):
-      if objects.tree_object[o, t] and data.tree_asleep[t] >= 0:
-        data.tree_asleep[t] = _TREE_AWAKE  # a tree of its own island: wakes alone
+    _put_on(data.qpos, data.qvel, o, objects, qpos_target, qvel_target)
+    for i in range(trees.adr[o], trees.adr[o + 1]):
+      if data.tree_asleep[trees.ids[i]] >= 0:
+        data.tree_asleep[trees.ids[i]] = _TREE_AWAKE  # a tree of its own island: wakes alone
         changed = True
   if changed:
     _update_sleep(data.model_adr, data.data_adr)
   falling = False
   for o in range(n_objects):
-    if active[o]:
-      continue
-    for t in range(n_trees):
-      if objects.tree_object[o, t] and data.tree_asleep[t] < 0:
-        falling = True
+    if not active[o] and _awake(data.tree_asleep, o, trees):
+      falling = True
+      for i in range(objects.qpos.adr[o], objects.qpos.adr[o + 1]):
+        data.qpos[objects.qpos.ids[i]] = qpos_target[objects.qpos.ids[i]]
   if falling:
-    _fall_asleep(data, active, objects, qpos_target)
+    _kinematics(data.model_adr, data.data_adr)
+    for o in range(n_objects):
+      if active[o]:
+        continue
+      for i in range(trees.adr[o], trees.adr[o + 1]):
+        t = trees.ids[i]
+        if data.tree_asleep[t] < 0:
+          data.tree_asleep[t] = t
+          for a in range(objects.tree_dofadr[t], objects.tree_dofadr[t] + objects.tree_dofnum[t]):
+            data.qvel[a] = 0.0
+    _update_sleep(data.model_adr, data.data_adr)
   asleep = 0
   for o in range(n_objects):
-    if active[o]:
-      continue
-    awake = False
-    for t in range(n_trees):
-      if objects.tree_object[o, t] and data.tree_asleep[t] < 0:
-        awake = True
-    asleep += not awake
+    if not active[o] and not _awake(data.tree_asleep, o, trees):
+      asleep += 1
   return asleep
-
-
-@host_jit
-def _fall_asleep(data, active, objects, qpos_target):
-  """Inactive objects that are awake put on their stored pose and to sleep
-  (those asleep stay where they fell asleep: moving them would wake them)."""
-  n_objects, n_trees = objects.tree_object.shape
-  for o in range(n_objects):
-    if active[o]:
-      continue
-    awake = False
-    for t in range(n_trees):
-      if objects.tree_object[o, t] and data.tree_asleep[t] < 0:
-        awake = True
-    if not awake:
-      continue
-    for a in range(data.qpos.size):
-      if objects.qpos_object[o, a]:
-        data.qpos[a] = qpos_target[a]
-  _kinematics(data.model_adr, data.data_adr)
-  for o in range(n_objects):
-    if active[o]:
-      continue
-    for t in range(n_trees):
-      if objects.tree_object[o, t] and data.tree_asleep[t] < 0:
-        data.tree_asleep[t] = t
-        for a in range(objects.tree_dofadr[t], objects.tree_dofadr[t] + objects.tree_dofnum[t]):
-          data.qvel[a] = 0.0
-  _update_sleep(data.model_adr, data.data_adr)
 
 
 @host_jit
@@ -366,17 +367,16 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
       refined.asleep[row] += _hold_inactive_asleep(data, active[row], prev_inactive[row], objects,
                                                    parent.qpos[frame], parent.qvel[frame])
     else:
-      _put_on_path(data.qpos, data.qvel, prev_inactive[row], objects.qpos_object, objects.dof_object,
-                   parent.qpos[frame], parent.qvel[frame])
+      _put_on_path(data.qpos, data.qvel, prev_inactive[row], objects, parent.qpos[frame], parent.qvel[frame])
     _get_state(data.model_adr, data.data_adr, before[0].ctypes.data, _FULLPHYSICS)
     if objects.sleep_inactive:  # asleep where they were put: what is recorded is the stored frame
-      _put_on_path(before[0, 1:1 + nq], before[0, 1 + nq:1 + nq + nv], inactive, objects.qpos_object,
-                   objects.dof_object, parent.qpos[frame], parent.qvel[frame])
+      _put_on_path(before[0, 1:1 + nq], before[0, 1 + nq:1 + nq + nv], inactive, objects, parent.qpos[frame],
+                   parent.qvel[frame])
     start = _now(ts)
     for s in range(n_steps):
       if s > 0 and not objects.sleep_inactive:
-        _put_on_path(data.qpos, data.qvel, inactive, objects.qpos_object, objects.dof_object,
-                     parent.step_targets[frame * n_steps + s], parent.qvel[frame])
+        _put_on_path(data.qpos, data.qvel, inactive, objects, parent.step_targets[frame * n_steps + s],
+                     parent.qvel[frame])
       physics_step(data, b.wrench_full[row, s], inputs.ctrl_table, frame * n_steps + s, after[0, s], free,
                    sensors[0, s])
     physics += _now(ts) - start
@@ -455,11 +455,10 @@ def run_compiled(backend, inp, progress=None):
       com=f32(path.com), quat=f32(path.quat), lin_vel=f32(path.lin_vel), ang_vel=f32(path.ang_vel))
   interaction = interactions.host_interaction(inp.inter)
   objects = RefineObjects(
-      qpos_object=np.ascontiguousarray(inp.qpos_object, bool),
-      dof_object=np.ascontiguousarray(inp.dof_object, bool), perturbable=p.perturbable.copy(),
+      qpos=members(inp.qpos_object), dofs=members(inp.dof_object), perturbable=p.perturbable.copy(),
       flex_perturbable=p.flex_perturbable.copy(),
       flex_object=np.array([interaction.body_object[np.flatnonzero(w)[0]] for w in p.flex_weight], np.int64),
-      interaction=interaction, tree_object=np.ascontiguousarray(inp.models.tree_object),
+      interaction=interaction, trees=members(inp.models.tree_object),
       tree_dofadr=m.tree_dofadr.astype(np.int64), tree_dofnum=m.tree_dofnum.astype(np.int64),
       sleep_inactive=inp.models.sleeps)
   models_lock = threading.Lock()
