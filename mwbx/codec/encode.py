@@ -20,7 +20,7 @@ from mwbx.codec.batch import BatchCode, parse_batch, serialize_batch
 from mwbx.codec.decode import KIND_ID, decode_code, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.splice import ParentChannels
-from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
+from mwbx.codec.stream import (DIM, KINDS, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
                                initial_steps, parse, quantize_initial, serialize)
 from mwbx.host_device import host_cpu
 from mwbx.host_pool import LazyPool
@@ -208,9 +208,12 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
   if not (np.isfinite(fps) and fps > 0):
     raise CodecError(f"fps must be a finite number > 0, got {fps!r}")
   recorded = np.arange(num_t)[None, :] < frame_count[:, None]  # [W, T]
-  bad = recorded[:, :, None] & ~np.isfinite(qpos)
+  # Columns every refined world takes from its parent are the parent's decoded frames.
+  fresh = np.arange(layout.nq) if parent is None else np.flatnonzero(~_taken_columns(parent, layout))
+  bad = recorded[:, :, None] & ~np.isfinite(qpos[:, :, fresh] if fresh.size < layout.nq else qpos)
   if bad.any():
     w, f, c = (int(i[0]) for i in np.nonzero(bad))
+    c = int(fresh[c])
     raise CodecError(
         f"qpos of world {w} (of this batch) is {qpos[w, f, c]} at frame {f}, column {c}: the codec"
         f" stores finite values only (cut the recording before frame {f}, as the sampler does"
@@ -328,6 +331,21 @@ def _with_parent_segments(kind, take, n_ch, parent, frame_count, seg, lengths, v
           np.concatenate([q[2] for q in parts]).astype(bool))
 
 
+def _taken_columns(parent: ParentChannels, layout: ChannelLayout) -> np.ndarray:
+  """bool[nq]: qpos columns of channels every world takes from its parent."""
+  out = np.zeros(layout.nq, bool)
+  if parent.take.ndim != 2 or parent.take.shape[0] == 0 or parent.take.shape[1] != layout.n_channels:
+    return out  # nothing taken, or a mismatch the settings check reports
+  adrs = (list(layout.pos_adr), list(layout.rot_adr), list(layout.scalar_adr))
+  all_taken = parent.take.all(axis=0)
+  c = 0
+  for kind, kind_adrs in zip(KINDS, adrs):
+    for a in kind_adrs:
+      out[a:a + WIDTH[kind]] = all_taken[c]
+      c += 1
+  return out
+
+
 def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec, streams,
                  max_err, taken=None) -> np.ndarray:
   """All worlds with finite data through the batched writer and reader.
@@ -359,13 +377,27 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
   data = np.frombuffer(b"".join(fast), np.uint8)
   offsets = np.concatenate([[0], np.cumsum(sizes)])
   parsed, parsed_worlds = parse_batch(data, offsets)
-  out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, parsed.channel_kinds(),
-                          parsed.addresses(), layout.nq, parsed.quanta, parsed.bounds)
+  kinds, addresses = parsed.channel_kinds(), np.asarray(parsed.addresses(), np.int64)
+  mine = qpos if parsed_worlds.size == num_w else qpos[parsed_worlds]
+  if taken is not None and taken.all(axis=0).any():
+    # Channels every world takes from its parent are neither decoded nor checked:
+    # the check runs on the other channels' columns alone.
+    checked = ~taken.all(axis=0)
+    width = np.array([WIDTH[KINDS[k]] for k in kinds], np.int64)  # qpos columns per channel
+    columns = np.concatenate([np.arange(a, a + w) for a, w in zip(addresses[checked], width[checked])]
+                             + [np.zeros(0, np.int64)])
+    compact = np.zeros(n_ch, np.int64)
+    compact[checked] = np.concatenate([[0], np.cumsum(width[checked])[:-1]])
+    kinds = np.where(checked, kinds, eval_kernels.NOT_CHECKED)
+    out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, parsed.channel_kinds(), compact,
+                            columns.size, parsed.quanta, parsed.bounds, channels=checked)
+    mine, addresses = np.ascontiguousarray(mine[:, :, columns]), compact
+  else:
+    out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, kinds, addresses, layout.nq,
+                            parsed.quanta, parsed.bounds)
   world_err = np.full((num_w, n_ch), np.inf)
-  world_err[parsed_worlds] = eval_kernels.max_errors(
-      out, row_off, qpos if parsed_worlds.size == num_w else qpos[parsed_worlds],
-      frame_count[parsed_worlds], parsed.channel_kinds(),
-      np.asarray(parsed.addresses(), np.int64))
+  world_err[parsed_worlds] = eval_kernels.max_errors(out, row_off, mine, frame_count[parsed_worlds], kinds,
+                                                     addresses)
   if taken is not None:
     world_err[taken] = 0.0
   ok = finite & np.all(world_err <= bound_vec[None, :], axis=1)

@@ -170,12 +170,16 @@ def eval_rotation(out, initial, segments, step, rows):
     s += n_seg
 
 
+NOT_CHECKED = -2  # a kind for max_errors: the channel is skipped
+
+
 @host_jit
 def max_errors(decoded, row_off, qpos, frame_count, kinds, columns):
   """Largest error per world and channel of decoded frames against the originals.
 
   decoded: f32[rows, nq] (world w's frames at rows ``row_off[w]...``); qpos:
-  f32[W, T, nq]; kinds: i64[C] (0 translation, 1 rotation, 2 scalar); columns:
+  f32[W, T, nq]; kinds: i64[C] (0 translation, 1 rotation, 2 scalar,
+  ``NOT_CHECKED``: left at 0); columns:
   i64[C] first qpos address. Translation and scalars: largest absolute
   difference of a coordinate; rotation: the angle between the two orientations
   (radians). NaN in both is exact, NaN in one is an infinite error. f64[W, C].
@@ -188,6 +192,8 @@ def max_errors(decoded, row_off, qpos, frame_count, kinds, columns):
       row = row_off[w] + f
       for c in range(n_ch):
         col = columns[c]
+        if kinds[c] == NOT_CHECKED:
+          continue
         if kinds[c] == 1:
           d0, d1, d2, d3 = (np.float64(decoded[row, col]), np.float64(decoded[row, col + 1]),
                             np.float64(decoded[row, col + 2]), np.float64(decoded[row, col + 3]))
