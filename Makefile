@@ -52,6 +52,7 @@ bench: $(DEV_STAMP)
 	$(PY) scripts/bench_viewer.py --browser --screenshot docs/viewer_screenshot.png
 	$(PY) scripts/bench_refine.py
 	$(PY) scripts/bench_tower.py
+	$(PY) scripts/bench_steps.py
 	$(PY) scripts/bench_bank.py
 	$(PY) scripts/bench_browse.py --browser
 	$(PY) scripts/bench_solve.py

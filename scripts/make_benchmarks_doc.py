@@ -936,11 +936,33 @@ def tower(d: dict) -> tuple[list[str], list[str]]:
   return lines, []
 
 
+def steps(d: dict) -> tuple[list[str], list[str]]:
+  lines = ["## Larger steps with speculative contacts", "",
+           "`scripts/bench_steps.py`: per scene the same "
+           f"{d['worlds']} worlds (seed 1) as shipped and with the physics step times a factor and MuJoCo's "
+           "speculative contacts on; outcomes compared as in the tower's sleep test (Welch z, Bonferroni at a "
+           "family-wise 1 %, and KS), and the deepest any body's COM went below the shipped step's lowest. "
+           "A factor would become a scene's default only where everything agrees, nothing goes lower and it is "
+           f"faster. Scenes not listed are not measured yet. Machine: {d['machine']}.", "",
+           "| scene | step | wall s | physics s | world-steps | perturbations / world | largest abs z | KS fails |"
+           " deepest below shipped (m) | default? |", "|---|---|---:|---:|---:|---:|---:|---|---:|---|"]
+  for name, rows in d["scenes"].items():
+    t = rows["shipped"]
+    lines.append(f"| {name} | {t['timestep'] * 1000:.2f} ms (shipped) | {t['wall_seconds']:.1f} | "
+                 f"{t['physics_seconds']:.1f} | {t['world_steps']:,} | {t['mean_perturbations']} | | | | yes |")
+    for factor, t in rows["factors"].items():
+      lines.append(f"| {name} | ×{float(factor):g}, speculative | {t['wall_seconds']:.1f} | {t['physics_seconds']:.1f} | "
+                   f"{t['world_steps']:,} | {t['mean_perturbations']} | {t['agreement']['max_abs_z']} | "
+                   f"{', '.join(t['ks_fails']) or 'none'} | {t['deepest_below_shipped_m']} ({t['deepest_body']}) | "
+                   f"{'yes' if t['safe'] else 'no'} |")
+  return lines, []
+
+
 SECTIONS = (("setup", setup), ("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
             ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry),
             ("geometry_tightness", geometry_tightness), ("scale", scale),
             ("scenes", scenes), ("backends", backends), ("gpu", gpu),
-            ("solve", solve), ("events", events), ("flex", flex), ("tower", tower))
+            ("solve", solve), ("events", events), ("flex", flex), ("tower", tower), ("steps", steps))
 
 
 def main() -> None:

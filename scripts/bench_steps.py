@@ -1,0 +1,156 @@
+"""Larger physics steps with speculative contacts: do a scene's outcomes
+still agree with its own step, and is it faster?
+
+MuJoCo 4's speculative contacts (``mjENBL_SPECULATIVE``) add a contact before
+an impact from a conservative time of impact, so fast convex geoms do not
+tunnel at larger steps; its docs suggest raising the step with them. Per
+scene (``--scenes``, shipped config names) and step factor (``--factors``),
+this samples the same N worlds (seed 1) with the scene as shipped and with a
+copy of its MJCF whose ``<option>`` has ``timestep`` times the factor and the
+speculative flag on, and reports wall, physics, world-steps, perturbations
+per world (drawn per colliding step, so the step changes the perturbation
+process too) and the agreement of outcomes: per outcome a Welch z of the
+means and a Kolmogorov-Smirnov p, Bonferroni-corrected over the outcomes at
+a family-wise 1 % (the tower's outcomes are ``bench_tower.outcomes``; other
+scenes': each metric summed over bodies and the final COM of the bodies that
+move most). Tunnelling shows as bodies lower than the shipped step ever puts
+them: the lowest COM height of each body over every world and frame is
+compared with the shipped step's.
+
+A factor becomes a scene's default only where every outcome agrees, nothing
+goes lower, and it is faster; the table in docs/benchmarks.md says which.
+
+  .venv/bin/python scripts/bench_steps.py [--scenes trebuchet_tower] [--factors 2] [--worlds 64]
+
+Writes out/bench/steps.json (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import re
+import sys
+import tempfile
+import time
+
+import jax
+import numpy as np
+
+import mwbx
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "scripts"))
+import bench_tower  # noqa: E402  (the tower's outcomes and the agreement test)
+
+MOST_MOVING = 5  # bodies whose final COM counts as an outcome (scenes other than the tower)
+LOWER_TOLERANCE = 0.005  # m a body may go below the shipped step's lowest COM before it counts as tunnelling
+
+
+def speculative_copy(config_path: pathlib.Path, factor: float, folder: pathlib.Path) -> pathlib.Path:
+  """A config whose scene is a copy of the MJCF with the step times ``factor``
+  and speculative contacts on (in ``folder``, beside copies of its assets)."""
+  config = mwbx.load_config(config_path)
+  model = mwbx.Scene(config).model
+  mjcf = pathlib.Path(config.scene.mjcf)
+  if not mjcf.is_absolute():
+    mjcf = (REPO / "mwbx" / "assets" / mjcf) if (REPO / "mwbx" / "assets" / mjcf).exists() else config_path.parent / mjcf
+  text = mjcf.read_text()
+  step = repr(float(model.opt.timestep) * factor)
+  flag = '<flag speculative="enable"/>'
+  if re.search(r"<option\b[^>]*/>", text):
+    text = re.sub(r"<option\b([^>]*?)\s*/>", lambda m: f"<option{_with_step(m.group(1), step)}>{flag}</option>", text,
+                  count=1)
+  elif re.search(r"<option\b", text):
+    text = re.sub(r"<option\b([^>]*)>", lambda m: f"<option{_with_step(m.group(1), step)}>{flag}", text, count=1)
+  else:
+    text = re.sub(r"(<mujoco\b[^>]*>)", rf'\1<option timestep="{step}">{flag}</option>', text, count=1)
+  copy = folder / mjcf.name
+  copy.write_text(text)
+  for sibling in mjcf.parent.iterdir():  # includes, meshes
+    if sibling.is_file() and sibling != mjcf and not (folder / sibling.name).exists():
+      (folder / sibling.name).symlink_to(sibling)
+  raw = config_path.read_text()
+  out = folder / config_path.name
+  out.write_text(re.sub(r"(mjcf:\s*)\S+", rf"\g<1>{copy}", raw, count=1))
+  return out
+
+
+def _with_step(attributes: str, step: str) -> str:
+  attributes = re.sub(r'\s*timestep="[^"]*"', "", attributes)
+  return f'{attributes} timestep="{step}"'
+
+
+def sample(config_path: pathlib.Path, n: int):
+  config = mwbx.load_config(config_path)
+  t0 = time.perf_counter()
+  with mwbx.Sampler(config, "native") as sampler:
+    bank, st = sampler.run(n, jax.random.key(1))
+  return bank, {"wall_seconds": round(time.perf_counter() - t0, 2), "physics_seconds": round(st.run_seconds, 2),
+                "world_steps": int(st.world_steps), "timestep": float(bank.model().opt.timestep),
+                "mean_perturbations": round(float(bank.perturbations.mean()), 1), "valid": int(bank.valid.sum())}
+
+
+def outcomes(name: str, bank, moving=None) -> dict[str, np.ndarray]:
+  if name == "trebuchet_tower":
+    return bench_tower.outcomes(bank)
+  rows = np.arange(bank.n_worlds)
+  last = bank.com[rows, bank.com_count - 1]
+  out = {f"sum_{m}": bank.metrics[:, :, i].sum(axis=1).astype(float) for i, m in enumerate(bank.metric_names)}
+  for b in moving:
+    for axis, label in enumerate("xyz"):
+      out[f"{bank.body_names[b]}_{label}"] = last[:, b, axis].astype(float)
+  return out
+
+
+def lowest(bank) -> np.ndarray:
+  """f64[B] each body's lowest COM height over every world and frame."""
+  return np.array([min(float(np.nanmin(bank.com[w, :bank.com_count[w], b, 2])) for w in range(bank.n_worlds))
+                   for b in range(len(bank.body_names))])
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--scenes", default="trebuchet_tower")
+  parser.add_argument("--factors", default="2")
+  parser.add_argument("--worlds", type=int, default=64)
+  parser.add_argument("--out", default=str(REPO / "out" / "bench" / "steps.json"))
+  args = parser.parse_args()
+  result = {"machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}", "worlds": args.worlds,
+            "scenes": {}}
+  for name in args.scenes.split(","):
+    config_path = REPO / "configs" / f"{name}.yaml"
+    base, base_t = sample(config_path, args.worlds)
+    print(name, "shipped", base_t, flush=True)
+    moving = None
+    if name != "trebuchet_tower":
+      path = np.array(base.metrics[:, :, list(base.metric_names).index("path_length")].mean(axis=0))
+      moving = list(np.argsort(path)[::-1][:MOST_MOVING])
+    base_low = lowest(base)
+    rows = {"shipped": base_t, "factors": {}}
+    for factor in (float(f) for f in args.factors.split(",")):
+      with tempfile.TemporaryDirectory() as folder:
+        other, t = sample(speculative_copy(config_path, factor, pathlib.Path(folder)), args.worlds)
+      agree = bench_tower.agreement(outcomes(name, base, moving), outcomes(name, other, moving))
+      deeper = base_low - lowest(other)
+      t.update(agreement=agree, speedup_wall=round(base_t["wall_seconds"] / t["wall_seconds"], 2),
+               speedup_physics=round(base_t["physics_seconds"] / t["physics_seconds"], 2),
+               deepest_below_shipped_m=round(float(deeper.max()), 4),
+               deepest_body=base.body_names[int(np.argmax(deeper))],
+               ks_fails=[k for k, r in agree["outcomes"].items() if r["ks_p"] < 0.01 / len(agree["outcomes"])])
+      t["safe"] = bool(agree["all_pass"] and not t["ks_fails"] and t["deepest_below_shipped_m"] <= LOWER_TOLERANCE
+                       and t["speedup_wall"] > 1.0)
+      rows["factors"][str(factor)] = t
+      print(name, f"x{factor}", {k: v for k, v in t.items() if k != "agreement"}, flush=True)
+    result["scenes"][name] = rows
+  out = pathlib.Path(args.out)
+  out.parent.mkdir(parents=True, exist_ok=True)
+  out.write_text(json.dumps(result, indent=2) + "\n")
+  print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+  main()
