@@ -52,7 +52,8 @@ LOWER_TOLERANCE = 0.005  # m a body may go below the shipped step's lowest COM b
 
 def speculative_copy(config_path: pathlib.Path, factor: float, folder: pathlib.Path) -> pathlib.Path:
   """A config whose scene is a copy of the MJCF with the step times ``factor``
-  and speculative contacts on (in ``folder``, beside copies of its assets)."""
+  and speculative contacts on (in ``folder``, an empty one, beside links to
+  the MJCF's sibling files)."""
   config = mwbx.load_config(config_path)
   model = mwbx.Scene(config).model
   mjcf = pathlib.Path(config.scene.mjcf)
@@ -68,15 +69,21 @@ def speculative_copy(config_path: pathlib.Path, factor: float, folder: pathlib.P
     text = re.sub(r"<option\b([^>]*)>", lambda m: f"<option{_with_step(m.group(1), step)}>{flag}", text, count=1)
   else:
     text = re.sub(r"(<mujoco\b[^>]*>)", rf'\1<option timestep="{step}">{flag}</option>', text, count=1)
+  # Both files are written before the MJCF's siblings are linked in, and only
+  # as new files: a write never goes through a link into the shipped assets.
   copy = folder / mjcf.name
-  copy.write_text(text)
+  out = folder / f"{config_path.stem}.steps.yaml"
+  _write_new(copy, text)
+  _write_new(out, re.sub(r"(mjcf:\s*)\S+", rf"\g<1>{copy}", config_path.read_text(), count=1))
   for sibling in mjcf.parent.iterdir():  # includes, meshes
-    if sibling.is_file() and sibling != mjcf and not (folder / sibling.name).exists():
+    if sibling.is_file() and not (folder / sibling.name).exists():
       (folder / sibling.name).symlink_to(sibling)
-  raw = config_path.read_text()
-  out = folder / config_path.name
-  out.write_text(re.sub(r"(mjcf:\s*)\S+", rf"\g<1>{copy}", raw, count=1))
   return out
+
+
+def _write_new(path: pathlib.Path, text: str) -> None:
+  with open(path, "x") as f:  # fails if anything (a link included) is there
+    f.write(text)
 
 
 def _with_step(attributes: str, step: str) -> str:
