@@ -62,7 +62,8 @@ def _cmd_sample(args) -> int:
     with _reporter_with_safe_points("sample") as update:
       run = sample_run(config, out, n_worlds=args.worlds, seed=args.seed, backend=args.backend,
                        chunk_size=args.chunk_size, hosts=hosts, progress=update,
-                       say=lambda message: print(f"mwbx: {message}", file=sys.stderr, flush=True))
+                       say=lambda message: print(f"mwbx: {message}", file=sys.stderr, flush=True),
+                       flags=SAMPLE_FLAGS)
   except RunInterrupted as err:
     print(f"mwbx: interrupted; {err.saved} worlds of this run are saved in {err.out};"
           f" run the same command again to resume", file=sys.stderr)
@@ -114,6 +115,11 @@ def _reporter_with_safe_points(name: str):
 MAX_WORLDS = 1 << 32
 # The most worlds one chunk may hold (its buffers are checked against memory too).
 MAX_CHUNK_SIZE = 1 << 24
+
+
+# How `mwbx sample` spells sample_run's parameters (and its Hosts), for the library's messages.
+SAMPLE_FLAGS = {"out": "--out", "n_worlds": "--worlds", "seed": "--seed", "coordinator": "--coordinator",
+                "num_processes": "--num-processes", "process_id": "--process-id"}
 
 
 def _check_sample_args(args) -> None:
@@ -272,7 +278,8 @@ def _cmd_view(args) -> int:
   if args.queries:
     queries = load_queries(args.queries, bank=bank)
   ids = parse_world_ids(args.worlds, known=bank.world_ids) if args.worlds else None
-  ids, match = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries)
+  ids, match = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries,
+                                         flags={"ids": "--worlds", "top": "--top", "rank": "--rank"})
   if args.top is not None or args.rank is not None:
     note = mwbx.viewer.select.closest_note(match, bank)
     if note:
@@ -299,7 +306,8 @@ def _cmd_view(args) -> int:
 
 def _cmd_query(args) -> int:
   bank = _load_bank(args)
-  report = run_query_file(bank, args.queries, rank=args.rank, top=args.top, under=args.under)
+  report = run_query_file(bank, args.queries, rank=args.rank, top=args.top, under=args.under,
+                          flags={"top": "--top"})
   print(json.dumps(report.to_dict(), indent=2) if args.json else report.format())
   return 0
 
@@ -428,7 +436,9 @@ def _cmd_drop(args) -> int:
 
 def _cmd_browse(args) -> int:
   from mwbx.browser import browse  # lazy: viser
+  from mwbx.browser.guard import resolve_host
   bank = _load_bank(args)
+  resolve_host(args.host, flag="--host")  # first here, so that a bad one is named by its flag
   browse(bank, path=args.bank, host=args.host, port=args.port, open_browser=not args.no_browser,
          workdir=args.workdir, autosave=args.autosave)
   return 0

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import sys
-from typing import NamedTuple
+from typing import Mapping, NamedTuple
 
 import numpy as np
 
@@ -48,7 +48,7 @@ class ProcessGroup(NamedTuple):
 
 
 def join(coordinator: str | None, num_processes: int | None, process_id: int | None, *,
-         auto: bool = False, timeout: int = 300) -> ProcessGroup:
+         auto: bool = False, timeout: int = 300, flags: Mapping[str, str] | None = None) -> ProcessGroup:
   """Joins the ``jax.distributed`` group (or stays alone).
 
   Args:
@@ -56,6 +56,9 @@ def join(coordinator: str | None, num_processes: int | None, process_id: int | N
     num_processes, process_id: this group's size and this process's index.
     auto: let ``jax.distributed.initialize()`` detect all three (Slurm, MPI).
     timeout: seconds to wait for the other processes.
+    flags: how the caller spells ``coordinator``, ``num_processes`` and
+      ``process_id``, for messages (e.g. ``{"process_id": "--process-id"}``);
+      default: as here.
 
   Returns:
     the group; ``ProcessGroup()`` (alone) when nothing was asked.
@@ -63,11 +66,13 @@ def join(coordinator: str | None, num_processes: int | None, process_id: int | N
   if not auto and (num_processes is None or num_processes <= 1):
     return ProcessGroup()
   import jax
+  named = {name: (flags or {}).get(name, name) for name in ("coordinator", "num_processes", "process_id")}
   if not auto:
     if coordinator is None or process_id is None:
-      raise MwbxError("--num-processes: also give --process-id and --coordinator HOST:PORT")
+      raise MwbxError(f"{named['num_processes']}: also give {named['process_id']} and"
+                      f" {named['coordinator']} HOST:PORT")
     if not 0 <= process_id < num_processes:
-      raise MwbxError(f"--process-id: must be in 0..{num_processes - 1}, got {process_id}")
+      raise MwbxError(f"{named['process_id']}: must be in 0..{num_processes - 1}, got {process_id}")
   kwargs = {} if auto else dict(coordinator_address=coordinator, num_processes=num_processes,
                                 process_id=process_id)
   if not auto and process_id == 0:
@@ -78,7 +83,7 @@ def join(coordinator: str | None, num_processes: int | None, process_id: int | N
   try:
     jax.distributed.initialize(**kwargs, initialization_timeout=timeout)
   except Exception as err:  # noqa: BLE001 - jax raises RuntimeError/ValueError/XlaRuntimeError here
-    raise MwbxError(f"--coordinator: could not join the {num_processes or ''} sampling processes"
+    raise MwbxError(f"{named['coordinator']}: could not join the {num_processes or ''} sampling processes"
                     f" within {timeout} s ({str(err).strip().splitlines()[0][:200]})") from None
   return ProcessGroup(jax.process_index(), jax.process_count())
 

@@ -6,8 +6,9 @@ or not) plus a liveness lock: ``BANK/runs/<run id>.lock``, ``flock``ed by the
 running process for as long as it lives (the kernel releases it when the
 process dies, however it dies). Planning a run happens under the bank's lock:
 
-- a new run reserves ``--worlds`` fresh ids (the manifest's ``next_id``
-  moves past them at once), so two runs started together sample disjoint ids;
+- a new run reserves ``n_worlds`` (``--worlds``) fresh ids (the manifest's
+  ``next_id`` moves past them at once), so two runs started together sample
+  disjoint ids;
 - an unfinished run whose liveness lock can be taken is dead: the next run
   resumes it (samples its missing ids) and marks it superseded; an
   unfinished run whose lock is held is alive and left alone.
@@ -18,6 +19,7 @@ from __future__ import annotations
 import fcntl
 import os
 import pathlib
+from typing import Mapping
 
 import numpy as np
 
@@ -99,30 +101,34 @@ def ranges_ids(ranges) -> set[int]:
 
 
 def plan(directory, template, *, n_worlds: int | None, seed: int | None, run_id: str,
-         share) -> tuple[dict, Liveness]:
+         share, flags: Mapping[str, str] | None = None) -> tuple[dict, Liveness]:
   """Plans a sampling run under the bank's lock and records it (see the module).
 
   Args:
     directory: the :class:`~mwbx.bank.BankDirectory`.
     template: a bank of the run's scene (no worlds needed): creates the
       manifest of a new directory, and is checked against an existing one.
-    n_worlds: worlds of a new run (``--worlds``; default 256).
-    seed: ``--seed`` (None: the bank's, or 0).
+    n_worlds: worlds of a new run (default 256).
+    seed: the run's seed (None: the bank's, or 0).
     run_id: the new run record's id.
     share: ``ids -> this process's share`` (the planning process's part of a group).
+    flags: how the caller spells ``n_worlds`` and ``seed``, for messages
+      (e.g. ``{"n_worlds": "--worlds", "seed": "--seed"}``); default: as here.
 
   Returns:
     (plan: ``seed``, ``todo`` (every id of the run, for the whole group),
     ``resume`` ([done, target] or None), ``record`` (this process's record),
     this run's held liveness lock).
   """
+  flags = dict(flags or {})
   with directory._locked():
     fresh = directory.manifest is None
     directory._check_scene(template)
     manifest = directory.manifest
     bank_seed = manifest.get("run", {}).get("seed") if not fresh else None
     if seed is not None and bank_seed is not None and seed != bank_seed:
-      raise MwbxError(f"--seed: {directory.path} was sampled with seed {bank_seed}, not {seed}")
+      raise MwbxError(f"{flags.get('seed', 'seed')}: {directory.path} was sampled with seed {bank_seed},"
+                      f" not {seed}")
     unfinished = directory.unfinished_runs()
     live = [r for r in unfinished if is_live(directory.path, r.get("id"))]
     dead = [r for r in unfinished if r not in live]
@@ -138,7 +144,7 @@ def plan(directory, template, *, n_worlds: int | None, seed: int | None, run_id:
     else:
       n = 256 if n_worlds is None else int(n_worlds)
       if n < 1:
-        raise MwbxError(f"--worlds: must be at least 1, got {n}")
+        raise MwbxError(f"{flags.get('n_worlds', 'n_worlds')}: must be at least 1, got {n}")
       first = int(manifest["next_id"])
       todo, resume = list(range(first, first + n)), None
       manifest["next_id"] = first + n  # reserved: no other run or save gives these ids

@@ -23,7 +23,7 @@ import dataclasses
 import json
 import logging
 import pathlib
-from typing import Callable, NamedTuple
+from typing import Callable, Mapping, NamedTuple
 import uuid
 
 import jax
@@ -122,7 +122,8 @@ class RunInterrupted(KeyboardInterrupt):
 
 def sample_run(config: Config | str | pathlib.Path, out: str | pathlib.Path, *, n_worlds: int | None = None,
                seed: int | None = None, backend: str | None = None, chunk_size: int | None = None,
-               hosts: Hosts = Hosts(), progress=None, say: Callable[[str], None] | None = None) -> SamplingRun:
+               hosts: Hosts = Hosts(), progress=None, say: Callable[[str], None] | None = None,
+               flags: Mapping[str, str] | None = None) -> SamplingRun:
   """Samples worlds into bank directory ``out``, resumably (see the module).
 
   Args:
@@ -137,6 +138,10 @@ def sample_run(config: Config | str | pathlib.Path, out: str | pathlib.Path, *, 
     say: where one-line announcements go (what runs, where, the engine's
       settings, a world stopped by a MuJoCo error); default: the
       ``mwbx.sample`` logger.
+    flags: how the caller spells the parameters, for messages: parameter
+      name -> flag (``out``, ``n_worlds``, ``seed`` and the :class:`Hosts`
+      fields; e.g. ``{"n_worlds": "--worlds"}`` for a command line); a
+      parameter not in it is named as it is spelled here.
 
   Returns:
     :class:`SamplingRun`.
@@ -155,8 +160,8 @@ def sample_run(config: Config | str | pathlib.Path, out: str | pathlib.Path, *, 
   chunk = chunk_size or config.sim.chunk_size
   check_chunk_memory(scene, min(chunk, n_worlds) if n_worlds else chunk)
   group = distributed.join(hosts.coordinator, hosts.num_processes, hosts.process_id, auto=hosts.auto,
-                           timeout=hosts.timeout)
-  plan, alive = _plan(out, scene, group, n_worlds, seed) if group.leader else (None, None)
+                           timeout=hosts.timeout, flags=flags)
+  plan, alive = _plan(out, scene, group, n_worlds, seed, flags) if group.leader else (None, None)
   try:
     plan = distributed.share_plan(group, plan, timeout=hosts.timeout)
     seed, todo = plan["seed"], np.asarray(plan["todo"], np.int64)
@@ -184,26 +189,30 @@ def sample_run(config: Config | str | pathlib.Path, out: str | pathlib.Path, *, 
   return SamplingRun(out, int(seed), resumed, summary, len(directory.stored_ids()))
 
 
-def _plan(out: pathlib.Path, scene: Scene, group, n_worlds: int | None, seed: int | None):
+def _plan(out: pathlib.Path, scene: Scene, group, n_worlds: int | None, seed: int | None,
+          flags: Mapping[str, str] | None = None):
   """What a run does (decided by process 0 of a group, under the bank's
   lock): the seed, the world ids to sample (fresh ids reserved at once, or
   those of a dead run), and for a resumed run (worlds done, worlds in it);
-  recorded in the manifest with this process's liveness lock held."""
+  recorded in the manifest with this process's liveness lock held. Messages
+  name the parameters as ``flags`` spells them (see :func:`sample_run`)."""
+  flags = dict(flags or {})
+  out_flag, worlds_flag = flags.get("out", "out"), flags.get("n_worlds", "n_worlds")
   directory = BankDirectory(out)
   if directory.manifest is None and (out / "checkpoints").is_dir():
     Bank.load(out).save(out)  # a bank of the orbax format: its worlds become the first shard
     directory = BankDirectory(out)
   if directory.manifest is not None and directory.manifest["scene"]["digest"] != scene.digest:
-    raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another --out")
+    raise MwbxError(f"{out}: holds a bank of a different config or MJCF; choose another {out_flag}")
   if n_worlds is not None:  # before a list of the run's ids is made
     first = 0 if directory.manifest is None else int(directory.manifest["next_id"])
     if first + n_worlds - 1 > MAX_WORLD_ID:
-      raise MwbxError(f"--worlds: {n_worlds:,} worlds from id {first:,} would pass the last world id"
+      raise MwbxError(f"{worlds_flag}: {n_worlds:,} worlds from id {first:,} would pass the last world id"
                       f" {MAX_WORLD_ID:,}")
-    memory.check(n_worlds * memory.PLAN_BYTES_PER_WORLD, f"--worlds {n_worlds}: the run's list of world ids",
-                 "sample fewer worlds per run (the same --out continues the bank)")
+    memory.check(n_worlds * memory.PLAN_BYTES_PER_WORLD, f"{worlds_flag} {n_worlds}: the run's list of world ids",
+                 f"sample fewer worlds per run (the same {out_flag} continues the bank)")
   return runs.plan(directory, empty_bank(scene), n_worlds=n_worlds, seed=seed, run_id=uuid.uuid4().hex,
-                   share=lambda ids: distributed.my_share(ids, group))
+                   share=lambda ids: distributed.my_share(ids, group), flags=flags)
 
 
 def _sample_share(config, scene, out, directory, record, mine, seed, group, backend, chunk_size, progress,

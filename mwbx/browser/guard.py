@@ -116,8 +116,12 @@ def serve_guarded(make_server, guard: Guard):
   return server
 
 
-def resolve_host(host: str) -> bool:
+def resolve_host(host: str, flag: str = "host") -> bool:
   """Whether ``host`` is loopback only (every address it resolves to).
+
+  Args:
+    host: a name or address.
+    flag: how the caller spells it, for messages (a command line: ``--host``).
 
   Raises:
     MwbxError: it does not resolve (one line naming it).
@@ -126,5 +130,5 @@ def resolve_host(host: str) -> bool:
     infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
   except (socket.gaierror, UnicodeError) as err:
     reason = getattr(err, "strerror", None) or str(err)
-    raise MwbxError(f"browse: --host {host!r}: no such address ({reason})") from None
+    raise MwbxError(f"browse: {flag} {host!r}: no such address ({reason})") from None
   return all(ipaddress.ip_address(info[4][0].split("%")[0]).is_loopback for info in infos)

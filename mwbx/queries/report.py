@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from typing import Mapping
 
 import numpy as np
 
@@ -77,7 +78,7 @@ def _describe(terms) -> str:
 
 def run_query_file(bank, path: str | os.PathLike, rank: str | None = None,
                    top: int | None = None, descending: bool | None = None,
-                   under: int | None = None) -> QueryReport:
+                   under: int | None = None, flags: Mapping[str, str] | None = None) -> QueryReport:
   """Loads a query file, evaluates it on the bank and ranks the matches.
 
   Args:
@@ -90,9 +91,11 @@ def run_query_file(bank, path: str | os.PathLike, rank: str | None = None,
     descending: overrides the order.
     under: a world id: only it and the worlds refined from it (directly or
       not) are counted and listed.
+    flags: how the caller spells ``top``, for messages (e.g. ``{"top":
+      "--top"}``); default: as here.
   """
   if top is not None and top < 0:
-    raise MwbxError(f"--top: must be >= 0, got {top}")
+    raise MwbxError(f"{(flags or {}).get('top', 'top')}: must be >= 0, got {top}")
   qs = load_queries(path, bank)
   each = query_lib.evaluate_each(bank, qs.queries)
   valid = np.asarray(bank.valid, bool)

@@ -6,7 +6,7 @@ them are read by :func:`mwbx.world_ids.parse_world_ids`.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -14,12 +14,13 @@ from mwbx import queries as mq
 from mwbx.errors import MwbxError
 from mwbx.viewer.errors import ViewerError
 
-# Worlds shown by `--rank METRIC` without `--top`.
+# Worlds shown by a rank without top (`--rank METRIC` without `--top`).
 DEFAULT_TOP = 4
 
 
 def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = None,
-                  rank: str | None = None, queries=None) -> tuple[np.ndarray | None, np.ndarray | None]:
+                  rank: str | None = None, queries=None,
+                  flags: Mapping[str, str] | None = None) -> tuple[np.ndarray | None, np.ndarray | None]:
   """The world ids to play back and the worlds matching the queries.
 
   As ``mwbx query`` lists them: the best ``top`` worlds by a metric
@@ -29,11 +30,14 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
   the most of them (:func:`closest_note` says so).
 
   ids: explicit world ids. top: how many (default :data:`DEFAULT_TOP` with a
-  rank). queries: a mwbx.queries.QuerySet or None.
+  rank). queries: a mwbx.queries.QuerySet or None. flags: how the caller
+  spells ``ids``, ``top`` and ``rank``, for messages (e.g. ``{"ids":
+  "--worlds"}``); default: as here.
   Returns (ids i64[n] or None for the viewer's default, match bool[W] or None).
   """
+  named = {name: (flags or {}).get(name, name) for name in ("ids", "top", "rank")}
   if ids is not None and (top is not None or rank is not None):
-    raise ViewerError("--worlds cannot be combined with --top/--rank")
+    raise ViewerError(f"{named['ids']} cannot be combined with {named['top']}/{named['rank']}")
   match = None
   if queries is not None and len(queries.queries):
     match = np.asarray(mq.evaluate(bank, queries.queries), bool)
@@ -42,7 +46,7 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
     try:
       bank.row_of(ids)
     except MwbxError as err:
-      raise ViewerError(f"--worlds: {err}") from None
+      raise ViewerError(f"{named['ids']}: {err}") from None
     return ids, match
   if top is None and rank is None:
     if match is not None:
@@ -51,7 +55,7 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
     return None, match
   k = DEFAULT_TOP if top is None else int(top)
   if k <= 0:
-    raise ViewerError(f"--top: must be a positive number of worlds, got {k}")
+    raise ViewerError(f"{named['top']}: must be a positive number of worlds, got {k}")
   valid = np.asarray(bank.valid, bool)
   if match is not None and not match.any():  # (match holds valid worlds only)
     if not valid.any():
@@ -67,7 +71,7 @@ def choose_worlds(bank, *, ids: Sequence[int] | None = None, top: int | None = N
   qs = () if queries is None else queries.queries
   ids, _ = mq.rank(bank, by, queries=qs, match=match, top=k, descending=descending)
   if len(ids) == 0:
-    raise ViewerError("--rank: no valid world has that metric; nothing to show")
+    raise ViewerError(f"{named['rank']}: no valid world has that metric; nothing to show")
   return np.asarray(ids, np.int64), match
 
 

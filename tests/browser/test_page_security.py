@@ -109,6 +109,10 @@ def test_hosts_unresolvable_is_one_line_and_not_loopback_is_warned(bank_dir, cap
   assert cli.main(["browse", str(bank_dir), "--host", "no-such-host.invalid", "--no-browser"]) == 2
   err = capsys.readouterr().err
   assert "--host 'no-such-host.invalid': no such address" in err and err.count("\n") == 1
+  with pytest.raises(mwbx.MwbxError) as raised:  # from Python: the parameter, not the flag
+    browse(mwbx.Bank.load(bank_dir), path=bank_dir, host="no-such-host.invalid", block=False)
+  assert str(raised.value).startswith("browse: host 'no-such-host.invalid': no such address")
+  assert "--" not in str(raised.value)
   page = browse(mwbx.Bank.load(bank_dir), path=bank_dir, host="0.0.0.0", block=False)
   try:
     err = capsys.readouterr().err

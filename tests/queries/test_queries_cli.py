@@ -93,6 +93,15 @@ def test_cli_errors_are_one_line(saved_bank, tmp_path, capsys):
   assert err.count("\n") == 1 and "queries[0].bodies" in err and "wheel" in err and str(path) in err
   code, _, err = run(capsys, saved_bank, EXAMPLE, "--rank", "speed")
   assert code == 2 and "unknown metric 'speed'" in err
+  code, _, err = run(capsys, saved_bank, EXAMPLE, "--top", "-1")
+  assert code == 2 and err.count("\n") == 1 and "--top: must be >= 0, got -1" in err
+
+
+def test_run_query_file_from_python_names_its_parameter(quick_bank):
+  from mwbx.queries.report import run_query_file
+  with pytest.raises(mwbx.MwbxError) as err:  # it named `mwbx query`'s --top
+    run_query_file(quick_bank, EXAMPLE, top=-1)
+  assert str(err.value) == "top: must be >= 0, got -1"
 
 
 @pytest.mark.parametrize("camera, query, needle", [

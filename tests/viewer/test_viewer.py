@@ -523,7 +523,8 @@ def test_cli_view_top_without_a_rank_shows_what_mwbx_query_lists(real_bank, bank
 @pytest.mark.parametrize("argv, message", [
     (["--worlds", "0,x"], "--worlds: 'x' is not a world id"),
     (["--worlds", "999"], "--worlds: world 999: no world with this id"),
-    (["--worlds", "0", "--top", "1", "--rank", "path_length"], "cannot be combined"),
+    (["--worlds", "0", "--top", "1", "--rank", "path_length"], "--worlds cannot be combined with --top/--rank"),
+    (["--top", "0"], "--top: must be a positive number of worlds, got 0"),
     (["--paths", "nonexistent"], "nonexistent"),
 ])
 def test_cli_view_errors_are_one_line(bank_dir, tmp_path, capsys, argv, message):
@@ -532,6 +533,18 @@ def test_cli_view_errors_are_one_line(bank_dir, tmp_path, capsys, argv, message)
   rc = cli.main(["view", str(bank_dir), *argv, "--html", str(tmp_path / "x.html")])
   err = capsys.readouterr().err
   assert rc == 2 and message in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(ids=[0], top=1), "ids cannot be combined with top/rank"),
+    (dict(ids=[999]), "ids: world 999: no world with this id"),
+    (dict(top=0), "top: must be a positive number of worlds, got 0"),
+])
+def test_choose_worlds_from_python_names_its_parameters(real_bank, kwargs, message):
+  # Its messages named the flags of `mwbx view` (--worlds, --top) to Python callers.
+  with pytest.raises(mv.ViewerError) as err:
+    mv.choose_worlds(real_bank, **kwargs)
+  assert str(err.value).startswith(message) and "--" not in str(err.value), str(err.value)
 
 
 def _gone(pid: int) -> bool:
