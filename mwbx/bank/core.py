@@ -328,15 +328,14 @@ class Bank:
     return self.metrics[..., self.metric_names.index(name)]
 
   def _flex_bodies(self) -> dict[str, tuple[int, ...]]:
-    """:func:`mwbx.scene.flex_bodies` of the bank's model; {} for a scene
-    without ``<flexcomp>`` (no model built) or whose MJCF does not compile here."""
-    texts = [self.mjcf_text or ""] + [str(t) for t in self.mjcf_includes.values()]
-    if not any("flex" in t for t in texts):
-      return {}
-    try:
-      return scene_lib.flex_bodies(self.model())
-    except MwbxError:
-      return {}
+    """:func:`mwbx.scene.flex_bodies` of the bank's compiled model
+    (:meth:`model`, built once and kept): {} for a model without flexes
+    (``nflex`` 0), whatever its MJCF's text says.
+
+    Raises:
+      MwbxError: the bank's model cannot be built (:meth:`model`).
+    """
+    return scene_lib.flex_bodies(self.model())
 
   @property
   def flex_objects(self) -> tuple[str, ...]:

@@ -37,20 +37,18 @@ from mwbx.batch_sim.backend import ChunkResult, fill_tail
 FRAMES_PER_BLOCK = 30
 BLOCK_SECONDS = 1.0
 
-# Worlds per device are a multiple of this: whole groups of XLA's 8 float32
-# CPU lanes (a batch of 3 took scalar code, slower and rounding otherwise).
+# Worlds per device are a multiple of this: XLA's CPU code works on 8 float32
+# lanes, and a batch that fills no whole lane gets scalar code, slower and
+# rounding differently.
 LANE = 8
 
-# impl jax: the constraint solver's iteration limits at most these. Vmapped,
-# MJX's line search runs all ls_iterations every solver iteration (its early
-# exit becomes a select) and the batch iterates until its slowest world
-# converges; float32 rarely meets MuJoCo's 1e-8 tolerance, so the model's
-# 100 / 50 cost a SIGGRAPH step half its time for the same answer. 20 / 4 give
-# bit for bit the qacc of 100 / 50 on every shipped scene but the trebuchet
-# (not run) at t = 0.6 s and 2 s (16 worlds each; 2 / 2 are off by 3 to 5x
-# qacc's size), and sample SIGGRAPH's first 1.5 s 1.27x as fast as 20 / 10
-# (1,161 and 1,199 against 930 and 927 world-steps/s, 64 worlds, 2 cores).
-# tests/batch_sim/test_mjx_solver_limits.py holds it to 1e-5 of |qacc|.
+# impl jax: caps on the constraint solver's iterations and line-search steps
+# per iteration (a model's lower limits stand). Vmapped, MJX runs every
+# line-search step and a batch iterates until its slowest world converges;
+# float32 rarely meets MuJoCo's 1e-8 tolerance, so MuJoCo's default 100 / 50
+# would cost a SIGGRAPH step half its time. 20 / 4 give the same accelerations
+# (tests/batch_sim/test_mjx_solver_limits.py: within 1e-5 of |qacc|), and 4
+# line-search steps sample SIGGRAPH 1.27x as fast as 10 (docs/sampling.md).
 SOLVER_ITERATIONS = 20
 LS_ITERATIONS = 4
 
