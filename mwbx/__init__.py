@@ -55,7 +55,10 @@ from mwbx.queries import rank
 from mwbx.scene import Scene
 from mwbx.qpos_store import QposStore
 from mwbx.qpos_store import RawQposStore
+from mwbx.refinement import RefineRequest
 from mwbx.refinement import RefineStats
+from mwbx.refinement import Refinement
+from mwbx.refinement import run_refinement
 
 __version__ = "0.1.0"
 
@@ -110,7 +113,9 @@ __all__ = [
     "Query",
     "QuerySet",
     "RawQposStore",
+    "RefineRequest",
     "RefineStats",
+    "Refinement",
     "SampleStats",
     "SamplingRun",
     "Sampler",
@@ -133,6 +138,7 @@ __all__ = [
     "rank",
     "refine",
     "render_video",
+    "run_refinement",
     "sample",
     "sample_run",
     "search",

@@ -44,7 +44,7 @@ from mwbx.errors import MwbxError
 from mwbx.progress import reporter
 from mwbx.queries import Camera, ScreenBox, load_queries
 from mwbx.queries.report import run_query_file
-from mwbx.refinement import RefineRequest, refinement
+from mwbx.refinement import RefineRequest, run_refinement
 from mwbx.world_ids import parse_world_ids
 
 # The viewer (meshcat), the page (viser), search (optax) and the MJX contact
@@ -332,7 +332,7 @@ def _cmd_refine(args) -> int:
   # Without --seed every run draws new worlds; the seed is printed to repeat one.
   seed = secrets.randbits(31) if args.seed is None else args.seed
   with _reporter_with_safe_points("refine") as update:
-    done = refinement(bank, RefineRequest(args.world, args.objects or (), frustum=frustum, t_min=args.time,
+    done = run_refinement(bank, RefineRequest(args.world, args.objects or (), frustum=frustum, t_min=args.time,
                                           n_samples=args.samples, key=jax.random.key(seed), backend=args.backend,
                                           scene=args.scene, add=args.add or (), remove=args.remove or ()),
                       progress=update)
@@ -436,7 +436,7 @@ def _cmd_drop(args) -> int:
 
 def _cmd_browse(args) -> int:
   from mwbx.browser import browse  # lazy: viser
-  from mwbx.browser.guard import resolve_host
+  from mwbx.browser.guard import resolve_host  # lazy: the browser package loads viser
   bank = _load_bank(args)
   resolve_host(args.host, flag="--host")  # first here, so that a bad one is named by its flag
   browse(bank, path=args.bank, host=args.host, port=args.port, open_browser=not args.no_browser,

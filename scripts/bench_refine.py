@@ -37,7 +37,7 @@ import jax
 import numpy as np
 
 import mwbx
-from mwbx.refinement import RefineRequest, refinement
+from mwbx.refinement import RefineRequest, run_refinement
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -93,7 +93,7 @@ def measure(args) -> dict:
 
   def refine_once(playback, loop, progress=None):
     start = time.perf_counter()
-    done = refinement(bank, RefineRequest(parent, [args.object], t_min=t_min, n_samples=n, key=jax.random.key(1),
+    done = run_refinement(bank, RefineRequest(parent, [args.object], t_min=t_min, n_samples=n, key=jax.random.key(1),
                                           backend=args.backend, chunk_size=n, playback=playback, loop=loop), progress)
     new, stats = done.new, done.stats
     return new, stats, time.perf_counter() - start - stats.compile_seconds
@@ -104,7 +104,7 @@ def measure(args) -> dict:
               if args.backend == "native" else {"mjx": ("step", "auto")})
   main_variant = next(iter(variants))
   for playback, loop in variants.values():  # warm-up
-    refinement(bank, RefineRequest(parent, [args.object], t_min=t_min, n_samples=n, key=jax.random.key(98),
+    run_refinement(bank, RefineRequest(parent, [args.object], t_min=t_min, n_samples=n, key=jax.random.key(98),
                                    backend=args.backend, chunk_size=n, playback=playback, loop=loop))
   # Plain sampling of the same time span: every object simulated and perturbed
   # from the parent's state at t_min (same phase of the scene as refinement).

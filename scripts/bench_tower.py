@@ -123,7 +123,7 @@ def refine(bank, samples: int, baseline: bool, seed: int = 7, inactive_asleep: b
       stack.enter_context(mock.patch.object(
           plan, "refined_events", lambda *args, active=None, **kw: find_events(*args, **kw)))
     t0 = time.perf_counter()
-    done = refine_lib.refinement(bank, request)
+    done = refine_lib.run_refinement(bank, request)
     wall = time.perf_counter() - t0
   st = done.stats
   active = [len(done.new.lineage[str(i)]["active"]) for i in done.new.world_ids]

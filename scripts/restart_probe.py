@@ -23,14 +23,14 @@ import numpy as np
 import mwbx
 from mwbx.progress import reporter
 from mwbx.queries.query import as_queries
-from mwbx.refinement import RefineRequest, refinement
+from mwbx.refinement import RefineRequest, run_refinement
 from mwbx.search.solver import _label  # the names mwbx solve gives queries (its steps' `repaired`)
 
 
 def probe(bank, queries, world: int, objects, t_min: float, samples: int, key: jax.Array,
           backend: str | None = None, progress=None) -> dict:
   """Refines ``objects`` of ``world`` from ``t_min`` (``samples`` children,
-  drawn from ``key``; ``progress``: as :func:`mwbx.refinement.refinement`'s)
+  drawn from ``key``; ``progress``: as :func:`mwbx.run_refinement`'s)
   and says what the children met against the world.
 
   Returns:
@@ -45,7 +45,7 @@ def probe(bank, queries, world: int, objects, t_min: float, samples: int, key: j
   queries = as_queries(queries)
   names = [_label(q, i) for i, q in enumerate(queries)]
   parent = mwbx.evaluate_each(bank, queries)[bank.row_of(world)]
-  children = refinement(bank, RefineRequest(world, list(objects), t_min=t_min, n_samples=samples, key=key,
+  children = run_refinement(bank, RefineRequest(world, list(objects), t_min=t_min, n_samples=samples, key=key,
                                             backend=backend), progress).new
   valid = np.asarray(children.valid, bool)
   met = mwbx.evaluate_each(children, queries)[valid]  # bool[V, Q]

@@ -12,7 +12,7 @@ import pytest
 
 import mwbx
 from mwbx.errors import MwbxError
-from mwbx.refinement import RefineRequest, refinement
+from mwbx.refinement import RefineRequest, run_refinement
 from mwbx.scene import Scene
 
 SCENES = pathlib.Path(__file__).parent / "scenes"
@@ -192,7 +192,7 @@ def test_flex_scene_samples_on_the_native_backend(tmp_path):
   # Refinement takes the flex as an object, active or replayed, its
   # perturbations within the bound and only on active objects.
   for objects in ("box", "cloth"):
-    done = refinement(bank, RefineRequest(1, (objects,), t_min=0.2, n_samples=2, key=jax.random.key(1),
+    done = run_refinement(bank, RefineRequest(1, (objects,), t_min=0.2, n_samples=2, key=jax.random.key(1),
                                           backend="native"))
     refined, stats = done.bank, done.stats
     new = refined.world_ids[-2:]
@@ -216,7 +216,7 @@ def test_flex_scene_samples_and_refines_on_mjx_warp(tmp_path):
   e_pos = bank.config["codec"]["e_pos"]
   for w in range(2):  # the same initial states: the first frame within the codec's bound of each other
     np.testing.assert_allclose(bank.qpos_frames(w)[0], native.qpos_frames(w)[0], atol=2 * e_pos, rtol=0)
-  done = refinement(bank, RefineRequest(1, ("cloth",), t_min=0.1, n_samples=2, key=jax.random.key(1),
+  done = run_refinement(bank, RefineRequest(1, ("cloth",), t_min=0.1, n_samples=2, key=jax.random.key(1),
                                         backend="mjx"))
   assert done.stats.backend == "mjx:warp" and done.new.valid.all()
   assert np.all(done.stats.max_perturbation_ratio <= 1.0 + 1e-5) and np.all(done.stats.inactive_perturbations == 0)
@@ -467,3 +467,59 @@ def test_turning_metrics_leave_a_flex_out_and_refuse_it_by_name(tmp_path):
   assert np.isfinite(mwbx.queries.metric(flag, "angular_travel", ["pole"])).all()
   upright = mwbx.OrientationQuery(bodies=("pole",), axis=(0, 0, 1), within_deg=180)
   assert mwbx.evaluate(flag, [upright]).all()
+
+
+NOT_A_FLEX = """<mujoco>
+  <!-- a flex-free scene: no flexcomp here, only the word -->
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="flexible_box" pos="0 0 0.3"><freejoint/><geom name="flex_geom" type="box" size="0.04 0.04 0.04"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+SHEET = """<mujoco>
+  <worldbody>
+    <flexcomp name="cloth" type="grid" dim="2" count="5 5 1" spacing="0.06 0.06 0.06" pos="0 0 0.4"
+              radius="0.01" mass="0.1">
+      <edge equality="true" damping="0.01"/>
+    </flexcomp>
+  </worldbody>
+</mujoco>
+"""
+
+ATTACHED = """<mujoco>
+  <asset><model name="sheet" file="sheet.xml"/></asset>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="box" pos="0.4 0 0.3"><freejoint/><geom type="box" size="0.04 0.04 0.04" mass="0.2"/></body>
+    <frame><attach model="sheet" prefix="s_"/></frame>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_a_banks_flexes_are_its_compiled_models_not_its_texts(tmp_path):
+  """A bank knows its flexes from its compiled model: the word "flex" in a
+  comment or a name makes none, a flex that only an attached ``<model>`` file
+  holds (the scene's own MJCF never says "flex") is one, and a model that
+  does not build says so rather than claiming no flexes."""
+  def bank_of(xml, files=()):
+    (tmp_path / "scene.xml").write_text(xml)
+    for name, text in files:
+      (tmp_path / name).write_text(text)
+    (tmp_path / "config.yaml").write_text("scene: {mjcf: scene.xml}\nsim: {end_time: 0.05}\n")
+    return mwbx.sample(mwbx.load_config(tmp_path / "config.yaml"), n_worlds=1, key=jax.random.key(0),
+                       backend="native")
+
+  rigid = bank_of(NOT_A_FLEX)
+  assert rigid.model().nflex == 0 and rigid.flex_objects == () and not rigid.flex_body_mask().any()
+  cloth = bank_of(MJCF.replace("DOF", "").replace("PIN", ""))
+  assert cloth.flex_objects == ("cloth",)
+  np.testing.assert_array_equal(cloth.flex_body_mask(), [False] + [True] * 25)
+  attached = bank_of(ATTACHED, [("sheet.xml", SHEET)])
+  assert "flex" not in attached.mjcf_text and attached.flex_objects == ("s_cloth",)
+  assert attached.flex_body_mask().sum() == 25
+  cloth.mjcf_text, cloth._model = "<mujoco><worldbody><flexcomp", None
+  with pytest.raises(MwbxError, match=r"^bank: MJCF failed to load"):
+    cloth.flex_objects

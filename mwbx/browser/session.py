@@ -21,7 +21,7 @@ from mwbx.errors import MwbxError
 from mwbx.progress import Progress
 from mwbx.queries.bank_cache import PerBank
 from mwbx.refinement import RefineRequest
-from mwbx.refinement import refinement
+from mwbx.refinement import run_refinement
 from mwbx.yaml_input import short_repr
 
 REDUCTIONS = ("sum", "max")
@@ -412,7 +412,7 @@ class Session:
 
     def work():
       try:
-        done = refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=int(n_samples), key=key,
+        done = run_refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=int(n_samples), key=key,
                                                    backend=backend, scene=scene_path, add=add, remove=remove),
                           progress=job._report)
         new = done.new

@@ -12,6 +12,6 @@ from mwbx.refinement.refine import RefinePlan
 from mwbx.refinement.refine import RefineRequest
 from mwbx.refinement.refine import Refinement
 from mwbx.refinement.refine import plan_refinement
-from mwbx.refinement.refine import refinement
+from mwbx.refinement.refine import run_refinement
 from mwbx.refinement.refine import sampler_for
 from mwbx.refinement.exact_activation import exact_active

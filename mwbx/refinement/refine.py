@@ -112,7 +112,7 @@ def resolve_t_min(bank, world: int, objects: tuple[str, ...], frustum=None, t_mi
 
 
 class RefineRequest(NamedTuple):
-  """What to refine: the one argument of :func:`refinement` (and of :func:`refine`).
+  """What to refine: the one argument of :func:`run_refinement` (and of :func:`refine`).
 
   Attributes:
     world: the parent's world id.
@@ -288,12 +288,12 @@ def refine(bank, world, objects=(), *, progress=None, **fields):
     ...                    n_samples=16)
   """
   request = world if isinstance(world, RefineRequest) else RefineRequest(world, objects, **fields)
-  return refinement(bank, request, progress).bank
+  return run_refinement(bank, request, progress).bank
 
 
 @dataclasses.dataclass(frozen=True)
 class Refinement:
-  """What one refinement made (:func:`refinement`; what ``mwbx refine`` reports).
+  """What one refinement made (:func:`run_refinement`; what ``mwbx refine`` reports).
 
   Attributes:
     parent_bank: the bank refined (in ``scene``'s version if given).
@@ -316,14 +316,14 @@ class Refinement:
     return self.parent_bank.append(self.new)
 
 
-def refinement(bank, request: RefineRequest, progress=None) -> Refinement:
+def run_refinement(bank, request: RefineRequest, progress=None) -> Refinement:
   """The one refinement entry: moves the bank to ``request.scene`` if given,
   resolves and checks the request (:func:`plan_refinement`), runs it on the
   bank scene's sampler and returns what it made.
 
   Example::
 
-    done = refinement(bank, RefineRequest(4, "ball", t_min=1.0, n_samples=16))
+    done = run_refinement(bank, RefineRequest(4, "ball", t_min=1.0, n_samples=16))
     done.new.world_ids, done.stats.world_steps
   """
   start_wall = time.perf_counter()

@@ -71,7 +71,7 @@ from mwbx.queries import metric, query_gaps
 from mwbx.queries.paths import body_radii
 from mwbx.queries.query import as_queries
 from mwbx.queries.selection import selection_mask
-from mwbx.refinement import RefineRequest, refinement, sampler_for
+from mwbx.refinement import RefineRequest, run_refinement, sampler_for
 from mwbx.refinement.plan import refined_events
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
 from mwbx.search.objects import spare_objects
@@ -677,7 +677,7 @@ class _Search:
     valid children in the bank."""
     # Contact events of every child only where a query reads them; else of the kept children alone.
     events = any(q.needs_events for q in self.queries)
-    done = refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=samples, backend=self.backend,
+    done = run_refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=samples, backend=self.backend,
                                                key=stream_key(self.key, KeyStream.REFINE, self.refinements),
                                                events=events))
     children, stats = done.new, done.stats

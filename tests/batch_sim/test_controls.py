@@ -107,7 +107,7 @@ def test_backends_apply_the_same_controls(servo_config, monkeypatch):
 @pytest.mark.parametrize("backend", ["native", "mjx"])
 def test_refined_actuated_object_keeps_following_the_schedule(servo_config, backend):
   bank = mwbx.sample(servo_config, n_worlds=4, key=jax.random.key(0), backend="native")
-  done = mwbx.refinement.refinement(bank, mwbx.refinement.RefineRequest(
+  done = mwbx.run_refinement(bank, mwbx.RefineRequest(
       0, ["arm"], t_min=0.4, n_samples=8, key=jax.random.key(1), backend=backend))
   new, stats = done.new, done.stats
   assert new.valid.all()
@@ -142,7 +142,7 @@ def test_refinement_restarts_actuator_activations(tmp_path):
   table = controls.scene_table(scene, int(round(t_min * 120)) * spf)
   act = controls.activation_at(scene.model, table, len(table))
   assert act[0] < -0.1  # well away from zero: the servo is pulling
-  done = mwbx.refinement.refinement(bank, mwbx.refinement.RefineRequest(
+  done = mwbx.run_refinement(bank, mwbx.RefineRequest(
       0, ["arm"], t_min=t_min, n_samples=2, key=jax.random.key(1), backend="native"))
   new, stats = done.new, done.stats
   f0 = stats.first_frame

@@ -15,7 +15,7 @@ from mwbx.batch_sim import rows as rows_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult
 from mwbx.codec import polyline
-from mwbx.refinement import RefineRequest, refinement
+from mwbx.refinement import RefineRequest, run_refinement
 
 TINY = pathlib.Path(__file__).parents[1] / "scenes" / "tiny.yaml"
 
@@ -96,7 +96,7 @@ def test_refined_worlds_keep_the_banks_tail_contract(tiny_bank):
   """Points past com_count repeat the last point, in refined worlds as in sampled
   ones. Refinement used to leave the last recorded frame's COM there (here one
   grid step away in two of the four worlds), an extra segment for queries."""
-  new = refinement(tiny_bank, RefineRequest(2, ["cube"], t_min=0.2, n_samples=4, key=jax.random.key(5),
+  new = run_refinement(tiny_bank, RefineRequest(2, ["cube"], t_min=0.2, n_samples=4, key=jax.random.key(5),
                                             backend="native")).new
   assert tiny_bank.record_fps / tiny_bank.query_fps > 1
   for bank in (tiny_bank, new):

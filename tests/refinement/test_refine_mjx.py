@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 import mwbx
-from mwbx.refinement import RefineRequest, refinement
+from mwbx.refinement import RefineRequest, run_refinement
 
 
 def refine_run(bank, world, objects=(), *, progress=None, **fields):
-  """The refined worlds alone and their stats (through the one entry, :func:`mwbx.refinement.refinement`)."""
-  done = refinement(bank, RefineRequest(world, objects, **fields), progress)
+  """The refined worlds alone and their stats (through the one entry, :func:`mwbx.run_refinement`)."""
+  done = run_refinement(bank, RefineRequest(world, objects, **fields), progress)
   return done.new, done.stats
 
 SCENES = pathlib.Path(__file__).parents[1] / "refine_scenes"

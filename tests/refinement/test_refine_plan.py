@@ -12,13 +12,13 @@ import pytest
 import mwbx
 from mwbx.bank.core import Bank
 from mwbx.errors import MwbxError
-from mwbx.refinement import RefineRequest, plan_refinement, refinement, runners, sampler_for
+from mwbx.refinement import RefineRequest, plan_refinement, run_refinement, runners, sampler_for
 from mwbx.refinement.plan import run_plan
 
 
 def refine_run(bank, world, objects=(), *, progress=None, **fields):
-  """The refined worlds alone and their stats (through the one entry, :func:`mwbx.refinement.refinement`)."""
-  done = refinement(bank, RefineRequest(world, objects, **fields), progress)
+  """The refined worlds alone and their stats (through the one entry, :func:`mwbx.run_refinement`)."""
+  done = run_refinement(bank, RefineRequest(world, objects, **fields), progress)
   return done.new, done.stats
 
 TINY = pathlib.Path(__file__).parents[1] / "scenes" / "tiny.yaml"
@@ -84,7 +84,7 @@ def test_each_backend_has_its_runner(bank):
 
 def test_refinement_returns_what_the_command_reports(bank):
   request = RefineRequest(2, "ball", t_min=0.3, n_samples=2, key=jax.random.key(4), backend="native")
-  done = refinement(bank, request)
+  done = run_refinement(bank, request)
   assert done.scene_version is None and done.plan.objects == ("ball",)
   assert done.bank.n_worlds == bank.n_worlds + 2 and done.new.n_worlds == 2
   assert done.stats.world_steps == int(done.new.steps.sum()) > 0
@@ -95,4 +95,4 @@ def test_refinement_returns_what_the_command_reports(bank):
 
 def test_an_object_to_add_that_the_scene_lacks_names_the_scene_argument(bank):
   with pytest.raises(MwbxError, match=r"refine: add: unknown object or group 'ramp'.*scene=, mwbx refine --scene"):
-    refinement(bank, RefineRequest(2, add="ramp", t_min=0.3, n_samples=1, backend="native"))
+    run_refinement(bank, RefineRequest(2, add="ramp", t_min=0.3, n_samples=1, backend="native"))
