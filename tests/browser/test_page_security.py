@@ -184,7 +184,7 @@ def test_refinement_limits_hold_on_the_server(bank_dir, monkeypatch):
   # A job that fails in any way says why (it used to die silently in its thread).
   def out_of_memory(*args, **kwargs):
     raise MemoryError
-  monkeypatch.setattr(session_lib, "refinement", out_of_memory)
+  monkeypatch.setattr(session_lib, "run_refinement", out_of_memory)
   failed = session.refine(world, "capsule", t_min=0.5, n_samples=3, wait=True)
   assert failed.error.startswith("MemoryError") and failed.new_ids is None
   assert session.refine(world, "capsule", t_min=0.5, n_samples=3, wait=True).done.is_set()  # not stuck
