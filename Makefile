@@ -53,6 +53,7 @@ bench: $(DEV_STAMP)
 	$(PY) scripts/bench_refine.py
 	$(PY) scripts/bench_tower.py
 	$(PY) scripts/bench_steps.py
+	$(PY) scripts/bench_page_refine.py
 	$(PY) scripts/bench_bank.py
 	$(PY) scripts/bench_browse.py --browser
 	$(PY) scripts/bench_solve.py
