@@ -20,7 +20,7 @@ compared with the shipped step's.
 A factor becomes a scene's default only where every outcome agrees, nothing
 goes lower, and it is faster; the table in docs/benchmarks.md says which.
 
-  .venv/bin/python scripts/bench_steps.py [--scenes trebuchet_tower] [--factors 2] [--worlds 64]
+  .venv/bin/python scripts/bench_steps.py [--scenes trebuchet_tower] [--factors 2] [--worlds 64] [--append]
 
 Writes out/bench/steps.json (``--out``).
 """
@@ -125,9 +125,12 @@ def main():
   parser.add_argument("--factors", default="2")
   parser.add_argument("--worlds", type=int, default=64)
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "steps.json"))
+  parser.add_argument("--append", action="store_true", help="keep the scenes already in --out")
   args = parser.parse_args()
   result = {"machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}", "worlds": args.worlds,
             "scenes": {}}
+  if args.append and pathlib.Path(args.out).exists():
+    result["scenes"] = json.loads(pathlib.Path(args.out).read_text())["scenes"]
   for name in args.scenes.split(","):
     config_path = REPO / "configs" / f"{name}.yaml"
     base, base_t = sample(config_path, args.worlds)
