@@ -1,7 +1,7 @@
 """Whole-geometry queries: does any point of a body's geoms enter a volume?
 
 A COM path can miss a box that a body's corner passes through. With
-``Query(shape="geometry")`` a body hits the volume if some point of its
+``VolumeQuery(..., shape="geometry")`` a body hits the volume if some point of its
 geoms (their true shapes, see :mod:`.shapes`) enters it during the window.
 
 What is tested, and the bound: the stored qpos frames (decoded, at

@@ -8,8 +8,8 @@ files, the page, the viewer, the search) goes through it: a new query type is
 a new class plus a line in :data:`mwbx.queries.query_file.QUERY_KINDS`, never
 a switch in a caller.
 
-A VolumeQuery (``mwbx.Query(...)``, ``Query.screen`` and ``Query.region``
-build one) is a volume (usually a screen box seen through a camera), a sign
+A VolumeQuery (``mwbx.VolumeQuery(frustum, ...)``, ``Query.screen`` and
+``Query.region`` build one) is a volume (usually a screen box seen through a camera), a sign
 (`include`: the path must pass through it; `exclude`: it must not), a
 selection of tracked bodies (body, object or group names) combined with
 `any` or `all`, an optional time window in seconds and an optional swept
@@ -59,9 +59,10 @@ SHAPES = ("com", "geometry")
 class Query(abc.ABC):
   """One constraint on worlds (the interface; concrete types derive from it).
 
-  Like ``pathlib.Path``, calling ``Query(frustum, ...)``, ``Query.screen`` or
-  ``Query.region`` builds the concrete type most people mean, a
-  :class:`VolumeQuery` (the paper's query).
+  An abstract base: it is never built itself. ``Query.screen`` and
+  ``Query.region`` are named constructors of the concrete type most people
+  mean, a :class:`VolumeQuery` (the paper's query); ``VolumeQuery(frustum,
+  ...)`` builds one from a frustum.
 
   Attributes every query has:
     name: label for output (query files name an unnamed one ``q<i>``).
@@ -90,11 +91,6 @@ class Query(abc.ABC):
   goal: ClassVar[str] = "place"
   error_metric: ClassVar[str | None] = None
   needs_events: ClassVar[bool] = False  # answered from the bank's contact events
-
-  def __new__(cls, *args, **kwargs):
-    if cls is Query:  # Query(frustum, ...): a VolumeQuery, as before the interface existed
-      return object.__new__(VolumeQuery)
-    return object.__new__(cls)
 
   @classmethod
   def screen(cls, camera, box, *, near: float | None = None, far: float | None = None, **fields):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mwbx.errors import MwbxError
-from mwbx.queries import Query, Term, evaluate, load_queries
+from mwbx.queries import Query, Term, VolumeQuery, evaluate, load_queries
 
 import queries_bank
 
@@ -109,4 +109,4 @@ def test_query_set_saves_a_file_that_loads_to_the_same_queries(tmp_path, bank):
     np.testing.assert_allclose(a.frustum.normals, b.frustum.normals, atol=1e-6)
     np.testing.assert_allclose(a.frustum.offsets, b.frustum.offsets, atol=1e-6)
   with pytest.raises(MwbxError, match=r"queries\[0\]: a query built from raw planes cannot be saved"):
-    QuerySet((Query(Frustum.box([0, 0, 0], [1, 1, 1])),)).save(tmp_path / "raw.yaml")
+    QuerySet((VolumeQuery(Frustum.box([0, 0, 0], [1, 1, 1])),)).save(tmp_path / "raw.yaml")

@@ -69,8 +69,10 @@ def test_every_shipped_query_type_implements_the_interface():
   for kind in query_file.QUERY_KINDS:
     assert issubclass(kind, mq.Query) and not kind.__abstractmethods__, kind
   assert mq.Query is mwbx.Query
-  # Query(...), Query.screen and Query.region build the paper's volume query, as before the interface.
-  box = mwbx.Query(mwbx.Frustum.box((0, 0, 0), (1, 1, 1)), bodies="crate")
+  # Query is abstract; Query.screen and Query.region name the paper's volume query.
+  with pytest.raises(TypeError):
+    mwbx.Query(mwbx.Frustum.box((0, 0, 0), (1, 1, 1)), bodies="crate")
+  box = mwbx.VolumeQuery(mwbx.Frustum.box((0, 0, 0), (1, 1, 1)), bodies="crate")
   region = mwbx.Query.region((0, 0, 0), (1, 1, 1), sign="exclude")
   assert type(box) is type(region) is mq.VolumeQuery and isinstance(box, mwbx.Query)
   assert box.describe() == "include crate" and region.describe() == "exclude any body"

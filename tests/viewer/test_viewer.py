@@ -248,7 +248,7 @@ def test_as_volume_accepts_pairs_and_mwbx_queries():
   box = display.as_volume(mq.Query.region([0, 0, 0], [1, 2, 3]))
   assert box.include and box.eye is None and hull.frustum_eye(box.corners) is None
   planes_only = mq.Frustum.from_planes(np.vstack([np.eye(3), -np.eye(3)]), [1, 2, 3, 0, 0, 0])
-  vol = display.as_volume(mq.Query(planes_only))
+  vol = display.as_volume(mq.VolumeQuery(planes_only))
   assert sorted(map(tuple, vol.corners.tolist())) == sorted(
       (x, y, z) for x in (0.0, 1.0) for y in (0.0, 2.0) for z in (0.0, 3.0))
   with pytest.raises(mv.ViewerError, match="query 2: frustum corners must be finite"):
