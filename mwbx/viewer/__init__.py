@@ -13,7 +13,7 @@ from mwbx.viewer.api import draw
 from mwbx.viewer.api import export_html
 from mwbx.viewer.api import view
 from mwbx.viewer.errors import ViewerError
-from mwbx.viewer.display import QueryVolume
+from mwbx.viewer.display import DrawnVolume
 from mwbx.viewer.recorder import SceneRecorder
 from mwbx.viewer.select import choose_worlds
 from mwbx.viewer.server import LiveView

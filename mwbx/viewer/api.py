@@ -22,7 +22,7 @@ from mwbx.errors import MwbxError
 from mwbx.queries.query import Query
 from mwbx.viewer import flex as flex_lib
 from mwbx.viewer.errors import ViewerError
-from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS, QueryVolume, as_volume, classify_worlds
+from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS, DrawnVolume, as_volume, classify_worlds
 from mwbx.viewer.framing import place_camera, scene_bounds, view_spec
 from mwbx.viewer.frustums import draw_volume
 from mwbx.viewer.geometry import pose_matrix, scene_visuals
@@ -116,7 +116,7 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   match, exclude: bool[W] worlds whose paths are green / red (others faint);
     when `queries` are mwbx.queries objects and both are None they come from
     evaluating the queries.
-  queries: frustums to draw: QueryVolume, (corners f[8, 3], include) pairs or
+  queries: frustums to draw: DrawnVolume, (corners f[8, 3], include) pairs or
     mwbx.queries query objects.
   layout: "overlay" (ghosted, tinted) or "grid" (side by side).
   camera: MJCF camera to view exactly from; None: fit everything into view,
@@ -182,7 +182,7 @@ def as_query_list(queries: Any) -> list:
   """None, one query, a sequence of them, or a mwbx.queries.QuerySet -> list."""
   if queries is None:
     return []
-  if isinstance(queries, QueryVolume) or hasattr(queries, "frustum"):
+  if isinstance(queries, DrawnVolume) or hasattr(queries, "frustum"):
     return [queries]
   if isinstance(queries, tuple) and len(queries) == 2 and isinstance(queries[1], (bool, np.bool_)):
     return [queries]  # one (corners, include) pair

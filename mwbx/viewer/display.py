@@ -299,8 +299,8 @@ def path_layers(com: np.ndarray, count: np.ndarray, bodies: np.ndarray, classes:
 
 # -- query volumes ------------------------------------------------------------------------
 
-class QueryVolume(NamedTuple):
-  """A frustum to draw.
+class DrawnVolume(NamedTuple):
+  """A query's volume as the viewer draws it (a frustum or a convex hull; not a query).
 
   corners: f64[8, 3] world-space corners in metres, near face then far face
     (far corner i lies on the ray from the camera through near corner i);
@@ -333,14 +333,14 @@ class VolumeShape(NamedTuple):
   rays: np.ndarray
 
 
-def as_volume(query: Any, index: int = 0) -> QueryVolume:
-  """Turns one query description into a QueryVolume.
+def as_volume(query: Any, index: int = 0) -> DrawnVolume:
+  """Turns one query description into a DrawnVolume.
 
-  Accepted: a QueryVolume; a (corners f[8, 3], include) pair; or an object
+  Accepted: a DrawnVolume; a (corners f[8, 3], include) pair; or an object
   with a `frustum` / `corners` attribute (mwbx.queries), where include comes
   from `include` / `positive` / `negative` and the eye from `camera`.
   """
-  if isinstance(query, QueryVolume):
+  if isinstance(query, DrawnVolume):
     corners, include, eye = query
   elif isinstance(query, tuple) and len(query) == 2:
     corners, include = query
@@ -354,7 +354,7 @@ def as_volume(query: Any, index: int = 0) -> QueryVolume:
                       f"(near face then far face), got shape {corners.shape}")
   if eye is not None:
     eye = np.asarray(eye, np.float64).reshape(3)
-  return QueryVolume(corners, bool(include), eye)
+  return DrawnVolume(corners, bool(include), eye)
 
 
 def _from_query_object(query: Any, index: int):
@@ -363,7 +363,7 @@ def _from_query_object(query: Any, index: int):
   if corners is None and getattr(frustum, "normals", None) is not None:
     corners = plane_vertices(frustum.normals, frustum.offsets, index)
   if corners is None:
-    raise ViewerError(f"query {index}: expected a QueryVolume, a (corners, include) pair or a "
+    raise ViewerError(f"query {index}: expected a DrawnVolume, a (corners, include) pair or a "
                       f"query with frustum corners; got {type(query).__name__}")
   if hasattr(query, "include"):
     include = bool(query.include)
@@ -382,7 +382,7 @@ def _from_query_object(query: Any, index: int):
   return corners, include, eye
 
 
-def volume_shape(volume: QueryVolume, index: int = 0, max_depth: float | None = None) -> VolumeShape:
+def volume_shape(volume: DrawnVolume, index: int = 0, max_depth: float | None = None) -> VolumeShape:
   """The solid, outline and camera of one query volume, its far face moved in
   so no side edge is longer than ``max_depth`` metres (None: as given)."""
   corners = truncate(volume.corners, max_depth)

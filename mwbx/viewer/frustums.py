@@ -12,10 +12,10 @@ from __future__ import annotations
 import meshcat.geometry as mg
 import numpy as np
 
-from mwbx.viewer.display import CAMERA_RGBA, QUERY_RGBA, QueryVolume, as_volume, volume_shape
+from mwbx.viewer.display import CAMERA_RGBA, QUERY_RGBA, DrawnVolume, as_volume, volume_shape
 
 INCLUDE, EXCLUDE = QUERY_RGBA["include"], QUERY_RGBA["exclude"]
-__all__ = ["QueryVolume", "as_volume", "draw_volume", "INCLUDE", "EXCLUDE", "CAMERA_RGBA"]
+__all__ = ["DrawnVolume", "as_volume", "draw_volume", "INCLUDE", "EXCLUDE", "CAMERA_RGBA"]
 
 
 def _segments(segments: np.ndarray) -> mg.PointsGeometry:
@@ -23,7 +23,7 @@ def _segments(segments: np.ndarray) -> mg.PointsGeometry:
   return mg.PointsGeometry(np.ascontiguousarray(np.asarray(segments, np.float32).reshape(-1, 3).T))
 
 
-def draw_volume(vis, volume: QueryVolume, index: int = 0,
+def draw_volume(vis, volume: DrawnVolume, index: int = 0,
                 max_depth: float | None = None, eye_radius: float = 0.02) -> None:
   """Draws one frustum (:func:`mwbx.viewer.display.volume_shape`) under `vis`:
   "volume" (translucent), "outline", and, where a camera position is known,

@@ -370,7 +370,7 @@ def test_paths_queries_and_shift(bank):
   match = np.array([1, 1, 0, 0, 0, 1], bool)  # world 5 is unstable: never drawn
   exclude = np.array([0, 0, 1, 0, 0, 0], bool)
   vis, info = _draw_offline(bank, worlds=[], paths="round", match=match, exclude=exclude,
-                            queries=[(corners, True), mv.QueryVolume(corners + 0.1, False)])
+                            queries=[(corners, True), mv.DrawnVolume(corners + 0.1, False)])
   n_bodies = bank.select_bodies("round").size
   seg = lambda ws: sum((int(bank.com_count[w]) - 1) * n_bodies for w in ws)  # noqa: E731
   assert info.path_segments == {"faint": seg([3, 4]), "match": seg([0, 1]), "exclude": seg([2])}
