@@ -192,6 +192,8 @@ def _cmd_info(args) -> int:
     print(json.dumps({**s, "world_ids": [int(bank.world_ids.min()), int(bank.world_ids.max())]
                       if bank.n_worlds else None, "next_world_id": bank.next_world_id,
                       "cameras": _cameras(bank), "objects": {k: list(v) for k, v in bank.objects.items()},
+                      "bodies": list(bank.body_names), "groups": {k: list(v) for k, v in bank.groups.items()},
+                      "disk_bytes": _disk_bytes(args.bank),
                       "config": bank.config, "digest": bank.digest, "run": bank.run,
                       "scene_versions": [v["digest"] for v in bank.versions] + [bank.digest]}, indent=2))
     return 1 if problems else 0
@@ -207,18 +209,18 @@ def _cmd_info(args) -> int:
     print(f"sleep               {SleepSettings.from_record(bank.run['sleep']).describe()}")
   print(f"mean collisions     {s['mean_collisions']:.2f} per world")
   print(f"perturbations       {s['perturbations']}")
-  print(f"storage             {s['storage_bytes']:,} bytes in memory")
+  print(f"storage             {_disk_bytes(args.bank):,} bytes on disk, {s['storage_bytes']:,} bytes in memory")
   for key, value in s["qpos"].items():
     print(f"qpos {key:<22}{value:,.4g}" if isinstance(value, float) else f"qpos {key:<22}{value}")
   print(f"world ids           {_id_span(bank)}")
   print(f"refined worlds      {int((bank.parent_world >= 0).sum())}")
-  print(f"objects             {', '.join(bank.objects)}")
+  print(f"objects             {_names_line(list(bank.objects))}")
   if bank.versions:
     counts = [int((bank.scene_version == v).sum()) for v in range(len(bank.versions) + 1)]
     print(f"scene versions      {len(bank.versions) + 1} (worlds per version: {', '.join(map(str, counts))};"
           f" version 0 had {', '.join(bank.versions[0]['objects'])})")
   print(f"bodies              {_bodies_line(bank)}")
-  print(f"groups              {', '.join(f'{k}={list(v)}' for k, v in bank.groups.items()) or 'none'}")
+  print(f"groups              {'; '.join(f'{k}: {_names_line(list(v))}' for k, v in bank.groups.items()) or 'none'}")
   print(f"cameras             {', '.join(_cameras(bank)) or 'none (screen queries need a named MJCF camera)'}")
   print(f"metrics             {', '.join(bank.metric_names)}")
   if bank.events is None:
@@ -248,6 +250,21 @@ def _id_span(bank) -> str:
   return f"{int(ids.min())}..{int(ids.max())} (next {bank.next_world_id})" if bank.n_worlds else "none"
 
 
+INFO_NAMES = 12  # names `mwbx info` lists in a line before it says how many there are
+
+
+def _names_line(names: list[str]) -> str:
+  """``names`` joined, or the first few and how many in all (``--json`` lists every one)."""
+  if len(names) <= INFO_NAMES:
+    return ", ".join(names)
+  return f"{', '.join(names[:INFO_NAMES])}, … ({len(names)} in all; every name: mwbx info --json)"
+
+
+def _disk_bytes(folder) -> int:
+  """Bytes of the files under a bank's folder."""
+  return sum(f.stat().st_size for f in pathlib.Path(folder).rglob("*") if f.is_file() and not f.is_symlink())
+
+
 def _bodies_line(bank) -> str:
   """The tracked bodies, a flex's vertex bodies as one span ("cloth_0 … cloth_224
   (225 bodies of flex cloth)"), not hundreds of names."""
@@ -257,7 +274,7 @@ def _bodies_line(bank) -> str:
     if len(members) > 2:
       spans.update({b: None for b in members})
       spans[members[0]] = f"{members[0]} … {members[-1]} ({len(members)} bodies of flex {name})"
-  return ", ".join(spans[b] if b in spans else b for b in bank.body_names if spans.get(b, b) is not None)
+  return _names_line([spans[b] if b in spans else b for b in bank.body_names if spans.get(b, b) is not None])
 
 
 def _cameras(bank) -> list[str]:

@@ -1,5 +1,8 @@
 """The codec inside real sampled banks: guarantee, save/load, corruption, `mwbx info`."""
 
+import json
+import re
+
 import numpy as np
 import pytest
 
@@ -70,6 +73,15 @@ def test_mwbx_info_shows_codec_stats(quickstart, tmp_path, capsys):
   out = capsys.readouterr().out
   for key in ("bits_per_body_frame", "ratio_vs_float32", "max_error_pos_m", "max_error_rot_deg"):
     assert f"qpos {key}" in out
+  on_disk = sum(f.stat().st_size for f in (tmp_path / "bank").rglob("*") if f.is_file())
+  assert re.search(rf"^storage +{on_disk:,} bytes on disk, [0-9,]+ bytes in memory$", out, re.M), out
+  # A long list is cut to its first names and a count; --json has every name.
+  assert cli._names_line([f"b{i}" for i in range(3)]) == "b0, b1, b2"
+  many = cli._names_line([f"b{i}" for i in range(200)])
+  assert many.startswith("b0, b1,") and "(200 in all; every name: mwbx info --json)" in many and "b199" not in many
+  assert cli.main(["info", str(tmp_path / "bank"), "--json"]) == 0
+  full = json.loads(capsys.readouterr().out)
+  assert full["bodies"] == list(bank.body_names) and full["disk_bytes"] == on_disk
 
 
 def test_qpos_frames_of_some_bodies_decodes_only_their_joints(quickstart):
