@@ -272,54 +272,65 @@ class Browser:
 
     self._say(f"drag a box in the view for an {sign} query")
 
-  def _add_box(self, sign: str, event) -> None:
-    try:  # every part of the event is the client's: a NaN or huge box is refused here, in one line
-      camera = camera_from_client(event.client.camera)
-      box = mq.ScreenBox.from_corners(event.screen_min, event.screen_max)
-      bodies = self._selection()
-      window = self._window()
-      shape = "geometry" if self.ui.geometry.value else "com"
-      query = mq.Query.screen(camera, box, sign=sign, bodies=bodies, mode=self.ui.mode.value, window=window,
-                              name=f"q{len(self.session.entries)}", shape=shape)
-      index = self.session.add(query)
+  def _add_query(self, make, detail=None) -> None:
+    """The one way a query enters from the page: ``make(name)`` builds it
+    from the widgets and the client's event (every part of which is the
+    client's: a NaN, a huge box or an unknown name is a MwbxError, one status
+    line), the session adds it, the page redraws and says how many worlds it
+    matches; ``detail(index, count)``: the log line (default: the status line)."""
+    try:
+      index = self.session.add(make(f"q{len(self.session.entries)}"))
     except MwbxError as err:
       self._say(f"error: {err}")
       return
     count = self.refresh()
-    detail = (f"query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
-              f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.ui.mode.value}"
-              f" window={window} camera eye={camera.eye.tolist()} right={camera.right.tolist()}"
+    query = self.session.entries[index].query
+    self._say(f"q{index} {query.describe()}: {count.per_query[index]} worlds",
+              None if detail is None else detail(index, count))
+
+  def _add_box(self, sign: str, event) -> None:
+    got = {}
+
+    def make(name):
+      got["camera"] = camera_from_client(event.client.camera)
+      got["box"] = mq.ScreenBox.from_corners(event.screen_min, event.screen_max)
+      got["bodies"], got["window"] = self._selection(), self._window()
+      got["shape"] = "geometry" if self.ui.geometry.value else "com"
+      return mq.Query.screen(got["camera"], got["box"], sign=sign, bodies=got["bodies"], mode=self.ui.mode.value,
+                             window=got["window"], name=name, shape=got["shape"])
+
+    def detail(index, count):
+      camera, box = got["camera"], got["box"]
+      return (f"query {index} {sign} box={[box.u0, box.v0, box.u1, box.v1]}"
+              f" bodies={_names_text(got['bodies'])} mode={self.ui.mode.value}"
+              f" window={got['window']} camera eye={camera.eye.tolist()} right={camera.right.tolist()}"
               f" up={camera.up.tolist()} forward={camera.forward.tolist()} fovy={camera.fovy} aspect={camera.aspect}"
-              f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={shape}")
-    self._say(f"q{index}: {count.per_query[index]} worlds", detail)
+              f" -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid} shape={got['shape']}")
+
+    self._add_query(make, detail)
 
   def add_orientation(self, upright: bool) -> None:
-    try:
-      bodies = self._selection()
-      window = self._window()
+    got = {}
+
+    def make(name):
+      got["bodies"], got["window"] = self._selection(), self._window()
       goal = dict(axis=self.ui.axis.value) if upright else dict(target="initial")
-      query = mq.OrientationQuery(bodies=bodies, within_deg=self.ui.within.value, window=window, mode=self.ui.mode.value,
-                                  name=f"q{len(self.session.entries)}", **goal)
-      index = self.session.add(query)
-    except MwbxError as err:
-      self._say(f"error: {err}")
-      return
-    count = self.refresh()
-    what = f"upright axis={self.ui.axis.value}" if upright else "initial"
-    detail = (f"query {index} orientation {what} within_deg={query.within_deg}"
-              f" bodies={str(list(bodies)).replace(", ", ",") if bodies else None} mode={self.ui.mode.value}"
-              f" window={window} -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}")
-    self._say(f"q{index}: {count.per_query[index]} worlds", detail)
+      got["query"] = mq.OrientationQuery(bodies=got["bodies"], within_deg=self.ui.within.value, window=got["window"],
+                                         mode=self.ui.mode.value, name=name, **goal)
+      return got["query"]
+
+    def detail(index, count):
+      what = f"upright axis={self.ui.axis.value}" if upright else "initial"
+      return (f"query {index} orientation {what} within_deg={got['query'].within_deg}"
+              f" bodies={_names_text(got['bodies'])} mode={self.ui.mode.value}"
+              f" window={got['window']} -> {count.per_query[index]} worlds, all queries {count.all} of {count.valid}")
+
+    self._add_query(make, detail)
 
   def add_touch(self, include: bool) -> None:
     a, b = self.ui.touch_a.value, self.ui.touch_b.value
-    self.report(lambda: self._added(self.session.add(mq.TouchQuery(
-        a, b, window=self._window(), sign="include" if include else "exclude",
-        name=f"q{len(self.session.entries)}"))))
-
-  def _added(self, index: int) -> str:
-    count = self.session.counts()
-    return f"q{index} {self.session.entries[index].query.describe()}: {count.per_query[index]} worlds"
+    self._add_query(lambda name: mq.TouchQuery(a, b, window=self._window(), sign="include" if include else "exclude",
+                                               name=name))
 
   def export(self) -> None:
     world = self.playing_world
@@ -571,6 +582,11 @@ class Browser:
     """Stops playback and the server."""
     self.player.stop()
     self.server.stop()
+
+
+def _names_text(names) -> str:
+  """Body names as the log writes them, without spaces (``['a','b']``; None: every body)."""
+  return "[" + ",".join(repr(n) for n in names) + "]" if names else "None"
 
 
 def _refined_span(ids: list[int]) -> str:

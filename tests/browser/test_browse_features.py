@@ -111,7 +111,8 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       want = int((np.asarray(mq.evaluate(bank, [box])) & bank.valid).sum())
       assert int(line.group(13)) == want
       page.get_by_text(re.compile(rf"^{want} of 6 worlds")).wait_for(timeout=WAIT * 1000)
-      page.get_by_text("q0 include cube,ball (geometry)", exact=False).wait_for(timeout=WAIT * 1000)
+      # the query stack and the status line both name it
+      page.get_by_text("q0 include cube,ball (geometry)", exact=False).first.wait_for(timeout=WAIT * 1000)
       # Upright at the end, within 30 degrees, for the same bodies.
       page.get_by_label("Within (deg)").fill("30")
       time.sleep(0.5)
