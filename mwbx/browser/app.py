@@ -51,6 +51,33 @@ from mwbx.yaml_input import short_repr, short_repr_text
 LOG = logging.getLogger("mwbx.browse")
 
 
+# What the person serving the page must see (its address, a busy port, an
+# exposed host, refinements not saved): ``mwbx: ...`` lines on stderr.
+NOTICE = logging.getLogger("mwbx.notice")
+
+
+class _StderrNow(logging.StreamHandler):
+  """Writes to whatever ``sys.stderr`` is when a record comes (it may be swapped after the handler is made)."""
+
+  @property
+  def stream(self):
+    return sys.stderr
+
+  @stream.setter
+  def stream(self, value):
+    del value
+
+
+def notices_to_stderr() -> None:
+  """Sends the page's notices to stderr as ``mwbx: ...`` lines (once)."""
+  if not NOTICE.handlers:
+    handler = _StderrNow()
+    handler.setFormatter(logging.Formatter("mwbx: %(message)s"))
+    NOTICE.addHandler(handler)
+    NOTICE.setLevel(logging.INFO)
+    NOTICE.propagate = False
+
+
 def log_to_stdout() -> None:
   """Sends the page's log to stdout as ``mwbx browse: ...`` lines (once)."""
   if not LOG.handlers:
@@ -611,15 +638,16 @@ def browse(bank, *, path=None, host: str = "127.0.0.1", port: int | None = None,
   """
   path = None if path is None else pathlib.Path(path)
   log_to_stdout()
+  notices_to_stderr()
   session = Session(bank, path, None if workdir is None else pathlib.Path(workdir))
   page = Browser(session, host=host, port=port)
   if not page.loopback:
-    print(f"mwbx: warning: --host {host} is not a loopback address: anyone who can reach port {page.port} there"
-          " and holds the token can use the page (it runs refinements and writes query files under"
-          f" {session.query_dir}); the token travels unencrypted", file=sys.stderr, flush=True)
+    NOTICE.warning(f"warning: --host {host} is not a loopback address: anyone who can reach port {page.port} there"
+                   " and holds the token can use the page (it runs refinements and writes query files under"
+                   f" {session.query_dir}); the token travels unencrypted")
   if page.port != page.requested_port:
-    print(f"mwbx: port {page.requested_port} is busy; serving on port {page.port}", file=sys.stderr, flush=True)
-  print(f"mwbx: browsing {bank.n_worlds} worlds at {page.url}", file=sys.stderr, flush=True)
+    NOTICE.info(f"port {page.requested_port} is busy; serving on port {page.port}")
+  NOTICE.info(f"browsing {bank.n_worlds} worlds at {page.url}")
   if open_browser:
     import webbrowser
     webbrowser.open(page.url)
@@ -631,6 +659,6 @@ def browse(bank, *, path=None, host: str = "127.0.0.1", port: int | None = None,
       pass
     finally:
       for line in page.leave(autosave):
-        print(f"mwbx: {line}", file=sys.stderr, flush=True)
+        NOTICE.info(line)
       page.close()
   return page
