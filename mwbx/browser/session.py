@@ -249,13 +249,15 @@ class Session:
   def view(self) -> View:
     """The answers the page draws (see :class:`View`)."""
     each = self.each()
-    valid = np.asarray(self.bank.valid, bool)
-    rejected = np.zeros(self.bank.n_worlds, bool)
-    for i, e in enumerate(self.entries):
-      if e.enabled and not e.query.include:
-        rejected |= ~each[:, i]
-    match = self.match() if self.entries else np.zeros(self.bank.n_worlds, bool)
-    return View(each, match & ~rejected, rejected & valid, self.counts())
+    k = self._kept()
+    match = k.match if self.entries else np.zeros(self.bank.n_worlds, bool)  # no query: nothing highlighted
+    return View(each, match, k.rejected, self.counts())
+
+  def _kept(self) -> mq.Kept:
+    """:func:`mwbx.queries.kept` of the enabled entries."""
+    on = np.array([e.enabled for e in self.entries], bool)
+    include = np.array([e.query.include for e in self.entries], bool)
+    return mq.kept(self.each()[:, on], include[on], self.bank.valid)
 
   def orientation_query(self):
     """The last enabled query with an error to rank by (an orientation query:
@@ -265,9 +267,7 @@ class Session:
 
   def match(self) -> np.ndarray:
     """bool[W] valid worlds satisfying every enabled query (all valid ones when none)."""
-    each = self.each()
-    on = np.array([e.enabled for e in self.entries], bool)
-    return np.asarray(self.bank.valid, bool) & np.all(each[:, on], axis=1)
+    return self._kept().match
 
   def counts(self) -> Counts:
     each = self.each()

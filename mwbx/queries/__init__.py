@@ -20,5 +20,7 @@ from mwbx.queries.query import VolumeQuery
 from mwbx.queries.query import constraints_satisfied
 from mwbx.queries.query import evaluate
 from mwbx.queries.query import evaluate_each
+from mwbx.queries.query import Kept
+from mwbx.queries.query import kept
 from mwbx.queries.query_file import QuerySet
 from mwbx.queries.query_file import load_queries

@@ -35,7 +35,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import math
-from typing import ClassVar, Sequence
+from typing import ClassVar, NamedTuple, Sequence
 
 import numpy as np
 
@@ -505,10 +505,38 @@ def evaluate_each(bank, queries) -> np.ndarray:
   return out
 
 
+class Kept(NamedTuple):
+  """Which worlds a set of queries keeps (:func:`kept`).
+
+  Attributes:
+    match: bool[W] valid worlds that satisfy every query.
+    rejected: bool[W] valid worlds an exclude query turns away.
+  """
+
+  match: np.ndarray
+  rejected: np.ndarray
+
+
+def kept(each: np.ndarray, include: np.ndarray, valid: np.ndarray) -> Kept:
+  """The one rule for which worlds match and which are rejected, from the
+  answers of Q queries: ``each`` bool[W, Q] (:func:`evaluate_each`),
+  ``include`` bool[Q] each query's sign, ``valid`` bool[W] (no queries: every
+  valid world matches). Evaluation, the page and the viewer all use it.
+
+  Example::
+
+    k = kept(evaluate_each(bank, qs), np.array([q.include for q in qs]), bank.valid)
+  """
+  each, valid = np.asarray(each, bool), np.asarray(valid, bool)
+  exclude = ~np.asarray(include, bool).reshape(-1)
+  rejected = np.any(~each[:, exclude], axis=1) if exclude.any() else np.zeros(len(valid), bool)
+  return Kept(np.all(each, axis=1) & valid, rejected & valid)
+
+
 def evaluate(bank, queries) -> np.ndarray:
   """Worlds that satisfy every query: bool[W] (no queries: all valid worlds)."""
-  valid = np.asarray(bank.valid, bool)
-  return np.all(evaluate_each(bank, queries), axis=1) & valid
+  queries = as_queries(queries)
+  return kept(evaluate_each(bank, queries), np.array([q.include for q in queries], bool), bank.valid).match
 
 
 def constraints_satisfied(bank, queries) -> np.ndarray:

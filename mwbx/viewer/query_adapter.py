@@ -28,9 +28,5 @@ def evaluate_classes(bank, queries: Sequence[Any]) -> tuple[np.ndarray, np.ndarr
   """(match bool[W], exclude bool[W]) from the mwbx.queries.Query items of
   `queries` (plain frustums in the list are drawn but not evaluated)."""
   real = [q for q in queries if is_query(q)]
-  valid = np.asarray(bank.valid, bool)
-  each = np.asarray(mq.evaluate_each(bank, real), bool)  # [W, Q]
-  match = np.all(each, axis=1) & valid
-  negative = np.asarray([is_negative(q) for q in real], bool)
-  exclude = np.any(~each[:, negative], axis=1) & valid if negative.any() else np.zeros_like(valid)
-  return match, exclude
+  k = mq.kept(mq.evaluate_each(bank, real), np.array([not is_negative(q) for q in real], bool), bank.valid)
+  return k.match, k.rejected

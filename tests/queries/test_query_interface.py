@@ -144,3 +144,13 @@ def test_no_caller_switches_on_query_types():
   outside = [p for p in PACKAGE.rglob("*.py") if "queries" not in p.relative_to(PACKAGE).parts[:1]]
   switches = [s for p in outside for s in _query_type_switches(p)]
   assert not switches, "callers must go through the Query interface:\n" + "\n".join(switches)
+
+
+def test_one_rule_for_matched_and_rejected_worlds():
+  # Query 0 includes, query 1 excludes; world 2 is not valid.
+  each = np.array([[True, True], [True, False], [False, True], [False, False]])
+  k = mq.kept(each, np.array([True, False]), np.array([True, True, False, True]))
+  assert k.match.tolist() == [True, False, False, False]
+  assert k.rejected.tolist() == [False, True, False, True]  # failed the exclude query (valid worlds only)
+  none = mq.kept(np.zeros((3, 0), bool), np.zeros(0, bool), np.array([True, False, True]))
+  assert none.match.tolist() == [True, False, True] and not none.rejected.any()
