@@ -946,6 +946,11 @@ def page_refine(d: dict) -> tuple[list[str], list[str]]:
            "| press | new worlds listed (s) | first new world playing (s) |", "|---|---:|---:|",
            f"| first (compiles or cache loads included) | {f['listed_seconds']:.2f} | {f['first_plays_seconds']:.2f} |",
            f"| second | {s2['listed_seconds']:.2f} | {s2['first_plays_seconds']:.2f} |"]
+  if "command" in d:
+    c = d["command"]
+    lines += ["", f"The README's `{c['argv']}` in a fresh process (imports, loading the bank, compiles and saving "
+              f"included): {c['wall_seconds']:.1f} s wall (exit {c['exit']}); its report: "
+              f"{'; '.join(c['report']) or '-'}."]
   return lines, []
 
 
