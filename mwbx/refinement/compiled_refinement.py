@@ -163,7 +163,7 @@ class RefinedWorlds(NamedTuple):
 
 @host_jit
 def _put_on(data_qpos, data_qvel, o, objects, qpos_target, qvel_target):
-  """Sets object ``o``'s coordinates (and, with ``data_qvel``, velocities) to the targets."""
+  """Sets object ``o``'s coordinates and velocities to the targets."""
   q, v = objects.qpos, objects.dofs
   for i in range(q.adr[o], q.adr[o + 1]):
     data_qpos[q.ids[i]] = qpos_target[q.ids[i]]
