@@ -66,6 +66,7 @@ __version__ = "0.1.0"
 # mp4, npz; usd-core and imageio-ffmpeg on first call) load on first use:
 # `import mwbx` and every CLI command that needs none of them stay fast.
 _LAZY = {
+    "SolveOptions": ("mwbx.search", "SolveOptions"),
     "browse": ("mwbx.browser", "browse"),
     "export_html": ("mwbx.viewer", "export_html"),
     "export_npz": ("mwbx.export", "export_npz"),
@@ -121,6 +122,7 @@ __all__ = [
     "Sampler",
     "Scene",
     "ScreenBox",
+    "SolveOptions",
     "TouchQuery",
     "VolumeQuery",
     "browse",

@@ -85,8 +85,9 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
     dropped = int(each.all(axis=1).sum())
     bank = bank.drop(bank.world_ids[each.all(axis=1)])
   with reporter(f"{name}: solve") as update:
-    result = mwbx.solve(bank, queries, budget=mwbx.search.Budget(seconds=budget_s), key=jax.random.key(seed),
-                        samples=samples, backend="native", progress=update)
+    options = mwbx.SolveOptions(budget=mwbx.search.Budget(seconds=budget_s), key=jax.random.key(seed),
+                                samples=samples, backend="native")
+    result = mwbx.solve(bank, queries, options, progress=update)
   wall = time.perf_counter() - start
   load_after = os.getloadavg()[0]
   refined = [s for s in result.steps if s.refined >= 0]

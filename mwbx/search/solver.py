@@ -200,6 +200,63 @@ class Budget:
             or (self.world_steps is not None and world_steps >= self.world_steps))
 
 
+@dataclasses.dataclass(frozen=True)
+class SolveOptions:
+  """How :func:`solve` searches: its knobs, each with its default (the one
+  argument besides the bank and the goal; :func:`solve` also takes them by
+  name). Checked when made.
+
+  Attributes:
+    budget: a :class:`Budget`, or an int: refinements (default 100); an int
+      becomes ``Budget(refinements=int(budget))``.
+    key: search key (default ``jax.random.key(0)``: a search is repeatable).
+    samples: refined worlds per refinement. keep: children kept per refinement.
+    tries_per_world: refinements from one world before the search moves on.
+    patience: refinements without a better best world before the search
+      fixes the query that blocks it: from then on it works only in worlds
+      that meet that query (see the module docstring).
+    backend: ``native`` | ``mjx`` (default: the bank's config's).
+    guided_rounds: batches of guided sampling (:func:`guided_sample`) added to
+      the bank before the search, ``guided_batch`` worlds each.
+    guided_batch: worlds per batch of guided sampling (``guided_rounds``,
+      ``reseed_rounds``).
+    reseed_rounds: at a stall, batches of guided sampling aimed at the query
+      that blocks the search (``guided_batch`` worlds each), added to the bank
+      before that query is fixed: more worlds where it holds to repair the
+      rest in. 0: none.
+    tie_metric: metric (summed over bodies) that breaks ties, smaller first.
+    throw: raise :class:`~mwbx.MwbxError` when the budget runs out unsolved.
+
+  Example::
+
+    options = mwbx.SolveOptions(budget=mwbx.search.Budget(seconds=600), samples=16)
+    result = mwbx.solve(bank, queries, options)  # as mwbx.solve(bank, queries, budget=..., samples=16)
+  """
+
+  budget: Budget | int = 100
+  key: jax.Array | None = None
+  samples: int = 32
+  keep: int = 4
+  tries_per_world: int = 4
+  patience: int = 40
+  backend: str | None = None
+  guided_rounds: int = 0
+  guided_batch: int = 64
+  reseed_rounds: int = 4
+  tie_metric: str = "collisions"
+  throw: bool = False
+
+  def __post_init__(self):
+    if isinstance(self.budget, (int, np.integer)):
+      object.__setattr__(self, "budget", Budget(refinements=int(self.budget)))
+    if self.samples < 1 or self.keep < 1 or self.tries_per_world < 1:
+      raise MwbxError(f"solve: samples, keep and tries_per_world must be >= 1, got {self.samples}, {self.keep},"
+                      f" {self.tries_per_world}")
+
+
+_OPTION_FIELDS = frozenset(field.name for field in dataclasses.fields(SolveOptions))
+
+
 class SolveStep(NamedTuple):
   """The search after one refinement (or the start, or guided sampling).
 
@@ -373,33 +430,18 @@ def _label(query, index: int) -> str:
   return query.name or f"query {index}"
 
 
-def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | None = None,
-          samples: int = 32, keep: int = 4, tries_per_world: int = 4, patience: int = 40,
-          backend: str | None = None,
-          guided_rounds: int = 0, guided_batch: int = 64, reseed_rounds: int = 4, tie_metric: str = "collisions",
-          progress=None, throw: bool = False) -> SolveResult:
+def solve(bank: Bank, queries, options: SolveOptions | None = None, *, progress=None, **fields) -> SolveResult:
   """Searches the bank's refinement tree for a world that meets every query.
 
   Args:
     bank: the sampled bank to start from (worlds, or a bank already refined).
     queries: the goal: a query list or :class:`~mwbx.QuerySet`.
-    budget: a :class:`Budget`, or an int: refinements (default 100).
-    key: search key (default ``jax.random.key(0)``: a search is repeatable).
-    samples: refined worlds per refinement. keep: children kept per refinement.
-    tries_per_world: refinements from one world before the search moves on.
-    patience: refinements without a better best world before the search
-      fixes the query that blocks it: from then on it works only in worlds
-      that meet that query (see the module docstring).
-    backend: ``native`` | ``mjx`` (default: the bank's config's).
-    guided_rounds: batches of guided sampling (:func:`guided_sample`) added to
-      the bank before the search, ``guided_batch`` worlds each.
-    reseed_rounds: at a stall, batches of guided sampling aimed at the query
-      that blocks the search (``guided_batch`` worlds each), added to the bank
-      before that query is fixed: more worlds where it holds to repair the
-      rest in. 0: none.
-    tie_metric: metric (summed over bodies) that breaks ties, smaller first.
+    options: how to search: a :class:`SolveOptions` (budget, key, samples,
+      keep, tries_per_world, patience, backend, guided_rounds, guided_batch,
+      reseed_rounds, tie_metric, throw); default: its defaults.
     progress: optional callback taking a :class:`mwbx.progress.Progress`.
-    throw: raise :class:`~mwbx.MwbxError` when the budget runs out unsolved.
+    **fields: instead of ``options``, its fields by name (``budget=200,
+      samples=16``); not both.
 
   Returns:
     a :class:`SolveResult`; ``result.bank`` holds every kept world.
@@ -407,6 +449,7 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
   Raises:
     SolveInterrupted: on Ctrl-C (KeyboardInterrupt), holding the result so
       far (every refinement finished is in its bank).
+    TypeError: ``options`` and fields both given, or a field it does not have.
 
   Example::
 
@@ -417,91 +460,38 @@ def solve(bank: Bank, queries, *, budget: Budget | int = 100, key: jax.Array | N
     bank = result.bank.save("out/siggraph")  # the bank as stored: its new worlds' ids as on disk
     world = bank.origin.id_on_disk(result.world)  # the solved world's id there
   """
+  if options is not None and fields:
+    raise TypeError(f"solve: give options or its fields ({', '.join(sorted(fields))}), not both")
+  if options is not None and not isinstance(options, SolveOptions):
+    raise TypeError(f"solve: options must be a SolveOptions, got {type(options).__name__}")
+  unknown = sorted(set(fields) - _OPTION_FIELDS)
+  if unknown:
+    raise TypeError(f"solve() got an unexpected keyword argument {unknown[0]!r}")
   queries = as_queries(queries)
   if not queries:
     raise MwbxError("solve: give at least one query to satisfy")
-  budget = Budget(refinements=int(budget)) if isinstance(budget, (int, np.integer)) else budget
-  if samples < 1 or keep < 1 or tries_per_world < 1:
-    raise MwbxError(f"solve: samples, keep and tries_per_world must be >= 1, got {samples}, {keep},"
-                    f" {tries_per_world}")
-  key = jax.random.key(0) if key is None else key
-  search = _Search(bank, queries, budget, key, tie_metric, backend, progress)
+  options = SolveOptions(**fields) if options is None else options
+  search = _Search(bank, queries, options, progress)
   try:
-    return _search_loop(search, guided_rounds, guided_batch, samples, keep, tries_per_world, patience,
-                        reseed_rounds, throw)
+    search.begin()
+    while search.step():
+      pass
+    return search.result(search.reason, options.throw)
   except KeyboardInterrupt:  # Ctrl-C: what was found so far is kept
     raise SolveInterrupted(search.interrupted()) from None
-
-
-def _search_loop(search: "_Search", guided_rounds: int, guided_batch: int, samples: int, keep: int,
-                 tries_per_world: int, patience: int, reseed_rounds: int, throw: bool) -> SolveResult:
-  """:func:`solve`'s search, from the bank ``search`` starts with."""
-  queries, key = search.queries, search.key
-  if guided_rounds > 0:
-    search.add_guided(queries, guided_rounds, guided_batch, stream_key(key, KeyStream.GUIDED))
-  search.note()
-  last_gain, best_met, last_reweigh = 0, (-1, -1), 0
-  last_rise = 0  # unlike last_gain, not moved on by fixing a query
-  reason = ""
-  while True:
-    best = search.steps[-1]
-    if best.satisfied == search.n_queries:
-      break
-    if search.budget_spent():
-      reason = "budget spent"
-      break
-    if (best.places, best.satisfied) > best_met:  # the search gains when these rise
-      best_met, last_gain = (best.places, best.satisfied), search.refinements
-      last_rise = search.refinements
-    elif search.refinements - last_gain >= patience:
-      search.fix_blocking_query(best.world, reseed_rounds, guided_batch)
-      last_gain = search.refinements
-    if search.refinements > max(last_gain, last_reweigh) and (search.refinements - last_gain) % STALL_STEP == 0:
-      search.reweigh()
-      last_reweigh = search.refinements
-    picked = search.pick(tries_per_world)
-    if picked is None and search.fixed:
-      search.release_fixed()  # every world meeting them was tried: all worlds again
-      continue
-    if picked is None:
-      reason = "every world tried"
-      break
-    row, world, attempt = picked
-    unmet = search.repair_order(row)
-    if not unmet:  # a world guided reseeding just added meets every query
-      search.note()
-      continue
-    last_place = (len(unmet) == 1 and bool(search.places[unmet[0]])
-                  and search.refinements - last_rise >= LAST_PLACE_PLATEAU)
-    chosen, fraction = repair_plan(unmet, attempt, stalled=(search.refinements - last_gain) // STALL_STEP,
-                                   last_place=last_place)
-    search.attempts[chosen] += 1
-    objects, targets = [], [search.repair_target(row, q) for q in chosen]
-    for target_objects, _, _ in targets:
-      objects += [o for o in target_objects if o not in objects]
-    if not objects:
-      search.tries[world] = tries_per_world  # nothing to refine for these queries here
-      continue
-    t_goal = min(_restart_goal(search.bank, row, world, query, met) for _, query, met in targets)
-    t_min = fraction * t_goal
-    try:
-      search.refine(world, objects, t_min, samples, keep)
-    except MwbxError as err:  # e.g. a restart past the end: this world cannot be repaired so
-      search.tries[world] = tries_per_world
-      reason = f"world {world}: {err}"
-      continue
-    search.note(world, objects, t_min, tuple(_label(queries[q], q) for q in chosen), attempt)
-  return search.result(reason, throw)
 
 
 class _Search:
   """The state of one :func:`solve`: the bank as it grows, each world's query
   gaps (and so which queries it meets), the tie metric, and the bookkeeping
-  that decides where to refine next."""
+  that decides where to refine next. :meth:`begin`, then :meth:`step` until
+  it returns False, then :meth:`result`."""
 
-  def __init__(self, bank: Bank, queries, budget: Budget, key: jax.Array, tie_metric: str, backend, progress):
-    self.bank, self.queries, self.budget, self.key = bank, queries, budget, key
-    self.tie_metric, self.backend, self.progress = tie_metric, backend, progress
+  def __init__(self, bank: Bank, queries, options: SolveOptions, progress):
+    self.options = options
+    self.bank, self.queries, self.budget = bank, queries, options.budget
+    self.key = jax.random.key(0) if options.key is None else options.key
+    self.tie_metric, self.backend, self.progress = options.tie_metric, options.backend, progress
     self.start = time.perf_counter()
     self.n_queries = len(queries)
     self.sampled = int((np.asarray(bank.parent_world) < 0).sum())  # the sampled worlds it started from
@@ -513,13 +503,94 @@ class _Search:
     self.scale = typical_gaps(self.gaps)
     self.places = place_queries(queries)  # bool[Q]: ranked and repaired before the poses
     self.weights = np.ones(self.n_queries)  # f64[Q]: grow on plateaus (reweigh)
-    self.ties = metric(bank, tie_metric)
+    self.ties = metric(bank, self.tie_metric)
     self.steps: list[SolveStep] = []
     self.spent_steps, self.refinements = 0, 0
     self.tries: dict[int, int] = {}  # refinements started from each world id
     self.fixed: list[int] = []  # queries every world worked on must meet (stalls)
     self.released: set[int] = set()  # fixed once, every world meeting them tried: not fixed again
     self.attempts = np.zeros(self.n_queries, np.int64)  # refinements aimed at each query
+    # The plateau (step): the search gains when the best world's (places, queries met) rise.
+    self.best_met = (-1, -1)  # the best world's (places, queries met) at the last gain
+    self.last_gain = 0  # refinements at the last gain, or at the last stall fixing a query
+    self.last_rise = 0  # refinements at the last gain (unlike last_gain, not moved on by fixing a query)
+    self.last_reweigh = 0  # refinements at the last reweigh
+    self.reason = ""  # why the search ended unsolved; meanwhile, the last world it could not refine
+
+  def begin(self) -> None:
+    """Before the first step: guided sampling (``guided_rounds``) and the first record."""
+    if self.options.guided_rounds > 0:
+      self.add_guided(self.queries, self.options.guided_rounds, self.options.guided_batch,
+                      stream_key(self.key, KeyStream.GUIDED))
+    self.note()
+
+  def step(self) -> bool:
+    """One turn of the search: the plateau's bookkeeping (:meth:`track_plateau`),
+    then the best world not yet tried out repaired (:meth:`repair`: at most one
+    refinement). Returns whether the search goes on: False once the best
+    world meets every query, the budget is spent or every world was tried
+    (:attr:`reason` says which of the last two)."""
+    best = self.steps[-1]
+    if best.satisfied == self.n_queries:
+      return False
+    if self.budget_spent():
+      self.reason = "budget spent"
+      return False
+    self.track_plateau(best)
+    picked = self.pick(self.options.tries_per_world)
+    if picked is None and self.fixed:
+      self.release_fixed()  # every world meeting them was tried: all worlds again
+      return True
+    if picked is None:
+      self.reason = "every world tried"
+      return False
+    self.repair(*picked)
+    return True
+
+  def track_plateau(self, best: SolveStep) -> None:
+    """Notes a gain of the best world ``best``; on a plateau, fixes the query
+    that blocks the search after ``patience`` refinements and reweighs the
+    queries every :data:`STALL_STEP`."""
+    if (best.places, best.satisfied) > self.best_met:  # the search gains when these rise
+      self.best_met, self.last_gain = (best.places, best.satisfied), self.refinements
+      self.last_rise = self.refinements
+    elif self.refinements - self.last_gain >= self.options.patience:
+      self.fix_blocking_query(best.world, self.options.reseed_rounds, self.options.guided_batch)
+      self.last_gain = self.refinements
+    if (self.refinements > max(self.last_gain, self.last_reweigh)
+        and (self.refinements - self.last_gain) % STALL_STEP == 0):
+      self.reweigh()
+      self.last_reweigh = self.refinements
+
+  def repair(self, row: int, world: int, attempt: int) -> None:
+    """Attempt ``attempt`` on world ``world`` (at ``row``): refines the objects
+    of the queries :func:`repair_plan` picks from before they go wrong; a
+    world it cannot refine is tried out."""
+    tries_per_world = self.options.tries_per_world
+    unmet = self.repair_order(row)
+    if not unmet:  # a world guided reseeding just added meets every query
+      self.note()
+      return
+    last_place = (len(unmet) == 1 and bool(self.places[unmet[0]])
+                  and self.refinements - self.last_rise >= LAST_PLACE_PLATEAU)
+    chosen, fraction = repair_plan(unmet, attempt, stalled=(self.refinements - self.last_gain) // STALL_STEP,
+                                   last_place=last_place)
+    self.attempts[chosen] += 1
+    objects, targets = [], [self.repair_target(row, q) for q in chosen]
+    for target_objects, _, _ in targets:
+      objects += [o for o in target_objects if o not in objects]
+    if not objects:
+      self.tries[world] = tries_per_world  # nothing to refine for these queries here
+      return
+    t_goal = min(_restart_goal(self.bank, row, world, query, met) for _, query, met in targets)
+    t_min = fraction * t_goal
+    try:
+      self.refine(world, objects, t_min, self.options.samples, self.options.keep)
+    except MwbxError as err:  # e.g. a restart past the end: this world cannot be repaired so
+      self.tries[world] = tries_per_world
+      self.reason = f"world {world}: {err}"
+      return
+    self.note(world, objects, t_min, tuple(_label(self.queries[q], q) for q in chosen), attempt)
 
   def elapsed(self) -> float:
     return time.perf_counter() - self.start

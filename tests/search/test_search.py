@@ -8,6 +8,7 @@ import dataclasses
 import doctest
 import json
 import pathlib
+import re
 import types
 
 import jax
@@ -217,6 +218,40 @@ def test_solve_refuses_bad_arguments(tiny_bank):
     mwbx.search.Budget(seconds=-1)
   with pytest.raises(mwbx.MwbxError, match="samples, keep and tries_per_world"):
     mwbx.solve(tiny_bank, REACHABLE, samples=0)
+
+
+def test_solve_takes_its_options_as_one_object_or_by_name(tiny_bank):
+  """mwbx.SolveOptions and the same fields by name make the same search:
+  the same refinements, worlds, best world and message; options and fields
+  together are refused in one line."""
+  fields = dict(budget=3, key=jax.random.key(0), samples=8, backend="native")
+  options = mwbx.SolveOptions(**fields)
+  assert mwbx.SolveOptions is mwbx.search.SolveOptions is solver.SolveOptions and "SolveOptions" in mwbx.__all__
+  assert options.budget == mwbx.search.Budget(refinements=3) and options.keep == 4  # an int budget: refinements
+  by_name = mwbx.solve(tiny_bank, UNREACHABLE, **fields)
+  as_one = mwbx.solve(tiny_bank, UNREACHABLE, options)
+  assert by_name.bank.world_ids.tolist() == as_one.bank.world_ids.tolist()
+  assert by_name.bank.parent_world.tolist() == as_one.bank.parent_world.tolist()
+  assert (by_name.world, by_name.satisfied, by_name.solved, by_name.unmet) == (
+      as_one.world, as_one.satisfied, as_one.solved, as_one.unmet)
+  refined = [s for s in as_one.steps if s.refined >= 0]
+  assert as_one.steps[-1].refinements == by_name.steps[-1].refinements == len(refined) == 3
+
+  def path(result):  # every step but its wall time
+    return [(s.refinements, s.world_steps, s.satisfied, s.world, s.refined, s.objects, s.repaired, s.attempt,
+             s.places) for s in result.steps]
+
+  assert path(by_name) == path(as_one)
+  np.testing.assert_array_equal([s.t_min for s in by_name.steps], [s.t_min for s in as_one.steps])
+  seconds = re.compile(r"\d+ s\)")
+  assert seconds.sub("", by_name.message) == seconds.sub("", as_one.message)
+  with pytest.raises(TypeError, match=r"^solve: give options or its fields \(samples\), not both$") as refused:
+    mwbx.solve(tiny_bank, UNREACHABLE, options, samples=4)
+  assert "\n" not in str(refused.value)
+  with pytest.raises(TypeError, match="unexpected keyword argument 'sample'"):
+    mwbx.solve(tiny_bank, UNREACHABLE, sample=4)
+  with pytest.raises(mwbx.MwbxError, match=r"samples, keep and tries_per_world must be >= 1, got 32, 0, 4"):
+    mwbx.SolveOptions(keep=0)
 
 
 QUERY_FILE = """\
@@ -528,8 +563,7 @@ def test_a_mode_any_repair_leaves_alone_the_object_holding_another_query(tiny_ba
   assert variants["striker"].bodies == ("body:striker",) and variants["striker"].mode == "any"
   assert REACHABLE[0].per_object(tiny_bank) == {}  # one object: nothing to choose
   assert dataclasses.replace(nowhere, sign="exclude").per_object(tiny_bank) == {}
-  search = solver._Search(tiny_bank, [around_target, nowhere], solver.Budget(refinements=1), jax.random.key(0),
-                          "collisions", "native", None)
+  search = solver._Search(tiny_bank, [around_target, nowhere], solver.SolveOptions(budget=1, backend="native"), None)
   assert search.met[0, 0] and not search.met[0, 1]
   objects, query, met = search.repair_target(0, 1)
   assert objects == ["striker"] and query.bodies == ("body:striker",)
@@ -540,8 +574,7 @@ def test_a_mode_any_repair_leaves_alone_the_object_holding_another_query(tiny_ba
   # With both bodies inside query 0's box, either may move: both stay spare.
   both = Query.region(np.minimum(target, striker) - 0.01, np.maximum(target, striker) + 0.01,
                       bodies=["striker", "target"], mode="any", name="b")
-  search = solver._Search(tiny_bank, [both, nowhere], solver.Budget(refinements=1), jax.random.key(0),
-                          "collisions", "native", None)
+  search = solver._Search(tiny_bank, [both, nowhere], solver.SolveOptions(budget=1, backend="native"), None)
   assert sorted(search.repair_target(0, 1)[0]) == ["striker", "target"]
 
 
