@@ -294,7 +294,7 @@ def _cmd_view(args) -> int:
   queries = None
   if args.queries:
     queries = load_queries(args.queries, bank=bank)
-  ids = parse_world_ids(args.worlds, known=bank.world_ids) if args.worlds else None
+  ids = parse_world_ids(args.worlds, flag="--worlds", known=bank.world_ids) if args.worlds else None
   ids, match = mwbx.viewer.choose_worlds(bank, ids=ids, top=args.top, rank=args.rank, queries=queries,
                                          flags={"ids": "--worlds", "top": "--top", "rank": "--rank"})
   if args.top is not None or args.rank is not None:

@@ -16,13 +16,14 @@ from mwbx.yaml_input import short_repr
 MAX_RANGE_IDS = 1_000_000
 
 
-def parse_world_ids(text: str, flag: str = "--worlds", known=None) -> list[int]:
+def parse_world_ids(text: str, flag: str = "text", known=None) -> list[int]:
   """'3,17, 20..22' -> [3, 17, 20, 21, 22] (``a..b`` includes both ends); the
   message names the flag and the bad item.
 
   Args:
     text: ids and ranges, comma separated.
-    flag: the flag or argument, for messages.
+    flag: how the caller names ``text``, for messages (a command line:
+      ``--worlds``).
     known: optional i64[W] ids of the bank: a range then stands for the
       bank's ids within it (``0..1000000000`` is every world, not a billion
       ids); single ids are kept as given (an unknown one is an error later).

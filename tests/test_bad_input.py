@@ -224,6 +224,12 @@ def test_id_ranges_are_bounded():
   with pytest.raises(mwbx.MwbxError) as err:
     parse_world_ids("x" * 100_000)
   assert len(str(err.value)) < 400
+  # From Python the message names the argument, from a command line the flag it passes.
+  with pytest.raises(mwbx.MwbxError, match=r"^text: ") as err:
+    parse_world_ids("3, x")
+  assert "--" not in str(err.value)
+  with pytest.raises(mwbx.MwbxError, match=r"^--worlds: "):
+    parse_world_ids("3, x", flag="--worlds")
 
 
 # --- memory --------------------------------------------------------------------------
