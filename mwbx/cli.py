@@ -394,6 +394,8 @@ def _cmd_solve(args) -> int:
   from mwbx.search import Budget, SolveInterrupted, SolveOptions, progress_plot, solve  # lazy: optax
   bank = _load_bank(args)
   queries = mwbx.load_queries(args.queries, bank=bank)
+  if not queries.queries:  # named before the options are checked, as solve() names it
+    raise MwbxError("solve: give at least one query to satisfy")
   options = SolveOptions(budget=_solve_budget(args, Budget), key=jax.random.key(args.seed), samples=args.samples,
                          keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
                          guided_rounds=args.guided_rounds, guided_batch=args.guided_batch,
