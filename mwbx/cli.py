@@ -391,19 +391,17 @@ def _solve_budget(args, budget_type):
 
 
 def _cmd_solve(args) -> int:
-  from mwbx.search import Budget, SolveInterrupted, SolveOptions, progress_plot, solve  # lazy: optax
+  from mwbx.search import Budget, SolveInterrupted, progress_plot, solve  # lazy: optax
   bank = _load_bank(args)
   queries = mwbx.load_queries(args.queries, bank=bank)
-  if not queries.queries:  # named before the options are checked, as solve() names it
-    raise MwbxError("solve: give at least one query to satisfy")
-  options = SolveOptions(budget=_solve_budget(args, Budget), key=jax.random.key(args.seed), samples=args.samples,
-                         keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
-                         guided_rounds=args.guided_rounds, guided_batch=args.guided_batch,
-                         reseed_rounds=args.reseed_rounds)
+  # SolveOptions' fields by name: solve() checks the goal first, then them.
+  options = dict(budget=_solve_budget(args, Budget), key=jax.random.key(args.seed), samples=args.samples,
+                 keep=args.keep, tries_per_world=args.tries, patience=args.patience, backend=args.backend,
+                 guided_rounds=args.guided_rounds, guided_batch=args.guided_batch, reseed_rounds=args.reseed_rounds)
   interrupted = False
   try:
     with _reporter_with_safe_points("solve") as update:
-      result = solve(bank, queries, options, progress=update)
+      result = solve(bank, queries, progress=update, **options)
   except SolveInterrupted as stop:  # Ctrl-C: the refinements done are kept, as sampling keeps its chunks
     result, interrupted = stop.result, True
   out = pathlib.Path(args.out or args.bank)

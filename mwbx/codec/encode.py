@@ -20,7 +20,7 @@ from mwbx.codec.batch import BatchCode, parse_batch, serialize_batch
 from mwbx.codec.decode import KIND_ID, decode_code, evaluate
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.splice import ParentChannels
-from mwbx.codec.stream import (DIM, KINDS, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
+from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
                                initial_steps, parse, quantize_initial, serialize)
 from mwbx.host_device import host_cpu
 from mwbx.host_pool import LazyPool
@@ -209,7 +209,8 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     raise CodecError(f"fps must be a finite number > 0, got {fps!r}")
   recorded = np.arange(num_t)[None, :] < frame_count[:, None]  # [W, T]
   # Columns every refined world takes from its parent are the parent's decoded frames.
-  fresh = np.arange(layout.nq) if parent is None else np.flatnonzero(~_taken_columns(parent, layout))
+  fresh = (np.arange(layout.nq) if parent is None
+           else _columns_of(*_channel_spans(layout), ~_taken_in_every_world(parent, layout)))
   bad = recorded[:, :, None] & ~np.isfinite(qpos[:, :, fresh] if fresh.size < layout.nq else qpos)
   if bad.any():
     w, f, c = (int(i[0]) for i in np.nonzero(bad))
@@ -331,19 +332,28 @@ def _with_parent_segments(kind, take, n_ch, parent, frame_count, seg, lengths, v
           np.concatenate([q[2] for q in parts]).astype(bool))
 
 
-def _taken_columns(parent: ParentChannels, layout: ChannelLayout) -> np.ndarray:
-  """bool[nq]: qpos columns of channels every world takes from its parent."""
-  out = np.zeros(layout.nq, bool)
-  if parent.take.ndim != 2 or parent.take.shape[0] == 0 or parent.take.shape[1] != layout.n_channels:
-    return out  # nothing taken, or a mismatch the settings check reports
-  adrs = (list(layout.pos_adr), list(layout.rot_adr), list(layout.scalar_adr))
-  all_taken = parent.take.all(axis=0)
-  c = 0
-  for kind, kind_adrs in zip(KINDS, adrs):
-    for a in kind_adrs:
-      out[a:a + WIDTH[kind]] = all_taken[c]
-      c += 1
-  return out
+def _channel_spans(layout: ChannelLayout) -> tuple[np.ndarray, np.ndarray]:
+  """(first qpos column i64[C], width i64[C]) of each channel, in channel
+  order (translations, rotations, scalars: as ``addresses()`` lists them)."""
+  kinds = (("pos", layout.pos_adr), ("rot", layout.rot_adr), ("scalar", layout.scalar_adr))
+  starts = np.array([a for _, adrs in kinds for a in adrs], np.int64)
+  widths = np.array([WIDTH[kind] for kind, adrs in kinds for _ in adrs], np.int64)
+  return starts, widths
+
+
+def _columns_of(starts: np.ndarray, widths: np.ndarray, channels: np.ndarray) -> np.ndarray:
+  """i64[k] the qpos columns of the ``channels`` (bool[C]) chosen, in channel order."""
+  return np.concatenate([np.arange(a, a + w) for a, w in zip(starts[channels], widths[channels])]
+                        + [np.zeros(0, np.int64)])
+
+
+def _taken_in_every_world(parent: ParentChannels, layout: ChannelLayout) -> np.ndarray:
+  """bool[C]: the channels every world takes from its parent (none where
+  ``parent.take`` does not fit the layout: the settings check reports that)."""
+  take = parent.take
+  if take.ndim != 2 or take.shape[0] == 0 or take.shape[1] != layout.n_channels:
+    return np.zeros(layout.n_channels, bool)
+  return take.all(axis=0)
 
 
 def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec, streams,
@@ -377,22 +387,22 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
   data = np.frombuffer(b"".join(fast), np.uint8)
   offsets = np.concatenate([[0], np.cumsum(sizes)])
   parsed, parsed_worlds = parse_batch(data, offsets)
-  kinds, addresses = parsed.channel_kinds(), np.asarray(parsed.addresses(), np.int64)
+  channel_kinds = parsed.channel_kinds()
   mine = qpos if parsed_worlds.size == num_w else qpos[parsed_worlds]
+  starts, widths = _channel_spans(layout)
   if taken is not None and taken.all(axis=0).any():
     # Channels every world takes from its parent are neither decoded nor checked:
-    # the check runs on the other channels' columns alone.
+    # the check runs on the other channels' columns alone, packed side by side.
     checked = ~taken.all(axis=0)
-    width = np.array([WIDTH[KINDS[k]] for k in kinds], np.int64)  # qpos columns per channel
-    columns = np.concatenate([np.arange(a, a + w) for a, w in zip(addresses[checked], width[checked])]
-                             + [np.zeros(0, np.int64)])
-    compact = np.zeros(n_ch, np.int64)
-    compact[checked] = np.concatenate([[0], np.cumsum(width[checked])[:-1]])
-    kinds = np.where(checked, kinds, eval_kernels.NOT_CHECKED)
-    out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, parsed.channel_kinds(), compact,
-                            columns.size, parsed.quanta, parsed.bounds, channels=checked)
-    mine, addresses = np.ascontiguousarray(mine[:, :, columns]), compact
+    columns = _columns_of(starts, widths, checked)
+    addresses = np.zeros(n_ch, np.int64)
+    addresses[checked] = np.concatenate([[0], np.cumsum(widths[checked])[:-1]])
+    kinds = np.where(checked, channel_kinds, eval_kernels.NOT_CHECKED)
+    out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, channel_kinds, addresses, columns.size,
+                            parsed.quanta, parsed.bounds, channels=checked)
+    mine = np.ascontiguousarray(mine[:, :, columns])
   else:
+    kinds, addresses = channel_kinds, starts
     out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, kinds, addresses, layout.nq,
                             parsed.quanta, parsed.bounds)
   world_err = np.full((num_w, n_ch), np.inf)

@@ -217,8 +217,7 @@ def _hold_inactive_asleep(data, active, prev_inactive, objects, qpos_target, qve
   for o in range(n_objects):
     if not active[o] and _awake(data.tree_asleep, o, trees):
       falling = True
-      for i in range(objects.qpos.adr[o], objects.qpos.adr[o + 1]):
-        data.qpos[objects.qpos.ids[i]] = qpos_target[objects.qpos.ids[i]]
+      _put_on(data.qpos, data.qvel, o, objects, qpos_target, qvel_target)  # its velocities are zeroed below
   if falling:
     _kinematics(data.model_adr, data.data_adr)
     for o in range(n_objects):
