@@ -35,6 +35,7 @@ import threading
 
 import jax
 import mujoco
+import numpy as np
 
 import mwbx
 from mwbx import __version__
@@ -227,7 +228,12 @@ def _cmd_info(args) -> int:
     print("contact events      none (the bank was saved before they were recorded)")
   else:
     statics = [a for a in bank.event_actors if a not in bank.objects]
-    print(f"contact events      {len(bank.events.rows):,} episodes; static actors: {', '.join(statics) or 'none'}")
+    known = ~np.isnan(bank.events.impulse)
+    found = ("at every physics step, with impulses" if known.all() else "on the stored frames (no impulses)"
+             if not known.any() else f"at every physics step ({known.mean():.0%} with impulses; the rest on stored"
+             " frames)")
+    print(f"contact events      {len(bank.events.rows):,} episodes, found {found}; static actors:"
+          f" {', '.join(statics) or 'none'}")
   print(f"rates               record {bank.record_fps:g} fps, query {bank.query_fps:g} fps,"
         f" timestep {bank.timestep:.6g} s")
   print(f"config              {bank.config.get('source') or '-'} (full: mwbx info --json)")

@@ -12,6 +12,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from mwbx.codec.splice import refined_frames
+
 
 @runtime_checkable
 class QposStore(Protocol):
@@ -38,10 +40,12 @@ class QposStore(Protocol):
   def take(self, rows: np.ndarray) -> "QposStore":
     """A store (same settings) of the worlds at ``rows`` (i64[k]), in that order, as stored."""
 
-  def refined(self, qpos: np.ndarray, frame_count: np.ndarray, parent: int,
+  def refined(self, after: np.ndarray, first_frame: int, frame_count: np.ndarray, parent: int,
               parent_frames: np.ndarray, keep_qpos: np.ndarray) -> "QposStore":
-    """A new store of refined worlds whose ``keep_qpos`` (bool[W, nq]) coordinates
-    decode exactly to ``parent_frames`` (f32[T, nq], the row ``parent``'s frames)."""
+    """A new store of refined worlds of the world at row ``parent``: frames
+    ``0 … first_frame - 1`` its ``parent_frames`` (f32[T, nq], decoded), then
+    ``after`` (f32[W, F, nq], padded; frame_count i32[W] counts from frame 0);
+    their ``keep_qpos`` (bool[W, nq]) coordinates decode exactly to ``parent_frames``."""
 
   def row_frames(self, row: int, start: int = 0, stop: int | None = None,
              columns=None) -> np.ndarray:
@@ -100,12 +104,12 @@ class RawQposStore:
     self.data = np.concatenate([self.data, other.data])
     self.offsets = np.concatenate([self.offsets, self.offsets[-1] + other.offsets[1:]])
 
-  def refined(self, qpos: np.ndarray, frame_count: np.ndarray, parent: int,
+  def refined(self, after: np.ndarray, first_frame: int, frame_count: np.ndarray, parent: int,
               parent_frames: np.ndarray, keep_qpos: np.ndarray) -> "RawQposStore":
     """A new store of refined worlds: raw frames already hold the parent's
     values bit for bit where ``keep_qpos``, so nothing is spliced."""
     out = RawQposStore(self.nq)
-    out.append(qpos, frame_count)
+    out.append(refined_frames(after, first_frame, parent_frames), frame_count)
     return out
 
   def copy(self) -> "RawQposStore":
@@ -160,3 +164,4 @@ class RawQposStore:
   @classmethod
   def restore(cls, arrays: dict, meta: dict) -> "RawQposStore":
     return cls(meta["nq"], arrays["data"], arrays["offsets"])
+

@@ -12,6 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+_MJMINVAL = 1e-15  # MuJoCo's mjMINVAL: below it a vector has no direction (MuJoCo's normalize)
+
 
 def quat_multiply(a: jax.Array, b: jax.Array, axis: int = -1) -> jax.Array:
   """Hamilton product ``a (x) b``; the 4 components lie along ``axis`` of both
@@ -24,6 +26,36 @@ def quat_multiply(a: jax.Array, b: jax.Array, axis: int = -1) -> jax.Array:
       aw * by - ax * bz + ay * bw + az * bx,
       aw * bz + ax * by - ay * bx + az * bw,
   ], axis=axis)
+
+
+def quat_multiply_np(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+  """numpy twin of :func:`quat_multiply` (components last; ``mju_mulQuat``'s
+  order of operations, so float64 inputs give its result bit for bit)."""
+  aw, ax, ay, az = (a[..., i] for i in range(4))
+  bw, bx, by, bz = (b[..., i] for i in range(4))
+  return np.stack([
+      aw * bw - ax * bx - ay * by - az * bz,
+      aw * bx + ax * bw + ay * bz - az * by,
+      aw * by - ax * bz + ay * bw + az * bx,
+      aw * bz + ax * by - ay * bx + az * bw,
+  ], axis=-1)
+
+
+def quat_conjugate_np(q: np.ndarray) -> np.ndarray:
+  """``q``'s conjugate (the inverse of a unit quaternion), f[..., 4]; ``mju_negQuat``."""
+  return q * np.array([1.0, -1.0, -1.0, -1.0], q.dtype)
+
+
+def quat_to_velocity_np(q: np.ndarray, dt: float) -> np.ndarray:
+  """f64[..., 3] the angular velocity turning by unit quaternions ``q``
+  (f64[..., 4]) in ``dt`` seconds, the short way round; ``mju_quat2Vel``."""
+  axis = np.array(q[..., 1:], np.float64)
+  sin_half = np.sqrt(axis[..., 0] * axis[..., 0] + axis[..., 1] * axis[..., 1] + axis[..., 2] * axis[..., 2])
+  tiny = sin_half < _MJMINVAL
+  axis = np.where(tiny[..., None], np.array([1.0, 0.0, 0.0]), axis * (1 / np.where(tiny, 1.0, sin_half))[..., None])
+  speed = 2 * np.arctan2(sin_half, q[..., 0])
+  speed = np.where(speed > np.pi, speed - 2 * np.pi, speed) / dt
+  return axis * speed[..., None]
 
 
 def quat_to_matrix(q: jax.Array) -> jax.Array:

@@ -281,9 +281,9 @@ class LazyQposStore:
   def take(self, rows) -> "LazyQposStore":
     return self._with(self._map.take(rows))
 
-  def refined(self, qpos, frame_count, parent, parent_frames, keep_qpos):
+  def refined(self, after, first_frame, frame_count, parent, parent_frames, keep_qpos):
     p, local = int(self._map.piece[parent]), int(self._map.local[parent])
-    return self._map.pieces.get(p).refined(qpos, frame_count, local, parent_frames, keep_qpos)
+    return self._map.pieces.get(p).refined(after, first_frame, frame_count, local, parent_frames, keep_qpos)
 
   def row_frames(self, row: int, start: int = 0, stop: int | None = None, columns=None) -> np.ndarray:
     p, local = int(self._map.piece[row]), int(self._map.local[row])

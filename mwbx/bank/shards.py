@@ -358,7 +358,8 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
           "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
           "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8))}
   if part.events is not None:  # the names the events' actor indices refer to
-    entry["events"] = {"version": events_lib.EVENTS_VERSION, "actors": list(part.event_actors)}
+    entry["events"] = {"version": events_lib.EVENTS_VERSION, "actors": list(part.event_actors),
+                       "ticks_per_frame": int(part.events.ticks_per_frame)}
   return entry
 
 
@@ -438,11 +439,16 @@ def _read_small(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
 
 def _shard_events(path: pathlib.Path, entry: dict, arrays: dict):
   """(actor names, EventRecord) of one shard; ((), None) for a shard written
-  before contact events were recorded (or of a later events version)."""
+  before contact events were recorded (or of a later events version). Version
+  1 held frames and no strength: one tick a frame, strength unknown."""
   meta = entry.get("events")
-  if not meta or meta.get("version") != events_lib.EVENTS_VERSION or "events_rows" not in arrays:
+  if not meta or meta.get("version") not in (1, events_lib.EVENTS_VERSION) or "events_rows" not in arrays:
     return (), None
-  record = events_lib.EventRecord.from_arrays(arrays, int(entry["worlds"]), str(path / SHARDS / entry["name"]))
+  ticks = meta.get("ticks_per_frame", 1) if meta["version"] > 1 else 1
+  if not isinstance(ticks, int) or isinstance(ticks, bool):
+    raise MwbxError(f"{path / SHARDS / entry['name']}: corrupt contact events (ticks_per_frame {ticks!r})")
+  record = events_lib.EventRecord.from_arrays(arrays, int(entry["worlds"]), str(path / SHARDS / entry["name"]),
+                                              ticks_per_frame=ticks)
   return tuple(meta["actors"]), record
 
 

@@ -42,6 +42,11 @@ class ChunkResult(NamedTuple):
       error (status ``world.SIM_ERROR``).
     contact_overflow: bool[C] a step of the world may have needed more
       contacts than the batched engine's budget (None: the backend has none).
+    event_rows, event_strength, event_count: the contact episodes found at
+      every physics step (:mod:`mwbx.events.steps`): i32[C, cap, 4] rows
+      ``(a, b, first, last)`` in steps, f32[C, cap, 2] their strength, i64[C]
+      how many (more than cap: overflowed); None where the engine did not
+      report its steps' contacts (events are then found on the stored frames).
   """
 
   qpos: np.ndarray
@@ -56,6 +61,9 @@ class ChunkResult(NamedTuple):
   physics_seconds: float = float("nan")
   errors: tuple = ()
   contact_overflow: np.ndarray | None = None
+  event_rows: np.ndarray | None = None
+  event_strength: np.ndarray | None = None
+  event_count: np.ndarray | None = None
 
   def first(self, n: int) -> ChunkResult:
     """The result of the first ``n`` worlds (a padded chunk without its padding)."""

@@ -19,10 +19,13 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import mujoco
 import numpy as np
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, sleep, world
+from mwbx.events import steps as steps_lib
+from mwbx.events.actors import Actors
 from mwbx.host_jit import host_jit
 
 
@@ -51,6 +54,125 @@ class WorldInputs(NamedTuple):
   free: bool
   free_bodies: free_bodies_lib.FreeBodies
   rest_when_asleep: bool = False
+
+
+class StepEventInputs(NamedTuple):
+  """How a compiled loop finds contact events at every physics step
+  (:mod:`mwbx.events.steps`); :func:`step_event_inputs` makes them.
+
+  Attributes:
+    on: False: no events (the arrays may be empty).
+    contact_words: i64[8] the :class:`mujoco_c.ContactLayout`, in its order.
+    geom_actor: i32[ngeom] each geom's actor; flex_actor: i32[max(nflex, 1)] each flex's.
+    n_actors: how many actors.
+    actor_tree_start: i64[n_actors + 1], actor_trees: i64[k] each actor's
+      kinematic trees (CSR; static actors none).
+    sleep: the model sleeps (an actor then moves only while a tree of it is awake).
+    gap: steps apart that end an episode (the physics steps of a recorded frame).
+  """
+
+  on: bool
+  contact_words: np.ndarray
+  geom_actor: np.ndarray
+  flex_actor: np.ndarray
+  n_actors: int
+  actor_tree_start: np.ndarray
+  actor_trees: np.ndarray
+  sleep: bool
+  gap: int = 1
+
+
+class EventBuffers(NamedTuple):
+  """Each world's episodes, written by the thread that runs it.
+
+  Attributes:
+    rows: i32[C, cap, 4] ``(a, b, first, last)``, steps. strength: f32[C, cap, 2] N, N·s.
+    count: i64[C] episodes of each world (more than cap: overflowed).
+  """
+
+  rows: np.ndarray
+  strength: np.ndarray
+  count: np.ndarray
+
+
+def step_event_inputs(model, actors: Actors | None, steps_per_frame: int) -> StepEventInputs:
+  """The :class:`StepEventInputs` of a model and its actors, ``steps_per_frame``
+  the gap that ends an episode (off where ``actors`` is None or the contacts
+  cannot be read here)."""
+  layout = mujoco_c.contact_layout()
+  on = actors is not None and layout is not None
+  n_actors = len(actors.names) if actors is not None else 0
+  trees = [[] for _ in range(n_actors)]
+  if on:
+    for body in range(1, model.nbody):
+      tree = int(model.body_treeid[body])
+      for g in range(model.body_geomadr[body], model.body_geomadr[body] + model.body_geomnum[body]):
+        a = int(actors.geom_actor[g])
+        if tree >= 0 and tree not in trees[a]:
+          trees[a].append(tree)
+    for f in range(model.nflex):  # a flex moves with the trees of its vertex bodies
+      a = int(actors.flex_actor[f])
+      for b in model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]:
+        tree = int(model.body_treeid[b])
+        if tree >= 0 and tree not in trees[a]:
+          trees[a].append(tree)
+  flex_actor = np.asarray(actors.flex_actor if actors is not None else [], np.int32)
+  return StepEventInputs(
+      on=on, contact_words=np.asarray(layout if layout is not None else [0] * 8, np.int64),
+      geom_actor=np.asarray(actors.geom_actor if actors is not None else [], np.int32),
+      flex_actor=flex_actor if flex_actor.size else np.full(1, -1, np.int32), n_actors=n_actors,
+      actor_tree_start=np.concatenate([[0], np.cumsum([len(t) for t in trees])]).astype(np.int64),
+      actor_trees=np.asarray([t for ts in trees for t in ts], np.int64),
+      sleep=bool(model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)), gap=int(steps_per_frame))
+
+
+def event_buffers(n_worlds: int, events: StepEventInputs) -> EventBuffers:
+  """Empty :class:`EventBuffers` for ``n_worlds`` worlds (none where ``events`` is off)."""
+  cap = steps_lib.episode_capacity(events.n_actors) if events.on else 0
+  return EventBuffers(np.zeros((n_worlds, cap, 4), np.int32), np.zeros((n_worlds, cap, 2), np.float32),
+                      np.zeros(n_worlds, np.int64))
+
+
+# The ContactLayout's words, by name (its field order).
+_NCON, _ARENA, _CONTACT, _STRIDE, _GEOM, _FLEX, _EXCLUDE, _EFC = range(8)
+_contact_force = mujoco_c.mj_contactForce
+
+
+@host_jit
+def read_contacts(data, events, open_, tick, force6):
+  """Every actor pair touching in the contacts of the step just taken
+  (:func:`mwbx.events.steps.touch`); ``force6``: f64[6] scratch."""
+  w = events.contact_words
+  h32, h64, a32 = data.header_i32, data.header_i64, data.arena_i32
+  if h64.size == 0:
+    return
+  ncon = h32[w[_NCON]]
+  start = h64[w[_CONTACT]] - h64[w[_ARENA]]
+  stride = w[_STRIDE]
+  if ncon <= 0 or start < 0 or start % 8 != 0 or start + ncon * stride > 4 * a32.size:
+    return
+  for i in range(ncon):
+    rec = start + i * stride
+    if a32[(rec + w[_EXCLUDE]) // 4] == steps_lib.EXCLUDE_IN_GAP:
+      continue
+    sides = np.empty(2, np.int64)
+    for k in range(2):
+      g = a32[(rec + w[_GEOM]) // 4 + k]
+      sides[k] = events.geom_actor[g] if g >= 0 else events.flex_actor[max(a32[(rec + w[_FLEX]) // 4 + k], 0)]
+    force = 0.0
+    if a32[(rec + w[_EFC]) // 4] >= 0:
+      _contact_force(data.model_adr, data.data_adr, i, force6.ctypes.data)
+      force = force6[0]
+    steps_lib.touch(open_, events.n_actors, sides[0], sides[1], force, tick)
+
+
+@host_jit
+def step_events(data, events, open_, tick, timestep, moving, force6, rows, strength):
+  """The events of one physics step of a world (after its ``mj_step``)."""
+  read_contacts(data, events, open_, tick, force6)
+  if events.sleep:
+    steps_lib.actors_moving(data.tree_asleep, events.actor_tree_start, events.actor_trees, moving)
+  steps_lib.end_tick(open_, events.n_actors, tick, events.gap, timestep, moving, rows, strength)
 
 
 _step = mujoco_c.mj_step
@@ -91,7 +213,7 @@ def physics_step(data, wrench, ctrl_table, k, state_out, free, sensors_out):
 
 
 @host_jit
-def run_world(row, data, inputs, initial_states, buffers, running):
+def run_world(row, data, inputs, initial_states, buffers, running, events, event_buffers):
   """Runs world ``row`` of a chunk until it finishes; returns seconds inside ``mj_step``.
 
   Args:
@@ -101,6 +223,7 @@ def run_world(row, data, inputs, initial_states, buffers, running):
     initial_states: f64[C, nstate] full physics states at time 0.
     buffers: the chunk's :class:`host_bookkeeping.ChunkBuffers` (row ``row`` written).
     running: bool[C] as :func:`host_bookkeeping.frame_update` (out).
+    events: :class:`StepEventInputs`; event_buffers: :class:`EventBuffers` (row ``row`` written).
   """
   b = buffers
   free = inputs.free
@@ -116,13 +239,22 @@ def run_world(row, data, inputs, initial_states, buffers, running):
   _set_state(data.model_adr, data.data_adr, initial_states[row].ctypes.data, _FULLPHYSICS)
   physics = 0.0
   frame = 0
+  n_actors = events.n_actors if events.on else 1
+  open_ = steps_lib.new_episodes(n_actors)
+  moving = np.ones(n_actors, np.bool_)
+  for a in range(n_actors):  # static actors never move (sleeping scenes recompute the objects')
+    moving[a] = (not events.on) or events.actor_tree_start[a + 1] > events.actor_tree_start[a]
+  force6 = np.zeros(6)
   while running[row] and frame < inputs.n_frames:
     _get_state(data.model_adr, data.data_adr, before[0].ctypes.data, _FULLPHYSICS)
-    start = monotonic_seconds(ts)
     for s in range(n_steps):
+      start = monotonic_seconds(ts)
       physics_step(data, b.wrench_full[row, s], inputs.ctrl_table, frame * n_steps + s, after[0, s], free,
                    sensors[0, s])
-    physics += monotonic_seconds(ts) - start
+      physics += monotonic_seconds(ts) - start
+      if events.on:
+        step_events(data, events, open_, frame * n_steps + s, inputs.timestep, moving, force6,
+                    event_buffers.rows[row], event_buffers.strength[row])
     host_loops.absorb_rows(rows, before, after, sensors, inputs.timestep, 1 + nq, b.sensordata, b.warmstart,
                            b.states)
     if free:
@@ -133,4 +265,8 @@ def run_world(row, data, inputs, initial_states, buffers, running):
       b.carry.status[row] = world.AT_REST  # nothing moves until something wakes it: nothing will
       running[row] = False
     frame += 1
+  if events.on:
+    last_tick = (b.carry.frame_count[row] - 1) * n_steps
+    event_buffers.count[row] = steps_lib.finish(open_, n_actors, last_tick, event_buffers.rows[row],
+                                                event_buffers.strength[row])
   return physics

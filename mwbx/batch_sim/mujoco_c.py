@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import pathlib
 import threading
 import time
@@ -57,11 +58,13 @@ if _load(_library()):
   mj_getState = types.ExternalFunction("mj_getState", types.void(_intp, _intp, _intp, types.int32))
   mj_setState = types.ExternalFunction("mj_setState", types.void(_intp, _intp, _intp, types.int32))
   mj_kinematics = types.ExternalFunction("mj_kinematics", types.void(_intp, _intp))
+  # mj_contactForce(m, d, contact id, f64[6] out): the contact-frame force of a step's contact.
+  mj_contactForce = types.ExternalFunction("mj_contactForce", types.void(_intp, _intp, types.int32, _intp))
   # clock_gettime(CLOCK_MONOTONIC, int64[2]) from the C library already in the
   # process: the compiled loop times its physics.
   clock_gettime = types.ExternalFunction("clock_gettime", types.int32(types.int32, _intp))
 else:  # pragma: no cover - platforms without the shared library next to the bindings
-  mj_step = mj_resetData = mj_getState = mj_setState = mj_kinematics = clock_gettime = None
+  mj_step = mj_resetData = mj_getState = mj_setState = mj_kinematics = mj_contactForce = clock_gettime = None
 # mj_updateSleep (the sleep arrays from ``tree_asleep``) is exported by the
 # library but not declared in its public header: bound only where present.
 _HAS_UPDATE_SLEEP = mj_step is not None and hasattr(ctypes.CDLL(_library()), "mj_updateSleep")
@@ -97,6 +100,11 @@ class MjDataViews(NamedTuple):
     sensordata: f64[nsensordata] view of ``sensordata`` (the sensors' units).
     ctrl: f64[nu] view of ``ctrl`` (the actuators' units).
     tree_asleep: i32[ntree] view of ``tree_asleep`` (< 0: awake; MuJoCo 4's sleep).
+    header_i32, header_i64: the ``mjData`` struct itself up to its
+      ``contact`` pointer, as int32 and int64 words (:class:`ContactLayout`;
+      empty where it could not be found).
+    arena_i32, arena_f64: the data's arena (where ``mj_collision`` puts the
+      step's contacts) as int32 and float64 words.
   """
 
   model_adr: int
@@ -107,12 +115,116 @@ class MjDataViews(NamedTuple):
   sensordata: np.ndarray
   ctrl: np.ndarray
   tree_asleep: np.ndarray
+  header_i32: np.ndarray = np.zeros(0, np.int32)
+  header_i64: np.ndarray = np.zeros(0, np.int64)
+  arena_i32: np.ndarray = np.zeros(0, np.int32)
+  arena_f64: np.ndarray = np.zeros(0, np.float64)
 
 
 def data_views(model: mujoco.MjModel, data: mujoco.MjData) -> MjDataViews:
   """``data`` (made for ``model``, or a model of the same sizes) for the compiled loops."""
-  return MjDataViews(model._address, data._address, data.qpos, data.qvel, data.xfrc_applied,
-                     data.sensordata, data.ctrl, data.tree_asleep)
+  views = MjDataViews(model._address, data._address, data.qpos, data.qvel, data.xfrc_applied,
+                      data.sensordata, data.ctrl, data.tree_asleep)
+  layout = contact_layout()
+  if layout is None:
+    return views
+  header = _words(data._address, 8 * (layout.contact + 1))
+  arena = _words(int(header.view(np.int64)[layout.arena]), int(data.narena) // 8 * 8)
+  return views._replace(header_i32=header.view(np.int32), header_i64=header.view(np.int64),
+                        arena_i32=arena.view(np.int32), arena_f64=arena.view(np.float64))
+
+
+# -- the step's contacts, read in compiled loops --------------------------------------
+
+
+class ContactLayout(NamedTuple):
+  """Where a compiled loop finds the contacts of the step just taken.
+
+  The bindings show ``mjData.contact`` to Python only; a compiled loop reads
+  the struct: ``ncon`` and the ``contact`` pointer from the ``mjData`` words,
+  the contacts from the arena they point into. The offsets are found once per
+  process from the bindings themselves (:func:`contact_layout`), never from
+  a header of another version.
+
+  Attributes:
+    ncon: int32 word of ``mjData.ncon``.
+    arena, contact: int64 words of the ``mjData.arena`` and ``mjData.contact`` pointers.
+    stride: bytes of one ``mjContact``.
+    geom, flex, exclude, efc_address: byte offsets of those ``mjContact``
+      fields (``geom``, ``flex``: int[2]).
+  """
+
+  ncon: int
+  arena: int
+  contact: int
+  stride: int
+  geom: int
+  flex: int
+  exclude: int
+  efc_address: int
+
+
+def _words(address: int, n_bytes: int) -> np.ndarray:
+  """u8[n_bytes] view of memory at ``address`` (kept alive by its owner)."""
+  if n_bytes <= 0:
+    return np.zeros(0, np.uint8)
+  return np.ctypeslib.as_array((ctypes.c_uint8 * n_bytes).from_address(address))
+
+
+_PROBE = """<mujoco><worldbody><geom type="plane" size="5 5 .1"/>
+  <body name="box" pos="0 0 .09"><freejoint/><geom type="box" size=".1 .1 .1"/></body>
+  <body name="ball" pos="1 0 .09"><freejoint/><geom type="sphere" size=".1"/></body>
+</worldbody></mujoco>"""
+_PROBE_HEIGHTS = ((0.09, 0.09), (0.09, 1.0), (1.0, 0.09))  # box, ball: 5, 4 and 1 contacts
+_MAX_HEADER_BYTES = 1 << 22  # mjData's fixed part is far smaller (200 KB in MuJoCo 4)
+
+
+@functools.cache
+def contact_layout() -> ContactLayout | None:
+  """The :class:`ContactLayout` of this MuJoCo, found on a probe scene whose
+  contact count changes (5, 4, 1) and checked on a second ``MjData``; None
+  where it cannot be found unambiguously (compiled loops then see no
+  contacts, and events come from the stored frames)."""
+  try:
+    model = mujoco.MjModel.from_xml_string(_PROBE)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    n_bytes = _bytes_until(data, data.efc_force.ctypes.data)  # efc_force's pointer comes after contact's
+    if n_bytes is None:
+      return None
+    header = _words(data._address, n_bytes)
+    same, counts = np.ones(n_bytes // 4, bool), []
+    for box, ball in _PROBE_HEIGHTS:  # no reset between them: the most contacts so far stays 5
+      data.qpos[2], data.qpos[9] = box, ball
+      mujoco.mj_forward(model, data)
+      counts.append(data.ncon)
+      same &= header.view(np.int32) == data.ncon
+    ncon, pointers = np.flatnonzero(same), np.flatnonzero(header.view(np.int64) == data.contact.dist.ctypes.data)
+    if len(set(counts)) < len(counts) or len(ncon) != 1 or len(pointers) != 2:
+      return None
+    contact = data.contact
+    offset = lambda field: int(getattr(contact, field).ctypes.data - contact.dist.ctypes.data)
+    layout = ContactLayout(ncon=int(ncon[0]), arena=int(pointers[0]), contact=int(pointers[1]),
+                           stride=int(contact.dist.strides[0]), geom=offset("geom"), flex=offset("flex"),
+                           exclude=offset("exclude"), efc_address=offset("efc_address"))
+    other = mujoco.MjData(model)  # the same words mean the same on another data
+    mujoco.mj_forward(model, other)
+    words = _words(other._address, 8 * (layout.contact + 1))
+    if (words.view(np.int32)[layout.ncon] != other.ncon
+        or words.view(np.int64)[layout.contact] != other.contact.dist.ctypes.data):
+      return None
+    return layout
+  except (ValueError, TypeError, AttributeError, mujoco.FatalError):
+    return None
+
+
+def _bytes_until(data: mujoco.MjData, pointer: int) -> int | None:
+  """Bytes of ``data``'s struct up to and with the word holding ``pointer``
+  (None if not met within :data:`_MAX_HEADER_BYTES`): read word by word, never past it."""
+  for i in range(_MAX_HEADER_BYTES // 8):
+    if ctypes.c_uint64.from_address(data._address + 8 * i).value == pointer:
+      return 8 * (i + 1)
+  return None
 
 
 # -- MuJoCo errors inside compiled loops ---------------------------------------------

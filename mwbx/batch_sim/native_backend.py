@@ -29,6 +29,7 @@ from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx import controls
 from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, compiled_world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
+from mwbx.events import actors as events_lib
 from mwbx.errors import MwbxError
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -74,6 +75,7 @@ class NativeBackend:
     self.nstate = mujoco.mj_stateSize(model, _STATE)
     self._models: list = []  # rollout wants one model per world with skip_checks
     self._quiet_model = None
+    self._step_events = None
 
   @property
   def quiet_model(self) -> mujoco.MjModel:
@@ -235,9 +237,12 @@ class NativeBackend:
         timestep=m.opt.timestep, gravity=np.asarray(m.opt.gravity, np.float64), free=free, free_bodies=bodies,
         rest_when_asleep=bool(m.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)))
 
+    events = self.step_events(scene, params.steps_per_frame)
+    found = compiled_world.event_buffers(c, events)
+
     def run(row, data, running_flags):
       return compiled_world.run_world(row, mujoco_c.data_views(model, data), inputs, initial, buffers,
-                                      running_flags)
+                                      running_flags, events, found)
 
     # The first call compiles the loop, or loads it from numba's cache (no world
     # is marked running, so it returns at once).
@@ -257,8 +262,17 @@ class NativeBackend:
       progress(int(carry.step.sum()), int(active.sum()))
     # The share of the threads' time spent inside mj_step, applied to the wall time.
     physics_seconds = run_seconds * float(physics / max(busy, 1e-12))
-    return self._result(ch, compile_seconds, run_seconds, physics_seconds)._replace(
-        errors=tuple(sim_errors))
+    result = self._result(ch, compile_seconds, run_seconds, physics_seconds)._replace(errors=tuple(sim_errors))
+    if events.on:
+      result = result._replace(event_rows=found.rows, event_strength=found.strength, event_count=found.count)
+    return result
+
+  def step_events(self, scene, steps_per_frame: int) -> compiled_world.StepEventInputs:
+    """How the compiled loops find ``scene``'s contact events at every step (kept per backend)."""
+    if self._step_events is None:
+      self._step_events = compiled_world.step_event_inputs(
+          self.model, events_lib.actors_of(self.model, scene.object_names), steps_per_frame)
+    return self._step_events
 
   def run_per_world(self, rows, work, model: mujoco.MjModel, running: np.ndarray, status: np.ndarray, poll=None):
     """Runs ``work(row, data)`` for every row on the backend's threads, each

@@ -320,7 +320,7 @@ class Sampler:
       if progress is not None:
         progress(Progress("compressing", done_worlds + n, n_worlds, chunk_steps))
       events_start = time.perf_counter()
-      events = self.events_of(store, progress=progress and (
+      events = self.chunk_events(result, store, progress=progress and (
           lambda p, _done=done_worlds, _steps=chunk_steps: progress(p._replace(
               done=_done + p.done, total=n_worlds, world_steps=_steps))))
       stats.events_seconds += time.perf_counter() - events_start
@@ -348,8 +348,26 @@ class Sampler:
     n_worlds = max(int(n_worlds), 1)
     check_chunk_memory(self.scene, self.batch_size(n_worlds), n_worlds if in_memory else 0)
 
+  def chunk_events(self, result: ChunkResult, store: QposStore, progress=None) -> EventRecord:
+    """The contact events of a chunk's worlds: as the engine found them at
+    every physics step (:mod:`mwbx.events.steps`), or, for worlds whose
+    engine did not report its steps' contacts or whose episodes overflowed
+    their buffer, on their stored frames (:meth:`events_of`)."""
+    if result.event_count is None:
+      return self.events_of(store, progress=progress)
+    count, cap = np.asarray(result.event_count), result.event_rows.shape[1]
+    rows = [result.event_rows[w, :n] for w, n in enumerate(count.tolist())]
+    strengths = [result.event_strength[w, :n] for w, n in enumerate(count.tolist())]
+    over = np.flatnonzero(count > cap)
+    if over.size:
+      found = self.events_of_frames(store.frames_of_rows(over))
+      for i, w in enumerate(over.tolist()):
+        rows[w], strengths[w] = found.world(i), found.strength[found.offsets[i]:found.offsets[i + 1]]
+    return EventRecord.from_worlds(rows, strengths, ticks_per_frame=self.params.steps_per_frame)
+
   def events_of(self, store: QposStore, progress=None) -> EventRecord:
-    """The contact events of stored worlds (:mod:`mwbx.events.detect`).
+    """The contact events of stored worlds found on their stored frames
+    (:mod:`mwbx.events.detect`), in physics steps (a frame's resolution).
 
     Args:
       store: their stored qpos.
@@ -359,12 +377,13 @@ class Sampler:
 
   def events_of_frames(self, frames, first_frame=0, progress=None, active=None) -> EventRecord:
     """The contact events of worlds' stored frames (each f32[T, nq], from
-    ``first_frame``: one for all or one per world); ``active``: optional
-    bool[W, n_actors], pairs to test (:func:`mwbx.events.detect.detect_events`)."""
+    ``first_frame``: one for all or one per world), in physics steps;
+    ``active``: optional bool[W, n_actors], pairs to test
+    (:func:`mwbx.events.detect.detect_events`)."""
     return events_lib.detect_events(self.scene.model, self.event_actors, frames,
                                     events_lib.touch_margin(self.scene.config.codec.e_pos),
                                     progress=progress, total=len(frames), first_frame=first_frame,
-                                    active=active)
+                                    active=active).in_ticks(self.params.steps_per_frame)
 
   def _assemble(self, ids, keys, results: list[ChunkResult], store, events: EventRecord) -> bank_lib.Bank:
     scene = self.scene
@@ -487,7 +506,7 @@ def empty_bank(scene: Scene, store: QposStore | None = None) -> bank_lib.Bank:
       query_fps=cfg.sim.query_fps, timestep=float(timestep), config=cfg.resolved(),
       mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes), mjcf_assets=dict(scene.mjcf_assets),
       digest=scene.digest,
-      events=EventRecord.empty(0), event_actors=events_lib.actors_of(scene.model, scene.object_names).names)
+      events=EventRecord.empty(0, frame_rates(cfg, timestep)[0]), event_actors=events_lib.actors_of(scene.model, scene.object_names).names)
 
 
 def pilot_counts(scene: Scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None):

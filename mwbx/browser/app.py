@@ -39,7 +39,7 @@ from mwbx.browser.gui import ALL_BODIES, FIRST_ENTRY, MAX_PLAYED, NO_OBJECTS
 from mwbx.browser.guard import Guard, resolve_host, serve_guarded
 from mwbx.browser.player import Player
 from mwbx.browser.scene import Stage
-from mwbx.browser.session import ORIENTATION_ERROR, Session
+from mwbx.browser.session import HARDEST_HIT, ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
 from mwbx.viewer import display, framing
 from mwbx.viewer import flex as flex_lib
@@ -356,8 +356,10 @@ class Browser:
 
   def add_touch(self, include: bool) -> None:
     a, b = self.ui.touch_a.value, self.ui.touch_b.value
+    least = float(self.ui.touch_impulse.value or 0.0)
+    impulse = (least, None) if least > 0 else None  # how hard: only touches delivering at least this
     self._add_query(lambda name: mq.TouchQuery(a, b, window=self._window(), sign="include" if include else "exclude",
-                                               name=name))
+                                               name=name, impulse=impulse))
 
   def export(self) -> None:
     world = self.playing_world
@@ -420,6 +422,8 @@ class Browser:
     over = "every tracked body" if bodies is None else ", ".join(bodies)
     if self.ui.metric.value == ORIENTATION_ERROR:
       over = f"the bodies of {session.orientation_query().name or 'the last orientation query'} (rad, smallest first)"
+    elif self.ui.metric.value == HARDEST_HIT:
+      over = f"the sides of {session.touch_query().describe()} (N·s of normal impulse, hardest first)"
     self.ui.sorter_md.content = (f"{'closest worlds: ' if closest else ''}world · queries satisfied · "
                               f"{self.ui.metric.value}:{self.ui.reduce.value} over {over} · parent")
     with self.lock, self.ui.sorter:

@@ -16,7 +16,7 @@ import viser
 
 from mwbx import queries as mq
 from mwbx.browser.scene import MAX_SLOTS
-from mwbx.browser.session import MAX_REFINE_SAMPLES, ORIENTATION_ERROR, REDUCTIONS
+from mwbx.browser.session import HARDEST_HIT, MAX_REFINE_SAMPLES, ORIENTATION_ERROR, REDUCTIONS
 
 ALL_BODIES = "(every tracked body)"
 NO_OBJECTS = "(none: only add/remove)"
@@ -50,6 +50,7 @@ class Widgets:
   # Contacts
   touch_a: viser.GuiDropdownHandle
   touch_b: viser.GuiDropdownHandle
+  touch_impulse: viser.GuiNumberHandle
   # Sorter
   metric: viser.GuiDropdownHandle
   reduce: viser.GuiDropdownHandle
@@ -171,11 +172,13 @@ def _contacts(gui, page, on, end: float) -> dict:
     actors = tuple(bank.event_actors) + tuple(bank.groups) or ("(no contact events in this bank)",)
     touch_a = gui.add_dropdown("This", actors, initial_value=actors[0])
     touch_b = gui.add_dropdown("touches", actors, initial_value=actors[min(1, len(actors) - 1)])
+    touch_impulse = gui.add_number("Impulse at least (N·s)", 0.0, min=0.0, step=0.01,
+                                   hint="0: any touch; else only a touch delivering this normal impulse")
     touches = gui.add_button("Add: they touch")
     never = gui.add_button("Add: they never touch")
     on(touches, lambda _: page.add_touch(include=True))
     on(never, lambda _: page.add_touch(include=False))
-  return dict(touch_a=touch_a, touch_b=touch_b)
+  return dict(touch_a=touch_a, touch_b=touch_b, touch_impulse=touch_impulse)
 
 
 def _sorter(gui, page, on, end: float) -> dict:
@@ -186,7 +189,8 @@ def _sorter(gui, page, on, end: float) -> dict:
     first = bank.metric_names[0]
     if first in mq.metrics.ROTATIONAL and bank.flex_body_mask().all() and "path_length" in bank.metric_names:
       first = "path_length"
-    metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS, ORIENTATION_ERROR),
+    metric = gui.add_dropdown("Metric", tuple(bank.metric_names) + (mq.metrics.CONSTRAINTS, ORIENTATION_ERROR,
+                                                                    HARDEST_HIT),
                               initial_value=first)
     reduce = gui.add_dropdown("Over bodies", REDUCTIONS, initial_value="sum")
     on(metric, lambda _: page.sorter())

@@ -35,6 +35,8 @@ EXPORT_SUFFIXES = (".usd", ".usda", ".usdc", ".mp4", ".npz")  # what the page's 
 # The sorter metric ranking by the last enabled orientation query's error (radians, smallest first);
 # not the stored metric orientation_error (the angle from the initial orientation).
 ORIENTATION_ERROR = "error of the orientation query"
+# The sorter's largest normal impulse (N·s) of the last touch query's sides.
+HARDEST_HIT = "hardest hit of the touch query"
 
 
 class Entry(NamedTuple):
@@ -262,7 +264,12 @@ class Session:
   def orientation_query(self):
     """The last enabled query with an error to rank by (an orientation query:
     the sorter's ``orientation_error``), or None."""
-    found = [q for q in self.enabled if q.error_metric is not None]
+    found = [q for q in self.enabled if q.error_metric == "orientation_error"]
+    return found[-1] if found else None
+
+  def touch_query(self):
+    """The last enabled touch query (the sorter's hardest hit), or None."""
+    found = [q for q in self.enabled if q.error_metric == "hardest_hit"]
     return found[-1] if found else None
 
   def match(self) -> np.ndarray:
@@ -294,6 +301,11 @@ class Session:
         raise MwbxError(f"sorter: {ORIENTATION_ERROR!r} needs an orientation query (add one first)")
       values = query.error(self.bank, reduce)  # over the query's own bodies
       descending = False  # the most nearly oriented first
+    elif metric == HARDEST_HIT:
+      query = self.touch_query()
+      if query is None:
+        raise MwbxError(f"sorter: {HARDEST_HIT!r} needs a touch query (add one in Contacts first)")
+      values = query.error(self.bank)  # N·s, the hardest first
     else:
       values = mq.metrics.score(self.bank, [mq.Term(metric, None if not bodies else tuple(bodies), reduce, 1.0)])
     if match.any():

@@ -91,8 +91,9 @@ def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
              coarse: int, g_fp: int, skip: np.ndarray | None = None) -> _FitJob:
   """The fit of every path of one kind, FIT_BATCH paths per call.
 
-  qpos: f32[W, T, nq] recordings; adrs: qpos address of each channel of this kind
-  (path p is channel ``p % C`` of world ``p // C``); n: i64[P] valid frames;
+  qpos: f32[W, T, k] recordings; adrs: the column of ``qpos`` where each
+  channel of this kind starts (path p is channel ``p % C`` of world ``p // C``);
+  n: i64[P] valid frames;
   initial: f64[P, width] frame-0 values on their grid (the fit starts there);
   finite: bool[P], paths with non-finite values are fitted as zeros (they are
   stored raw); skip: bool[P] paths not fitted (no segments). Each call returns
@@ -178,16 +179,19 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
                          bounds: CodecBounds, fps: float = 120.0,
                          gravity: float = DEFAULT_GRAVITY,
                          quanta: Quanta | None = None,
-                         parent: ParentChannels | None = None) -> EncodedBatch:
+                         parent: ParentChannels | None = None,
+                         columns: np.ndarray | None = None) -> EncodedBatch:
   """Encode many worlds and report the largest decoded error of each.
 
   Refined worlds pass ``parent``: the channels it marks are not fitted; the
   parent's segments stand for them (a refinement's fit then costs what its
   active objects cost, not the scene), checked on the decoded data as the
-  fitted ones are.
+  fitted ones are. The qpos columns of channels every world takes are not
+  read at all: ``qpos`` may hold only the others (``columns``).
 
   Args:
-    qpos: f32[W, T, nq] padded recordings (frames >= frame_count[w] ignored).
+    qpos: f32[W, T, nq] padded recordings (frames >= frame_count[w] ignored),
+      or f32[W, T, k] holding only the qpos columns ``columns``.
     frame_count: i32[W] frames recorded per world.
     layout, bounds: channels and error bounds.
     fps: recording rate (frames per second).
@@ -195,11 +199,21 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     quanta: quantization override (defaults from ``fps`` and ``gravity``).
     parent: optional :class:`~mwbx.codec.splice.ParentChannels` (same
       layout, bounds and quanta).
+    columns: optional i64[k] the qpos columns ``qpos`` holds, in order; at
+      least :func:`fitted_columns` (default: every one).
   """
   qpos = np.asarray(qpos, np.float32)
   frame_count = np.asarray(frame_count, np.int64).reshape(-1)
-  if qpos.ndim != 3 or qpos.shape[2] != layout.nq:
-    raise CodecError(f"qpos must be f32[W, T, nq={layout.nq}], got shape {qpos.shape}")
+  fresh = fitted_columns(layout, parent)
+  held = np.arange(layout.nq) if columns is None else np.asarray(columns, np.int64).reshape(-1)
+  if qpos.ndim != 3 or qpos.shape[2] != held.size:
+    raise CodecError(f"qpos must be f32[W, T, {'nq=' if columns is None else ''}{held.size}], got shape"
+                     f" {qpos.shape}")
+  # where each qpos column sits in the array given (-1: not given, never read)
+  at = np.full(layout.nq, -1, np.int64)
+  at[held] = np.arange(held.size)
+  if (at[fresh] < 0).any():
+    raise CodecError(f"encode: qpos column {int(fresh[at[fresh] < 0][0])} is fitted but not given")
   num_w, num_t, _ = qpos.shape
   if frame_count.shape != (num_w,):
     raise CodecError(f"frame_count must have shape ({num_w},), got {frame_count.shape}")
@@ -209,14 +223,12 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     raise CodecError(f"fps must be a finite number > 0, got {fps!r}")
   recorded = np.arange(num_t)[None, :] < frame_count[:, None]  # [W, T]
   # Columns every refined world takes from its parent are the parent's decoded frames.
-  fresh = (np.arange(layout.nq) if parent is None
-           else _columns_of(*_channel_spans(layout), ~_taken_in_every_world(parent, layout)))
-  bad = recorded[:, :, None] & ~np.isfinite(qpos[:, :, fresh] if fresh.size < layout.nq else qpos)
+  bad = recorded[:, :, None] & ~np.isfinite(qpos[:, :, at[fresh]] if fresh.size < held.size else qpos)
   if bad.any():
     w, f, c = (int(i[0]) for i in np.nonzero(bad))
     c = int(fresh[c])
     raise CodecError(
-        f"qpos of world {w} (of this batch) is {qpos[w, f, c]} at frame {f}, column {c}: the codec"
+        f"qpos of world {w} (of this batch) is {qpos[w, f, at[c]]} at frame {f}, column {c}: the codec"
         f" stores finite values only (cut the recording before frame {f}, as the sampler does"
         f" for a world that went unstable)")
   quanta = quanta or default_quanta(fps, gravity)
@@ -231,21 +243,27 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     raise CodecError("encode: the parent's stream was coded with other codec settings")
   inputs, jobs = [], []
   first_channel = 0
+  # Channels every world takes from its parent are never read: their columns may hold anything.
+  everywhere = np.zeros(layout.n_channels, bool) if parent is None else _taken_in_every_world(parent, layout)
   for kind, adrs in kinds:
     width = WIDTH[kind]
     take = (None if parent is None else
             parent.take[:, first_channel:first_channel + len(adrs)].reshape(-1))
+    read = ~everywhere[first_channel:first_channel + len(adrs)]
     first_channel += len(adrs)
     columns = _columns(adrs)
+    given = np.maximum(at[columns], 0)  # a channel not given is taken whole: its values are not used
     n = np.repeat(frame_count, len(adrs))
-    finite = eval_kernels.finite_paths(qpos, frame_count, columns, width).reshape(-1)
+    finite = np.ones((num_w, len(adrs)), bool)
+    finite[:, read] = eval_kernels.finite_paths(qpos, frame_count, given[read], width)
+    finite = finite.reshape(-1)
     # Frame 0 is stored on a grid; the fit starts from that stored value.
-    frame0 = qpos[:, 0][:, columns[:, None] + np.arange(width)] if num_t else np.zeros(
+    frame0 = qpos[:, 0][:, given[:, None] + np.arange(width)] if num_t else np.zeros(
         (num_w, len(adrs), width), np.float32)
     initial = quantize_initial(kind, frame0.reshape(-1, width), bounds) * initial_steps(bounds)[kind]
     initial[n == 0] = 0.0
     inputs.append((kind, adrs, columns, n, finite, initial, take))
-    jobs.append(_fit_job(kind, qpos, adrs, n, initial, finite, bound[kind] * (1 - FIT_MARGIN), steps[kind],
+    jobs.append(_fit_job(kind, qpos, given, n, initial, finite, bound[kind] * (1 - FIT_MARGIN), steps[kind],
                          quanta.quad, quanta.coarse()[kind], quanta.g_fp(bounds), skip=take))
   per_kind = {}
   for (kind, adrs, columns, n, finite, initial, take), (p_idx, f_idx, vel, flag) in zip(inputs, _run_fits(jobs)):
@@ -267,24 +285,25 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
   # A channel taken from the parent decodes to the parent's stored frames (held past its end
   # within a quantum): the parent's bound is its bound, so only the fitted channels are checked.
   taken = None if parent is None else np.asarray(parent.take, bool)
-  slow = _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec,
+  slow = _encode_fast(qpos, at, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec,
                       streams, max_err, taken)
   for w in slow:
     n_w = int(frame_count[w])
+    qpos_w = _whole_world(qpos, w, n_w, held, layout.nq)
     raw_ok = np.concatenate([per_kind[name]["finite"][w * k["n_ch"]:(w + 1) * k["n_ch"]]
                              for name, k in per_kind.items()])
     modes = np.where(raw_ok, MODE_FIT, MODE_RAW).astype(np.uint8)
     if n_w <= 1:
       modes[:] = MODE_FIT
     for _ in range(2):
-      code = _world_code(qpos, w, n_w, layout, bounds, fps, quanta, per_kind, modes)
+      code = _world_code(qpos_w, w, layout, bounds, fps, quanta, per_kind, modes)
       try:
         stream = serialize(code)
       except CodecError:  # a velocity off its lattice (int32 overflow in the fit)
         modes = np.full_like(modes, MODE_RAW)
-        code = _world_code(qpos, w, n_w, layout, bounds, fps, quanta, per_kind, modes)
+        code = _world_code(qpos_w, w, layout, bounds, fps, quanta, per_kind, modes)
         stream = serialize(code)
-      errs = _measure(code, stream, qpos[w, :n_w])
+      errs = _measure(code, stream, qpos_w)
       if taken is not None:
         errs = np.where(taken[w], 0.0, errs)
       bad = ~(errs <= bound_vec)
@@ -347,6 +366,14 @@ def _columns_of(starts: np.ndarray, widths: np.ndarray, channels: np.ndarray) ->
                         + [np.zeros(0, np.int64)])
 
 
+def fitted_columns(layout: ChannelLayout, parent: ParentChannels | None) -> np.ndarray:
+  """i64[k] the qpos columns :func:`encode_batch_checked` reads: every one,
+  less those of channels every refined world takes from ``parent``."""
+  if parent is None:
+    return np.arange(layout.nq)
+  return _columns_of(*_channel_spans(layout), ~_taken_in_every_world(parent, layout))
+
+
 def _taken_in_every_world(parent: ParentChannels, layout: ChannelLayout) -> np.ndarray:
   """bool[C]: the channels every world takes from its parent (none where
   ``parent.take`` does not fit the layout: the settings check reports that)."""
@@ -356,12 +383,13 @@ def _taken_in_every_world(parent: ParentChannels, layout: ChannelLayout) -> np.n
   return take.all(axis=0)
 
 
-def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec, streams,
+def _encode_fast(qpos, at, frame_count, layout, bounds, fps, quanta, per_kind, bound_vec, streams,
                  max_err, taken=None) -> np.ndarray:
   """All worlds with finite data through the batched writer and reader.
 
   Fills ``streams`` and ``max_err`` for the worlds whose decoded data meet the
-  bound on every channel (``taken``: bool[W, C] channels not checked);
+  bound on every channel (``taken``: bool[W, C] channels not checked; ``at``:
+  i64[nq] where each qpos column sits in ``qpos``, -1 where not given);
   returns the other worlds (for the per-world path).
   """
   num_w = frame_count.size
@@ -400,9 +428,12 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
     kinds = np.where(checked, channel_kinds, eval_kernels.NOT_CHECKED)
     out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, channel_kinds, addresses, columns.size,
                             parsed.quanta, parsed.bounds, channels=checked)
-    mine = np.ascontiguousarray(mine[:, :, columns])
+    mine = mine if np.array_equal(at[columns], np.arange(mine.shape[2])) else np.ascontiguousarray(
+        mine[:, :, at[columns]])
   else:
     kinds, addresses = channel_kinds, starts
+    if not np.array_equal(at, np.arange(layout.nq)):  # every column given (each is fitted), in another order
+      mine = np.ascontiguousarray(mine[:, :, at])
     out, row_off = evaluate(parsed.n_frames, parsed.initial, parsed.segs, kinds, addresses, layout.nq,
                             parsed.quanta, parsed.bounds)
   world_err = np.full((num_w, n_ch), np.inf)
@@ -421,14 +452,26 @@ def _encode_fast(qpos, frame_count, layout, bounds, fps, quanta, per_kind, bound
   return np.flatnonzero(~ok)
 
 
-def _world_code(qpos, w, n_w, layout, bounds, fps, quanta, per_kind, modes) -> WorldCode:
+def _whole_world(qpos, w: int, n_w: int, held: np.ndarray, nq: int) -> np.ndarray:
+  """f32[n_w, nq] world ``w``'s recorded frames with every qpos column
+  (zero where ``qpos``, holding columns ``held``, does not give one)."""
+  if held.size == nq:
+    return qpos[w, :n_w]
+  out = np.zeros((n_w, nq), np.float32)
+  out[:, held] = qpos[w, :n_w]
+  return out
+
+
+def _world_code(qpos_w, w, layout, bounds, fps, quanta, per_kind, modes) -> WorldCode:
+  """World ``w``'s code from its frames ``qpos_w`` (f32[n, nq]) and the batch's fits."""
+  n_w = len(qpos_w)
   n_ch = layout.n_channels
   initial = np.zeros((n_ch, 4))
   raw, segs = {}, {}
   c = 0
   for kind, k in per_kind.items():
     width, n_k = WIDTH[kind], k["n_ch"]
-    data = qpos[w, :n_w][:, k["columns"][:, None] + np.arange(width)].transpose(1, 0, 2)
+    data = qpos_w[:, k["columns"][:, None] + np.arange(width)].transpose(1, 0, 2)
     initial[c:c + n_k, :width] = k["initial"][w * n_k:(w + 1) * n_k]
     kind_modes = modes[c:c + n_k]
     for j in np.flatnonzero(kind_modes == MODE_RAW):

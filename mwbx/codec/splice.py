@@ -191,3 +191,22 @@ class ParentChannels(NamedTuple):
     held to ``n_frames`` frames."""
     extra = n_frames - self.code.n_frames
     return {c: _extended(seg, extra, kind, self.code) for c, seg in _channel_segments(self.code, kind).items()}
+
+
+
+def refined_frames(after: np.ndarray, first_frame: int, parent_frames: np.ndarray,
+                   columns: np.ndarray | None = None) -> np.ndarray:
+  """Refined worlds' whole frames: the parent's (``parent_frames`` f32[T, nq])
+  before ``first_frame``, then ``after`` (f32[W, F, nq]).
+
+  Returns:
+    f32[W, first_frame + F, nq]; with ``columns`` (i64[k]) f32[W, first_frame
+    + F, k], those columns alone (a tower's 64 children are 230 MB whole, a
+    few MB in the columns of the objects they refine).
+  """
+  columns = slice(None) if columns is None else np.asarray(columns, np.int64)
+  picked = after[:, :, columns]
+  out = np.empty((len(after), first_frame + after.shape[1], picked.shape[2]), np.float32)
+  out[:, :first_frame] = parent_frames[:first_frame, columns]
+  out[:, first_frame:] = picked
+  return out

@@ -11,9 +11,9 @@ import numpy as np
 
 from mwbx.codec.batch import decode_batch
 from mwbx.codec.decode import decode_world
-from mwbx.codec.encode import DEFAULT_GRAVITY, encode_batch_checked
+from mwbx.codec.encode import DEFAULT_GRAVITY, encode_batch_checked, fitted_columns
 from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
-from mwbx.codec.splice import ParentChannels, channel_map, splice_stream
+from mwbx.codec.splice import ParentChannels, channel_map, refined_frames, splice_stream
 
 
 class CompressedQposStore:
@@ -76,11 +76,14 @@ class CompressedQposStore:
 
   # -- the qpos-store protocol ----------------------------------------------------
 
-  def append(self, qpos: np.ndarray, frame_count: np.ndarray, parent: ParentChannels | None = None) -> None:
+  def append(self, qpos: np.ndarray, frame_count: np.ndarray, parent: ParentChannels | None = None,
+             columns: np.ndarray | None = None) -> None:
     """Compresses and adds worlds: qpos f32[W, T, nq] (padded), frame_count i32[W];
-    ``parent``: channels refined worlds take from their parent's stream."""
+    ``parent``: channels refined worlds take from their parent's stream;
+    ``columns``: the qpos columns ``qpos`` holds if not all (as
+    :func:`mwbx.codec.encode.encode_batch_checked`)."""
     res = encode_batch_checked(qpos, frame_count, self.layout, self.bounds, self.fps,
-                               self.gravity, parent=parent)
+                               self.gravity, parent=parent, columns=columns)
     sizes = np.array([len(s) for s in res.streams], np.int64)
     self.data = np.concatenate([self.data, np.frombuffer(b"".join(res.streams), np.uint8)])
     self.offsets = np.concatenate([self.offsets, self.offsets[-1] + np.cumsum(sizes)])
@@ -120,7 +123,7 @@ class CompressedQposStore:
     index = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)] + [np.zeros(0, np.int64)])
     return self.data[index], np.concatenate([[0], np.cumsum(hi - lo)]).astype(np.int64)
 
-  def refined(self, qpos: np.ndarray, frame_count: np.ndarray, parent: int,
+  def refined(self, after: np.ndarray, first_frame: int, frame_count: np.ndarray, parent: int,
               parent_frames: np.ndarray, keep_qpos: np.ndarray) -> "CompressedQposStore":
     """A new store (same settings) of refined worlds of the parent at row ``parent``.
 
@@ -132,18 +135,23 @@ class CompressedQposStore:
     (:func:`mwbx.codec.splice.splice_stream`).
 
     Args:
-      qpos: f32[W, F, nq] refined frames (padded); frame_count: i32[W].
+      after: f32[W, F, nq] refined frames from ``first_frame`` on (padded);
+        before it they are the parent's. frame_count: i32[W] from frame 0.
       parent: row of the parent world in this store.
       parent_frames: f32[T, nq] the parent's decoded frames.
       keep_qpos: bool[W, nq] coordinates that follow the parent exactly.
     """
     out = self.empty()
     if not keep_qpos.any():
-      out.append(qpos, frame_count)
+      out.append(refined_frames(after, first_frame, parent_frames), frame_count)
       return out
     parent_stream = self.stream(parent)
     reuse = ParentChannels.of(parent_stream, keep_qpos, frame_count)
-    out.append(qpos, frame_count, parent=reuse)
+    # Only the channels some world fits are read (the encoder's contract): a
+    # refinement's frames cost what its active objects hold, not the scene.
+    fitted = fitted_columns(self.layout, reuse)
+    out.append(refined_frames(after, first_frame, parent_frames, fitted), frame_count, parent=reuse,
+               columns=fitted)
     kept = keep_qpos[:, np.asarray(reuse.code.addresses(), np.int64)]
     rest = np.flatnonzero((kept & ~reuse.take).any(axis=1))  # kept channels not taken whole
     if rest.size:

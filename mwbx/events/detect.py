@@ -272,29 +272,34 @@ def detect_events(model: mujoco.MjModel, actors: Actors, frames: Iterable[np.nda
   return EventRecord.from_worlds(worlds)
 
 
-def spliced(parent: np.ndarray, after: np.ndarray, first_frame: int) -> np.ndarray:
-  """A refined world's episodes: its parent's before ``first_frame`` (the
-  frames it shares with its parent), its own from there on.
+def spliced(parent: np.ndarray, after: np.ndarray, first: int) -> np.ndarray:
+  """A refined world's episodes: its parent's before tick ``first`` (the
+  part it shares with its parent), its own from there on.
 
   Args:
-    parent: i32[n, 4] the parent's episodes.
-    after: i32[m, 4] the refined world's episodes found from ``first_frame`` on.
-    first_frame: the first frame the refined world does not share.
+    parent: [n, 4] the parent's episodes ``(a, b, first, last)``, or [n, 6]
+      with their strengths ``(…, peak force, impulse)``.
+    after: [m, 4 or 6] the refined world's episodes found from ``first`` on.
+    first: the first tick the refined world does not share.
 
   Returns:
-    i32[k, 4] sorted by ``(a, b, first)``; an episode of the parent still on
-    at ``first_frame - 1`` ends there, or goes on as the refined world's
-    episode of that pair starting at ``first_frame``.
+    [k, 4 or 6] (the inputs' dtype) sorted by ``(a, b, first)``; an episode
+    of the parent still on at ``first - 1`` ends there, or goes on as the
+    refined world's episode of that pair starting at ``first`` (the larger
+    peak force, the impulses added).
   """
-  before = parent[parent[:, 2] < first_frame].copy()
-  before[:, 3] = np.minimum(before[:, 3], first_frame - 1)
+  before = parent[parent[:, 2] < first].copy()
+  before[:, 3] = np.minimum(before[:, 3], first - 1)
   after = after.copy()
-  open_pairs = {(int(a), int(b)): i for i, (a, b, _, last) in enumerate(before) if last == first_frame - 1}
+  open_pairs = {(int(a), int(b)): i for i, (a, b, _, last) in enumerate(before[:, :4]) if last == first - 1}
   joined = np.zeros(len(after), bool)
-  for j, (a, b, first, _) in enumerate(after):
+  for j, (a, b, start, _) in enumerate(after[:, :4]):
     i = open_pairs.get((int(a), int(b)))
-    if i is not None and first == first_frame:
+    if i is not None and start == first:
       before[i, 3] = after[j, 3]
+      if before.shape[1] > 4:
+        before[i, 4] = np.maximum(before[i, 4], after[j, 4])  # unknown (NaN) if either is
+        before[i, 5] = before[i, 5] + after[j, 5]
       joined[j] = True
-  rows = np.concatenate([before, after[~joined]]).astype(np.int32)
+  rows = np.concatenate([before, after[~joined]]).astype(parent.dtype)
   return rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]

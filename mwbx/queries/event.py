@@ -11,9 +11,13 @@ group name stands for its objects ("any of a group").
 * :class:`OrderQuery`: several touches, in order: each first happens
   (within the window) strictly after the one before it first happened.
 
-Touches are known at the stored frames (``frame / record_fps`` seconds): a
-window holds the frames whose times lie in it, and past a world's last frame
-that frame holds (it came to rest), so a touch on at the end goes on.
+Touches are known at every physics step (ticks: ``tick / (record_fps ·
+ticks_per_frame)`` seconds; banks whose events were found on the stored
+frames know them at the frames): a window holds the ticks whose times lie in
+it, and past a world's last frame that frame holds (it came to rest), so a
+touch on at the end goes on. ``impulse`` and ``force`` keep only the
+episodes that hit that hard (the normal impulse, N·s, or the largest normal
+force, N, MuJoCo's solver gave the contacts of the episode).
 
 Example::
 
@@ -84,15 +88,56 @@ def _events(bank, label: str):
   return bank.events
 
 
-def first_touch(bank, a: Side, b: Side, window=None, label: str = "query") -> np.ndarray:
-  """f64[W] the first stored frame time inside ``window`` at which sides ``a``
-  and ``b`` touch, seconds; inf where there is none. Past a world's last
-  frame that frame holds (at the frame times that follow).
+def _hard_enough(label: str, record, impulse=None, force=None) -> np.ndarray | bool:
+  """bool[N] the episodes whose impulse (N·s) and peak force (N) lie in the
+  (lo, hi) ranges given (None ends open); True where none is given."""
+  keep = True
+  for what, bounds, values in (("impulse", impulse, record.impulse), ("force", force, record.peak_force)):
+    if bounds is None:
+      continue
+    if len(values) and np.isnan(values).all():
+      raise MwbxError(f"{label}: {what}: this bank's contact events were found on its stored frames and"
+                      f" carry no contact forces; sample it again to ask how hard things hit")
+    lo, hi = bounds
+    inside = ~np.isnan(values)
+    if lo is not None:
+      inside &= values >= lo
+    if hi is not None:
+      inside &= values <= hi
+    keep = keep & inside
+  return keep
+
+
+def _strength_range(label: str, field: str, value) -> tuple[float | None, float | None] | None:
+  """(lo, hi) of a strength filter, each a finite number >= 0 or None (open)."""
+  if value is None:
+    return None
+  if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+    raise MwbxError(f"{label}: {field} must be [lo, hi] (null for an open end), got {value!r}")
+  out = []
+  for end in value:
+    if end is not None and (isinstance(end, bool) or not isinstance(end, (int, float)) or not math.isfinite(end)
+                            or end < 0):
+      raise MwbxError(f"{label}: {field} ends must be finite numbers >= 0 or null, got {value!r}")
+    out.append(None if end is None else float(end))
+  if out[0] is not None and out[1] is not None and out[0] > out[1]:
+    raise MwbxError(f"{label}: {field} is empty: {out[0]:g} > {out[1]:g}")
+  return out[0], out[1]
+
+
+def first_touch(bank, a: Side, b: Side, window=None, label: str = "query", impulse=None,
+                force=None) -> np.ndarray:
+  """f64[W] the first time (a physics step's, or a stored frame's in banks
+  found on frames) inside ``window`` at which sides ``a`` and ``b`` touch,
+  seconds; inf where there is none. Past a world's last frame that frame
+  holds (at the times that follow).
 
   Args:
     bank: a bank with contact events.
     a, b: the sides (names; any of each).
     window: (t0, t1) seconds, None ends open; None: the whole world.
+    impulse, force: optional (lo, hi): only episodes whose normal impulse
+      (N·s) or largest normal force (N) lie in it count.
   """
   window = checked_window(label, window)  # a time no frame index holds fails here, in one line
   record = _events(bank, label)
@@ -103,10 +148,11 @@ def first_touch(bank, a: Side, b: Side, window=None, label: str = "query") -> np
     return out
   ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
   pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
-  fps = float(bank.record_fps)
+  pair &= _hard_enough(label, record, impulse, force)
+  fps = float(bank.record_fps) * record.ticks_per_frame  # ticks a second
   first = rows[:, ROW["first"]].astype(np.int64)
   last = rows[:, ROW["last"]].astype(np.int64)
-  ends = np.repeat(np.asarray(bank.frame_count, np.int64) - 1, record.counts)
+  ends = np.repeat(record.end_ticks(bank.frame_count), record.counts)
   last = np.where(last >= ends, np.iinfo(np.int64).max, last)  # on at the last frame: it goes on
   t0, t1 = (None, None) if window is None else window
   frame = first if t0 is None else np.maximum(first, math.ceil(t0 * fps - FRAME_SLACK * fps))
@@ -119,9 +165,39 @@ def first_touch(bank, a: Side, b: Side, window=None, label: str = "query") -> np
   return out
 
 
+def hardest_hit(bank, a: Side, b: Side, window=None, label: str = "query", by: str = "impulse") -> np.ndarray:
+  """f64[W] the hardest touch of sides ``a`` and ``b`` going on inside
+  ``window``: the largest normal impulse of an episode, N·s (``by="force"``:
+  the largest normal force, N); 0 where they never touch, NaN where the
+  bank does not know (events found on stored frames)."""
+  window = checked_window(label, window)
+  record = _events(bank, label)
+  ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
+  rows = record.rows
+  out = np.zeros(bank.n_worlds)
+  if not len(rows):
+    return out
+  ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
+  pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
+  rate = float(bank.record_fps) * record.ticks_per_frame
+  if window is not None:
+    t0, t1 = window
+    last = np.where(rows[:, ROW["last"]] >= np.repeat(record.end_ticks(bank.frame_count), record.counts),
+                    np.inf, rows[:, ROW["last"]])
+    if t0 is not None:
+      pair &= last >= math.ceil(t0 * rate - FRAME_SLACK * rate)
+    if t1 is not None:
+      pair &= rows[:, ROW["first"]] <= math.floor(t1 * rate + FRAME_SLACK * rate)
+  values = np.asarray(record.impulse if by == "impulse" else record.peak_force, np.float64)
+  np.fmax.at(out, record.world_of_rows()[pair], values[pair])  # NaN only where every touch is unknown
+  unknown = np.zeros(bank.n_worlds, bool)
+  np.logical_or.at(unknown, record.world_of_rows()[pair], np.isnan(values[pair]))
+  return np.where(unknown & (out == 0), np.nan, out)
+
+
 def touch_seconds(bank, a: Side, b: Side, window=None, label: str = "query") -> np.ndarray:
   """f64[W] how long sides ``a`` and ``b`` touch inside ``window``, seconds
-  (stored frames touching / record_fps; a touch on at a world's end counts to it)."""
+  (ticks touching / ticks a second; a touch on at a world's end counts to it)."""
   window = checked_window(label, window)
   record = _events(bank, label)
   ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
@@ -132,7 +208,7 @@ def touch_seconds(bank, a: Side, b: Side, window=None, label: str = "query") -> 
   world = record.world_of_rows()
   ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
   pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
-  fps = float(bank.record_fps)
+  fps = float(bank.record_fps) * record.ticks_per_frame  # ticks a second
   t0, t1 = (None, None) if window is None else window
   lo = rows[:, ROW["first"]].astype(np.float64)
   hi = rows[:, ROW["last"]].astype(np.float64) + 1
@@ -244,6 +320,13 @@ class TouchQuery(Query):
   window: (t0, t1) seconds, None ends open; None: the whole world.
   sign: include (they touch) or exclude (they never touch).
   name: label for output.
+  impulse: optional (lo, hi) N·s, None ends open: only touches whose normal
+    impulse lies in it count (how hard: "the rock smashes into the tower").
+  force: optional (lo, hi) N: the same for the touch's largest normal force.
+
+  Example::
+
+    smash = mwbx.TouchQuery("rock", "tower", impulse=(50.0, None))
   """
 
   a: Side
@@ -251,13 +334,22 @@ class TouchQuery(Query):
   window: tuple[float | None, float | None] | None = None
   sign: str = "include"
   name: str = ""
+  impulse: tuple[float | None, float | None] | None = None
+  force: tuple[float | None, float | None] | None = None
   bodies = None  # about actors, not tracked bodies: objects() and body_mask() say which
   needs_events = True
+  error_metric = "hardest_hit"
 
   def check(self, bank) -> None:
     _events(bank, self.label)
     for side in (self.a, self.b):
       actor_mask(bank, side, self.label)
+
+  def error(self, bank, reduce: str = "max", bodies=None) -> np.ndarray:
+    """f64[W] its sides' hardest touch inside the window, N·s of normal
+    impulse (:func:`hardest_hit`; rank it largest first: "the hardest hit
+    between A and B"); ``reduce`` and ``bodies`` do not apply."""
+    return hardest_hit(bank, self.a, self.b, self.window, self.label)
 
   def __post_init__(self):
     label = f"query {self.name!r}" if self.name else "query"
@@ -266,21 +358,39 @@ class TouchQuery(Query):
     object.__setattr__(self, "window", checked_window(label, self.window))
     if self.sign not in ("include", "exclude"):
       raise MwbxError(f"{label}: sign must be include or exclude, got {self.sign!r}")
+    object.__setattr__(self, "impulse", _strength_range(label, "impulse", self.impulse))
+    object.__setattr__(self, "force", _strength_range(label, "force", self.force))
 
   @property
   def label(self) -> str:
     return f"query {self.name!r}" if self.name else "query"
 
   def evaluate(self, bank) -> np.ndarray:
-    touched = np.isfinite(first_touch(bank, self.a, self.b, self.window, self.label))
+    touched = np.isfinite(first_touch(bank, self.a, self.b, self.window, self.label, self.impulse, self.force))
     return (touched if self.include else ~touched) & np.asarray(bank.valid, bool)
 
   def gap(self, bank) -> np.ndarray:
-    """Include: how near the sides' objects come (metres, :func:`approach_gap`);
+    """Include: how near the sides' objects come (metres, :func:`approach_gap`),
+    and where they touch but not as hard as ``impulse`` or ``force`` ask,
+    the fraction of the bound the hardest touch misses by (0 to 1);
     exclude: how long they touch (seconds)."""
-    if self.include:
-      return approach_gap(bank, self.a, self.b, self.window)
-    return touch_seconds(bank, self.a, self.b, self.window, self.label)
+    if not self.include:
+      return touch_seconds(bank, self.a, self.b, self.window, self.label)
+    touched = np.isfinite(first_touch(bank, self.a, self.b, self.window, self.label))
+    # Touching is no distance away, whatever the stored frames show of it.
+    gap = np.where(touched, 0.0, approach_gap(bank, self.a, self.b, self.window))
+    for by, bounds in (("impulse", self.impulse), ("force", self.force)):
+      if bounds is None:
+        continue
+      lo, hi = bounds
+      hit = np.nan_to_num(hardest_hit(bank, self.a, self.b, self.window, self.label, by))
+      short = np.zeros(bank.n_worlds)
+      if lo:
+        short = np.maximum(short, (lo - hit) / lo)
+      if hi is not None:
+        short = np.maximum(short, (hit - hi) / max(hi, 1e-12))
+      gap = np.where(touched, gap + np.clip(short, 0.0, 1.0), gap)
+    return gap
 
   def objects(self, owner) -> list[str]:
     return side_objects(owner, self.a + self.b)
@@ -291,12 +401,15 @@ class TouchQuery(Query):
 
   def describe(self) -> str:
     verb = "touches" if self.include else "never touches"
-    return f"{_say(self.a)} {verb} {_say(self.b)}"
+    hard = "".join(f" with {what} {_say_range(r, unit)}" for what, r, unit in
+                   (("impulse", self.impulse, "N·s"), ("force", self.force, "N")) if r is not None)
+    return f"{_say(self.a)} {verb} {_say(self.b)}{hard}"
 
   def to_dict(self) -> dict:
     out: dict = {"name": self.name, "touch": [_names(self.a), _names(self.b)], "sign": self.sign}
-    if self.window is not None:
-      out["window"] = list(self.window)
+    for field in ("window", "impulse", "force"):
+      if getattr(self, field) is not None:
+        out[field] = list(getattr(self, field))
     return out
 
   @classmethod
@@ -306,10 +419,10 @@ class TouchQuery(Query):
   @classmethod
   def from_entry(cls, entry, index: int, context) -> TouchQuery:
     where = f"queries[{index}]"
-    _refuse_others(entry, where, context, "touch", ("touch", "sign", "window", "name"))
+    _refuse_others(entry, where, context, "touch", ("touch", "sign", "window", "impulse", "force", "name"))
     try:
       a, b = _pair(f"{context.path}: {where}", "touch", entry.touch)
-      query = cls(a, b, entry.window, entry.sign, entry.name or f"q{index}")
+      query = cls(a, b, entry.window, entry.sign, entry.name or f"q{index}", entry.impulse, entry.force)
     except MwbxError as err:
       raise MwbxError(str(err) if str(err).startswith(context.path) else f"{context.path}: {where}: {err}") from None
     _check_actors(context, (query.a, query.b), where)
@@ -406,6 +519,15 @@ class OrderQuery(Query):
       raise MwbxError(f"{context.path}: {where}: {str(err).removeprefix('query: ')}") from None
     _check_actors(context, [side for pair in query.events for side in pair], where)
     return query
+
+
+def _say_range(bounds, unit: str) -> str:
+  lo, hi = bounds
+  if hi is None:
+    return f">= {lo:g} {unit}"
+  if lo is None:
+    return f"<= {hi:g} {unit}"
+  return f"{lo:g}–{hi:g} {unit}"
 
 
 def _refuse_others(entry, where: str, context, kind: str, takes: Sequence[str]) -> None:

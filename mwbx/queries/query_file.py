@@ -38,6 +38,7 @@ queries:
     #   named static geoms; a side may be a list (any of them)
     sign: include                  # include | exclude (never touch)
     window: [0.0, 2.0]             # optional
+    impulse: [0.5, null]           # optional: only touches this hard (N·s; or force: [lo, hi], N)
   - name: ball_then_floor
     then:                          # touches in order: each first happens after the one before
       - [ball, box_a]
@@ -45,6 +46,7 @@ queries:
 rank:                              # optional default ranking
   - {metric: angular_travel, bodies: [ball], reduce: sum, weight: 1.0}
   - {metric: orientation_error, query: ball_ends_upright}   # an orientation query's error
+  - {metric: hardest_hit, query: ball_hits_box}             # a touch's largest impulse, N·s
 order: desc                        # desc | asc
 top: 10
 ```
@@ -131,6 +133,8 @@ class _QuerySpec(pydantic.BaseModel):
   orientation: Literal["initial"] | tuple[float, float, float, float] | None = None
   within_deg: float | None = None
   touch: list[str | list[str]] | None = None  # two sides, checked by TouchQuery
+  impulse: tuple[float | None, float | None] | None = None  # N·s, checked by TouchQuery
+  force: tuple[float | None, float | None] | None = None  # N
   then: list[list[str | list[str]]] | None = None
 
 
@@ -342,16 +346,16 @@ def _terms(rank, path: str, bank, queries=()) -> tuple[Term, ...]:
 
 
 def _named_orientation(term: _TermSpec, queries) -> Query | None:
-  """The query whose error a rank term ranks by (an orientation query's, for
-  metric orientation_error), or None."""
+  """The query whose error a rank term ranks by (an orientation query's for
+  metric orientation_error, a touch query's for hardest_hit), or None."""
   if term.query is None:
     return None
   metrics = [k.error_metric for k in QUERY_KINDS if k.error_metric]
   if term.metric not in metrics:
-    raise MwbxError(f"'query' names an orientation query for metric {' or '.join(metrics)}, not {term.metric!r}")
+    raise MwbxError(f"'query' names the query whose error is metric {' or '.join(metrics)}, not {term.metric!r}")
   ranking = [q for q in queries if q.error_metric == term.metric]
   named = [q for q in ranking if q.name == term.query]
   if not named:
-    raise MwbxError(f"no orientation query named {term.query!r} (orientation queries: "
+    raise MwbxError(f"no {term.metric} query named {term.query!r} (those queries: "
                     f"{', '.join(q.name for q in ranking) or 'none'})")
   return named[0]

@@ -232,7 +232,7 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs, s
   cat = lambda name: np.concatenate([getattr(o, name) for o in outputs])
   count = f0 + np.concatenate([c.frame_count for c in chunks]).astype(np.int32)
   status = np.concatenate([c.status for c in chunks])
-  new_qpos = np.concatenate([c.qpos for c in chunks])
+  new_qpos = chunks[0].qpos if len(chunks) == 1 else np.concatenate([c.qpos for c in chunks])
   # A refined world at rest before the parent's end holds its last frame to the
   # parent's length: then untouched objects' coded channels are the parent's own.
   count = np.where((status == world_lib.AT_REST) & (count < parent.path.n_parent),
@@ -244,10 +244,8 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs, s
                        for b in bank.body_names])
   body_active = active[:, body_obj]  # [W, B]
 
-  path = parent.path
-  qpos = np.concatenate([np.broadcast_to(path.qpos[:f0], (w, f0, path.qpos.shape[1])), new_qpos], axis=1)
   keep_qpos = (~active).astype(np.float32) @ parent.qpos_object.astype(np.float32) > 0.5
-  store = bank.qpos_store.refined(qpos, count, row, parent.frames, keep_qpos)
+  store = bank.qpos_store.refined(new_qpos, f0, count, row, parent.frames, keep_qpos)
   # Removed objects count as active: their stored contacts after t_min are not theirs any more.
   touched = active | np.isin(np.asarray(object_names), plan.removed)[None, :]
   events_start = time.perf_counter()
@@ -286,11 +284,11 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs, s
 
 
 def refined_events(bank, row: int, first_frame: int, store, sampler, active=None):
-  """(EventRecord, actor names) of refined worlds of the world at ``row``,
-  as :meth:`Sampler.events_of` finds them on their whole stored frames: the
-  parent's episodes before ``first_frame`` (the frames they share with it),
-  their own after, found on those frames alone; (None, ()) for a bank
-  without events.
+  """(EventRecord, actor names, in physics steps) of refined worlds of the
+  world at ``row``: the parent's episodes before ``first_frame`` (their
+  simulation is the parent's up to there), their own after, found on their
+  stored frames from there (:meth:`Sampler.events_of_frames`: a frame's
+  resolution, no strength); (None, ()) for a bank without events.
 
   Args:
     bank: the bank holding the parent. row: the parent's row.
@@ -305,55 +303,61 @@ def refined_events(bank, row: int, first_frame: int, store, sampler, active=None
   if bank.events is None:
     return None, ()
   actors = sampler.event_actors.names
+  spf = sampler.params.steps_per_frame
   frames = store.frames_of_rows(None)
   if tuple(bank.event_actors) != actors:  # a later scene version: other actors, found afresh
     return sampler.events_of_frames(frames), actors
-  # The frames a refined world shares with its parent exactly (before
-  # first_frame, less those the codec fitted anew) keep the parent's episodes.
-  shared = bank.qpos_store.row_frames(row, 0, first_frame)
-  starts = np.array([_shared_frames(shared, f) for f in frames], np.int64)
-  parent = bank.events.world(row)
-  if active is None:
-    after = sampler.events_of_frames([f[s:] for f, s in zip(frames, starts)], first_frame=starts)
-    worlds = [events_lib.spliced(parent, after.world(i), int(s)) for i, s in enumerate(starts)]
-    return EventRecord.from_worlds(worlds), actors
-  moved = np.zeros((len(frames), len(actors)), bool)  # static actors never move
-  moved[:, :np.shape(active)[1]] = active
+  # Before first_frame a refined world is its parent's simulation (whatever the
+  # codec made of the refined objects' frames there): the parent's episodes.
+  starts = np.full(len(frames), first_frame, np.int64)
+  record = bank.events.in_ticks(spf)
+  parent = _episodes(record, row)
+  moved = None
+  if active is not None:
+    moved = np.zeros((len(frames), len(actors)), bool)  # static actors never move
+    moved[:, :np.shape(active)[1]] = active
   after = sampler.events_of_frames([f[s:] for f, s in zip(frames, starts)], first_frame=starts, active=moved)
-  n_parent = int(bank.frame_count[row])
-  worlds = [events_lib.spliced(parent, _with_parent_pairs(parent, after.world(i), moved[i], int(s), n_parent,
-                                                          len(f)), int(s))
-            for i, (f, s) in enumerate(zip(frames, starts))]
-  return EventRecord.from_worlds(worlds), actors
+  parent_end = (int(bank.frame_count[row]) - 1) * spf
+  worlds = []
+  for i, (f, s) in enumerate(zip(frames, starts)):
+    found = _episodes(after, i)
+    if moved is not None:
+      found = _with_parent_pairs(parent, found, moved[i], int(s) * spf, parent_end, (len(f) - 1) * spf)
+    worlds.append(events_lib.spliced(parent, found, int(s) * spf))
+  return EventRecord.from_worlds([w[:, :4] for w in worlds], [w[:, 4:] for w in worlds], ticks_per_frame=spf), actors
 
 
-def _with_parent_pairs(parent: np.ndarray, found: np.ndarray, moved: np.ndarray, start: int, n_parent: int,
-                       n_frames: int) -> np.ndarray:
-  """A refined world's episodes from ``start`` on: those ``found`` with a
+def _episodes(record: EventRecord, row: int) -> np.ndarray:
+  """f64[n, 6] one world's episodes with their strengths: ``(a, b, first, last, peak force, impulse)``."""
+  lo, hi = record.offsets[row], record.offsets[row + 1]
+  return np.concatenate([record.rows[lo:hi], record.strength[lo:hi]], axis=1).astype(np.float64)
+
+
+def _with_parent_pairs(parent: np.ndarray, found: np.ndarray, moved: np.ndarray, start: int, parent_end: int,
+                       end: int) -> np.ndarray:
+  """A refined world's episodes from tick ``start`` on: those ``found`` with a
   ``moved`` actor (bool[n_actors]) on a side, and the parent's between
   actors that did not move (their stored paths are the parent's; the last
   frame is held where the world outlasts its parent).
 
   Args:
-    parent: i32[n, 4] the parent's ``(a, b, first, last)``.
-    found: i32[m, 4] found on the refined world's frames from ``start``.
-    n_parent: the parent's frames. n_frames: the refined world's frames.
+    parent: f64[n, 6] the parent's episodes (:func:`_episodes`).
+    found: f64[m, 6] found on the refined world from ``start``.
+    parent_end, end: the parent's and the refined world's last ticks.
   """
-  found = found[moved[found[:, 0]] | moved[found[:, 1]]]
-  kept = parent[~moved[parent[:, 0]] & ~moved[parent[:, 1]] & (parent[:, 3] >= start)].copy()
+  a, b = found[:, 0].astype(np.int64), found[:, 1].astype(np.int64)
+  found = found[moved[a] | moved[b]]
+  pa, pb = parent[:, 0].astype(np.int64), parent[:, 1].astype(np.int64)
+  kept = parent[~moved[pa] & ~moved[pb] & (parent[:, 3] >= start)].copy()
+  # An episode going on at start continues the parent's (events_lib.spliced joins them):
+  # its strength, the whole episode's, is counted once.
+  kept[kept[:, 2] < start, 4:] = 0.0
   kept[:, 2] = np.maximum(kept[:, 2], start)
-  kept[kept[:, 3] == n_parent - 1, 3] = max(n_parent, n_frames) - 1  # on at the parent's end: on while held
-  kept[:, 3] = np.minimum(kept[:, 3], n_frames - 1)
+  kept[kept[:, 3] == parent_end, 3] = max(parent_end, end)  # on at the parent's end: on while held
+  kept[:, 3] = np.minimum(kept[:, 3], end)
   kept = kept[kept[:, 2] <= kept[:, 3]]
-  rows = np.concatenate([found, kept]).astype(np.int32)
+  rows = np.concatenate([found, kept])
   return rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
-
-
-def _shared_frames(parent: np.ndarray, frames: np.ndarray) -> int:
-  """How many leading frames of ``frames`` equal ``parent``'s bit for bit."""
-  n = min(len(parent), len(frames))
-  differs = np.flatnonzero((parent[:n] != frames[:n]).any(axis=1))
-  return int(differs[0]) if differs.size else n
 
 
 def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, removed, keys):

@@ -82,13 +82,10 @@ def stored_path(model: mujoco.MjModel, frames: np.ndarray, body_ids: np.ndarray,
   lin_vel = np.zeros_like(com)
   lin_vel[:-1] = np.diff(com, axis=0) / frame_time
   ang_vel = np.zeros_like(com)
-  for f in range(min(t, n) - 1):
-    for i in range(len(body_ids)):
-      # world-frame rotation q_{f+1} q_f^-1 as a rotation vector
-      inv, rel = np.zeros(4), np.zeros(4)
-      mujoco.mju_negQuat(inv, quat[f, i])
-      mujoco.mju_mulQuat(rel, quat[f + 1, i], inv)
-      mujoco.mju_quat2Vel(ang_vel[f, i], rel, frame_time)
+  last = min(t, n) - 1
+  # world-frame rotation q_{f+1} q_f^-1 as a rotation vector
+  relative = rotations.quat_multiply_np(quat[1:last + 1], rotations.quat_conjugate_np(quat[:last]))
+  ang_vel[:last] = rotations.quat_to_velocity_np(relative, frame_time)
   return StoredPath(qpos=qpos.astype(np.float32), qvel=qvel.astype(np.float32),
                     com=com.astype(np.float32), quat=quat.astype(np.float32),
                     lin_vel=lin_vel.astype(np.float32), ang_vel=ang_vel.astype(np.float32), n_parent=t)

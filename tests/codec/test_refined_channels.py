@@ -139,7 +139,7 @@ def refined(model, parent):
   qpos = padded([q for q, _ in made])
   counts = np.array([n for n, _, _ in CHILDREN], np.int32)
   keep = np.stack([k for _, k in made])
-  out = store.refined(qpos, counts, row, frames, keep)
+  out = store.refined(qpos, 0, counts, row, frames, keep)
   return out, qpos, counts, keep
 
 
@@ -162,6 +162,28 @@ def test_children_decode_within_bounds_and_keep_the_parent_exactly(model, parent
     # The store's recorded error bound covers this world's.
     assert (out.max_error[w] <= [BOUNDS.e_pos, BOUNDS.e_rot * (1 + 1e-6), BOUNDS.e_scalar]).all()
     assert (out.max_error[w] >= store.max_error[row]).all()
+
+
+def test_children_given_from_their_restart_frame_store_the_same_bytes(model, parent):
+  """Frames from the restart on (the parent's before it) code exactly as the
+  whole frames do, though only the fitted channels' columns are filled."""
+  store, row, frames = parent
+  first = 20
+  chosen = [CHILDREN[i] for i in (0, 1, 4)]  # each keeps the arm: its channels are never read
+  made = [child(model, frames, n, kept, seed) for n, kept, seed in chosen]
+  qpos = padded([q for q, _ in made])
+  qpos[:, :first] = frames[:first]  # the children share the parent's frames before the restart
+  counts = np.array([n for n, _, _ in chosen], np.int32)
+  keep = np.stack([k for _, k in made])
+  assert keep.all(axis=0).any() and not keep.all()
+  whole = store.refined(qpos, 0, counts, row, frames, keep)
+  given = qpos[:, first:].copy()
+  given[:, :, keep.all(axis=0)] = np.nan  # never read
+  after = store.refined(given, first, counts, row, frames, keep)
+  np.testing.assert_array_equal(after.data, whole.data)
+  np.testing.assert_array_equal(after.max_error, whole.max_error)
+  with pytest.raises(mwbx.codec.CodecError, match="column 3 is fitted but not given"):
+    encode_lib.encode_batch_checked(qpos[:, :, :3], counts, store.layout, BOUNDS, FPS, columns=np.arange(3))
 
 
 def test_longer_child_holds_the_parent_past_its_end(model, parent, refined):
@@ -231,7 +253,7 @@ def test_fit_cost_grows_with_the_refined_objects(model, parent, monkeypatch):
   counts = np.array([PARENT_FRAMES, PARENT_FRAMES + 20, PARENT_FRAMES], np.int32)
   keep = np.stack([k for _, k in made])
   seen = _count_fitted_paths(monkeypatch)
-  out = store.refined(qpos, counts, row, frames, keep)
+  out = store.refined(qpos, 0, counts, row, frames, keep)
   assert seen == [{"pos": 2, "rot": 3, "scalar": 0}], seen
   for w in range(3):
     got = out.row_frames(w)
@@ -248,7 +270,7 @@ def test_parent_with_raw_channels_falls_back_to_splicing(model, parent):
   decode to its frames exactly, and the rest stays within the bounds."""
   store, row, frames = parent
   short, keep = child(model, frames, 60, ("box1", "arm"), 41)
-  cut = store.refined(short[None], np.array([60]), row, frames, keep[None])
+  cut = store.refined(short[None], 0, np.array([60]), row, frames, keep[None])
   code = parse(cut.stream(0))
   adrs = np.asarray(code.addresses())
   raw = np.asarray(code.modes) == MODE_RAW
@@ -264,7 +286,7 @@ def test_parent_with_raw_channels_falls_back_to_splicing(model, parent):
   keep2 = np.stack([k for _, k in kids])
   reuse = ParentChannels.of(both.stream(grand_row), keep2, counts)
   np.testing.assert_array_equal(reuse.take, keep2[:, adrs] & ~raw[None, :])
-  out = both.refined(qpos, counts, grand_row, grand_frames, keep2)
+  out = both.refined(qpos, 0, counts, grand_row, grand_frames, keep2)
   for w, n in enumerate(counts):
     got = out.row_frames(w)
     assert_within_bounds(out.layout, got, qpos[w, :n], f"grandchild {w}")

@@ -51,3 +51,19 @@ def test_rotation_angle_twins_and_exp_forms():
   np.testing.assert_allclose(rotations.rotation_angle_np(ref, ref), 0.0, atol=1e-3)
   np.testing.assert_allclose(rotations.rotation_angle_np(ref, np.tile([1.0, 0, 0, 0], (16, 1))),
                              np.linalg.norm(rotvec, axis=1), atol=1e-6)
+
+
+def test_numpy_twins_match_mujoco_relative_rotation_velocity():
+  # float64 twins: MuJoCo's own operations, up to its compiler's rounding
+  a, b = _unit_quats(64, 5), _unit_quats(64, 6)
+  b[:4] = a[:4]  # no rotation: the degenerate axis
+  b[4:8] = -a[4:8]  # the same rotation the long way round
+  dt = 1 / 120
+  ref = np.zeros((64, 3))
+  for i in range(64):
+    inv, rel = np.zeros(4), np.zeros(4)
+    mujoco.mju_negQuat(inv, a[i])
+    mujoco.mju_mulQuat(rel, b[i], inv)
+    mujoco.mju_quat2Vel(ref[i], rel, dt)
+  rel = rotations.quat_multiply_np(b, rotations.quat_conjugate_np(a))
+  np.testing.assert_allclose(rotations.quat_to_velocity_np(rel, dt), ref, rtol=1e-12, atol=1e-9)

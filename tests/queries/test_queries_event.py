@@ -16,6 +16,7 @@ import mwbx
 from mwbx import cli
 from mwbx.errors import MwbxError
 from mwbx.events import actors_of, touch_margin
+from mwbx.batch_sim.sampler import world_keys
 from mwbx.search.solver import place_queries
 from conftest import REPO
 
@@ -68,118 +69,155 @@ def test_free_fall_gives_the_known_order_of_events(drop_bank):
   assert not mwbx.evaluate_each(bank, [mwbx.TouchQuery("high", "floor", sign="exclude")]).any()
 
 
-def _reference_touching(bank, world: int) -> list[set]:
-  """Per stored frame, the set of touching actor-name pairs: MuJoCo's contact
-  list (mj_forward) on the decoded state, distances within the touch margin."""
+def unperturbed(config):
+  """``config`` with perturbations off: a world is then MuJoCo's plain steps
+  from its initial state, which a reference can replay."""
+  return config.model_copy(update={"perturb": config.perturb.model_copy(update={"enabled": False})})
+
+
+def sample_unperturbed(config, n_worlds, seed=0):
+  config = unperturbed(config)
+  bank = mwbx.sample(config, n_worlds=n_worlds, key=jax.random.key(seed), backend="native")
+  with mwbx.Sampler(config, backend="native") as sampler:
+    _, init_keys, _ = world_keys(jax.random.key(seed), np.arange(n_worlds))
+    qpos0, qvel0 = (np.asarray(x) for x in sampler._init(init_keys))
+  return bank, qpos0, qvel0
+
+
+def _reference_episodes(bank, qpos0, qvel0, row) -> set:
+  """The episodes of a world replayed step by step with ``mj_step``:
+  MuJoCo's contacts not in their gap, runs of steps broken by a frame's
+  steps apart, each with its largest summed normal force and impulse."""
   model = bank.model()
-  margin = touch_margin(bank.config["codec"]["e_pos"])
-  model.geom_margin[:] = np.maximum(model.geom_margin, margin)
-  model.flex_margin[:] = np.maximum(model.flex_margin, margin)
   data = mujoco.MjData(model)
-  names = actors_of(model, list(bank.objects))
-  frames = []
-  for qpos in bank.qpos_frames(world):
-    data.qpos[:] = qpos
-    mujoco.mj_forward(model, data)
-    pairs = set()
+  actors = actors_of(model, list(bank.objects))
+  spf = bank.events.ticks_per_frame
+  last_tick = (int(bank.frame_count[row]) - 1) * spf
+  data.qpos[:], data.qvel[:] = qpos0[row], qvel0[row]
+  force6 = np.zeros(6)
+  touching: dict = {}  # pair -> (first, last seen, peak, impulse)
+  done = []
+  for tick in range(last_tick + spf):
+    mujoco.mj_step(model, data)
+    forces: dict = {}
     for i in range(data.ncon):
-      a, b = (names.names[names.geom_actor[g] if g >= 0 else names.flex_actor[f]]  # a flex's side: its flex
-              for g, f in zip(data.contact.geom[i], data.contact.flex[i]))
-      if a != b and data.contact.dist[i] <= margin:
-        pairs.add(frozenset((a, b)))
-    frames.append(pairs)
-  bank._model = None  # the margins above were set on the bank's own model
-  return frames
+      c = data.contact[i]
+      if c.exclude == 1:
+        continue
+      a, b = (int(actors.geom_actor[g]) if g >= 0 else int(actors.flex_actor[f]) for g, f in zip(c.geom, c.flex))
+      if a == b:
+        continue
+      f = 0.0
+      if c.efc_address >= 0:
+        mujoco.mj_contactForce(model, data, i, force6)
+        f = max(force6[0], 0.0)
+      key = (min(a, b), max(a, b))
+      forces[key] = forces.get(key, 0.0) + f
+    for key, f in forces.items():
+      first, _, peak, impulse = touching.get(key, (tick, tick, 0.0, 0.0))
+      touching[key] = (first, tick, max(peak, f), impulse + f * model.opt.timestep)
+    for key, (first, seen, peak, impulse) in list(touching.items()):
+      if tick - seen >= spf:
+        done.append((*key, first, seen, peak, impulse))
+        del touching[key]
+  done += [(*key, first, last_tick if seen >= last_tick else seen, peak, impulse)
+           for key, (first, seen, peak, impulse) in touching.items()]
+  return {(a, b, first, min(last, last_tick), peak, impulse) for a, b, first, last, peak, impulse in done
+          if first <= last_tick}
 
 
-def test_events_match_mujocos_contact_list_at_every_stored_frame(quick_bank):
-  _check_events_against_reference(quick_bank)
+def _check_events_against_reference(bank, qpos0, qvel0):
+  rng = np.random.default_rng(0)
+  actors = list(bank.event_actors)
+  objects = list(bank.objects)
+  rate = bank.record_fps * bank.events.ticks_per_frame
+  assert bank.events.ticks_per_frame > 1
+  for row in range(bank.n_worlds):
+    expected = _reference_episodes(bank, qpos0, qvel0, row)
+    lo, hi = bank.events.offsets[row], bank.events.offsets[row + 1]
+    got = {tuple(r) for r in bank.events.rows[lo:hi].tolist()}
+    assert got == {e[:4] for e in expected}, row
+    strength = {tuple(r): s for r, s in zip(bank.events.rows[lo:hi].tolist(), bank.events.strength[lo:hi])}
+    for e in expected:
+      np.testing.assert_allclose(strength[e[:4]], e[4:], rtol=1e-5, atol=1e-6)
+    # Touch queries on random pairs and windows, against the episodes.
+    for _ in range(12):
+      a = {str(rng.choice(objects))}
+      b = {str(rng.choice(actors))} - a or {actors[-1]}
+      t0 = float(rng.uniform(0, 3)) if rng.random() < 0.5 else None
+      t1 = None if rng.random() < 0.5 else (t0 or 0.0) + float(rng.uniform(0.05, 1.5))
+      window = None if t0 is None and t1 is None else (t0, t1)
+      got_t = mwbx.queries.event.first_touch(bank, tuple(a), tuple(b), window)[row]
+      want = _brute_first(expected, actors, rate, (int(bank.frame_count[row]) - 1) * bank.events.ticks_per_frame,
+                          a, b, window)
+      assert got_t == pytest.approx(want) or (math.isinf(got_t) and math.isinf(want)), (row, a, b, window)
 
 
-def test_flex_events_match_mujocos_contact_list_at_every_stored_frame(tmp_path):
-  """A cloth dropped over a dome: its contacts are the flex's, found where
-  its vertices are at each stored frame (mj_forward places them)."""
+def _brute_first(episodes, actors, rate, last_tick, a, b, window) -> float:
+  """The first tick time in the window at which the sides touch, tick by
+  tick over the episodes (past the last tick, it holds)."""
+  t0, t1 = window if window is not None else (None, None)
+  on = [(first, last) for x, y, first, last, *_ in episodes
+        if (actors[x] in a and actors[y] in b) or (actors[x] in b and actors[y] in a)]
+  start = 0 if t0 is None else math.ceil(t0 * rate - 1e-9 * rate)
+  for first, last in sorted(on):
+    tick = max(first, start)
+    if tick <= last or last >= last_tick:
+      if t1 is None or tick <= math.floor(t1 * rate + 1e-9 * rate):
+        return tick / rate
+  return math.inf
+
+
+def test_events_match_mujocos_contact_list_at_every_physics_step(quickstart_config):
+  _check_events_against_reference(*sample_unperturbed(quickstart_config, 3, seed=3))
+
+
+def test_flex_events_match_mujocos_contact_list_at_every_physics_step(tmp_path):
+  """A cloth dropped over a dome: its contacts are the flex's."""
   from test_flex_scene import flex_config
-  bank = mwbx.sample(flex_config(tmp_path), n_worlds=2, key=jax.random.key(0), backend="native")
+  bank, qpos0, qvel0 = sample_unperturbed(flex_config(tmp_path), 2)
   assert "cloth" in bank.event_actors
-  _check_events_against_reference(bank)
+  _check_events_against_reference(bank, qpos0, qvel0)
   assert mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "dome")]).all()
   assert not mwbx.evaluate(bank, [mwbx.TouchQuery("cloth", "floor", window=(0.0, 0.1))]).any()  # still falling
 
 
-def test_an_interpolated_flex_touches_by_its_nodes(tmp_path):
+def test_an_interpolated_flex_touches_by_its_nodes():
   """The soft cube of configs/soft_steps.yaml (dof trilinear: its vertices
   belong to no body, 8 node bodies move it) lands on the steps as "jelly"."""
   config = mwbx.load_config(REPO / "configs" / "soft_steps.yaml")
   config = config.model_copy(update={"sim": config.sim.model_copy(update={"end_time": 0.8})})
-  bank = mwbx.sample(config, n_worlds=2, key=jax.random.key(0), backend="native")
-  _check_events_against_reference(bank)
+  bank, qpos0, qvel0 = sample_unperturbed(config, 2)
+  _check_events_against_reference(bank, qpos0, qvel0)
   assert mwbx.evaluate(bank, [mwbx.TouchQuery("jelly", ("step_0", "step_1", "step_2", "step_3"))]).all()
 
 
-def _check_events_against_reference(bank):
-  fps = bank.record_fps
-  rng = np.random.default_rng(0)
-  actors = list(bank.event_actors)
-  objects = list(bank.objects)
-  for row, world in enumerate(bank.world_ids.tolist()):
-    frames = _reference_touching(bank, world)
-    # The stored episodes are the runs of the reference's per-frame sets.
-    expected = set()
-    for pair in set().union(*frames):
-      on = [pair in p for p in frames]
-      f = 0
-      while f < len(on):
-        if on[f]:
-          g = f
-          while g + 1 < len(on) and on[g + 1]:
-            g += 1
-          a, b = sorted(actors.index(n) for n in pair)
-          expected.add((a, b, f, g))
-          f = g + 1
-        else:
-          f += 1
-    assert {tuple(r) for r in bank.events.world(row).tolist()} == expected, world
-    # Touch queries on random pairs and windows, against the per-frame sets.
-    for _ in range(12):
-      a = {str(rng.choice(objects))}
-      b = {str(rng.choice(actors))} - a or {"floor"}
-      t0 = float(rng.uniform(0, 3)) if rng.random() < 0.5 else None
-      t1 = None if rng.random() < 0.5 else (t0 or 0.0) + float(rng.uniform(0.05, 1.5))
-      window = None if t0 is None and t1 is None else (t0, t1)
-      got = mwbx.queries.event.first_touch(bank, tuple(a), tuple(b), window)[row]
-      want = _brute_first(frames, fps, a, b, window)
-      assert got == pytest.approx(want) or (math.isinf(got) and math.isinf(want)), (world, a, b, window, got, want)
-
-
-def _brute_first(frames, fps, a, b, window) -> float:
-  """The first stored frame time in the window at which the sides touch, from
-  the per-frame sets alone (past the last frame, the last frame holds)."""
-  t0, t1 = window if window is not None else (None, None)
-  hit = [any((x in a and y in b) or (x in b and y in a) for x, y in (tuple(p) for p in pairs)) for pairs in frames]
-  f = 0
-  while True:
-    t = f / fps
-    if t1 is not None and t > t1 + 1e-9:
-      return math.inf
-    if f >= len(hit) and (not hit[-1] or t1 is None and t0 is None):
-      return math.inf
-    if hit[min(f, len(hit) - 1)] and (t0 is None or t >= t0 - 1e-9):
-      return t
-    if f >= len(hit) and t0 is not None and t >= t0 - 1e-9 and not hit[-1]:
-      return math.inf
-    f += 1
-
-
-def test_refined_worlds_get_the_events_of_their_stored_frames(quick_bank):
-  bank = mwbx.refine(quick_bank, int(quick_bank.world_ids[2]), "ball", t_min=1.0, n_samples=3,
-                     key=jax.random.key(5), backend="native")
+def test_refined_worlds_keep_their_parents_events_and_find_their_own(quick_bank):
+  """Before the restart a refined world's episodes are its parent's (found at
+  every step); after it, those of the refined ball are found on its stored
+  frames (in steps: a frame's resolution, no strength)."""
+  parent_world = int(quick_bank.world_ids[2])
+  bank = mwbx.refine(quick_bank, parent_world, "ball", t_min=1.0, n_samples=3, key=jax.random.key(5),
+                     backend="native")
   model = bank.model()
   actors = actors_of(model, list(bank.objects))
+  spf = bank.events.ticks_per_frame
+  restart = round(1.0 * bank.record_fps) * spf
+  parent = quick_bank.events.world(quick_bank.row_of(parent_world))
+  ball = actors.names.index("ball")
   for world in bank.world_ids[-3:].tolist():
+    rows = bank.events.world(bank.row_of(world))
+    early = lambda r: {tuple(x) for x in r[r[:, 2] < restart, :3].tolist()}
+    assert early(rows) == early(parent)
     fresh = mwbx.events.detect_events(model, actors, [bank.qpos_frames(world)],
-                                      touch_margin(bank.config["codec"]["e_pos"]))
-    np.testing.assert_array_equal(fresh.rows, bank.events.world(bank.row_of(world)))
+                                      touch_margin(bank.config["codec"]["e_pos"])).in_ticks(spf).rows
+    own = lambda r: {tuple(x) for x in r[(r[:, 2] > restart) & ((r[:, 0] == ball) | (r[:, 1] == ball))].tolist()}
+    assert own(rows) == own(fresh) and own(rows)
+    strength = bank.events.strength[bank.events.offsets[bank.row_of(world)]:][:len(rows)]
+    moved = np.isin(rows[:, :2], [actors.names.index(o) for o in bank.lineage[str(world)]["active"]]).any(axis=1)
+    assert moved[rows[:, 0] == ball].all() or not (rows[:, 0] == ball).any()
+    assert np.isnan(strength[(rows[:, 2] > restart) & moved]).all()  # found on the stored frames
+    assert not np.isnan(strength[(rows[:, 3] < restart) | ~moved]).any()  # the parent's, found at its steps
 
 
 def test_events_are_saved_checked_and_refused_in_one_line_without_them(drop_bank, tmp_path):
@@ -190,7 +228,9 @@ def test_events_are_saved_checked_and_refused_in_one_line_without_them(drop_bank
   assert loaded.event_actors == drop_bank.event_actors
   manifest = json.loads((path / "manifest.json").read_text())
   entry = manifest["shards"][0]
-  assert {"events_rows", "events_counts"} <= set(entry["checksums"]) and entry["events"]["version"] == 1
+  assert {"events_rows", "events_counts", "events_strength"} <= set(entry["checksums"])
+  assert entry["events"]["version"] == 2 and entry["events"]["ticks_per_frame"] == loaded.events.ticks_per_frame > 1
+  np.testing.assert_array_equal(loaded.events.strength, drop_bank.events.strength)
   assert drop_bank.events.nbytes < 0.05 * drop_bank.nbytes
   rows = path / "shards" / entry["name"] / "events_rows.npy"
   data = bytearray(rows.read_bytes())
@@ -264,3 +304,89 @@ def test_an_order_gap_with_a_touch_that_never_happens_is_finite_and_quiet(drop_b
     warnings.simplefilter("error")  # inf - inf in the ordering term was a RuntimeWarning
     gaps = mwbx.queries.query_gaps(drop_bank, [order])
   assert np.all(np.isfinite(gaps)) and np.all(gaps[:, 0] > 0.3)
+
+
+# A ball falling 13 m hits a stiff, bouncy floor at 16 m/s: its contact lasts
+# a few milliseconds, less than a stored frame (8.3 ms at 120 fps).
+FAST_XML = """
+<mujoco>
+  <option timestep="0.001"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="3 3 0.1" solref="-1e6 -10"/>
+    <body name="ball" pos="0 0 13.05"><freejoint/><geom type="sphere" size="0.05" mass="0.2" solref="-1e6 -10"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_a_fast_impact_between_two_stored_frames_is_a_touch_with_its_impulse(tmp_path):
+  (tmp_path / "fast.xml").write_text(FAST_XML)
+  (tmp_path / "fast.yaml").write_text("scene: {mjcf: fast.xml}\nsim: {end_time: 1.75}\n")
+  bank, _, _ = sample_unperturbed(mwbx.load_config(tmp_path / "fast.yaml"), 4)
+  rate = bank.record_fps * bank.events.ticks_per_frame
+  t = mwbx.queries.event.first_touch(bank, ("ball",), ("floor",))
+  # free fall to the floor, to a physics step (not a frame)
+  assert np.all(np.abs(t - math.sqrt(2 * 13.0 / G)) <= 2 / rate), t
+  # The impulse that turns 16 m/s around: m (v_in + v_out), v_out between 0 and v_in.
+  v = math.sqrt(2 * G * 13.0)
+  hit = mwbx.queries.event.hardest_hit(bank, ("ball",), ("floor",))
+  assert np.all((hit > 0.2 * v) & (hit < 0.2 * 2 * v + 0.2 * G * 0.2)), hit
+  hard = mwbx.TouchQuery("ball", "floor", impulse=(0.2 * v, None))
+  harder = mwbx.TouchQuery("ball", "floor", impulse=(10.0, None))
+  forceful = mwbx.TouchQuery("ball", "floor", force=(100.0, None))
+  assert mwbx.evaluate(bank, [hard]).all() and not mwbx.evaluate(bank, [harder]).any()
+  assert mwbx.evaluate(bank, [forceful]).all()
+  gaps = mwbx.queries.query_gaps(bank, [hard, harder])
+  assert np.all(gaps[:, 0] == 0)
+  np.testing.assert_allclose(gaps[:, 1], (10.0 - hit) / 10.0)  # the fraction of the impulse asked for it misses
+  ids, values = mwbx.rank(bank, hard.error(bank), top=4)
+  assert np.all(np.diff(values) <= 0) and values[0] == hit.max()
+  # The impact lasts fewer steps than a frame holds: stored frames can fall either side of it.
+  first_hit = [bank.events.world(i)[0] for i in range(bank.n_worlds)]
+  assert all(r[3] - r[2] + 1 < bank.events.ticks_per_frame for r in first_hit), first_hit
+
+
+def test_a_bank_whose_events_were_found_on_frames_still_answers(drop_bank, tmp_path):
+  """Events version 1 (frames, no strength): loaded at one tick a frame;
+  touches answer as before, strength filters say why they cannot."""
+  path = tmp_path / "bank"
+  drop_bank.save(path)
+  manifest = json.loads((path / "manifest.json").read_text())
+  entry = manifest["shards"][0]
+  spf = drop_bank.events.ticks_per_frame
+  frames = mwbx.events.detect_events(drop_bank.model(), actors_of(drop_bank.model(), list(drop_bank.objects)),
+                                     drop_bank.qpos_store.frames_of_rows(None),
+                                     touch_margin(drop_bank.config["codec"]["e_pos"]))
+  folder = path / "shards" / entry["name"]
+  for name, array in frames.arrays().items():
+    if name == "events_strength":
+      (folder / f"{name}.npy").unlink()
+      del entry["checksums"][name]
+      continue
+    np.save(folder / f"{name}.npy", array)
+    entry["checksums"][name] = mwbx.bank.checks.crc32(array)
+  entry["events"] = {"version": 1, "actors": entry["events"]["actors"]}
+  (path / "manifest.json").write_text(json.dumps(manifest))
+  old = mwbx.Bank.load(path)
+  assert old.events.ticks_per_frame == 1 and np.isnan(old.events.strength).all()
+  np.testing.assert_array_equal(old.events.rows, frames.rows)
+  t = mwbx.queries.event.first_touch(old, ("low",), ("floor",))
+  np.testing.assert_allclose(t, mwbx.queries.event.first_touch(drop_bank, ("low",), ("floor",)),
+                             atol=3 / drop_bank.record_fps)
+  with pytest.raises(MwbxError, match="impulse: this bank's contact events were found on its stored frames"):
+    mwbx.evaluate(old, [mwbx.TouchQuery("low", "floor", impulse=(0.1, None))])
+  both = mwbx.events.EventRecord.concat([old.events, drop_bank.events])  # frames become steps: one record
+  assert both.ticks_per_frame == spf
+  np.testing.assert_array_equal(both.rows[:len(frames.rows), 2:], frames.rows[:, 2:] * spf)
+
+
+def test_worlds_whose_episodes_overflow_are_found_on_their_frames(drop_bank, monkeypatch):
+  from mwbx.events import steps
+  monkeypatch.setattr(steps, "MIN_EPISODES", 1)
+  monkeypatch.setattr(steps, "EPISODES_PER_ACTOR", 0)
+  config = drop_bank.config
+  bank = mwbx.sample(mwbx.config.Config.model_validate(config), n_worlds=2, key=jax.random.key(0), backend="native")
+  frames = mwbx.events.detect_events(bank.model(), actors_of(bank.model(), list(bank.objects)),
+                                     bank.qpos_store.frames_of_rows(None),
+                                     touch_margin(bank.config["codec"]["e_pos"])).in_ticks(bank.events.ticks_per_frame)
+  np.testing.assert_array_equal(bank.events.rows, frames.rows)

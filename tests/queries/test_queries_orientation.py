@@ -157,7 +157,7 @@ def test_orientation_query_files_round_trip_and_name_mistakes(bank, tmp_path):
     assert str(err.value).startswith(f"{path}: queries[0]") and message in str(err.value), str(err.value)
   path.write_text("queries:\n  - {name: up, bodies: crate, upright: z, within_deg: 5}\n"
                   "rank:\n  - {metric: orientation_error, query: down}\n")
-  with pytest.raises(MwbxError, match=r"rank\[0\]: no orientation query named 'down' \(orientation queries: up\)"):
+  with pytest.raises(MwbxError, match=r"rank\[0\]: no orientation_error query named 'down' \(those queries: up\)"):
     mwbx.load_queries(path, bank=bank)
 
 

@@ -173,7 +173,7 @@ def test_splice_keeps_parent_channels_bit_for_bit(child_frames):
   store.append(np.stack([parent]), np.array([40]))
   keep = np.zeros(model.nq, bool)
   keep[7:14] = True  # the second box, translation and rotation channels
-  out = store.refined(child[None], np.array([child_frames]), 0, store.row_frames(0), keep[None])
+  out = store.refined(child[None], 0, np.array([child_frames]), 0, store.row_frames(0), keep[None])
   got = out.row_frames(0)
   assert got.shape == (child_frames, model.nq)
   stored = store.row_frames(0)
