@@ -1,25 +1,33 @@
 """Contact events: what they cost to find and to keep, how fast event queries
 answer, and the tower's "rock hits the tower" as an event beside the box query.
 
-1. Quickstart, N worlds sampled on the native backend: seconds finding the
-   events (MuJoCo collision on every stored frame) against the sampler's own
-   simulation seconds in the same run (the baseline), and the bytes the events
-   add to the bank's shards on disk.
+1. Quickstart, N worlds sampled on the native backend twice in one process:
+   with events found at every physics step inside the loop, and with them
+   found afterwards on the stored frames (MuJoCo collision at every frame:
+   the baseline, the contact reading patched off): wall, simulation and
+   event seconds of each, the episodes, and the bytes events add to the
+   bank's shards on disk.
 2. Query latency on 4096 worlds (the sampled worlds' event records repeated
    to 4096 worlds; answers are per world, so repeating them changes no
    work per world): a touch query and a three-touch order query, median of
    repeats, against a COM screen-box query on the same bank (the baseline).
 3. The trebuchet tower, M worlds: how many worlds meet the box query
    ``rock_hits_tower`` and the event query ``rock_touches_tower``, and both.
+4. Fast impacts: a ball dropped from 12.5–13.5 m onto a stiff, bouncy floor
+   (about 16 m/s, in contact for a few milliseconds), K worlds: the worlds
+   whose stored path turns back up at the floor (the truth), against those
+   whose events say the ball touched the floor, found at every step and on
+   the stored frames; and the impulses found.
 
 Prints tables and writes out/bench/events.json.
 
-  .venv/bin/python scripts/bench_events.py [--worlds 256] [--tower 32]
+  .venv/bin/python scripts/bench_events.py [--worlds 256] [--tower 32] [--fast 128]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import pathlib
@@ -31,7 +39,10 @@ import time
 import jax
 import numpy as np
 
+from unittest import mock
+
 import mwbx
+from mwbx.batch_sim import mujoco_c
 from mwbx.progress import reporter
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -55,23 +66,74 @@ def _dir_bytes(path: pathlib.Path, pattern: str = "*") -> int:
   return sum(f.stat().st_size for f in path.rglob(pattern) if f.is_file())
 
 
+def _sample(config, n_worlds: int, on_frames: bool = False, seed: int = 0):
+  """(bank, stats, wall s) of n_worlds native worlds; ``on_frames``: the
+  loop reads no contacts, so events are found on the stored frames."""
+  patch = mock.patch.object(mujoco_c, "contact_layout", lambda: None) if on_frames else contextlib.nullcontext()
+  with patch, mwbx.Sampler(config, backend="native") as sampler:
+    sampler.run(min(n_worlds, 8), jax.random.key(99))  # compiles (or loads numba's cache) outside the timing
+    with reporter("sample") as report:
+      start = time.perf_counter()
+      bank, stats = sampler.run(n_worlds, jax.random.key(seed), progress=report)
+      wall = time.perf_counter() - start
+  return bank, stats, wall
+
+
 def cost(n_worlds: int) -> tuple[dict, mwbx.Bank]:
   config = mwbx.load_config(ROOT / "configs" / "quickstart.yaml")
-  with mwbx.Sampler(config, backend="native") as sampler:
-    with reporter("sample") as report:
-      bank, stats = sampler.run(n_worlds, jax.random.key(0), progress=report)
+  rows = {}
+  for how, on_frames in (("every physics step", False), ("stored frames (baseline)", True)):
+    bank, stats, wall = _sample(config, n_worlds, on_frames)
+    with tempfile.TemporaryDirectory() as tmp:
+      bank.save(tmp)
+      total = _dir_bytes(pathlib.Path(tmp) / "shards")
+      events = _dir_bytes(pathlib.Path(tmp) / "shards", "events_*.npy")
+    rows[how] = {"wall_seconds": wall, "episodes": int(len(bank.events.rows)),
+                 "events_seconds": stats.events_seconds, "simulation_seconds": stats.run_seconds,
+                 "shard_bytes": total, "event_bytes": events, "event_fraction": events / total}
+    if not on_frames:
+      stepped = bank
+    print(f"quickstart {n_worlds} worlds, events at {how}: wall {wall:.2f} s, simulation {stats.run_seconds:.2f} s,"
+          f" events afterwards {stats.events_seconds:.2f} s; {events:,} of {total:,} shard bytes"
+          f" ({events / total:.1%}), {len(bank.events.rows):,} episodes")
+  step, frames = rows["every physics step"], rows["stored frames (baseline)"]
+  row = {"scene": "quickstart", "worlds": n_worlds, "how": rows,
+         "wall_ratio": step["wall_seconds"] / frames["wall_seconds"]}
+  print(f"wall with events at every step / with events on the stored frames: {row['wall_ratio']:.2f}")
+  return row, stepped
+
+
+FAST_XML = """<mujoco><option timestep="0.001"/><worldbody>
+  <geom name="floor" type="plane" size="3 3 0.1" solref="-1e6 -10"/>
+  <body name="ball" pos="0 0 13.05"><freejoint/><geom type="sphere" size="0.05" mass="0.2" solref="-1e6 -10"/></body>
+</worldbody></mujoco>"""
+FAST_YAML = """scene: {mjcf: fast.xml}
+randomize: {ball: {position: {dist: uniform, scale: [0.0, 0.0, 0.5]}}}
+sim: {end_time: 2.0}
+"""
+
+
+def fast_impacts(n_worlds: int) -> dict:
+  """Section 4: the worlds whose ball turns back up at the floor, and those whose events say it touched."""
   with tempfile.TemporaryDirectory() as tmp:
-    bank.save(tmp)
-    total = _dir_bytes(pathlib.Path(tmp) / "shards")
-    events = _dir_bytes(pathlib.Path(tmp) / "shards", "events_*.npy")
-  row = {"scene": "quickstart", "worlds": n_worlds, "episodes": int(len(bank.events.rows)),
-         "events_seconds": stats.events_seconds, "simulation_seconds": stats.run_seconds,
-         "events_over_simulation": stats.events_seconds / stats.run_seconds,
-         "shard_bytes": total, "event_bytes": events, "event_fraction": events / total}
-  print(f"quickstart {n_worlds} worlds: events {stats.events_seconds:.2f} s against simulation "
-        f"{stats.run_seconds:.2f} s ({row['events_over_simulation']:.2f}x); {events:,} of {total:,} shard bytes "
-        f"({row['event_fraction']:.1%}), {row['episodes']:,} episodes")
-  return row, bank
+    (pathlib.Path(tmp) / "fast.xml").write_text(FAST_XML)
+    (pathlib.Path(tmp) / "fast.yaml").write_text(FAST_YAML)
+    config = mwbx.load_config(pathlib.Path(tmp) / "fast.yaml")
+    bank, _, _ = _sample(config, n_worlds)
+    frames_bank, _, _ = _sample(config, n_worlds, on_frames=True)
+  z = np.stack([f[:, 2] for f in bank.qpos_store.frames_of_rows(None)])  # the same length: end time
+  bounced = np.array([(np.diff(w) > 0).any() and w.min() < 0.5 for w in z])  # falls, then rises near the floor
+  ball, floor = ("ball",), ("floor",)
+  hit = mwbx.queries.event.hardest_hit(bank, ball, floor)
+  row = {"worlds": n_worlds, "bounced": int(bounced.sum()),
+         "touch_every_step": int(np.isfinite(mwbx.queries.event.first_touch(bank, ball, floor)).sum()),
+         "touch_stored_frames": int(np.isfinite(mwbx.queries.event.first_touch(frames_bank, ball, floor)).sum()),
+         "impulse_median": float(np.median(hit)), "impulse_min": float(hit.min()), "impulse_max": float(hit.max()),
+         "impact_speed": float(np.sqrt(2 * 9.81 * 13.0))}
+  print(f"fast impacts, {n_worlds} worlds: the ball turns back at the floor in {row['bounced']}; touch found in"
+        f" {row['touch_every_step']} at every step, {row['touch_stored_frames']} on the stored frames;"
+        f" impulse median {row['impulse_median']:.2f} N·s ({row['impulse_min']:.2f}–{row['impulse_max']:.2f})")
+  return row
 
 
 def latency(bank: mwbx.Bank, n_worlds: int = 4096) -> dict:
@@ -120,11 +182,14 @@ def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--worlds", type=int, default=256, help="quickstart worlds sampled (default 256)")
   parser.add_argument("--tower", type=int, default=32, help="tower worlds sampled (default 32; 0: skip)")
+  parser.add_argument("--fast", type=int, default=128, help="fast-impact worlds (default 128; 0: skip)")
   parser.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "bench" / "events.json")
   args = parser.parse_args()
   result = {"machine": machine(), "mujoco": __import__("mujoco").__version__}
   result["cost"], bank = cost(args.worlds)
   result["latency"] = latency(bank)
+  if args.fast:
+    result["fast"] = fast_impacts(args.fast)
   if args.tower:
     result["tower"] = tower(args.tower)
   elif args.out.exists() and "tower" in json.loads(args.out.read_text()):  # --tower 0: keep the last tower row

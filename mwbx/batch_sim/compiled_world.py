@@ -166,13 +166,49 @@ def read_contacts(data, events, open_, tick, force6):
     steps_lib.touch(open_, events.n_actors, sides[0], sides[1], force, tick)
 
 
+class WorldEvents(NamedTuple):
+  """One world's step events as its loop keeps them (:func:`new_world_events`).
+
+  Attributes:
+    open_: :class:`mwbx.events.steps.OpenEpisodes`.
+    moving: bool[n_actors] scratch: the actors with an awake tree.
+    force6: f64[6] scratch for ``mj_contactForce``.
+    rows, strength: the world's rows of the chunk's :class:`EventBuffers`.
+  """
+
+  open_: steps_lib.OpenEpisodes
+  moving: np.ndarray
+  force6: np.ndarray
+  rows: np.ndarray
+  strength: np.ndarray
+
+
 @host_jit
-def step_events(data, events, open_, tick, timestep, moving, force6, rows, strength):
+def new_world_events(events, event_buffers, row):
+  """A fresh :class:`WorldEvents` for world ``row`` (one actor's worth where ``events`` is off)."""
+  n_actors = events.n_actors if events.on else 1
+  moving = np.ones(n_actors, np.bool_)
+  for a in range(n_actors):  # static actors never move (sleeping scenes recompute the objects')
+    moving[a] = (not events.on) or events.actor_tree_start[a + 1] > events.actor_tree_start[a]
+  return WorldEvents(steps_lib.new_episodes(n_actors), moving, np.zeros(6), event_buffers.rows[row],
+                     event_buffers.strength[row])
+
+
+@host_jit
+def step_events(data, events, world_events, tick, timestep):
   """The events of one physics step of a world (after its ``mj_step``)."""
-  read_contacts(data, events, open_, tick, force6)
+  w = world_events
+  read_contacts(data, events, w.open_, tick, w.force6)
   if events.sleep:
-    steps_lib.actors_moving(data.tree_asleep, events.actor_tree_start, events.actor_trees, moving)
-  steps_lib.end_tick(open_, events.n_actors, tick, events.gap, timestep, moving, rows, strength)
+    steps_lib.actors_moving(data.tree_asleep, events.actor_tree_start, events.actor_trees, w.moving)
+  steps_lib.end_tick(w.open_, events.n_actors, tick, events.gap, timestep, w.moving, w.rows, w.strength)
+
+
+@host_jit
+def finish_events(events, world_events, last_tick):
+  """The world's episode count once it ended at ``last_tick`` (:func:`mwbx.events.steps.finish`)."""
+  w = world_events
+  return steps_lib.finish(w.open_, events.n_actors, last_tick, w.rows, w.strength)
 
 
 _step = mujoco_c.mj_step
@@ -239,12 +275,7 @@ def run_world(row, data, inputs, initial_states, buffers, running, events, event
   _set_state(data.model_adr, data.data_adr, initial_states[row].ctypes.data, _FULLPHYSICS)
   physics = 0.0
   frame = 0
-  n_actors = events.n_actors if events.on else 1
-  open_ = steps_lib.new_episodes(n_actors)
-  moving = np.ones(n_actors, np.bool_)
-  for a in range(n_actors):  # static actors never move (sleeping scenes recompute the objects')
-    moving[a] = (not events.on) or events.actor_tree_start[a + 1] > events.actor_tree_start[a]
-  force6 = np.zeros(6)
+  world_events = new_world_events(events, event_buffers, row)
   while running[row] and frame < inputs.n_frames:
     _get_state(data.model_adr, data.data_adr, before[0].ctypes.data, _FULLPHYSICS)
     for s in range(n_steps):
@@ -253,8 +284,7 @@ def run_world(row, data, inputs, initial_states, buffers, running, events, event
                    sensors[0, s])
       physics += monotonic_seconds(ts) - start
       if events.on:
-        step_events(data, events, open_, frame * n_steps + s, inputs.timestep, moving, force6,
-                    event_buffers.rows[row], event_buffers.strength[row])
+        step_events(data, events, world_events, frame * n_steps + s, inputs.timestep)
     host_loops.absorb_rows(rows, before, after, sensors, inputs.timestep, 1 + nq, b.sensordata, b.warmstart,
                            b.states)
     if free:
@@ -266,7 +296,5 @@ def run_world(row, data, inputs, initial_states, buffers, running, events, event
       running[row] = False
     frame += 1
   if events.on:
-    last_tick = (b.carry.frame_count[row] - 1) * n_steps
-    event_buffers.count[row] = steps_lib.finish(open_, n_actors, last_tick, event_buffers.rows[row],
-                                                event_buffers.strength[row])
+    event_buffers.count[row] = finish_events(events, world_events, (b.carry.frame_count[row] - 1) * n_steps)
   return physics

@@ -237,7 +237,7 @@ class NativeBackend:
         timestep=m.opt.timestep, gravity=np.asarray(m.opt.gravity, np.float64), free=free, free_bodies=bodies,
         rest_when_asleep=bool(m.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)))
 
-    events = self.step_events(scene, params.steps_per_frame)
+    events = self.step_events(scene.object_names, params.steps_per_frame)
     found = compiled_world.event_buffers(c, events)
 
     def run(row, data, running_flags):
@@ -267,11 +267,12 @@ class NativeBackend:
       result = result._replace(event_rows=found.rows, event_strength=found.strength, event_count=found.count)
     return result
 
-  def step_events(self, scene, steps_per_frame: int) -> compiled_world.StepEventInputs:
-    """How the compiled loops find ``scene``'s contact events at every step (kept per backend)."""
+  def step_events(self, object_names, steps_per_frame: int) -> compiled_world.StepEventInputs:
+    """How the compiled loops find the contact events of the scene (its
+    ``object_names``) at every step (kept per backend)."""
     if self._step_events is None:
       self._step_events = compiled_world.step_event_inputs(
-          self.model, events_lib.actors_of(self.model, scene.object_names), steps_per_frame)
+          self.model, events_lib.actors_of(self.model, object_names), steps_per_frame)
     return self._step_events
 
   def run_per_world(self, rows, work, model: mujoco.MjModel, running: np.ndarray, status: np.ndarray, poll=None):

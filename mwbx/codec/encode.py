@@ -257,9 +257,11 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     finite = np.ones((num_w, len(adrs)), bool)
     finite[:, read] = eval_kernels.finite_paths(qpos, frame_count, given[read], width)
     finite = finite.reshape(-1)
-    # Frame 0 is stored on a grid; the fit starts from that stored value.
-    frame0 = qpos[:, 0][:, given[:, None] + np.arange(width)] if num_t else np.zeros(
-        (num_w, len(adrs), width), np.float32)
+    # Frame 0 is stored on a grid; the fit starts from that stored value (a channel
+    # not read starts from the parent's: _with_parent_segments).
+    frame0 = np.zeros((num_w, len(adrs), width), np.float32)
+    if num_t:
+      frame0[:, read] = qpos[:, 0][:, given[read][:, None] + np.arange(width)]
     initial = quantize_initial(kind, frame0.reshape(-1, width), bounds) * initial_steps(bounds)[kind]
     initial[n == 0] = 0.0
     inputs.append((kind, adrs, columns, n, finite, initial, take))

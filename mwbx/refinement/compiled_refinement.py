@@ -45,6 +45,7 @@ import numpy as np
 
 from mwbx.batch_sim import free_bodies, host_bookkeeping, host_loops, mujoco_c, world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
+from mwbx.batch_sim import compiled_world
 from mwbx.batch_sim.compiled_world import WorldInputs, physics_step
 from mwbx.batch_sim.host_bookkeeping import ChunkBuffers
 from mwbx.batch_sim.compiled_world import monotonic_seconds as _now
@@ -313,7 +314,7 @@ def _audit(sensordata_row, wrench_row, tracked, p, dt, flex_delta):
 
 
 @host_jit
-def run_refined_world(row, data, inputs, parent, objects, buffers, refined, running):
+def run_refined_world(row, data, inputs, parent, objects, buffers, refined, running, events, world_events):
   """Runs refined world ``row`` until it finishes or its active set grows.
 
   Args:
@@ -329,6 +330,8 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
       rewritten here for the world's active objects.
     refined: :class:`RefinedWorlds` (row ``row`` updated).
     running: bool[C] as in sampling (out).
+    events: :class:`compiled_world.StepEventInputs`; world_events: the
+      world's :class:`compiled_world.WorldEvents`, kept across calls.
 
   Returns:
     (FINISHED or ACTIVATED, seconds inside ``mj_step``).
@@ -378,6 +381,8 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
                      parent.qvel[frame])
       physics_step(data, b.wrench_full[row, s], inputs.ctrl_table, frame * n_steps + s, after[0, s], free,
                    sensors[0, s])
+      if events.on:  # (inside the physics timing: a few per cent of a step)
+        compiled_world.step_events(data, events, world_events, frame * n_steps + s, timestep)
     physics += _now(ts) - start
     host_loops.absorb_rows(rows, before, after, sensors, timestep, 1 + nq, b.sensordata, b.warmstart, b.states)
     if free:
@@ -467,12 +472,17 @@ def run_compiled(backend, inp, progress=None):
     with models_lock:
       return inp.models(~active[row:row + 1])[0]
 
-  def call(row, model, data, flags):
+  # Contacts found at every step; an actor moves while a tree of it is awake (inactive objects sleep).
+  events = (backend.step_events(inp.event_objects, spf)._replace(sleep=True) if inp.event_objects is not None
+            else compiled_world.step_event_inputs(m, None, spf))
+  found = compiled_world.event_buffers(c, events)
+
+  def call(row, model, data, flags, world_events):
     if not hasattr(thread_buffers, "b"):  # each thread rewrites its own perturbable masks
       thread_buffers.b = buffers._replace(params=p._replace(
           perturbable=objects.perturbable.copy(), flex_perturbable=objects.flex_perturbable.copy()))
     return run_refined_world(row, mujoco_c.data_views(model, data), inputs, parent, objects, thread_buffers.b,
-                             refined, flags)
+                             refined, flags, events, world_events)
 
   # Where inactive objects sleep, MuJoCo computes the poses of static geoms
   # only while nothing sleeps (they never move): once per world, before any
@@ -492,15 +502,19 @@ def run_compiled(backend, inp, progress=None):
     if awake_model is not None:
       mujoco.mj_kinematics(awake_model, data)
     physics = 0.0
+    world_events = compiled_world.new_world_events(events, found, row)
     while True:
-      code, seconds = call(row, model_for(row), data, running)
+      code, seconds = call(row, model_for(row), data, running, world_events)
       physics += seconds
       if code == FINISHED:
+        if events.on:
+          found.count[row] = compiled_world.finish_events(events, world_events,
+                                                          (f0 + int(carry.frame_count[row]) - 1) * spf)
         return physics
 
   base = inp.models(np.zeros((1, n_objects), bool))[0]
   t0 = time.perf_counter()
-  call(0, base, mujoco.MjData(base), np.zeros(c, bool))  # compiles, or loads numba's cache
+  call(0, base, mujoco.MjData(base), np.zeros(c, bool), compiled_world.new_world_events(events, found, 0))  # compiles
   compile_seconds = time.perf_counter() - t0
 
   def poll():
@@ -518,6 +532,8 @@ def run_compiled(backend, inp, progress=None):
       metrics=world.finalize_metrics(carry).astype(np.float32),
       perturbations=carry.perturbations.astype(np.int32), steps=steps, compile_seconds=compile_seconds,
       run_seconds=run_seconds, errors=tuple(sim_errors))
+  if events.on:
+    chunk = chunk._replace(event_rows=found.rows, event_strength=found.strength, event_count=found.count)
   return RefineOutput(chunk=chunk, active=active, activated=refined.activated,
                       max_perturbation_ratio=refined.audit_ratio.astype(np.float32),
                       inactive_perturbations=refined.audit_stray, asleep_object_frames=refined.asleep)

@@ -62,6 +62,8 @@ class RefineInputs(NamedTuple):
     ctrl: f64[n_frames · S, nu] actuator control of each step from step 0
       (:mod:`mwbx.controls`; width 0: none).
     act0: f64[C, na] actuator activations at f0 (None: the model has none).
+    event_objects: the scene's object names where contact events are found
+      at every step (the compiled native loop; None: not there).
   """
 
   params: world.WorldParams
@@ -83,6 +85,7 @@ class RefineInputs(NamedTuple):
   free_bodies: free_bodies_lib.FreeBodies | None = None
   ctrl: np.ndarray | None = None
   act0: np.ndarray | None = None
+  event_objects: tuple[str, ...] | None = None
 
 
 class RefineOutput(NamedTuple):

@@ -191,7 +191,8 @@ def run_plan(bank, plan: RefinePlan, sampler, progress=None, start_wall: float |
         qpos0=start_qpos[pad], qvel0=start_qvel[pad], active0=np.tile(parent.asked, (chunk, 1)), carry0=carry,
         qpos_object=parent.qpos_object, dof_object=parent.dof_object, step_keys=step_keys[pad],
         running0=running0, n_frames=n_frames, body_ids=scene.body_ids, models=extras.models,
-        free_bodies=extras.free_bodies, ctrl=ctrl, act0=None if act0 is None else np.repeat(act0, chunk, axis=0))
+        free_bodies=extras.free_bodies, ctrl=ctrl, act0=None if act0 is None else np.repeat(act0, chunk, axis=0),
+        event_objects=object_names if plan.events and bank.events is not None else None)
     base = stats.world_steps
     most_steps = (n_frames - f0) * spf  # one world from t_min to the end time
 
@@ -249,8 +250,9 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs, s
   # Removed objects count as active: their stored contacts after t_min are not theirs any more.
   touched = active | np.isin(np.asarray(object_names), plan.removed)[None, :]
   events_start = time.perf_counter()
-  events, event_actors = (refined_events(bank, row, f0, store, sampler, active=touched) if plan.events
-                          else (None, ()))
+  stepped = _stepped_episodes(outputs, f0, count, sampler.params.steps_per_frame)
+  events, event_actors = (refined_events(bank, row, f0, store, sampler, active=touched, stepped=stepped,
+                                         activated=activated) if plan.events else (None, ()))
   stats.events_seconds = time.perf_counter() - events_start
 
   # Inactive bodies keep the parent's polylines; a removed object keeps the
@@ -283,12 +285,34 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs, s
       _model=None)
 
 
-def refined_events(bank, row: int, first_frame: int, store, sampler, active=None):
+def _stepped_episodes(outputs, first_frame: int, frame_count: np.ndarray, spf: int) -> list | None:
+  """Per refined world, f64[n, 6] the episodes its loop found at every step
+  (one on at the world's own end goes on to ``frame_count``'s, where the
+  world is held to its parent's length); None for a world whose loop found
+  none or overflowed, or for every world where the loop does not find them."""
+  chunks = [o.chunk for o in outputs]
+  if any(c.event_count is None for c in chunks):
+    return None
+  out = []
+  for c in chunks:
+    for w, n in enumerate(c.event_count.tolist()):
+      if n > c.event_rows.shape[1]:
+        out.append(None)
+        continue
+      rows = np.concatenate([c.event_rows[w, :n], c.event_strength[w, :n]], axis=1).astype(np.float64)
+      own_end = (first_frame + int(c.frame_count[w]) - 1) * spf
+      rows[rows[:, 3] == own_end, 3] = (int(frame_count[len(out)]) - 1) * spf
+      out.append(rows)
+  return out
+
+
+def refined_events(bank, row: int, first_frame: int, store, sampler, active=None, stepped=None, activated=None):
   """(EventRecord, actor names, in physics steps) of refined worlds of the
   world at ``row``: the parent's episodes before ``first_frame`` (their
-  simulation is the parent's up to there), their own after, found on their
-  stored frames from there (:meth:`Sampler.events_of_frames`: a frame's
-  resolution, no strength); (None, ()) for a bank without events.
+  simulation is the parent's up to there), their own after: found at every
+  step by the loop (``stepped``), else on their stored frames from there
+  (:meth:`Sampler.events_of_frames`: a frame's resolution, no strength);
+  (None, ()) for a bank without events.
 
   Args:
     bank: the bank holding the parent. row: the parent's row.
@@ -296,9 +320,13 @@ def refined_events(bank, row: int, first_frame: int, store, sampler, active=None
     store: the refined worlds' stored qpos (any of the refinement's worlds,
       in any order). sampler: the bank scene's.
     active: optional bool[W, n_objects] the objects each refined world
-      moved itself (store order): only pairs with one of them are looked
-      for; the others follow the parent's stored paths, so their episodes
-      are the parent's.
+      moved itself (store order): its own episodes are those with one of
+      them on a side, from when it became active (``activated``: i32[W,
+      n_objects] frames, -1: from ``first_frame``); the other pairs follow
+      the parent's stored paths, so their episodes are the parent's.
+    stepped: optional, per world, f64[n, 6] episodes ``(a, b, first, last,
+      peak force, impulse)`` the loop found at every step from
+      ``first_frame`` on, or None where it did not (found on frames).
   """
   if bank.events is None:
     return None, ()
@@ -307,23 +335,26 @@ def refined_events(bank, row: int, first_frame: int, store, sampler, active=None
   frames = store.frames_of_rows(None)
   if tuple(bank.event_actors) != actors:  # a later scene version: other actors, found afresh
     return sampler.events_of_frames(frames), actors
+  n, start = len(frames), first_frame * spf
+  parent = _episodes(bank.events.in_ticks(spf), row)
+  moved_from = np.full((n, len(actors)), np.inf)  # the tick each actor's own simulation starts (static: never)
+  if active is not None:
+    began = first_frame if activated is None else np.where(np.asarray(activated) >= 0, activated, first_frame)
+    moved_from[:, :np.shape(active)[1]] = np.where(active, np.asarray(began) * spf, np.inf)
+  stepped = [None] * n if stepped is None else stepped
   # Before first_frame a refined world is its parent's simulation (whatever the
   # codec made of the refined objects' frames there): the parent's episodes.
-  starts = np.full(len(frames), first_frame, np.int64)
-  record = bank.events.in_ticks(spf)
-  parent = _episodes(record, row)
-  moved = None
-  if active is not None:
-    moved = np.zeros((len(frames), len(actors)), bool)  # static actors never move
-    moved[:, :np.shape(active)[1]] = active
-  after = sampler.events_of_frames([f[s:] for f, s in zip(frames, starts)], first_frame=starts, active=moved)
+  on_frames = [i for i in range(n) if stepped[i] is None]
+  after = sampler.events_of_frames(
+      [frames[i][first_frame:] for i in on_frames], first_frame=first_frame,
+      active=None if active is None else np.isfinite(moved_from[on_frames])) if on_frames else None
   parent_end = (int(bank.frame_count[row]) - 1) * spf
   worlds = []
-  for i, (f, s) in enumerate(zip(frames, starts)):
-    found = _episodes(after, i)
-    if moved is not None:
-      found = _with_parent_pairs(parent, found, moved[i], int(s) * spf, parent_end, (len(f) - 1) * spf)
-    worlds.append(events_lib.spliced(parent, found, int(s) * spf))
+  for i in range(n):
+    found = stepped[i] if stepped[i] is not None else _episodes(after, on_frames.index(i))
+    if active is not None:
+      found = _with_parent_pairs(parent, found, moved_from[i], start, parent_end, (len(frames[i]) - 1) * spf)
+    worlds.append(events_lib.spliced(parent, found, start))
   return EventRecord.from_worlds([w[:, :4] for w in worlds], [w[:, 4:] for w in worlds], ticks_per_frame=spf), actors
 
 
@@ -333,31 +364,48 @@ def _episodes(record: EventRecord, row: int) -> np.ndarray:
   return np.concatenate([record.rows[lo:hi], record.strength[lo:hi]], axis=1).astype(np.float64)
 
 
-def _with_parent_pairs(parent: np.ndarray, found: np.ndarray, moved: np.ndarray, start: int, parent_end: int,
+def _with_parent_pairs(parent: np.ndarray, found: np.ndarray, moved_from: np.ndarray, start: int, parent_end: int,
                        end: int) -> np.ndarray:
-  """A refined world's episodes from tick ``start`` on: those ``found`` with a
-  ``moved`` actor (bool[n_actors]) on a side, and the parent's between
-  actors that did not move (their stored paths are the parent's; the last
-  frame is held where the world outlasts its parent).
+  """A refined world's episodes from tick ``start`` on: a pair's own from the
+  tick the first of its actors moved itself (``moved_from``: f64[n_actors],
+  inf: never), the parent's before (its stored paths are the parent's; the
+  last frame is held where the world outlasts its parent); an episode going
+  on across that tick is one.
 
   Args:
     parent: f64[n, 6] the parent's episodes (:func:`_episodes`).
     found: f64[m, 6] found on the refined world from ``start``.
     parent_end, end: the parent's and the refined world's last ticks.
   """
-  a, b = found[:, 0].astype(np.int64), found[:, 1].astype(np.int64)
-  found = found[moved[a] | moved[b]]
-  pa, pb = parent[:, 0].astype(np.int64), parent[:, 1].astype(np.int64)
-  kept = parent[~moved[pa] & ~moved[pb] & (parent[:, 3] >= start)].copy()
+  own = lambda rows: np.minimum(moved_from[rows[:, 0].astype(np.int64)], moved_from[rows[:, 1].astype(np.int64)])
+  k = own(found)
+  found = found[np.isfinite(k) & (found[:, 3] >= k)].copy()
+  found[:, 2] = np.maximum(found[:, 2], own(found))
+  k = own(parent)
+  kept = parent[(parent[:, 3] >= start) & (parent[:, 2] < k)].copy()
+  k = own(kept)
   # An episode going on at start continues the parent's (events_lib.spliced joins them):
   # its strength, the whole episode's, is counted once.
   kept[kept[:, 2] < start, 4:] = 0.0
   kept[:, 2] = np.maximum(kept[:, 2], start)
-  kept[kept[:, 3] == parent_end, 3] = max(parent_end, end)  # on at the parent's end: on while held
-  kept[:, 3] = np.minimum(kept[:, 3], end)
+  never = np.isinf(k)
+  kept[never & (kept[:, 3] == parent_end), 3] = max(parent_end, end)  # on at the parent's end: on while held
+  kept[:, 3] = np.minimum(kept[:, 3], np.where(never, end, k - 1))
   kept = kept[kept[:, 2] <= kept[:, 3]]
   rows = np.concatenate([found, kept])
-  return rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
+  rows = rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
+  # The parent's touch going on when an actor starts to move itself, and the world's own from then: one episode.
+  joined = np.zeros(len(rows), bool)
+  for j in range(1, len(rows)):
+    if (rows[j, :2] == rows[j - 1, :2]).all() and rows[j, 2] == rows[j - 1, 3] + 1:
+      i = j - 1
+      while joined[i]:
+        i -= 1
+      rows[i, 3] = rows[j, 3]
+      rows[i, 4] = np.maximum(rows[i, 4], rows[j, 4])
+      rows[i, 5] = rows[i, 5] + rows[j, 5]
+      joined[j] = True
+  return rows[~joined]
 
 
 def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, removed, keys):

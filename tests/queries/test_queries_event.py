@@ -193,31 +193,30 @@ def test_an_interpolated_flex_touches_by_its_nodes():
 
 
 def test_refined_worlds_keep_their_parents_events_and_find_their_own(quick_bank):
-  """Before the restart a refined world's episodes are its parent's (found at
-  every step); after it, those of the refined ball are found on its stored
-  frames (in steps: a frame's resolution, no strength)."""
+  """Before the restart a refined world's episodes are its parent's; after
+  it, those of the objects it moves itself are found at its every step (with
+  their strength), the others are the parent's."""
   parent_world = int(quick_bank.world_ids[2])
   bank = mwbx.refine(quick_bank, parent_world, "ball", t_min=1.0, n_samples=3, key=jax.random.key(5),
                      backend="native")
-  model = bank.model()
-  actors = actors_of(model, list(bank.objects))
+  actors = list(bank.event_actors)
   spf = bank.events.ticks_per_frame
   restart = round(1.0 * bank.record_fps) * spf
   parent = quick_bank.events.world(quick_bank.row_of(parent_world))
-  ball = actors.names.index("ball")
   for world in bank.world_ids[-3:].tolist():
-    rows = bank.events.world(bank.row_of(world))
+    row = bank.row_of(world)
+    rows = bank.events.world(row)
+    strength = bank.events.strength[bank.events.offsets[row]:bank.events.offsets[row + 1]]
     early = lambda r: {tuple(x) for x in r[r[:, 2] < restart, :3].tolist()}
     assert early(rows) == early(parent)
-    fresh = mwbx.events.detect_events(model, actors, [bank.qpos_frames(world)],
-                                      touch_margin(bank.config["codec"]["e_pos"])).in_ticks(spf).rows
-    own = lambda r: {tuple(x) for x in r[(r[:, 2] > restart) & ((r[:, 0] == ball) | (r[:, 1] == ball))].tolist()}
-    assert own(rows) == own(fresh) and own(rows)
-    strength = bank.events.strength[bank.events.offsets[bank.row_of(world)]:][:len(rows)]
-    moved = np.isin(rows[:, :2], [actors.names.index(o) for o in bank.lineage[str(world)]["active"]]).any(axis=1)
-    assert moved[rows[:, 0] == ball].all() or not (rows[:, 0] == ball).any()
-    assert np.isnan(strength[(rows[:, 2] > restart) & moved]).all()  # found on the stored frames
-    assert not np.isnan(strength[(rows[:, 3] < restart) | ~moved]).any()  # the parent's, found at its steps
+    lineage = bank.lineage[str(world)]
+    moved = np.isin(rows[:, :2], [actors.index(o) for o in lineage["active"]]).any(axis=1)
+    own = rows[:, 2] >= restart
+    assert (own & moved).any() and not np.isnan(strength).any()
+    # pairs it did not move are the parent's, episode for episode
+    others = lambda r, m: {tuple(x) for x in r[(r[:, 2] >= restart) & ~m, :3].tolist()}
+    parent_moved = np.isin(parent[:, :2], [actors.index(o) for o in lineage["active"]]).any(axis=1)
+    assert others(rows, moved) == others(parent, parent_moved)
 
 
 def test_events_are_saved_checked_and_refused_in_one_line_without_them(drop_bank, tmp_path):
