@@ -291,7 +291,8 @@ def spliced(parent: np.ndarray, after: np.ndarray, first: int) -> np.ndarray:
   before = parent[parent[:, 2] < first].copy()
   before[:, 3] = np.minimum(before[:, 3], first - 1)
   after = after.copy()
-  open_pairs = {(int(a), int(b)): i for i, (a, b, _, last) in enumerate(before[:, :4]) if last == first - 1}
+  on = np.flatnonzero(before[:, 3] == first - 1)  # the parent's episodes going on at the restart
+  open_pairs = {(int(before[i, 0]), int(before[i, 1])): int(i) for i in on}
   joined = np.zeros(len(after), bool)
   for j, (a, b, start, _) in enumerate(after[:, :4]):
     i = open_pairs.get((int(a), int(b)))

@@ -252,7 +252,7 @@ def _assemble(bank, plan: RefinePlan, sampler, parent: _Parent, keys, outputs, s
   events_start = time.perf_counter()
   stepped = _stepped_episodes(outputs, f0, count, sampler.params.steps_per_frame)
   events, event_actors = (refined_events(bank, row, f0, store, sampler, active=touched, stepped=stepped,
-                                         activated=activated) if plan.events else (None, ()))
+                                         activated=activated, frame_count=count) if plan.events else (None, ()))
   stats.events_seconds = time.perf_counter() - events_start
 
   # Inactive bodies keep the parent's polylines; a removed object keeps the
@@ -306,7 +306,8 @@ def _stepped_episodes(outputs, first_frame: int, frame_count: np.ndarray, spf: i
   return out
 
 
-def refined_events(bank, row: int, first_frame: int, store, sampler, active=None, stepped=None, activated=None):
+def refined_events(bank, row: int, first_frame: int, store, sampler, active=None, stepped=None, activated=None,
+                   frame_count=None):
   """(EventRecord, actor names, in physics steps) of refined worlds of the
   world at ``row``: the parent's episodes before ``first_frame`` (their
   simulation is the parent's up to there), their own after: found at every
@@ -327,15 +328,16 @@ def refined_events(bank, row: int, first_frame: int, store, sampler, active=None
     stepped: optional, per world, f64[n, 6] episodes ``(a, b, first, last,
       peak force, impulse)`` the loop found at every step from
       ``first_frame`` on, or None where it did not (found on frames).
+    frame_count: optional i[W] the worlds' frame counts (else their frames
+      are decoded to count them).
   """
   if bank.events is None:
     return None, ()
   actors = sampler.event_actors.names
   spf = sampler.params.steps_per_frame
-  frames = store.frames_of_rows(None)
   if tuple(bank.event_actors) != actors:  # a later scene version: other actors, found afresh
-    return sampler.events_of_frames(frames), actors
-  n, start = len(frames), first_frame * spf
+    return sampler.events_of_frames(store.frames_of_rows(None)), actors
+  n, start = store.n_worlds, first_frame * spf
   parent = _episodes(bank.events.in_ticks(spf), row)
   moved_from = np.full((n, len(actors)), np.inf)  # the tick each actor's own simulation starts (static: never)
   if active is not None:
@@ -345,15 +347,18 @@ def refined_events(bank, row: int, first_frame: int, store, sampler, active=None
   # Before first_frame a refined world is its parent's simulation (whatever the
   # codec made of the refined objects' frames there): the parent's episodes.
   on_frames = [i for i in range(n) if stepped[i] is None]
+  frames = store.frames_of_rows(np.array(on_frames, np.int64)) if on_frames else []
   after = sampler.events_of_frames(
-      [frames[i][first_frame:] for i in on_frames], first_frame=first_frame,
+      [f[first_frame:] for f in frames], first_frame=first_frame,
       active=None if active is None else np.isfinite(moved_from[on_frames])) if on_frames else None
+  if frame_count is None:  # (decoded only to be counted)
+    frame_count = [len(f) for f in store.frames_of_rows(None)]
   parent_end = (int(bank.frame_count[row]) - 1) * spf
   worlds = []
   for i in range(n):
     found = stepped[i] if stepped[i] is not None else _episodes(after, on_frames.index(i))
     if active is not None:
-      found = _with_parent_pairs(parent, found, moved_from[i], start, parent_end, (len(frames[i]) - 1) * spf)
+      found = _with_parent_pairs(parent, found, moved_from[i], start, parent_end, (int(frame_count[i]) - 1) * spf)
     worlds.append(events_lib.spliced(parent, found, start))
   return EventRecord.from_worlds([w[:, :4] for w in worlds], [w[:, 4:] for w in worlds], ticks_per_frame=spf), actors
 
@@ -394,18 +399,19 @@ def _with_parent_pairs(parent: np.ndarray, found: np.ndarray, moved_from: np.nda
   kept = kept[kept[:, 2] <= kept[:, 3]]
   rows = np.concatenate([found, kept])
   rows = rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
+  if not len(rows):
+    return rows
   # The parent's touch going on when an actor starts to move itself, and the world's own from then: one episode.
-  joined = np.zeros(len(rows), bool)
-  for j in range(1, len(rows)):
-    if (rows[j, :2] == rows[j - 1, :2]).all() and rows[j, 2] == rows[j - 1, 3] + 1:
-      i = j - 1
-      while joined[i]:
-        i -= 1
-      rows[i, 3] = rows[j, 3]
-      rows[i, 4] = np.maximum(rows[i, 4], rows[j, 4])
-      rows[i, 5] = rows[i, 5] + rows[j, 5]
-      joined[j] = True
-  return rows[~joined]
+  starts = np.ones(len(rows), bool)
+  starts[1:] = (rows[1:, 0] != rows[:-1, 0]) | (rows[1:, 1] != rows[:-1, 1]) | (rows[1:, 2] != rows[:-1, 3] + 1)
+  if starts.all():
+    return rows
+  first = np.flatnonzero(starts)
+  out = rows[first].copy()
+  out[:, 3] = np.maximum.reduceat(rows[:, 3], first)
+  out[:, 4] = np.maximum.reduceat(rows[:, 4], first)  # unknown (NaN) if any part is
+  out[:, 5] = np.add.reduceat(rows[:, 5], first)
+  return out
 
 
 def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, removed, keys):
