@@ -62,13 +62,15 @@ class StepEventInputs(NamedTuple):
 
   Attributes:
     on: False: no events (the arrays may be empty).
-    contact_words: i64[8] the :class:`mujoco_c.ContactLayout`, in its order.
+    contact_words: i64[10] the :class:`mujoco_c.ContactLayout`, in its order.
     geom_actor: i32[ngeom] each geom's actor; flex_actor: i32[max(nflex, 1)] each flex's.
     n_actors: how many actors.
     actor_tree_start: i64[n_actors + 1], actor_trees: i64[k] each actor's
       kinematic trees (CSR; static actors none).
     sleep: the model sleeps (an actor then moves only while a tree of it is awake).
     gap: steps apart that end an episode (the physics steps of a recorded frame).
+    pyramidal: the model's friction cones are pyramidal (a contact's normal
+      force is then the sum of its pyramid's edge forces, as ``mj_contactForce`` has it).
   """
 
   on: bool
@@ -80,6 +82,7 @@ class StepEventInputs(NamedTuple):
   actor_trees: np.ndarray
   sleep: bool
   gap: int = 1
+  pyramidal: bool = True
 
 
 class EventBuffers(NamedTuple):
@@ -118,12 +121,13 @@ def step_event_inputs(model, actors: Actors | None, steps_per_frame: int) -> Ste
           trees[a].append(tree)
   flex_actor = np.asarray(actors.flex_actor if actors is not None else [], np.int32)
   return StepEventInputs(
-      on=on, contact_words=np.asarray(layout if layout is not None else [0] * 8, np.int64),
+      on=on, contact_words=np.asarray(layout if layout is not None else [0] * 10, np.int64),
       geom_actor=np.asarray(actors.geom_actor if actors is not None else [], np.int32),
       flex_actor=flex_actor if flex_actor.size else np.full(1, -1, np.int32), n_actors=n_actors,
       actor_tree_start=np.concatenate([[0], np.cumsum([len(t) for t in trees])]).astype(np.int64),
       actor_trees=np.asarray([t for ts in trees for t in ts], np.int64),
-      sleep=bool(model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)), gap=int(steps_per_frame))
+      sleep=bool(model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)), gap=int(steps_per_frame),
+      pyramidal=int(model.opt.cone) == int(mujoco.mjtCone.mjCONE_PYRAMIDAL))
 
 
 def event_buffers(n_worlds: int, events: StepEventInputs) -> EventBuffers:
@@ -134,22 +138,23 @@ def event_buffers(n_worlds: int, events: StepEventInputs) -> EventBuffers:
 
 
 # The ContactLayout's words, by name (its field order).
-_NCON, _ARENA, _CONTACT, _STRIDE, _GEOM, _FLEX, _EXCLUDE, _EFC = range(8)
-_contact_force = mujoco_c.mj_contactForce
+_NCON, _ARENA, _CONTACT, _STRIDE, _GEOM, _FLEX, _EXCLUDE, _EFC, _DIM, _EFC_FORCE = range(10)
 
 
 @host_jit
-def read_contacts(data, events, open_, tick, force6):
+def read_contacts(data, events, open_, tick):
   """Every actor pair touching in the contacts of the step just taken
-  (:func:`mwbx.events.steps.touch`); ``force6``: f64[6] scratch."""
+  (:func:`mwbx.events.steps.touch`), with its normal force read from the
+  step's ``efc_force``."""
   w = events.contact_words
-  h32, h64, a32 = data.header_i32, data.header_i64, data.arena_i32
+  h32, h64, a32, a64 = data.header_i32, data.header_i64, data.arena_i32, data.arena_f64
   if h64.size == 0:
     return
   ncon = h32[w[_NCON]]
   start = h64[w[_CONTACT]] - h64[w[_ARENA]]
+  efc = (h64[w[_EFC_FORCE]] - h64[w[_ARENA]]) // 8  # efc_force as a word of the arena
   stride = w[_STRIDE]
-  if ncon <= 0 or start < 0 or start % 8 != 0 or start + ncon * stride > 4 * a32.size:
+  if ncon <= 0 or start < 0 or start % 8 != 0 or start + ncon * stride > 4 * a32.size or efc < 0:
     return
   for i in range(ncon):
     rec = start + i * stride
@@ -160,9 +165,13 @@ def read_contacts(data, events, open_, tick, force6):
       g = a32[(rec + w[_GEOM]) // 4 + k]
       sides[k] = events.geom_actor[g] if g >= 0 else events.flex_actor[max(a32[(rec + w[_FLEX]) // 4 + k], 0)]
     force = 0.0
-    if a32[(rec + w[_EFC]) // 4] >= 0:
-      _contact_force(data.model_adr, data.data_adr, i, force6.ctypes.data)
-      force = force6[0]
+    adr = a32[(rec + w[_EFC]) // 4]
+    if adr >= 0:
+      dim = a32[(rec + w[_DIM]) // 4]
+      edges = 2 * (dim - 1) if events.pyramidal and dim > 1 else 1
+      if efc + adr + edges <= a64.size:
+        for k in range(edges):
+          force += a64[efc + adr + k]
     steps_lib.touch(open_, events.n_actors, sides[0], sides[1], force, tick)
 
 
@@ -172,13 +181,11 @@ class WorldEvents(NamedTuple):
   Attributes:
     open_: :class:`mwbx.events.steps.OpenEpisodes`.
     moving: bool[n_actors] scratch: the actors with an awake tree.
-    force6: f64[6] scratch for ``mj_contactForce``.
     rows, strength: the world's rows of the chunk's :class:`EventBuffers`.
   """
 
   open_: steps_lib.OpenEpisodes
   moving: np.ndarray
-  force6: np.ndarray
   rows: np.ndarray
   strength: np.ndarray
 
@@ -190,7 +197,7 @@ def new_world_events(events, event_buffers, row):
   moving = np.ones(n_actors, np.bool_)
   for a in range(n_actors):  # static actors never move (sleeping scenes recompute the objects')
     moving[a] = (not events.on) or events.actor_tree_start[a + 1] > events.actor_tree_start[a]
-  return WorldEvents(steps_lib.new_episodes(n_actors), moving, np.zeros(6), event_buffers.rows[row],
+  return WorldEvents(steps_lib.new_episodes(n_actors), moving, event_buffers.rows[row],
                      event_buffers.strength[row])
 
 
@@ -198,7 +205,7 @@ def new_world_events(events, event_buffers, row):
 def step_events(data, events, world_events, tick, timestep):
   """The events of one physics step of a world (after its ``mj_step``)."""
   w = world_events
-  read_contacts(data, events, w.open_, tick, w.force6)
+  read_contacts(data, events, w.open_, tick)
   if events.sleep:
     steps_lib.actors_moving(data.tree_asleep, events.actor_tree_start, events.actor_trees, w.moving)
   steps_lib.end_tick(w.open_, events.n_actors, tick, events.gap, timestep, w.moving, w.rows, w.strength)

@@ -58,13 +58,11 @@ if _load(_library()):
   mj_getState = types.ExternalFunction("mj_getState", types.void(_intp, _intp, _intp, types.int32))
   mj_setState = types.ExternalFunction("mj_setState", types.void(_intp, _intp, _intp, types.int32))
   mj_kinematics = types.ExternalFunction("mj_kinematics", types.void(_intp, _intp))
-  # mj_contactForce(m, d, contact id, f64[6] out): the contact-frame force of a step's contact.
-  mj_contactForce = types.ExternalFunction("mj_contactForce", types.void(_intp, _intp, types.int32, _intp))
   # clock_gettime(CLOCK_MONOTONIC, int64[2]) from the C library already in the
   # process: the compiled loop times its physics.
   clock_gettime = types.ExternalFunction("clock_gettime", types.int32(types.int32, _intp))
 else:  # pragma: no cover - platforms without the shared library next to the bindings
-  mj_step = mj_resetData = mj_getState = mj_setState = mj_kinematics = mj_contactForce = clock_gettime = None
+  mj_step = mj_resetData = mj_getState = mj_setState = mj_kinematics = clock_gettime = None
 # mj_updateSleep (the sleep arrays from ``tree_asleep``) is exported by the
 # library but not declared in its public header: bound only where present.
 _HAS_UPDATE_SLEEP = mj_step is not None and hasattr(ctypes.CDLL(_library()), "mj_updateSleep")
@@ -101,8 +99,8 @@ class MjDataViews(NamedTuple):
     ctrl: f64[nu] view of ``ctrl`` (the actuators' units).
     tree_asleep: i32[ntree] view of ``tree_asleep`` (< 0: awake; MuJoCo 4's sleep).
     header_i32, header_i64: the ``mjData`` struct itself up to its
-      ``contact`` pointer, as int32 and int64 words (:class:`ContactLayout`;
-      empty where it could not be found).
+      ``contact`` and ``efc_force`` pointers, as int32 and int64 words
+      (:class:`ContactLayout`; empty where it could not be found).
     arena_i32, arena_f64: the data's arena (where ``mj_collision`` puts the
       step's contacts) as int32 and float64 words.
   """
@@ -128,7 +126,7 @@ def data_views(model: mujoco.MjModel, data: mujoco.MjData) -> MjDataViews:
   layout = contact_layout()
   if layout is None:
     return views
-  header = _words(data._address, 8 * (layout.contact + 1))
+  header = _words(data._address, 8 * (max(layout.contact, layout.efc_force) + 1))
   arena = _words(int(header.view(np.int64)[layout.arena]), int(data.narena) // 8 * 8)
   return views._replace(header_i32=header.view(np.int32), header_i64=header.view(np.int64),
                         arena_i32=arena.view(np.int32), arena_f64=arena.view(np.float64))
@@ -150,8 +148,9 @@ class ContactLayout(NamedTuple):
     ncon: int32 word of ``mjData.ncon``.
     arena, contact: int64 words of the ``mjData.arena`` and ``mjData.contact`` pointers.
     stride: bytes of one ``mjContact``.
-    geom, flex, exclude, efc_address: byte offsets of those ``mjContact``
-      fields (``geom``, ``flex``: int[2]).
+    geom, flex, exclude, efc_address, dim: byte offsets of those
+      ``mjContact`` fields (``geom``, ``flex``: int[2]).
+    efc_force: int64 word of the ``mjData.efc_force`` pointer (into the arena).
   """
 
   ncon: int
@@ -162,6 +161,8 @@ class ContactLayout(NamedTuple):
   flex: int
   exclude: int
   efc_address: int
+  dim: int
+  efc_force: int
 
 
 def _words(address: int, n_bytes: int) -> np.ndarray:
@@ -206,12 +207,14 @@ def contact_layout() -> ContactLayout | None:
     offset = lambda field: int(getattr(contact, field).ctypes.data - contact.dist.ctypes.data)
     layout = ContactLayout(ncon=int(ncon[0]), arena=int(pointers[0]), contact=int(pointers[1]),
                            stride=int(contact.dist.strides[0]), geom=offset("geom"), flex=offset("flex"),
-                           exclude=offset("exclude"), efc_address=offset("efc_address"))
+                           exclude=offset("exclude"), efc_address=offset("efc_address"), dim=offset("dim"),
+                           efc_force=n_bytes // 8 - 1)
     other = mujoco.MjData(model)  # the same words mean the same on another data
     mujoco.mj_forward(model, other)
-    words = _words(other._address, 8 * (layout.contact + 1))
-    if (words.view(np.int32)[layout.ncon] != other.ncon
-        or words.view(np.int64)[layout.contact] != other.contact.dist.ctypes.data):
+    words = _words(other._address, 8 * (layout.efc_force + 1)).view(np.int64)
+    inside = 0 <= words[layout.efc_force] - words[layout.arena] < other.narena  # efc_force is in the arena
+    if (words.view(np.int32)[layout.ncon] != other.ncon or words[layout.contact] != other.contact.dist.ctypes.data
+        or words[layout.efc_force] != other.efc_force.ctypes.data or not inside):
       return None
     return layout
   except (ValueError, TypeError, AttributeError, mujoco.FatalError):

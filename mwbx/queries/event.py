@@ -476,17 +476,17 @@ class OrderQuery(Query):
   def gap(self, bank) -> np.ndarray:
     """Per touch that never happens, how near its objects come (metres); per
     touch that comes no later than the one before, by how much (seconds, plus
-    one frame)."""
+    one tick: a physics step, or a frame in banks found on frames)."""
     t = self.times(bank)
     gap = np.zeros(bank.n_worlds)
     for i, (a, b) in enumerate(self.events):
       missing = ~np.isfinite(t[:, i])
       if missing.any():
         gap = gap + np.where(missing, approach_gap(bank, a, b, self.window), 0.0)
-    frame = 1.0 / float(bank.record_fps)
+    tick = 1.0 / (float(bank.record_fps) * _events(bank, self.label).ticks_per_frame)  # strictly later: a step
     both = np.isfinite(t[:, 1:]) & np.isfinite(t[:, :-1])
     ahead = np.subtract(t[:, :-1], t[:, 1:], out=np.zeros_like(t[:, 1:]), where=both)  # no inf - inf
-    late = np.where(both, np.maximum(ahead + frame, 0.0), 0.0)
+    late = np.where(both, np.maximum(ahead + tick, 0.0), 0.0)
     return gap + late.sum(axis=1)
 
   def objects(self, owner) -> list[str]:
