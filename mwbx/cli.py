@@ -42,7 +42,7 @@ from mwbx import __version__
 from mwbx.bank import runs, shards, warm
 from mwbx.batch_sim.sampling_run import Hosts, RunInterrupted, sample_run
 from mwbx.errors import MwbxError
-from mwbx.progress import reporter
+from mwbx.progress import notices_to_stderr, reporter
 from mwbx.queries import Camera, ScreenBox, load_queries
 from mwbx.queries.report import run_query_file
 from mwbx.refinement import RefineRequest, run_refinement
@@ -753,6 +753,7 @@ def _quiet_unraisable(unraisable) -> None:
 def main(argv: list[str] | None = None) -> int:
   args = build_parser().parse_args(argv)
   sys.unraisablehook = _quiet_unraisable
+  notices_to_stderr()  # what a bank or a page has to say once
   _enable_compilation_cache()
   previous = signal.signal(signal.SIGTERM, _terminate)
   try:

@@ -7,6 +7,7 @@ draws it as a tqdm bar on a terminal and as a few plain lines otherwise
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from typing import Callable, NamedTuple, TextIO
@@ -136,3 +137,29 @@ class reporter:
     for bar in self.bars.values():
       bar.close()
     self.bars = {}
+
+
+NOTICE = logging.getLogger("mwbx.notice")
+
+
+class _StderrNow(logging.StreamHandler):
+  """Writes to whatever ``sys.stderr`` is when a record comes (it may be swapped after the handler is made)."""
+
+  @property
+  def stream(self):
+    return sys.stderr
+
+  @stream.setter
+  def stream(self, value):
+    del value
+
+
+def notices_to_stderr() -> None:
+  """Sends mwbx's notices (logger ``mwbx.notice``: what a page or a bank has
+  to say once) to stderr as ``mwbx: ...`` lines; idempotent."""
+  if not NOTICE.handlers:
+    handler = _StderrNow()
+    handler.setFormatter(logging.Formatter("mwbx: %(message)s"))
+    NOTICE.addHandler(handler)
+    NOTICE.setLevel(logging.INFO)
+    NOTICE.propagate = False

@@ -901,8 +901,9 @@ def tower(d: dict) -> tuple[list[str], list[str]]:
            "worlds (seed 1) with `sim.sleep: false` and with `sim.sleep: true`, then "
            f"`--objects rock --time 0.8 --samples {d['samples']}` of world 2 of the sleep-on bank, against the "
            "same request with inactive objects moved along the stored path every step instead of held asleep, "
-           "and against that with every channel fitted anew and every contact pair tested as well (the "
-           "baseline). "
+           "and against that with every channel fitted anew and every contact pair tested on the stored frames "
+           "as well (the baseline). Contact events are found inside the simulation's steps (their cost is in its "
+           "wall time; the events column is what is left to do afterwards). "
            f"Machine: {d['machine']}.", "",
            "| sampling | wall s | physics s | world-steps/s | compression s | contact events s | at rest |"
            " 1549 worlds (min, projected) |",

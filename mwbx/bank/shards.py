@@ -52,6 +52,7 @@ from mwbx.bank.stores import store_class
 from mwbx.codec import polyline
 from mwbx.events import record as events_lib
 from mwbx.errors import MwbxError
+from mwbx.progress import NOTICE
 from mwbx.yaml_input import short_repr
 
 FORMAT = 3
@@ -549,6 +550,9 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       mjcf_text=scene["mjcf_text"], mjcf_includes=scene.get("mjcf_includes", {}), mjcf_assets=stored,
       digest=scene["digest"], lineage=lineage, run=run, next_id=int(manifest["next_id"]),
       versions=list(scene.get("versions", [])), events=events, event_actors=event_actors)
+  if events is not None and events.ticks_per_frame == 1 and np.isnan(events.strength).all() and len(events.rows):
+    NOTICE.info(f"{path}: contact events known at the stored frames only (sampled before they were found at every"
+                " physics step): touch times to a frame, no impulses; sample again for both")
   ids, counts = np.unique(bank.world_ids, return_counts=True)
   if (counts > 1).any():
     twice = ids[counts > 1]

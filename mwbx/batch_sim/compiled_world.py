@@ -68,7 +68,7 @@ class StepEventInputs(NamedTuple):
     actor_tree_start: i64[n_actors + 1], actor_trees: i64[k] each actor's
       kinematic trees (CSR; static actors none).
     sleep: the model sleeps (an actor then moves only while a tree of it is awake).
-    gap: steps apart that end an episode (the physics steps of a recorded frame).
+    gap: steps apart that end an episode (the sampler's: the physics steps of a query point).
     pyramidal: the model's friction cones are pyramidal (a contact's normal
       force is then the sum of its pyramid's edge forces, as ``mj_contactForce`` has it).
   """
@@ -98,10 +98,10 @@ class EventBuffers(NamedTuple):
   count: np.ndarray
 
 
-def step_event_inputs(model, actors: Actors | None, steps_per_frame: int) -> StepEventInputs:
-  """The :class:`StepEventInputs` of a model and its actors, ``steps_per_frame``
-  the gap that ends an episode (off where ``actors`` is None or the contacts
-  cannot be read here)."""
+def step_event_inputs(model, actors: Actors | None, gap: int) -> StepEventInputs:
+  """The :class:`StepEventInputs` of a model and its actors, ``gap`` the
+  steps apart that end an episode (off where ``actors`` is None or the
+  contacts cannot be read here)."""
   layout = mujoco_c.contact_layout()
   on = actors is not None and layout is not None
   n_actors = len(actors.names) if actors is not None else 0
@@ -126,7 +126,7 @@ def step_event_inputs(model, actors: Actors | None, steps_per_frame: int) -> Ste
       flex_actor=flex_actor if flex_actor.size else np.full(1, -1, np.int32), n_actors=n_actors,
       actor_tree_start=np.concatenate([[0], np.cumsum([len(t) for t in trees])]).astype(np.int64),
       actor_trees=np.asarray([t for ts in trees for t in ts], np.int64),
-      sleep=bool(model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)), gap=int(steps_per_frame),
+      sleep=bool(model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)), gap=int(gap),
       pyramidal=int(model.opt.cone) == int(mujoco.mjtCone.mjCONE_PYRAMIDAL))
 
 

@@ -65,9 +65,11 @@ class NativeBackend:
   Args:
     model: the scene model (with mwbx sensors).
     threads: pool size; 0 means one per CPU core.
+    event_gap: physics steps apart that end a contact episode
+      (:mod:`mwbx.events.steps`; the sampler's: a query point's steps).
   """
 
-  def __init__(self, model: mujoco.MjModel, threads: int = 0):
+  def __init__(self, model: mujoco.MjModel, threads: int = 0, event_gap: int = 1):
     self.model = model
     self.threads = threads or os.cpu_count() or 1
     self.pool = mj_rollout.Rollout(nthread=self.threads)
@@ -76,6 +78,7 @@ class NativeBackend:
     self._models: list = []  # rollout wants one model per world with skip_checks
     self._quiet_model = None
     self._step_events = None
+    self.event_gap = int(event_gap)
 
   @property
   def quiet_model(self) -> mujoco.MjModel:
@@ -237,7 +240,7 @@ class NativeBackend:
         timestep=m.opt.timestep, gravity=np.asarray(m.opt.gravity, np.float64), free=free, free_bodies=bodies,
         rest_when_asleep=bool(m.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)))
 
-    events = self.step_events(scene.object_names, params.steps_per_frame)
+    events = self.step_events(scene.object_names)
     found = compiled_world.event_buffers(c, events)
 
     def run(row, data, running_flags):
@@ -267,12 +270,12 @@ class NativeBackend:
       result = result._replace(event_rows=found.rows, event_strength=found.strength, event_count=found.count)
     return result
 
-  def step_events(self, object_names, steps_per_frame: int) -> compiled_world.StepEventInputs:
+  def step_events(self, object_names) -> compiled_world.StepEventInputs:
     """How the compiled loops find the contact events of the scene (its
     ``object_names``) at every step (kept per backend)."""
     if self._step_events is None:
       self._step_events = compiled_world.step_event_inputs(
-          self.model, events_lib.actors_of(self.model, object_names), steps_per_frame)
+          self.model, events_lib.actors_of(self.model, object_names), self.event_gap)
     return self._step_events
 
   def run_per_world(self, rows, work, model: mujoco.MjModel, running: np.ndarray, status: np.ndarray, poll=None):

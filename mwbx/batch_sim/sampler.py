@@ -193,7 +193,9 @@ class Sampler:
     else:
       self.sleep = (sleep_lib.SleepSettings.from_record(sleep) if isinstance(sleep, dict) else sleep
                     or sleep_lib.resolve(model, cfg.sim.sleep, cfg.sim.sleep_tolerance))
-      self.backend = NativeBackend(sleep_lib.sleeping_copy(model, self.sleep), cfg.sim.threads)
+      # A contact episode ends after a query point's steps apart: see mwbx.events.steps.
+      self.backend = NativeBackend(sleep_lib.sleeping_copy(model, self.sleep), cfg.sim.threads,
+                                   event_gap=spf * self.query_stride)
       self.backend_label = "native"
     self.event_actors = events_lib.actors_of(self.scene.model, self.scene.object_names)
     self._init = per_world(self.scene.initial_state)

@@ -41,6 +41,7 @@ from mwbx.browser.player import Player
 from mwbx.browser.scene import Stage
 from mwbx.browser.session import HARDEST_HIT, ORIENTATION_ERROR, Session
 from mwbx.errors import MwbxError
+from mwbx.progress import NOTICE, notices_to_stderr
 from mwbx.viewer import display, framing
 from mwbx.viewer import flex as flex_lib
 from mwbx.viewer.kinematics import body_trajectories
@@ -53,29 +54,6 @@ LOG = logging.getLogger("mwbx.browse")
 
 # What the person serving the page must see (its address, a busy port, an
 # exposed host, refinements not saved): ``mwbx: ...`` lines on stderr.
-NOTICE = logging.getLogger("mwbx.notice")
-
-
-class _StderrNow(logging.StreamHandler):
-  """Writes to whatever ``sys.stderr`` is when a record comes (it may be swapped after the handler is made)."""
-
-  @property
-  def stream(self):
-    return sys.stderr
-
-  @stream.setter
-  def stream(self, value):
-    del value
-
-
-def notices_to_stderr() -> None:
-  """Sends the page's notices to stderr as ``mwbx: ...`` lines (once)."""
-  if not NOTICE.handlers:
-    handler = _StderrNow()
-    handler.setFormatter(logging.Formatter("mwbx: %(message)s"))
-    NOTICE.addHandler(handler)
-    NOTICE.setLevel(logging.INFO)
-    NOTICE.propagate = False
 
 
 def log_to_stdout() -> None:

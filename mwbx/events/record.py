@@ -32,8 +32,35 @@ ROW = {"a": 0, "b": 1, "first": 2, "last": 3}  # columns of a row
 STRENGTH = {"peak_force": 0, "impulse": 1}  # columns of ``strength``: N, N·s
 
 
+# Strength is kept to 10 bits of mantissa (0.1 %): the bytes of its floats then compress.
+STRENGTH_MANTISSA_BITS = 10
+
+
 def _no_strength(n: int) -> np.ndarray:
   return np.full((n, 2), np.nan, np.float32)
+
+
+def kept_strength(strength) -> np.ndarray:
+  """f32[n, 2] ``strength`` as a record keeps it: each float's mantissa cut to
+  :data:`STRENGTH_MANTISSA_BITS` bits (within 0.1 %; NaN stays NaN)."""
+  bits = np.ascontiguousarray(strength, np.float32).reshape(-1, 2).view(np.uint32)
+  drop = np.uint32((1 << (23 - STRENGTH_MANTISSA_BITS)) - 1)
+  return (bits & ~drop).view(np.float32)
+
+
+def pack_strength(strength: np.ndarray) -> np.ndarray:
+  """u8[k] a record's strength as a shard keeps it: zlib of its floats' bytes,
+  byte planes one after the other (the cut mantissas' zero bytes together)."""
+  planes = np.ascontiguousarray(strength, np.float32).reshape(-1).view(np.uint8).reshape(-1, 4).T
+  return np.frombuffer(zlib.compress(planes.tobytes(), 6), np.uint8).copy()
+
+
+def unpack_strength(blob: np.ndarray, n_rows: int) -> np.ndarray:
+  """f32[n_rows, 2] from :func:`pack_strength`'s bytes (ValueError if they do not hold that many)."""
+  raw = np.frombuffer(zlib.decompress(np.asarray(blob, np.uint8).tobytes()), np.uint8)
+  if raw.size != 8 * n_rows:
+    raise ValueError(f"{raw.size // 8} strengths stored, {n_rows} counted")
+  return np.ascontiguousarray(raw.reshape(4, -1).T).view(np.float32).reshape(n_rows, 2)
 
 
 class EventRecord(NamedTuple):
@@ -67,7 +94,7 @@ class EventRecord(NamedTuple):
     counts = np.array([len(w) for w in worlds], np.int32)
     rows = np.concatenate([np.asarray(w, np.int32).reshape(-1, 4) for w in worlds]) if worlds else None
     rows = rows if rows is not None else np.zeros((0, 4), np.int32)
-    strength = (np.concatenate([np.asarray(s, np.float32).reshape(-1, 2) for s in strengths])
+    strength = (kept_strength(np.concatenate([np.asarray(s, np.float32).reshape(-1, 2) for s in strengths]))
                 if strengths is not None and len(strengths) else _no_strength(len(rows)))
     return cls(rows, counts, strength, ticks_per_frame)
 
@@ -139,9 +166,9 @@ class EventRecord(NamedTuple):
 
   def arrays(self) -> dict[str, np.ndarray]:
     """The arrays a shard stores (checksummed with the others): ``events_rows``
-    packed (:func:`pack`), ``events_counts`` and ``events_strength`` as they are."""
+    and ``events_strength`` packed (:func:`pack`, :func:`pack_strength`), ``events_counts`` as they are."""
     return {"events_rows": pack(self.rows), "events_counts": np.ascontiguousarray(self.counts, np.int32),
-            "events_strength": np.ascontiguousarray(self.strength, np.float32)}
+            "events_strength": pack_strength(self.strength)}
 
   @classmethod
   def from_arrays(cls, arrays: dict, n_worlds: int, where: str = "bank", ticks_per_frame: int = 1) -> "EventRecord":
@@ -151,9 +178,10 @@ class EventRecord(NamedTuple):
     n_rows = int(counts.sum(dtype=np.int64)) if counts.ndim == 1 else -1
     try:
       rows = unpack(np.asarray(arrays["events_rows"]), n_rows)
+      strength = (unpack_strength(arrays["events_strength"], len(rows)) if "events_strength" in arrays
+                  else _no_strength(len(rows)))
     except (ValueError, zlib.error) as err:
       raise MwbxError(f"{where}: corrupt contact events ({err})") from None
-    strength = np.asarray(arrays["events_strength"]) if "events_strength" in arrays else _no_strength(len(rows))
     if counts.shape != (n_worlds,) or (counts < 0).any() \
         or (rows.size and (rows[:, ROW["a"]] >= rows[:, ROW["b"]]).any()) or strength.shape != (len(rows), 2) \
         or int(ticks_per_frame) < 1:

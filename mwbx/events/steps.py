@@ -7,11 +7,13 @@ MuJoCo reports a contact between a geom (or flex) of each that is not in its
 margin's gap (``mjContact.exclude`` is not 1: the contacts the solver acts on,
 and those it leaves to a sleeping island or a body without dofs): MuJoCo's
 own contact, no margin added. An episode is a run of steps in which they
-touch, broken only by a separation of at least ``gap`` steps (the physics
-steps of one recorded frame: a bounce too short to see between two frames,
-2–20 ms of a ball settling, does not end a touch); its strength is the largest
-normal force over its steps and the normal impulse, the sum of normal force
-times the timestep.
+touch, broken only by a separation of at least ``gap`` steps (the sampler's
+gap is the physics steps of one query point, 1/30 s by default: a ball
+skipping along a ramp or settling on a floor leaves it for 2–30 ms many
+times a second, which a viewer does not see and a query's time does not
+resolve; counting each would make the quickstart's episodes 8 times as
+many); its strength is the largest normal force over its steps and the
+normal impulse, the sum of normal force times the timestep.
 
 A pair whose actors both sleep (or are static) is not tested by MuJoCo: its
 touch holds as it was until one of them wakes (nothing moved). Forces are

@@ -473,7 +473,7 @@ def run_compiled(backend, inp, progress=None):
       return inp.models(~active[row:row + 1])[0]
 
   # Contacts found at every step; an actor moves while a tree of it is awake (inactive objects sleep).
-  events = (backend.step_events(inp.event_objects, spf)._replace(sleep=True) if inp.event_objects is not None
+  events = (backend.step_events(inp.event_objects)._replace(sleep=True) if inp.event_objects is not None
             else compiled_world.step_event_inputs(m, None, spf))
   found = compiled_world.event_buffers(c, events)
 

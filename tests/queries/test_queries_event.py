@@ -4,6 +4,7 @@ at every stored frame of the same stored worlds (queries answered by brute
 force over per-frame sets of touching pairs)."""
 
 import json
+import logging
 import math
 import warnings
 
@@ -15,6 +16,7 @@ import pytest
 import mwbx
 from mwbx import cli
 from mwbx.errors import MwbxError
+from mwbx.progress import NOTICE
 from mwbx.events import actors_of, touch_margin
 from mwbx.batch_sim.sampler import world_keys
 from mwbx.search.solver import place_queries
@@ -92,12 +94,13 @@ def _reference_episodes(bank, qpos0, qvel0, row) -> set:
   data = mujoco.MjData(model)
   actors = actors_of(model, list(bank.objects))
   spf = bank.events.ticks_per_frame
+  gap = spf * round(bank.record_fps / bank.query_fps)  # a query point's steps apart end an episode
   last_tick = (int(bank.frame_count[row]) - 1) * spf
   data.qpos[:], data.qvel[:] = qpos0[row], qvel0[row]
   force6 = np.zeros(6)
   touching: dict = {}  # pair -> (first, last seen, peak, impulse)
   done = []
-  for tick in range(last_tick + spf):
+  for tick in range(last_tick + spf):  # the last frame's steps are simulated too
     mujoco.mj_step(model, data)
     forces: dict = {}
     for i in range(data.ncon):
@@ -117,7 +120,7 @@ def _reference_episodes(bank, qpos0, qvel0, row) -> set:
       first, _, peak, impulse = touching.get(key, (tick, tick, 0.0, 0.0))
       touching[key] = (first, tick, max(peak, f), impulse + f * model.opt.timestep)
     for key, (first, seen, peak, impulse) in list(touching.items()):
-      if tick - seen >= spf:
+      if tick - seen >= gap:
         done.append((*key, first, seen, peak, impulse))
         del touching[key]
   done += [(*key, first, last_tick if seen >= last_tick else seen, peak, impulse)
@@ -138,8 +141,8 @@ def _check_events_against_reference(bank, qpos0, qvel0):
     got = {tuple(r) for r in bank.events.rows[lo:hi].tolist()}
     assert got == {e[:4] for e in expected}, row
     strength = {tuple(r): s for r, s in zip(bank.events.rows[lo:hi].tolist(), bank.events.strength[lo:hi])}
-    for e in expected:
-      np.testing.assert_allclose(strength[e[:4]], e[4:], rtol=1e-5, atol=1e-6)
+    for e in expected:  # kept to 10 bits of mantissa
+      np.testing.assert_allclose(strength[e[:4]], e[4:], rtol=2.0**-10, atol=1e-6)
     # Touch queries on random pairs and windows, against the episodes.
     for _ in range(12):
       a = {str(rng.choice(objects))}
@@ -321,7 +324,8 @@ FAST_XML = """
 def test_a_fast_impact_between_two_stored_frames_is_a_touch_with_its_impulse(tmp_path):
   (tmp_path / "fast.xml").write_text(FAST_XML)
   (tmp_path / "fast.yaml").write_text("scene: {mjcf: fast.xml}\nsim: {end_time: 1.75}\n")
-  bank, _, _ = sample_unperturbed(mwbx.load_config(tmp_path / "fast.yaml"), 4)
+  bank, qpos0, qvel0 = sample_unperturbed(mwbx.load_config(tmp_path / "fast.yaml"), 4)
+  _check_events_against_reference(bank, qpos0, qvel0)  # every step's touch and impulse, as MuJoCo has them
   rate = bank.record_fps * bank.events.ticks_per_frame
   t = mwbx.queries.event.first_touch(bank, ("ball",), ("floor",))
   # free fall to the floor, to a physics step (not a frame)
@@ -366,7 +370,18 @@ def test_a_bank_whose_events_were_found_on_frames_still_answers(drop_bank, tmp_p
     entry["checksums"][name] = mwbx.bank.checks.crc32(array)
   entry["events"] = {"version": 1, "actors": entry["events"]["actors"]}
   (path / "manifest.json").write_text(json.dumps(manifest))
-  old = mwbx.Bank.load(path)
+  seen = []
+  handler = logging.Handler()
+  handler.emit = lambda record: seen.append(record.getMessage())
+  level = NOTICE.level
+  NOTICE.addHandler(handler)
+  NOTICE.setLevel(logging.INFO)
+  try:
+    old = mwbx.Bank.load(path)
+  finally:
+    NOTICE.removeHandler(handler)
+    NOTICE.setLevel(level)
+  assert [m for m in seen if "contact events known at the stored frames only" in m] == seen and len(seen) == 1
   assert old.events.ticks_per_frame == 1 and np.isnan(old.events.strength).all()
   np.testing.assert_array_equal(old.events.rows, frames.rows)
   t = mwbx.queries.event.first_touch(old, ("low",), ("floor",))
