@@ -142,6 +142,13 @@ _NCON, _ARENA, _CONTACT, _STRIDE, _GEOM, _FLEX, _EXCLUDE, _EFC, _DIM, _EFC_FORCE
 
 
 @host_jit
+def _side_actor(events, a32, rec, w, k):
+  """The actor of side ``k`` of the contact at byte ``rec`` of the arena: its geom's, or its flex's."""
+  g = a32[(rec + w[_GEOM]) // 4 + k]
+  return events.geom_actor[g] if g >= 0 else events.flex_actor[max(a32[(rec + w[_FLEX]) // 4 + k], 0)]
+
+
+@host_jit
 def read_contacts(data, events, open_, tick):
   """Every actor pair touching in the contacts of the step just taken
   (:func:`mwbx.events.steps.touch`), with its normal force read from the
@@ -160,10 +167,8 @@ def read_contacts(data, events, open_, tick):
     rec = start + i * stride
     if a32[(rec + w[_EXCLUDE]) // 4] == steps_lib.EXCLUDE_IN_GAP:
       continue
-    sides = np.empty(2, np.int64)
-    for k in range(2):
-      g = a32[(rec + w[_GEOM]) // 4 + k]
-      sides[k] = events.geom_actor[g] if g >= 0 else events.flex_actor[max(a32[(rec + w[_FLEX]) // 4 + k], 0)]
+    a = _side_actor(events, a32, rec, w, 0)
+    b = _side_actor(events, a32, rec, w, 1)
     force = 0.0
     adr = a32[(rec + w[_EFC]) // 4]
     if adr >= 0:
@@ -172,7 +177,7 @@ def read_contacts(data, events, open_, tick):
       if efc + adr + edges <= a64.size:
         for k in range(edges):
           force += a64[efc + adr + k]
-    steps_lib.touch(open_, events.n_actors, sides[0], sides[1], force, tick)
+    steps_lib.touch(open_, events.n_actors, a, b, force, tick)
 
 
 class WorldEvents(NamedTuple):

@@ -27,10 +27,11 @@ Example (what a loop does, in numba)::
 
   open_ = new_episodes(n_actors)
   for tick in range(n_steps):
-    ...mj_step...
-      for each contact: touch(open_, n_actors, a, b, normal_force, tick)
+    mj_step(...)
+    for a, b, normal_force in the step's touching contacts:
+      touch(open_, n_actors, a, b, normal_force, tick)
     end_tick(open_, n_actors, tick, gap, timestep, moving, out_rows, out_strength)
-  finish(open_, n_actors, last_tick, out_rows, out_strength)
+  count = finish(open_, n_actors, last_tick, out_rows, out_strength)
 """
 
 from __future__ import annotations
