@@ -88,6 +88,16 @@ def _events(bank, label: str):
   return bank.events
 
 
+def _pair_episodes(bank, a: Side, b: Side, window, label: str):
+  """(the window, checked; the bank's EventRecord; bool[N] its episodes
+  between an actor of side ``a`` and one of side ``b``)."""
+  window = checked_window(label, window)  # a time no tick holds fails here, in one line
+  record = _events(bank, label)
+  ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
+  ra, rb = record.rows[:, ROW["a"]], record.rows[:, ROW["b"]]
+  return window, record, (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
+
+
 def _hard_enough(label: str, record, impulse=None, force=None) -> np.ndarray | bool:
   """bool[N] the episodes whose impulse (N·s) and peak force (N) lie in the
   (lo, hi) ranges given (None ends open); True where none is given."""
@@ -139,15 +149,11 @@ def first_touch(bank, a: Side, b: Side, window=None, label: str = "query", impul
     impulse, force: optional (lo, hi): only episodes whose normal impulse
       (N·s) or largest normal force (N) lie in it count.
   """
-  window = checked_window(label, window)  # a time no frame index holds fails here, in one line
-  record = _events(bank, label)
-  ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
+  window, record, pair = _pair_episodes(bank, a, b, window, label)
   rows = record.rows
   out = np.full(bank.n_worlds, np.inf)
   if not len(rows):
     return out
-  ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
-  pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
   pair &= _hard_enough(label, record, impulse, force)
   fps = float(bank.record_fps) * record.ticks_per_frame  # ticks a second
   first = rows[:, ROW["first"]].astype(np.int64)
@@ -170,15 +176,11 @@ def hardest_hit(bank, a: Side, b: Side, window=None, label: str = "query", by: s
   ``window``: the largest normal impulse of an episode, N·s (``by="force"``:
   the largest normal force, N); 0 where they never touch, NaN where the
   bank does not know (events found on stored frames)."""
-  window = checked_window(label, window)
-  record = _events(bank, label)
-  ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
+  window, record, pair = _pair_episodes(bank, a, b, window, label)
   rows = record.rows
   out = np.zeros(bank.n_worlds)
   if not len(rows):
     return out
-  ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
-  pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
   rate = float(bank.record_fps) * record.ticks_per_frame
   if window is not None:
     t0, t1 = window
@@ -198,16 +200,12 @@ def hardest_hit(bank, a: Side, b: Side, window=None, label: str = "query", by: s
 def touch_seconds(bank, a: Side, b: Side, window=None, label: str = "query") -> np.ndarray:
   """f64[W] how long sides ``a`` and ``b`` touch inside ``window``, seconds
   (ticks touching / ticks a second; a touch on at a world's end counts to it)."""
-  window = checked_window(label, window)
-  record = _events(bank, label)
-  ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
+  window, record, pair = _pair_episodes(bank, a, b, window, label)
   rows = record.rows
   out = np.zeros(bank.n_worlds)
   if not len(rows):
     return out
   world = record.world_of_rows()
-  ra, rb = rows[:, ROW["a"]], rows[:, ROW["b"]]
-  pair = (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
   fps = float(bank.record_fps) * record.ticks_per_frame  # ticks a second
   t0, t1 = (None, None) if window is None else window
   lo = rows[:, ROW["first"]].astype(np.float64)
