@@ -164,4 +164,3 @@ class RawQposStore:
   @classmethod
   def restore(cls, arrays: dict, meta: dict) -> "RawQposStore":
     return cls(meta["nq"], arrays["data"], arrays["offsets"])
-

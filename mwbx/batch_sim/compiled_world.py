@@ -121,7 +121,8 @@ def step_event_inputs(model, actors: Actors | None, gap: int) -> StepEventInputs
           trees[a].append(tree)
   flex_actor = np.asarray(actors.flex_actor if actors is not None else [], np.int32)
   return StepEventInputs(
-      on=on, contact_words=np.asarray(layout if layout is not None else [0] * 10, np.int64),
+      on=on, contact_words=np.asarray(layout if layout is not None else [0] * len(mujoco_c.ContactLayout._fields),
+                                      np.int64),
       geom_actor=np.asarray(actors.geom_actor if actors is not None else [], np.int32),
       flex_actor=flex_actor if flex_actor.size else np.full(1, -1, np.int32), n_actors=n_actors,
       actor_tree_start=np.concatenate([[0], np.cumsum([len(t) for t in trees])]).astype(np.int64),
@@ -137,8 +138,10 @@ def event_buffers(n_worlds: int, events: StepEventInputs) -> EventBuffers:
                       np.zeros(n_worlds, np.int64))
 
 
-# The ContactLayout's words, by name (its field order).
-_NCON, _ARENA, _CONTACT, _STRIDE, _GEOM, _FLEX, _EXCLUDE, _EFC, _DIM, _EFC_FORCE = range(10)
+# Where each of the ContactLayout's words sits in ``contact_words`` (its field order).
+_NCON, _ARENA, _CONTACT, _STRIDE, _GEOM, _FLEX, _EXCLUDE, _EFC, _DIM, _EFC_FORCE = (
+    mujoco_c.ContactLayout._fields.index(name) for name in (
+        "ncon", "arena", "contact", "stride", "geom", "flex", "exclude", "efc_address", "dim", "efc_force"))
 
 
 @host_jit

@@ -508,7 +508,8 @@ def empty_bank(scene: Scene, store: QposStore | None = None) -> bank_lib.Bank:
       query_fps=cfg.sim.query_fps, timestep=float(timestep), config=cfg.resolved(),
       mjcf_text=scene.mjcf_text, mjcf_includes=dict(scene.mjcf_includes), mjcf_assets=dict(scene.mjcf_assets),
       digest=scene.digest,
-      events=EventRecord.empty(0, frame_rates(cfg, timestep)[0]), event_actors=events_lib.actors_of(scene.model, scene.object_names).names)
+      events=EventRecord.empty(0, ticks_per_frame=frame_rates(cfg, timestep)[0]),  # a physics step a tick
+      event_actors=events_lib.actors_of(scene.model, scene.object_names).names)
 
 
 def pilot_counts(scene: Scene, n_worlds: int = 8, seed: int = 0, end_time: float | None = None):

@@ -50,10 +50,8 @@ from mwbx.yaml_input import short_repr, short_repr_text
 # The page's log: what each action did, one line each (``mwbx browse: ...`` on
 # stdout once :func:`browse` serves; research code configures it as it likes).
 LOG = logging.getLogger("mwbx.browse")
-
-
 # What the person serving the page must see (its address, a busy port, an
-# exposed host, refinements not saved): ``mwbx: ...`` lines on stderr.
+# exposed host, refinements not saved) goes to NOTICE: ``mwbx: ...`` lines on stderr.
 
 
 def log_to_stdout() -> None:

@@ -193,7 +193,6 @@ class ParentChannels(NamedTuple):
     return {c: _extended(seg, extra, kind, self.code) for c, seg in _channel_segments(self.code, kind).items()}
 
 
-
 def refined_frames(after: np.ndarray, first_frame: int, parent_frames: np.ndarray,
                    columns: np.ndarray | None = None) -> np.ndarray:
   """Refined worlds' whole frames: the parent's (``parent_frames`` f32[T, nq])

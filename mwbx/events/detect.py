@@ -283,24 +283,34 @@ def spliced(parent: np.ndarray, after: np.ndarray, first: int) -> np.ndarray:
     first: the first tick the refined world does not share.
 
   Returns:
-    [k, 4 or 6] (the inputs' dtype) sorted by ``(a, b, first)``; an episode
+    [k, 4 or 6] (the parent's dtype) sorted by ``(a, b, first)``; an episode
     of the parent still on at ``first - 1`` ends there, or goes on as the
-    refined world's episode of that pair starting at ``first`` (the larger
-    peak force, the impulses added).
+    refined world's episode of that pair starting at ``first``
+    (:func:`joined`).
   """
   before = parent[parent[:, 2] < first].copy()
   before[:, 3] = np.minimum(before[:, 3], first - 1)
-  after = after.copy()
-  on = np.flatnonzero(before[:, 3] == first - 1)  # the parent's episodes going on at the restart
-  open_pairs = {(int(before[i, 0]), int(before[i, 1])): int(i) for i in on}
-  joined = np.zeros(len(after), bool)
-  for j, (a, b, start, _) in enumerate(after[:, :4]):
-    i = open_pairs.get((int(a), int(b)))
-    if i is not None and start == first:
-      before[i, 3] = after[j, 3]
-      if before.shape[1] > 4:
-        before[i, 4] = np.maximum(before[i, 4], after[j, 4])  # unknown (NaN) if either is
-        before[i, 5] = before[i, 5] + after[j, 5]
-      joined[j] = True
-  rows = np.concatenate([before, after[~joined]]).astype(parent.dtype)
-  return rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
+  rows = np.concatenate([before, after]).astype(parent.dtype)
+  return joined(rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))])
+
+
+def joined(rows: np.ndarray) -> np.ndarray:
+  """Episodes ``rows`` ([n, 4], or [n, 6] with strengths; sorted by ``(a, b,
+  first)``) with each run of one pair's episodes that follow on without a
+  break (one's first tick the one after the other's last: where a refined
+  world's own simulation takes over from its parent's) as one episode: its
+  last tick the run's, the larger peak force (NaN if a part's is unknown),
+  the impulses added."""
+  if len(rows) < 2:
+    return rows
+  starts = np.ones(len(rows), bool)
+  starts[1:] = (rows[1:, 0] != rows[:-1, 0]) | (rows[1:, 1] != rows[:-1, 1]) | (rows[1:, 2] != rows[:-1, 3] + 1)
+  if starts.all():
+    return rows
+  first = np.flatnonzero(starts)
+  out = rows[first].copy()
+  out[:, 3] = np.maximum.reduceat(rows[:, 3], first)
+  if rows.shape[1] > 4:
+    out[:, 4] = np.maximum.reduceat(rows[:, 4], first)  # unknown (NaN) if any part is
+    out[:, 5] = np.add.reduceat(rows[:, 5], first)
+  return out

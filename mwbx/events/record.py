@@ -81,7 +81,7 @@ class EventRecord(NamedTuple):
 
   rows: np.ndarray
   counts: np.ndarray
-  strength: np.ndarray | None = None
+  strength: np.ndarray
   ticks_per_frame: int = 1
 
   @classmethod

@@ -30,13 +30,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import mujoco
 import numpy as np
 
 from mwbx.errors import MwbxError
-from mwbx.events.record import ROW
+from mwbx.events.record import ROW, EventRecord
 from mwbx.queries import paths
 from mwbx.queries import selection
 from mwbx.queries.intervals import checked_window
@@ -88,14 +88,41 @@ def _events(bank, label: str):
   return bank.events
 
 
-def _pair_episodes(bank, a: Side, b: Side, window, label: str):
-  """(the window, checked; the bank's EventRecord; bool[N] its episodes
-  between an actor of side ``a`` and one of side ``b``)."""
+class _PairEpisodes(NamedTuple):
+  """A pair of sides' episodes in a bank's record (:func:`_pair_episodes`).
+
+  Attributes:
+    record: the bank's EventRecord. pair: bool[N] its episodes between an
+      actor of one side and one of the other.
+    rate: ticks a second. lo, hi: the window's first and last tick (None: open).
+  """
+
+  record: EventRecord
+  pair: np.ndarray
+  rate: float
+  lo: int | None
+  hi: int | None
+
+
+def _pair_episodes(bank, a: Side, b: Side, window, label: str) -> _PairEpisodes:
+  """The episodes between sides ``a`` and ``b``, and the window in ticks."""
   window = checked_window(label, window)  # a time no tick holds fails here, in one line
   record = _events(bank, label)
   ma, mb = actor_mask(bank, a, label), actor_mask(bank, b, label)
   ra, rb = record.rows[:, ROW["a"]], record.rows[:, ROW["b"]]
-  return window, record, (ma[ra] & mb[rb]) | (mb[ra] & ma[rb])
+  rate = float(bank.record_fps) * record.ticks_per_frame
+  t0, t1 = (None, None) if window is None else window
+  return _PairEpisodes(record, (ma[ra] & mb[rb]) | (mb[ra] & ma[rb]), rate,
+                       None if t0 is None else math.ceil(t0 * rate - FRAME_SLACK * rate),
+                       None if t1 is None else math.floor(t1 * rate + FRAME_SLACK * rate))
+
+
+def _last_ticks(bank, record) -> np.ndarray:
+  """i64[N] each episode's last tick; the largest int64 where it is on at its
+  world's last frame (which holds after: it goes on)."""
+  last = record.rows[:, ROW["last"]].astype(np.int64)
+  ends = np.repeat(record.end_ticks(bank.frame_count), record.counts)
+  return np.where(last >= ends, np.iinfo(np.int64).max, last)
 
 
 def _hard_enough(label: str, record, impulse=None, force=None) -> np.ndarray | bool:
@@ -149,25 +176,20 @@ def first_touch(bank, a: Side, b: Side, window=None, label: str = "query", impul
     impulse, force: optional (lo, hi): only episodes whose normal impulse
       (N·s) or largest normal force (N) lie in it count.
   """
-  window, record, pair = _pair_episodes(bank, a, b, window, label)
-  rows = record.rows
+  e = _pair_episodes(bank, a, b, window, label)
+  record, rows = e.record, e.record.rows
   out = np.full(bank.n_worlds, np.inf)
   if not len(rows):
     return out
-  pair &= _hard_enough(label, record, impulse, force)
-  fps = float(bank.record_fps) * record.ticks_per_frame  # ticks a second
+  pair = e.pair & _hard_enough(label, record, impulse, force)
   first = rows[:, ROW["first"]].astype(np.int64)
-  last = rows[:, ROW["last"]].astype(np.int64)
-  ends = np.repeat(record.end_ticks(bank.frame_count), record.counts)
-  last = np.where(last >= ends, np.iinfo(np.int64).max, last)  # on at the last frame: it goes on
-  t0, t1 = (None, None) if window is None else window
-  frame = first if t0 is None else np.maximum(first, math.ceil(t0 * fps - FRAME_SLACK * fps))
-  inside = pair & (frame <= last)
-  if t1 is not None:
-    inside &= frame <= math.floor(t1 * fps + FRAME_SLACK * fps)
+  tick = first if e.lo is None else np.maximum(first, e.lo)
+  inside = pair & (tick <= _last_ticks(bank, record))
+  if e.hi is not None:
+    inside &= tick <= e.hi
   # Each world's rows are contiguous: the least per world in one reduction.
   has = record.counts > 0
-  out[has] = np.minimum.reduceat(np.where(inside, frame / fps, np.inf), record.offsets[:-1][has])
+  out[has] = np.minimum.reduceat(np.where(inside, tick / e.rate, np.inf), record.offsets[:-1][has])
   return out
 
 
@@ -176,46 +198,39 @@ def hardest_hit(bank, a: Side, b: Side, window=None, label: str = "query", by: s
   ``window``: the largest normal impulse of an episode, N·s (``by="force"``:
   the largest normal force, N); 0 where they never touch, NaN where the
   bank does not know (events found on stored frames)."""
-  window, record, pair = _pair_episodes(bank, a, b, window, label)
-  rows = record.rows
+  e = _pair_episodes(bank, a, b, window, label)
+  record, rows, pair = e.record, e.record.rows, e.pair
   out = np.zeros(bank.n_worlds)
   if not len(rows):
     return out
-  rate = float(bank.record_fps) * record.ticks_per_frame
-  if window is not None:
-    t0, t1 = window
-    last = np.where(rows[:, ROW["last"]] >= np.repeat(record.end_ticks(bank.frame_count), record.counts),
-                    np.inf, rows[:, ROW["last"]])
-    if t0 is not None:
-      pair &= last >= math.ceil(t0 * rate - FRAME_SLACK * rate)
-    if t1 is not None:
-      pair &= rows[:, ROW["first"]] <= math.floor(t1 * rate + FRAME_SLACK * rate)
+  if e.lo is not None:
+    pair = pair & (_last_ticks(bank, record) >= e.lo)
+  if e.hi is not None:
+    pair = pair & (rows[:, ROW["first"]] <= e.hi)
   values = np.asarray(record.impulse if by == "impulse" else record.peak_force, np.float64)
-  np.fmax.at(out, record.world_of_rows()[pair], values[pair])  # NaN only where every touch is unknown
+  world = record.world_of_rows()[pair]
+  np.fmax.at(out, world, values[pair])  # NaN only where every touch is unknown
   unknown = np.zeros(bank.n_worlds, bool)
-  np.logical_or.at(unknown, record.world_of_rows()[pair], np.isnan(values[pair]))
+  np.logical_or.at(unknown, world, np.isnan(values[pair]))
   return np.where(unknown & (out == 0), np.nan, out)
 
 
 def touch_seconds(bank, a: Side, b: Side, window=None, label: str = "query") -> np.ndarray:
   """f64[W] how long sides ``a`` and ``b`` touch inside ``window``, seconds
   (ticks touching / ticks a second; a touch on at a world's end counts to it)."""
-  window, record, pair = _pair_episodes(bank, a, b, window, label)
-  rows = record.rows
+  e = _pair_episodes(bank, a, b, window, label)
+  record, rows = e.record, e.record.rows
   out = np.zeros(bank.n_worlds)
   if not len(rows):
     return out
-  world = record.world_of_rows()
-  fps = float(bank.record_fps) * record.ticks_per_frame  # ticks a second
-  t0, t1 = (None, None) if window is None else window
   lo = rows[:, ROW["first"]].astype(np.float64)
   hi = rows[:, ROW["last"]].astype(np.float64) + 1
-  if t0 is not None:
-    lo = np.maximum(lo, math.ceil(t0 * fps - FRAME_SLACK * fps))
-  if t1 is not None:
-    hi = np.minimum(hi, math.floor(t1 * fps + FRAME_SLACK * fps) + 1)
-  frames = np.where(pair, np.maximum(hi - lo, 0.0), 0.0)
-  np.add.at(out, world, frames / fps)
+  if e.lo is not None:
+    lo = np.maximum(lo, e.lo)
+  if e.hi is not None:
+    hi = np.minimum(hi, e.hi + 1)
+  ticks = np.where(e.pair, np.maximum(hi - lo, 0.0), 0.0)
+  np.add.at(out, record.world_of_rows(), ticks / e.rate)
   return out
 
 

@@ -398,20 +398,8 @@ def _with_parent_pairs(parent: np.ndarray, found: np.ndarray, moved_from: np.nda
   kept[:, 3] = np.minimum(kept[:, 3], np.where(never, end, k - 1))
   kept = kept[kept[:, 2] <= kept[:, 3]]
   rows = np.concatenate([found, kept])
-  rows = rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
-  if not len(rows):
-    return rows
   # The parent's touch going on when an actor starts to move itself, and the world's own from then: one episode.
-  starts = np.ones(len(rows), bool)
-  starts[1:] = (rows[1:, 0] != rows[:-1, 0]) | (rows[1:, 1] != rows[:-1, 1]) | (rows[1:, 2] != rows[:-1, 3] + 1)
-  if starts.all():
-    return rows
-  first = np.flatnonzero(starts)
-  out = rows[first].copy()
-  out[:, 3] = np.maximum.reduceat(rows[:, 3], first)
-  out[:, 4] = np.maximum.reduceat(rows[:, 4], first)  # unknown (NaN) if any part is
-  out[:, 5] = np.add.reduceat(rows[:, 5], first)
-  return out
+  return events_lib.joined(rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))])
 
 
 def _start_states(scene, parent_qpos, parent_qvel, qm, vm, object_names, added, removed, keys):
