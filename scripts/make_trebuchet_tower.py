@@ -22,6 +22,11 @@ RING = [(i, j) for i in range(4) for j in range(4) if i in (0, 3) or j in (0, 3)
 
 T = 'contype="2" conaffinity="5"'  # trebuchet parts
 O = 'contype="4" conaffinity="7"'  # rock, blocks, bystanders
+# The tower and the bystanders stand still until something hits them: with
+# island sleep on (sim.sleep) they start asleep, as MuJoCo's sleep policy
+# "init" puts them, instead of settling awake through the first second, when
+# every block's resting contacts made most of a world's cost (docs/sampling.md).
+S = 'sleep="init"'
 AXLE_RANGE = "-5 150"  # degrees from the cocked pose: the arm's stop
 SLING_RANGE = "-10 10"  # degrees the pouch swings on the arm tip
 V = 35.0  # degrees each half of the pouch's V floor is tilted: keeps the rock centred
@@ -37,7 +42,7 @@ def tower() -> str:
     for k, (i, j) in enumerate(RING):
       x = TOWER_X + (i - 1.5) * 2 * BLOCK[0]
       y = TOWER_Y + (j - 1.5) * 2 * BLOCK[1]
-      lines.append(f'    <body name="block_{layer:02d}_{k:02d}" pos="{x:.3f} {y:.3f} {z:.3f}"><freejoint/>'
+      lines.append(f'    <body name="block_{layer:02d}_{k:02d}" pos="{x:.3f} {y:.3f} {z:.3f}" {S}><freejoint/>'
                    f'<geom type="box" size="{BLOCK[0]:.3f} {BLOCK[1]:.3f} {BLOCK[2]:.3f}" mass="4"'
                    f' rgba="0.75 0.55 0.4 1" {O}/></body>')
   return "\n".join(lines)
@@ -88,9 +93,9 @@ def main() -> None:
       <geom type="sphere" size="0.16" density="2600" rgba="0.5 0.5 0.55 1" {O}/>
     </body>
 {tower()}
-    <body name="bystander_0" pos="{TOWER_X - 1.2:.2f} {TOWER_Y + 2.2:.2f} 0.45"><freejoint/><geom type="box" size="0.15 0.15 0.45" mass="70" rgba="0.2 0.4 0.8 1" {O}/></body>
-    <body name="bystander_1" pos="{TOWER_X + 2.0:.2f} {TOWER_Y - 1.8:.2f} 0.45"><freejoint/><geom type="box" size="0.15 0.15 0.45" mass="70" rgba="0.8 0.3 0.2 1" {O}/></body>
-    <body name="bystander_2" pos="{TOWER_X + 2.6:.2f} {TOWER_Y + 1.4:.2f} 0.45"><freejoint/><geom type="box" size="0.15 0.15 0.45" mass="70" rgba="0.9 0.8 0.2 1" {O}/></body>
+    <body name="bystander_0" {S} pos="{TOWER_X - 1.2:.2f} {TOWER_Y + 2.2:.2f} 0.45"><freejoint/><geom type="box" size="0.15 0.15 0.45" mass="70" rgba="0.2 0.4 0.8 1" {O}/></body>
+    <body name="bystander_1" {S} pos="{TOWER_X + 2.0:.2f} {TOWER_Y - 1.8:.2f} 0.45"><freejoint/><geom type="box" size="0.15 0.15 0.45" mass="70" rgba="0.8 0.3 0.2 1" {O}/></body>
+    <body name="bystander_2" {S} pos="{TOWER_X + 2.6:.2f} {TOWER_Y + 1.4:.2f} 0.45"><freejoint/><geom type="box" size="0.15 0.15 0.45" mass="70" rgba="0.9 0.8 0.2 1" {O}/></body>
   </worldbody>
 </mujoco>
 """

@@ -42,6 +42,19 @@ _CONTROL = mujoco.mjtState.mjSTATE_XFRC_APPLIED
 _CONTROL_CTRL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 
 
+def exact_pose(qpos: np.ndarray, qpos0: np.ndarray) -> np.ndarray:
+  """f64[W, nq] initial qpos: the worlds' f32[W, nq], except that a value
+  equal to the MJCF's pose ``qpos0`` (f64[nq]) rounded to float32 (nothing
+  randomized it) is the MJCF's value itself.
+
+  MuJoCo wakes a sleeping tree whose ``qpos`` changed: a tree that starts
+  asleep (sleep policy ``init``) stays asleep only at the very pose it was
+  put to sleep at, and a float32 rounding of it is another pose.
+  """
+  qpos0 = np.asarray(qpos0, np.float64)
+  return np.where(qpos == qpos0.astype(np.float32), qpos0, qpos.astype(np.float64))
+
+
 class _Chunk(NamedTuple):
   """Host state of one chunk of C worlds.
 
@@ -96,6 +109,7 @@ class NativeBackend:
     m = self.model
     data = mujoco.MjData(m)
     states = np.zeros((len(qpos), self.nstate))
+    qpos = exact_pose(np.asarray(qpos), m.qpos0)
     for w in range(len(qpos)):
       mujoco.mj_resetData(m, data)
       data.qpos[:] = qpos[w]

@@ -301,3 +301,47 @@ def test_sampler_takes_the_settings_a_bank_recorded(drop_dir):
   with mwbx.Sampler(tolerant, backend="native") as sampler:
     assert sampler.sleep.enabled and sampler.sleep.tolerance == 0.02
     assert sampler.backend.model.opt.sleep_tolerance == 0.02
+
+
+# Three boxes standing on the floor; a ball thrown (randomized) into the first.
+STANDING_MJCF = """<mujoco>
+  <option timestep="0.0020833333333333333"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="3 3 0.1"/>
+    BOXES
+    <body name="ball" pos="-0.4 0 0.05"><freejoint/><geom type="sphere" size="0.04" mass="0.3"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def standing_config(tmp_path, policy):
+  boxes = "\n    ".join(f'<body name="box{i}" pos="{0.4 * i:.1f} 0 0.05" {policy}><freejoint/>'
+                        f'<geom type="box" size="0.05 0.05 0.05" mass="0.2"/></body>' for i in range(3))
+  name = "init" if policy else "auto"
+  (tmp_path / f"standing_{name}.xml").write_text(STANDING_MJCF.replace("BOXES", boxes))
+  return mwbx.load_config(write_config(tmp_path, f"""\
+      scene: {{mjcf: standing_{name}.xml}}
+      randomize:
+        ball:
+          linear_velocity: {{dist: uniform, mean: [2.0, 0.0, 0.0], scale: [0.2, 0.02, 0.0]}}
+      sim: {{end_time: 1.0, sleep: on, chunk_size: 2}}
+      """, f"standing_{name}.yaml"))
+
+
+def test_trees_that_start_asleep_stay_asleep_until_hit(tmp_path):
+  """Boxes with MuJoCo's sleep policy ``init`` start asleep: the two the ball
+  never reaches do not move at all (path length exactly 0; awake, the same
+  boxes settle into the floor by a little), though the sampler stores
+  every pose in float32; the box the ball hits wakes and moves."""
+  path = list(mwbx.METRIC_NAMES).index("path_length")
+  for policy in ('sleep="init"', ""):
+    bank = sample(standing_config(tmp_path, policy), 4, chunk_size=2)
+    names = list(bank.body_names)
+    travelled = {b: bank.metrics[:, names.index(b), path] for b in ("box0", "box1", "box2")}
+    assert (travelled["box0"] > 0.02).all(), travelled  # struck, awake or asleep at the start
+    if policy:
+      np.testing.assert_array_equal(travelled["box1"], 0.0)
+      np.testing.assert_array_equal(travelled["box2"], 0.0)
+    else:
+      assert (travelled["box2"] > 0).all(), travelled
