@@ -84,11 +84,13 @@ class _FitJob(NamedTuple):
   kind: str
   batch: Callable[[np.ndarray], tuple]  # rows -> (path, frame, vel, flag) of those paths' segment ends
   batches: list  # i64[<= FIT_BATCH] path rows of each call, shortest paths first
+  held: tuple  # (path, frame, vel, flag) of the constant paths: one segment each, no call
 
 
 def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
              initial: np.ndarray, finite: np.ndarray, e: float, step: float, quad: float,
-             coarse: int, g_fp: int, skip: np.ndarray | None = None) -> _FitJob:
+             coarse: int, g_fp: int, skip: np.ndarray | None = None,
+             constant: np.ndarray | None = None) -> _FitJob:
   """The fit of every path of one kind, FIT_BATCH paths per call.
 
   qpos: f32[W, T, k] recordings; adrs: the column of ``qpos`` where each
@@ -96,7 +98,10 @@ def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
   n: i64[P] valid frames;
   initial: f64[P, width] frame-0 values on their grid (the fit starts there);
   finite: bool[P], paths with non-finite values are fitted as zeros (they are
-  stored raw); skip: bool[P] paths not fitted (no segments). Each call returns
+  stored raw); skip: bool[P] paths not fitted (no segments); constant:
+  bool[P] paths that hold their frame-0 value throughout, each one segment
+  at velocity 0 from its stored frame 0 (what the fit finds for them, without
+  the scan: a tower asleep is 195 such paths of 197). Each call returns
   the segment ends (path i64[S], frame i64[S]) of its paths with the velocity
   i64[S, D] and gravity flag bool[S] of each.
   """
@@ -134,12 +139,16 @@ def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
 
   # Paths sorted by length so each call scans only as many frames as its longest
   # path, padded to a multiple of 128 so few shapes compile.
+  d = 3 if kind == "rot" else width
+  held = np.zeros(n.size, bool) if constant is None else constant & (skip is None or ~skip)
+  rows = np.flatnonzero(held)
+  held_ends = (rows, n[rows] - 1, np.zeros((rows.size, d), np.int64), np.zeros(rows.size, bool))
   if n.size == 0 or t == 0:
-    return _FitJob(kind, fit_batch, [])
+    return _FitJob(kind, fit_batch, [], held_ends)
   order = np.argsort(n, kind="stable")
-  if skip is not None:
-    order = order[~skip[order]]
-  return _FitJob(kind, fit_batch, [order[lo:lo + FIT_BATCH] for lo in range(0, order.size, FIT_BATCH)])
+  order = order[~(held if skip is None else held | skip)[order]]
+  return _FitJob(kind, fit_batch, [order[lo:lo + FIT_BATCH] for lo in range(0, order.size, FIT_BATCH)],
+                 held_ends)
 
 
 def _run_fits(jobs: Sequence[_FitJob]) -> list[tuple]:
@@ -155,7 +164,7 @@ def _run_fits(jobs: Sequence[_FitJob]) -> list[tuple]:
     results = [jobs[j].batch(rows) for j, rows in calls]
   out = []
   for j, job in enumerate(jobs):
-    parts = [r for (k, _), r in zip(calls, results) if k == j]
+    parts = [job.held] * bool(job.held[0].size) + [r for (k, _), r in zip(calls, results) if k == j]
     if not parts:
       d = 3 if job.kind == "rot" else WIDTH[job.kind]
       out.append((np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, d), np.int64), np.zeros(0, bool)))
@@ -257,6 +266,9 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     finite = np.ones((num_w, len(adrs)), bool)
     finite[:, read] = eval_kernels.finite_paths(qpos, frame_count, given[read], width)
     finite = finite.reshape(-1)
+    constant = np.zeros((num_w, len(adrs)), bool)
+    constant[:, read] = eval_kernels.constant_paths(qpos, frame_count, given[read], width)
+    constant = constant.reshape(-1) & finite
     # Frame 0 is stored on a grid; the fit starts from that stored value (a channel
     # not read starts from the parent's: _with_parent_segments).
     frame0 = np.zeros((num_w, len(adrs), width), np.float32)
@@ -266,7 +278,8 @@ def encode_batch_checked(qpos: np.ndarray, frame_count: np.ndarray, layout: Chan
     initial[n == 0] = 0.0
     inputs.append((kind, adrs, columns, n, finite, initial, take))
     jobs.append(_fit_job(kind, qpos, given, n, initial, finite, bound[kind] * (1 - FIT_MARGIN), steps[kind],
-                         quanta.quad, quanta.coarse()[kind], quanta.g_fp(bounds), skip=take))
+                         quanta.quad, quanta.coarse()[kind], quanta.g_fp(bounds), skip=take,
+                         constant=constant))
   per_kind = {}
   for (kind, adrs, columns, n, finite, initial, take), (p_idx, f_idx, vel, flag) in zip(inputs, _run_fits(jobs)):
     seg_per_path = np.bincount(p_idx, minlength=n.size)

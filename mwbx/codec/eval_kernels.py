@@ -250,6 +250,29 @@ def finite_paths(qpos, frame_count, columns, width):
 
 
 @host_jit
+def constant_paths(qpos, frame_count, columns, width):
+  """bool[W, C]: channel c of world w holds its frame-0 value (bitwise) on
+  every one of its ``frame_count[w]`` frames, two or more (a body asleep or
+  at rest throughout). qpos: f32[W, T, nq]."""
+  n_w, n_ch = frame_count.size, columns.size
+  out = np.zeros((n_w, n_ch), np.bool_)
+  for w in range(n_w):
+    if frame_count[w] < 2:
+      continue
+    for c in range(n_ch):
+      same = True
+      for f in range(1, frame_count[w]):
+        for d in range(width):
+          if qpos[w, f, columns[c] + d] != qpos[w, 0, columns[c] + d]:
+            same = False
+            break
+        if not same:
+          break
+      out[w, c] = same
+  return out
+
+
+@host_jit
 def gather_paths(qpos, rows, n_ch, columns, initial, relative, finite, out):
   """Fill ``out: f32[m, T', width]`` with paths ``rows`` (path p: world p // n_ch,
   channel p % n_ch at qpos columns ``columns[p % n_ch] + d``), frames 0..T'-1.

@@ -443,3 +443,40 @@ def test_error_kernel_matches_numpy_errors():
                                       qpos[w, :n, a:a + width][None])[0]
       np.testing.assert_allclose(got[w, c], want, rtol=1e-12)
   assert np.isinf(got[2, 2]) and np.isfinite(got[1, 0])
+
+
+def test_constant_channels_are_one_segment_within_the_bound(boxes, chain):
+  """A channel that holds one value throughout (a body asleep: bitwise the
+  same every frame, anywhere off the grid) is stored as one segment at
+  velocity 0 without being fitted, and still meets the bound on every frame;
+  the channels beside it are fitted as before. Edge cases: a world of two
+  frames, one of one frame."""
+  rng = np.random.default_rng(5)
+  for model, qpos, layout in ((boxes[0], boxes[1], boxes[3]), (chain[0], chain[1], chain[2])):
+    qpos = qpos.copy()
+    held = {0: [0], 1: list(range(len(layout.pos_adr)))}  # world -> its channels held still
+    for w, channels in held.items():
+      for c in channels:  # the translation channel c and, for free joints, its rotation
+        a = layout.pos_adr[c] if layout.pos_adr else layout.scalar_adr[c]
+        width = 3 if layout.pos_adr else 1
+        qpos[w, :, a:a + width] = qpos[w, 0, a:a + width] + rng.uniform(-0.3, 0.3, width).astype(np.float32)
+        if layout.rot_adr:
+          r = layout.rot_adr[c]
+          qpos[w, :, r:r + 4] = qpos[w, 7, r:r + 4]
+    frame_count = np.array([300, 300] + [2, 1][:len(qpos) - 2])
+    enc = encode_batch_checked(qpos, frame_count, layout, BOUNDS, FPS, float(model.opt.gravity[2]))
+    assert np.all(enc.raw_channels == 0)
+    for w, stream in enumerate(enc.streams):
+      n = frame_count[w]
+      pos, rot, scalar = _errors_reference(layout, decode_world(stream), qpos[w, :n])
+      assert pos <= BOUNDS.e_pos and rot <= BOUNDS.e_rot * (1 + 1e-6) and scalar <= BOUNDS.e_scalar
+      code = parse(stream)
+      for c in held.get(w, []):
+        kinds = ("pos", "rot") if layout.rot_adr else ("scalar",)
+        for kind in kinds:
+          segs = code.segs[kind]
+          first = int(segs.seg_count[:c].sum())
+          assert segs.seg_count[c] == 1 and segs.lengths[first] == n - 1, (kind, c)
+          np.testing.assert_array_equal(segs.vel[first], 0)
+    moving = parse(enc.streams[0]).segs["rot" if layout.rot_adr else "scalar"].seg_count
+    assert moving.max() > 1  # the others are fitted as ever
