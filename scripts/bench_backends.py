@@ -51,6 +51,8 @@ from mujoco.mjx._src import constraint, forward, smooth, solver
 
 import mwbx
 from mwbx.batch_sim import contact_budget, mjx_backend, mjx_collision, mjx_packed_solve, warp_solver
+from mwbx.batch_sim import sleep as sleep_lib
+from mwbx.batch_sim.native_backend import exact_pose
 from mwbx.config import MjxSection
 from mwbx.batch_sim.sampler import resolve_contact_budget
 from mwbx.batch_sim.sampler import world_keys
@@ -285,12 +287,21 @@ def bench_scene(name: str, args) -> dict:
   model = scene.model
   if args.start_time > 0:
     qpos0, qvel0 = advance(model, qpos0, qvel0, args.start_time)
+  elif args.sleep:  # bodies asleep from the start stay so only at the MJCF's exact pose
+    qpos0 = exact_pose(qpos0, model.qpos0)
   # --distinct-states: the batch repeats the first N worlds (N worlds' advance, not the batch's).
   repeat = lambda x: np.tile(x, (-(-args.batch // distinct), 1))[:args.batch]
   qpos0, qvel0 = repeat(qpos0), repeat(qvel0)
   threads = os.cpu_count()
+  # --sleep: island sleep on both sides (native: MuJoCo C; mjx:warp: MuJoCo Warp under Newton);
+  # its rows are named "+sleep" and sit beside the awake ones.
+  sleep = sleep_lib.resolve(model, True, config.sim.sleep_tolerance) if args.sleep else None
+  native_model = model if sleep is None else sleep_lib.sleeping_copy(model, sleep)
+  tag = "+sleep" if sleep is not None else ""
   start = time.perf_counter()
   budget = resolve_contact_budget(scene, config.sim.mjx)
+  if sleep is not None and not budget.nvmax:  # the pilot slept only where the config's sim.sleep says
+    budget = budget._replace(nvmax=model.nv)
   pilot_seconds = time.perf_counter() - start
   engines = {}
   if "bare" in args.engines:
@@ -314,16 +325,21 @@ def bench_scene(name: str, args) -> dict:
       if earlier is not None:
         same_as[key] = earlier
         continue
-      backend = backends[key] = mjx_backend.backend_for(scene, "warp", budget, warp_solver=settings)
+      if sleep is not None:  # MuJoCo Warp sleeps under Newton only
+        key = f"{key}{tag}"
+        settings = warp_solver.warp_solver_settings(sleep_lib.sleeping_copy(model, sleep), config.sim.mjx)
+        settings_of[key] = settings
+      backend = backends[key] = mjx_backend.backend_for(scene, "warp", budget, warp_solver=settings, sleep=sleep)
       engines[key] = mjx_engine(backend.step, backend.make_data, qpos0, qvel0, args.steps, backend.overflow)
   rates = {"native": 0.0, **{k: 0.0 for k in engines}}
   extra = {k: {} for k in engines}
   for _ in range(args.repeats):  # alternate, keep each one's best: the machine is shared
-    rates["native"] = max(rates["native"], bench_rollout(model, qpos0, qvel0, args.native_steps, threads))
+    rates["native"] = max(rates["native"], bench_rollout(native_model, qpos0, qvel0, args.native_steps, threads))
     for key, (timed, _, last, _, _) in engines.items():
       rates[key] = max(rates[key], timed())
       extra[key] = dict(last)
-  rows = [{"engine": "native", "what": f"bare mujoco.rollout, {threads} threads", "batch": args.batch,
+  rows = [{"engine": f"native{tag}", "what": f"bare mujoco.rollout, {threads} threads{', island sleep' * bool(tag)}",
+           "batch": args.batch,
            "steps": args.native_steps, "world_steps_per_s": rates["native"], "compile_s": None}]
   for key, (_, compile_seconds, _, d0, one) in engines.items():
     row = {"engine": key, "batch": args.batch, "steps": args.bare_steps if key == "mjx:bare" else args.steps,
@@ -334,7 +350,8 @@ def bench_scene(name: str, args) -> dict:
                    "mjx:jax": "MJX impl jax, box broadphase, contact budget, solver limits, each world's"
                               " solve over its rows in use",
                    "mjx:jax every row": "mjx:jax with MJX's solve over every budget row (sim.mjx.pack_rows: false)",
-                   }.get(key, "MuJoCo Warp via MJX, pools from the budget")
+                   }.get(key, "MuJoCo Warp via MJX, pools from the budget"
+                         + (f", island sleep (nvmax {budget.nvmax})" if tag and key.endswith(tag) else ""))
     if key in settings_of:
       row["what"] += f"; solver {settings_of[key].describe()}"
       row["warp_solver"] = settings_of[key]._asdict()
@@ -355,7 +372,7 @@ def bench_scene(name: str, args) -> dict:
     row["what"] = f"{row['what']} (the same settings as {earlier}: not run again)"
     rows.append(row)
   by = {r["engine"]: r for r in rows}
-  ratios = {k: r["world_steps_per_s"] / rates["native"] for k, r in by.items() if k != "native"}
+  ratios = {k: r["world_steps_per_s"] / rates["native"] for k, r in by.items() if k != f"native{tag}"}
   if "mjx:bare" in by and "mjx:jax" in by:
     ratios["jax_over_bare"] = by["mjx:jax"]["world_steps_per_s"] / by["mjx:bare"]["world_steps_per_s"]
   return {"rows": rows, "ratios": ratios, "budget": budget._asdict(), "pilot_s": pilot_seconds,
@@ -413,6 +430,8 @@ def main() -> None:
                            f" ({', '.join(WARP_VARIANTS)}; overrides the three options above)")
   parser.add_argument("--distinct-states", type=int, default=0, metavar="N",
                       help="draw (and advance to --start-time) only N worlds; the batch repeats them")
+  parser.add_argument("--sleep", action="store_true",
+                      help="island sleep on both sides: native and mjx:warp (Newton); rows named +sleep")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "backends.json"))
   args = parser.parse_args()
   args.engines = args.engines.split(",")

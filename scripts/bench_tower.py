@@ -27,11 +27,9 @@ fitted anew and every contact pair tested (the sleeping of inactive
 objects, the parent-channel reuse, the events found at every step and the
 active-pair filter patched off: events found on every stored frame).
 
-With ``--full``, also the README's command itself, ``mwbx sample
-configs/trebuchet_tower.yaml --worlds 1549`` (the paper's bank), timed
-wall to wall in a fresh process, compile and import included.
+The paper's 1549 worlds by the README's command: ``scripts/bench_scale.py``.
 
-  .venv/bin/python scripts/bench_tower.py [--worlds 64] [--samples 64] [--full] [--out out/bench/tower.json]
+  .venv/bin/python scripts/bench_tower.py [--worlds 64] [--samples 64] [--out out/bench/tower.json]
 """
 
 from __future__ import annotations
@@ -44,7 +42,6 @@ import os
 import pathlib
 import platform
 import shutil
-import subprocess
 import time
 from unittest import mock
 
@@ -158,26 +155,6 @@ def refine(bank, samples: int, baseline: bool, seed: int = 7, inactive_asleep: b
           "active_objects": {"min": min(active), "median": float(np.median(active)), "max": max(active)}}
 
 
-def paper_bank(n_worlds: int = 1549) -> dict:
-  """``mwbx sample`` of the paper's tower bank as a user runs it (sleep: auto)."""
-  out = REPO / "out" / "bench" / "tower_1549"
-  shutil.rmtree(out, ignore_errors=True)
-  command = [str(REPO / ".venv" / "bin" / "mwbx"), "sample", str(CONFIG), "--worlds", str(n_worlds),
-             "--out", str(out)]
-  t0 = time.perf_counter()
-  subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
-  wall = time.perf_counter() - t0
-  bank = mwbx.Bank.load(out)
-  return {"command": " ".join(["mwbx"] + command[1:]).replace(str(REPO) + "/", ""), "worlds": n_worlds,
-          "wall_seconds": round(wall, 1), "wall_minutes": round(wall / 60, 2),
-          "bytes_on_disk": _dir_bytes(out), "at_rest": int(bank.at_rest.sum()),
-          "blocks_knocked_down_mean": round(float(outcomes(bank)["blocks_knocked_down"].mean()), 2)}
-
-
-def _dir_bytes(path: pathlib.Path) -> int:
-  return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
-
-
 def _nothing_taken(stream, keep, counts):
   code = splice.parse(stream)
   return splice.ParentChannels(code, np.zeros((len(keep), len(code.addresses())), bool))
@@ -187,7 +164,6 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--worlds", type=int, default=64)
   parser.add_argument("--samples", type=int, default=64)
-  parser.add_argument("--full", action="store_true", help="also time `mwbx sample` of the paper's 1549 worlds")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "tower.json"))
   args = parser.parse_args()
   result = {"machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}",
@@ -222,9 +198,6 @@ def main():
   hit = int(np.argmax(outcomes(bank_on)["blocks_knocked_down"]))
   result["refine_hit"] = dict(refine(bank_on, args.samples, baseline=False, world=hit), world=hit)
   print("hit     ", result["refine_hit"], flush=True)
-  if args.full:
-    result["paper_bank"] = paper_bank()
-    print("1549    ", result["paper_bank"], flush=True)
   result["refine_speedup_wall"] = round(result["refine_baseline"]["wall_seconds"] / result["refine"]["wall_seconds"], 2)
   out = pathlib.Path(args.out)
   out.parent.mkdir(parents=True, exist_ok=True)

@@ -15,10 +15,15 @@
 # and each world count's variants share one process (one pilot, one advance,
 # one native baseline, the tower's mjx:warp row included); if a run still goes
 # over, drop parts: --sample 0 (1 min), --variant-worlds 512, --variants "".
+# Then the tower with island sleep on both sides (native MuJoCo C, and
+# mjx:warp under Newton with nvmax from the native pilot), from t = 0 (its
+# blocks start asleep) at --sleep-worlds, 50 steps a run: rows named "+sleep";
+# NOT measured yet (--sleep-worlds 0 skips it).
 #
 #   scripts/gpu_check.sh [--worlds 4096] [--python PY | --wheels DIR] [--out FILE]
 #                        [--scenes A,B] [--engines jax,warp] [--timeout S] [--append] [--sample N]
 #                        [--variants shipped,clamped,capped,cg] [--variant-scene NAME] [--variant-worlds 512,2048]
+#                        [--sleep-worlds 512]
 #   scripts/gpu_check.sh --dry-run [--python PY]   # the same path, a tiny batch on the CPU
 #
 # --scenes: shipped scene names or config paths, each optionally NAME:WORLDS or
@@ -62,6 +67,7 @@ SAMPLE=1024
 VARIANTS="shipped,clamped,capped,cg"
 VARIANT_SCENE=""
 VARIANT_WORLDS="512,2048"
+SLEEP_WORLDS=512
 fail() { echo "gpu_check: $*" >&2; exit 1; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -78,6 +84,7 @@ while [ $# -gt 0 ]; do
     --variants) VARIANTS="$2"; shift ;;
     --variant-scene) VARIANT_SCENE="$2"; shift ;;
     --variant-worlds) VARIANT_WORLDS="$2"; shift ;;
+    --sleep-worlds) SLEEP_WORLDS="$2"; shift ;;
     *) fail "unknown argument $1 (use --dry-run, --worlds N, --python PY, --wheels DIR, --out FILE, --scenes A,B, --engines jax,warp, --timeout S, --append, --sample N, --variants A,B, --variant-scene NAME, --variant-worlds N,M)" ;;
   esac
   shift
@@ -136,6 +143,8 @@ if [[ ",$ENGINES," != *,warp,* ]]; then VARIANTS=""; fi
 FIRST_SCENE="${SCENES%%,*}"; FIRST_SCENE="${FIRST_SCENE%%:*}"
 [ -n "$VARIANT_SCENE" ] || { [ "$DRY" = 1 ] && VARIANT_SCENE="$FIRST_SCENE" || VARIANT_SCENE="trebuchet_tower"; }
 [ "$DRY" = 0 ] || VARIANT_WORLDS="$WORLDS"
+[ "$DRY" = 0 ] || [ "$SLEEP_WORLDS" = 0 ] || SLEEP_WORLDS="$WORLDS"
+if [[ ",$ENGINES," != *,warp,* ]]; then SLEEP_WORLDS=0; fi
 
 cd "$ROOT"
 [ "$APPEND" = 1 ] || rm -f "$OUT"
@@ -171,6 +180,11 @@ if [ -n "$VARIANTS" ]; then
       --scenes "$VARIANT_SCENE" --engines warp --warp-variants "auto,$VARIANTS" --keep-engines --batch "$worlds" \
       --steps "$vsteps" --distinct-states 512 "${ARGS[@]}" "${vnative[@]}" --out "$OUT"
   done
+fi
+if [ "$SLEEP_WORLDS" != 0 ]; then
+  echo "gpu_check: $VARIANT_SCENE with island sleep on native and mjx:warp, $SLEEP_WORLDS worlds from t = 0 (at most ${TIMEOUT} s)"
+  measure "$VARIANT_SCENE with sleep" "$PY" scripts/bench_backends.py --scenes "$VARIANT_SCENE" --engines warp \
+    --sleep --keep-engines --batch "$SLEEP_WORLDS" --steps "$STEPS" "${ARGS[@]}" --start-time 0 --no-cost --out "$OUT"
 fi
 if [ "$DRY" = 0 ] && [ "$SAMPLE" != 0 ]; then
   echo "gpu_check: mwbx sample configs/siggraph.yaml --backend mjx --worlds $SAMPLE (at most ${TIMEOUT} s)"

@@ -66,7 +66,8 @@ def test_gpu_check_dry_run_end_to_end(tmp_path):
   rows = {r["engine"]: r for r in d["scenes"]["tiny"]["rows"]}
   # mjx:warp (mwbx's solver choice) and its solver variants came from one process (the dry run's first scene).
   variants = {"mjx:warp shipped", "mjx:warp clamped", "mjx:warp capped", "mjx:warp cg"}
-  assert set(rows) == {"native", "mjx:jax", "mjx:warp"} | variants
+  asleep = {"native+sleep", "mjx:warp+sleep"}  # island sleep on both sides, from t = 0
+  assert set(rows) == {"native", "mjx:jax", "mjx:warp"} | variants | asleep
   for engine, r in rows.items():
     assert r["world_steps_per_s"] > 0, engine
   solvers = {engine: rows[engine]["warp_solver"] for engine in variants | {"mjx:warp"}}
@@ -74,7 +75,10 @@ def test_gpu_check_dry_run_end_to_end(tmp_path):
   assert solvers["mjx:warp cg"]["solver"] == "cg" and solvers["mjx:warp capped"]["iterations"] == 10
   # tiny's nv (12) takes Newton: "clamped" is mwbx's own choice, reported without a second run.
   assert solvers["mjx:warp"]["solver"] == "newton" and rows["mjx:warp clamped"]["same_as"] == "mjx:warp"
-  for engine in ("mjx:jax", "mjx:warp", "mjx:warp cg"):
+  assert rows["mjx:warp+sleep"]["warp_solver"]["solver"] == "newton" and "island sleep" in rows["mjx:warp+sleep"]["what"]
+  assert rows["mjx:warp+sleep"]["ratio_to_native"] == pytest.approx(
+      rows["mjx:warp+sleep"]["world_steps_per_s"] / rows["native+sleep"]["world_steps_per_s"])
+  for engine in ("mjx:jax", "mjx:warp", "mjx:warp cg", "mjx:warp+sleep"):
     assert rows[engine]["finite"] and rows[engine]["compile_s"] > 0
     # Each engine ran in its own process: its ratio is to the native rate measured there.
     assert rows[engine]["ratio_to_native"] == pytest.approx(

@@ -40,6 +40,7 @@ from mwbx import scene as scene_lib
 MIN_SLACK_PAIRS = 4
 MIN_SLACK_CONTACTS = 8
 MIN_SLACK_ROWS = 16
+MIN_SLACK_DOFS = 12
 # A distance this close to a margin counts as within it (float32 rounding).
 DIST_TOLERANCE = GAP_TOLERANCE
 
@@ -56,6 +57,9 @@ class ContactBudget(NamedTuple):
     njmax: impl warp: constraint rows per world.
     source: where the numbers came from, e.g. ``pilot (8 worlds, headroom
       1.5)``, ``config`` or ``config + pilot (...)``.
+    nvmax: impl warp with sleep: degrees of freedom awake at once per world
+      (MuJoCo Warp compacts the awake ones into this many; its Newton solver
+      then works on nvmax x nvmax, not nv x nv); 0: the model's nv (no sleep).
   """
 
   max_contact_points: int
@@ -63,15 +67,19 @@ class ContactBudget(NamedTuple):
   nconmax: int
   njmax: int
   source: str
+  nvmax: int = 0
 
   def describe(self) -> str:
     """One line for ``mwbx info`` and the run summary."""
+    awake = f", nvmax {self.nvmax}" if self.nvmax else ""
     return (f"max_contact_points {self.max_contact_points}, max_geom_pairs {self.max_geom_pairs}"
-            f" (jax); nconmax {self.nconmax}, njmax {self.njmax} per world (warp); from {self.source}")
+            f" (jax); nconmax {self.nconmax}, njmax {self.njmax}{awake} per world (warp); from {self.source}")
 
   @classmethod
   def from_dict(cls, record: dict) -> "ContactBudget":
-    return cls(**{k: (str(record[k]) if k == "source" else int(record[k])) for k in cls._fields})
+    """The budget of a run record (records from before ``nvmax`` have none: 0)."""
+    return cls(**{k: (str(record[k]) if k == "source" else int(record[k]))
+                  for k in cls._fields if k in record or k not in cls._field_defaults})
 
 
 class PilotCounts(NamedTuple):
@@ -89,6 +97,9 @@ class PilotCounts(NamedTuple):
     contacts: active contacts in one world.
     rows: constraint rows (``nefc``) in one world.
     worlds: pilot worlds run; frames: frames replayed.
+    awake_dofs: where the scene sleeps, the most degrees of freedom awake
+      at once in one pilot world (:func:`awake_dofs`); 0 where it does not.
+    dofs: the model's nv (the most ``nvmax`` can be).
   """
 
   geom_pairs: int
@@ -98,6 +109,8 @@ class PilotCounts(NamedTuple):
   rows: int
   worlds: int
   frames: int
+  awake_dofs: int = 0
+  dofs: int = 0
 
 
 class _PairGroup(NamedTuple):
@@ -179,6 +192,24 @@ def count_frames(scene, bank) -> PilotCounts:
   return PilotCounts(*(int(c) for c in counts), worlds=bank.n_worlds, frames=frames)
 
 
+def awake_dofs(model: mujoco.MjModel, qpos0: np.ndarray, qvel0: np.ndarray, n_steps: int) -> int:
+  """The most degrees of freedom ``model`` (sleep enabled) has awake at once
+  (``nv_awake``) over ``n_steps`` plain steps of each world from its initial
+  state (qpos0 f64[W, nq], qvel0 f64[W, nv]): what MuJoCo Warp's ``nvmax``
+  must hold. Without the perturbations (they move which blocks a world
+  knocks down, not how many a hit wakes: the headroom covers it). A step
+  over it is flagged (MuJoCo Warp's ``NVMAX`` overflow, :data:`WARP_DROPPED`)."""
+  data = mujoco.MjData(model)
+  most = 0
+  for q, v in zip(qpos0, qvel0):
+    mujoco.mj_resetData(model, data)
+    data.qpos[:], data.qvel[:] = q, v
+    for _ in range(n_steps):
+      mujoco.mj_step(model, data)
+      most = max(most, int(data.nv_awake))
+  return most
+
+
 def budget_from_counts(counts: PilotCounts, headroom: float, overrides: dict | None = None,
                        source: str | None = None) -> ContactBudget:
   """A budget of ``headroom`` × the pilot's counts plus a fixed slack; values
@@ -189,6 +220,7 @@ def budget_from_counts(counts: PilotCounts, headroom: float, overrides: dict | N
       "max_contact_points": size(counts.contact_points, MIN_SLACK_CONTACTS),
       "nconmax": size(max(counts.candidates, counts.contacts), MIN_SLACK_CONTACTS),
       "njmax": size(counts.rows, MIN_SLACK_ROWS),
+      "nvmax": min(size(counts.awake_dofs, MIN_SLACK_DOFS), counts.dofs) if counts.awake_dofs else 0,
   }
   given = {k: v for k, v in (overrides or {}).items() if v is not None and k in budget}
   budget.update(given)

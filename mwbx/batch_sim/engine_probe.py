@@ -19,6 +19,7 @@ from typing import Callable, Mapping, NamedTuple
 
 import jax
 
+from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.errors import MwbxError
 from mwbx.qpos_store import RawQposStore
 from mwbx.scene import Scene
@@ -30,6 +31,10 @@ PROBE_SECONDS = 0.5
 PROBE_CHUNKS = 2
 PROBE_SEED = 0
 BASELINE = "native"
+# mjx:warp with island sleep (under Newton), probed where sleep is on for the
+# native engine: a scene of many resting bodies may run faster so on a GPU, or
+# slower (nothing asleep costs: the compaction), which only a timing tells.
+WARP_SLEEP = "mjx:warp+sleep"
 
 # An engine run of the probe: () -> (world-steps taken, seconds spent stepping, compile excluded).
 EngineRun = Callable[[], "tuple[int, float]"]
@@ -65,13 +70,13 @@ class ProbeResult(NamedTuple):
   def table(self) -> str:
     """The rows as a small table, then the choice."""
     base = next((r.world_steps_per_second for r in self.rows if r.engine == BASELINE), 0.0)
-    lines = [f"  {'engine':<10}{'world-steps/s':>15}{'vs native':>11}"]
+    lines = [f"  {'engine':<16}{'world-steps/s':>15}{'vs native':>11}"]
     for r in self.rows:
       if r.error is not None:
-        lines.append(f"  {r.engine:<10}  failed: {r.error}")
+        lines.append(f"  {r.engine:<16}  failed: {r.error}")
         continue
       ratio = f"{r.world_steps_per_second / base:.2f}x" if base > 0 else "-"
-      lines.append(f"  {r.engine:<10}{r.world_steps_per_second:>15,.0f}{ratio:>11}")
+      lines.append(f"  {r.engine:<16}{r.world_steps_per_second:>15,.0f}{ratio:>11}")
     lines.append(f"  chosen: {self.choice}")
     return "\n".join(lines)
 
@@ -140,8 +145,12 @@ def probe_scene(sampler_cls, scene, budget, warp_solver=None, out=None) -> Probe
     out: where the table goes (None: ``sys.stderr``).
   """
   engines = {BASELINE: _engine_run(sampler_cls, scene, "native", None, budget, warp_solver)}
-  for impl in _mjx_impls(scene.config.sim.mjx_impl):
+  cfg = scene.config
+  for impl in _mjx_impls(cfg.sim.mjx_impl):
     engines[f"mjx:{impl}"] = _engine_run(sampler_cls, scene, "mjx", impl, budget, warp_solver)
+    if impl == "warp" and warp_solver is None and sleep_lib.resolve(
+        scene.model, cfg.sim.sleep, cfg.sim.sleep_tolerance).enabled:
+      engines[WARP_SLEEP] = _engine_run(sampler_cls, scene, "mjx", impl, budget, None, sleep=True)
   header = (f"mwbx: backend auto: a GPU is visible; timing each engine on {PROBE_CHUNKS} chunks of the first"
             f" {min(PROBE_SECONDS, scene.config.sim.end_time):g} s (compile excluded)")
   return probe_engines(engines, out=out, header=header)
@@ -154,16 +163,19 @@ def _mjx_impls(mjx_impl: str) -> list[str]:
   return (["warp"] if importlib.util.find_spec("warp") is not None else []) + ["jax"]
 
 
-def _engine_run(sampler_cls, scene, backend: str, impl: str | None, budget, warp_solver) -> EngineRun:
+def _engine_run(sampler_cls, scene, backend: str, impl: str | None, budget, warp_solver,
+                sleep: bool | None = None) -> EngineRun:
   """One engine's probe run: a ``sampler_cls`` of the scene's first
   PROBE_SECONDS on that engine, PROBE_CHUNKS full chunks, qpos kept raw (no
-  codec)."""
+  codec); ``sleep``: the run's ``sim.sleep`` (None: the config's)."""
 
   def run():
     cfg = scene.config
     sim = {"end_time": min(PROBE_SECONDS, cfg.sim.end_time)}
     if impl is not None:
       sim["mjx_impl"] = impl
+    if sleep is not None:
+      sim["sleep"] = sleep
     probe_cfg = cfg.model_copy(update={"sim": cfg.sim.model_copy(update=sim)})
     with sampler_cls(Scene(probe_cfg), backend=backend, contact_budget=budget, warp_solver=warp_solver,
                  store=RawQposStore(scene.model.nq)) as sampler:

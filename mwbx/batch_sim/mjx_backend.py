@@ -23,6 +23,7 @@ from mujoco import mjx
 
 from mwbx import controls
 from mwbx.batch_sim import contact_budget
+from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.batch_sim import mjx_collision
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import warp_solver as warp_solver_lib
@@ -108,7 +109,7 @@ def _per_world(tree, path) -> bool:
 
 
 def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=None,
-                pack_rows: bool | None = None, warp_solver=None) -> "MjxBackend":
+                pack_rows: bool | None = None, warp_solver=None, sleep=None) -> "MjxBackend":
   """The MJX backend of a scene under a contact budget (the entry point for
   sampling and benchmarks: ``backend.make_data`` and ``backend.step`` are one
   budgeted batched step, ``backend.overflow`` its flag).
@@ -122,9 +123,15 @@ def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=
     warp_solver: impl warp: the :class:`warp_solver.WarpSolverSettings` (or
       its dict, as a bank's ``run`` stores it) to use; None: chosen from the
       model and the config's ``sim.mjx`` (:func:`warp_solver.warp_solver_settings`).
+    sleep: impl warp: the :class:`mwbx.batch_sim.sleep.SleepSettings` to step
+      with (MuJoCo Warp sleeps under Newton only, which the solver choice then
+      takes, with the budget's ``nvmax`` awake dofs a world); None or off: the
+      model's own flag. Ignored on impl ``jax`` (MJX's jax step has no sleep).
   """
   # impl jax reads its caps from the model's numerics; warp sizes its pools from the budget.
   model = contact_budget.budgeted_model(scene, budget) if impl == "jax" else scene.model
+  if impl == "warp" and sleep is not None and sleep.enabled:
+    model = sleep_lib.sleeping_copy(model, sleep)
   if impl == "warp" and warp_solver is None:
     warp_solver = warp_solver_lib.warp_solver_settings(model, scene.config.sim.mjx)
   return MjxBackend(model, impl, devices, budget=budget, pack_rows=pack_rows, warp_solver=warp_solver)
@@ -166,6 +173,8 @@ class MjxBackend:
     self.model = model
     self.impl = impl
     self.budget = budget
+    # impl warp with the model's sleep flag on: MuJoCo Warp steps with island sleep.
+    self.sleeps = impl == "warp" and bool(model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP))
     # This process's devices: a batch's worlds are split over them; under
     # jax.distributed every process runs its own worlds on its own devices.
     self.devices = list(devices) if devices is not None else jax.local_devices()
@@ -221,6 +230,8 @@ class MjxBackend:
     sizes = {}
     if self.impl == "warp" and self.budget is not None:  # the contact pool is shared by the batch
       sizes = {"naconmax": self.budget.nconmax * qpos.shape[0], "njmax": self.budget.njmax}
+      if self.sleeps and self.budget.nvmax:
+        sizes["nvmax"] = min(self.budget.nvmax, self.model.nv)
     base = mjx.make_data(self.model, device=self.devices[0], impl=self.impl, **sizes)
     if act is not None:
       return jax.vmap(lambda q, v, a: base.replace(qpos=q, qvel=v, act=a.astype(base.act.dtype)))(qpos, qvel, act)

@@ -23,7 +23,7 @@ from mwbx.batch_sim import engine_probe, memory, world
 from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.batch_sim import rows as rows_lib
 from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_impl
-from mwbx.batch_sim.native_backend import NativeBackend
+from mwbx.batch_sim.native_backend import NativeBackend, exact_pose
 from mwbx.config import Config, MjxSection
 from mwbx import events as events_lib
 from mwbx.errors import MwbxError
@@ -152,7 +152,7 @@ class Sampler:
       :class:`~mwbx.batch_sim.warp_solver.WarpSolverSettings` (or its dict, as
       a bank's ``run`` stores it) to use; default: chosen from the model and
       the config's ``sim.mjx`` (:func:`~mwbx.batch_sim.warp_solver.warp_solver_settings`).
-    sleep: native: the :class:`~mwbx.batch_sim.sleep.SleepSettings` (or its
+    sleep: native and mjx:warp: the :class:`~mwbx.batch_sim.sleep.SleepSettings` (or its
       dict, as a bank's ``run`` stores it) to step with; default: resolved
       from the config's ``sim.sleep`` (:func:`~mwbx.batch_sim.sleep.resolve`).
   """
@@ -168,6 +168,10 @@ class Sampler:
       contact_budget = self._budget(contact_budget)  # the pilot first: the MJX engines run under it
       self.probe = engine_probe.probe_scene(Sampler, self.scene, contact_budget, warp_solver)
       requested, _, impl = self.probe.choice.partition(":")
+      if self.probe.choice == engine_probe.WARP_SLEEP:  # mjx:warp, measured faster with sleep on
+        impl = "warp"
+        sleep = sleep or sleep_lib.resolve(self.scene.model, True, cfg.sim.sleep_tolerance)._replace(
+            reason=f"backend auto: the engine probe chose {engine_probe.WARP_SLEEP}")
     self.backend_name = resolve_backend(requested)
     self.chunk_size = int(chunk_size or cfg.sim.chunk_size)
     if self.chunk_size < 1:
@@ -177,22 +181,23 @@ class Sampler:
     self.n_frames = end_frame + 1
     self.params = world.world_params(self.scene, spf, end_frame)
     self.contact_budget = None
-    self.sleep = None  # native: the SleepSettings it steps with
+    self.sleep = None  # native and mjx:warp: the SleepSettings it steps with
     self.warp_solver = None  # mjx:warp: the WarpSolverSettings it runs with
     self.pack_rows = False  # MJX jax: each world's solve over its rows in use (sim.mjx.pack_rows)
     if self.backend_name == "mjx":
       # Lazy on purpose: imports mujoco.mjx (seconds), which native runs never need.
       from mwbx.batch_sim.mjx_backend import backend_for
       impl = impl or resolve_mjx_impl(cfg.sim.mjx_impl)
+      if impl == "warp":  # MuJoCo Warp sleeps too (under Newton); MJX's jax step does not
+        self.sleep = self._sleep(sleep, model, sleep_lib.resolve_warp)
       self.backend = backend_for(self.scene, impl, self._budget(contact_budget), pack_rows=cfg.sim.mjx.pack_rows,
-                                 warp_solver=warp_solver)
+                                 warp_solver=warp_solver, sleep=self.sleep)
       self.pack_rows = self.backend.pack_rows
       self.contact_budget = self.backend.budget
       self.warp_solver = self.backend.warp_solver
       self.backend_label = f"mjx:{impl}" + (" (every row)" if impl == "jax" and not self.pack_rows else "")
     else:
-      self.sleep = (sleep_lib.SleepSettings.from_record(sleep) if isinstance(sleep, dict) else sleep
-                    or sleep_lib.resolve(model, cfg.sim.sleep, cfg.sim.sleep_tolerance))
+      self.sleep = self._sleep(sleep, model, sleep_lib.resolve)
       # A contact episode ends after a query point's steps apart: see mwbx.events.steps.
       self.backend = NativeBackend(sleep_lib.sleeping_copy(model, self.sleep), cfg.sim.threads,
                                    event_gap=spf * self.query_stride)
@@ -200,6 +205,14 @@ class Sampler:
     self.event_actors = events_lib.actors_of(self.scene.model, self.scene.object_names)
     self._init = per_world(self.scene.initial_state)
     self._init_from_noise = per_world(self.scene.initial_state_from_noise)
+
+  def _sleep(self, given, model, resolve) -> sleep_lib.SleepSettings:
+    """The sleep settings: ``given`` (SleepSettings or a run record's dict),
+    else the config's under ``resolve`` (the engine's rule)."""
+    if isinstance(given, dict):
+      return sleep_lib.SleepSettings.from_record(given)
+    cfg = self.scene.config
+    return given or resolve(model, cfg.sim.sleep, cfg.sim.sleep_tolerance)
 
   def _budget(self, given):
     """The MJX contact budget: ``given`` (a ContactBudget or its dict), else
@@ -533,7 +546,14 @@ def pilot_counts(scene: Scene, n_worlds: int = 8, seed: int = 0, end_time: float
   with Sampler(pilot_scene, backend="native", chunk_size=n_worlds,
                store=RawQposStore(scene.model.nq)) as sampler:
     bank, _ = sampler.run(n_worlds, jax.random.key(seed))
-  return budget_lib.count_frames(scene, bank)
+    counts = budget_lib.count_frames(scene, bank)
+    if sampler.sleep.enabled:  # MuJoCo Warp's nvmax: the most dofs awake at once
+      _, init_keys, _ = world_keys(jax.random.key(seed), np.arange(n_worlds))
+      qpos0, qvel0 = (np.asarray(x) for x in sampler._init(init_keys))
+      model = sampler.backend.model
+      counts = counts._replace(awake_dofs=budget_lib.awake_dofs(
+          model, exact_pose(qpos0, model.qpos0), qvel0.astype(np.float64), (sampler.n_frames - 1) * sampler.params.steps_per_frame))
+  return counts._replace(dofs=int(scene.model.nv))
 
 
 def resolve_contact_budget(scene: Scene, settings: MjxSection | None = None):

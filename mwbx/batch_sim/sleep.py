@@ -91,6 +91,18 @@ def resolve(model: mujoco.MjModel, sleep: bool | str = "auto", tolerance: float 
   return SleepSettings(False, tol, f"auto: off below {AUTO_MIN_TREES} trees that may sleep ({trees})")
 
 
+def resolve_warp(model: mujoco.MjModel, sleep: bool | str = "auto", tolerance: float | None = None) -> SleepSettings:
+  """:func:`resolve` for MuJoCo Warp (mjx:warp), which sleeps under its Newton
+  solver only: ``auto`` leaves sleep off there unless the MJCF enables it
+  (its cost and gain on a GPU are not measured; where a GPU is visible, the
+  engine probe times mjx:warp with sleep as an engine of its own,
+  :data:`mwbx.batch_sim.engine_probe.WARP_SLEEP`); ``true``/``false`` as on native."""
+  settings = resolve(model, sleep, tolerance)
+  if sleep == "auto" and settings.enabled and not model.opt.enableflags & _SLEEP_BIT:
+    return SleepSettings(False, settings.tolerance, f"auto: off on mjx:warp (native: {settings.reason})")
+  return settings
+
+
 def sleeping_copy(model: mujoco.MjModel, settings: SleepSettings) -> mujoco.MjModel:
   """A copy of ``model`` with sleep set as ``settings`` say (the flag and the tolerance)."""
   out = copy.copy(model)

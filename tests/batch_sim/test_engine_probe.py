@@ -40,7 +40,7 @@ def test_an_engine_slower_than_native_or_failing_is_never_chosen():
       {"native": _engine(1000, 1.0), "mjx:warp": _failing, "mjx:jax": _engine(999, 1.0)}, out=out)
   assert result.choice == "native"
   assert result.rows[1].error.startswith("RuntimeError: RESOURCE_EXHAUSTED: out of memory while allocating")
-  assert "mjx:warp    failed: RuntimeError" in out.getvalue()
+  assert f"{'mjx:warp':<16}  failed: RuntimeError" in out.getvalue()
   # A tie keeps native (no compile, no device memory).
   tie = engine_probe.probe_engines({"mjx:jax": _engine(2000, 2.0), "native": _engine(1000, 1.0)}, out=out)
   assert tie.choice == "native"
@@ -72,7 +72,7 @@ def test_with_a_gpu_auto_samples_on_the_probes_choice(monkeypatch, capsys, tiny_
   rates[fastest] = 2000
   timed = []
 
-  def fake_run(sampler_cls, scene, backend, impl, budget, warp_solver):
+  def fake_run(sampler_cls, scene, backend, impl, budget, warp_solver, sleep=None):
     name = backend if impl is None else f"{backend}:{impl}"
     assert budget is not None and budget.source.startswith("pilot")  # the pilot ran before the probe
     def run():
@@ -102,3 +102,28 @@ def test_a_real_engine_run_times_whole_chunks_of_the_scenes_start(tiny_config):
   frame = 1 / tiny_config.sim.record_fps  # a world records frames 0..end_frame: one frame past the end time
   most = worlds * round((engine_probe.PROBE_SECONDS + frame) / scene.model.opt.timestep)
   assert 0 < steps <= most and seconds > 0
+
+
+def test_where_native_sleeps_the_probe_times_mjx_warp_with_sleep(monkeypatch, tiny_config):
+  """With sleep on for the native engine, the probe also times mjx:warp with
+  island sleep; chosen, the sampler steps MuJoCo Warp with sleep under Newton,
+  its awake dofs (nvmax) sized by the native pilot, and records it."""
+  pytest.importorskip("warp")
+  config = tiny_config.model_copy(update={"sim": tiny_config.sim.model_copy(update={"sleep": True})})
+  rates = {"native": 1000, "mjx:warp": 500, "mjx:jax": 800, engine_probe.WARP_SLEEP: 2000}
+  asked = {}
+
+  def fake_run(sampler_cls, scene, backend, impl, budget, warp_solver, sleep=None):
+    name = backend if impl is None else f"{backend}:{impl}" + ("+sleep" if sleep else "")
+    asked[name] = sleep
+    return lambda: (rates[name], 1.0)
+
+  monkeypatch.setattr(engine_probe, "gpu_visible", lambda: True)
+  monkeypatch.setattr(engine_probe, "_engine_run", fake_run)
+  with mwbx.Sampler(config, backend="auto") as sampler:
+    assert asked[engine_probe.WARP_SLEEP] is True and asked["mjx:warp"] is None
+    assert sampler.probe.choice == engine_probe.WARP_SLEEP and sampler.backend_label == "mjx:warp"
+    assert sampler.sleep.enabled and "engine probe" in sampler.sleep.reason
+    assert sampler.backend.sleeps and sampler.warp_solver.solver == "newton"
+    assert 0 < sampler.contact_budget.nvmax <= sampler.backend.model.nv
+    assert sampler.run_record()["sleep"]["enabled"] is True
