@@ -288,7 +288,7 @@ def bench_scene(name: str, args) -> dict:
   if args.start_time > 0:
     qpos0, qvel0 = advance(model, qpos0, qvel0, args.start_time)
   elif args.sleep:  # bodies asleep from the start stay so only at the MJCF's exact pose
-    qpos0 = exact_pose(qpos0, model.qpos0)
+    qpos0 = exact_pose(qpos0, model)
   # --distinct-states: the batch repeats the first N worlds (N worlds' advance, not the batch's).
   repeat = lambda x: np.tile(x, (-(-args.batch // distinct), 1))[:args.batch]
   qpos0, qvel0 = repeat(qpos0), repeat(qvel0)

@@ -28,6 +28,7 @@ from mujoco import rollout as mj_rollout
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx import controls
 from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, compiled_world
+from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 from mwbx.events import actors as events_lib
 from mwbx.errors import MwbxError
@@ -42,17 +43,20 @@ _CONTROL = mujoco.mjtState.mjSTATE_XFRC_APPLIED
 _CONTROL_CTRL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 
 
-def exact_pose(qpos: np.ndarray, qpos0: np.ndarray) -> np.ndarray:
-  """f64[W, nq] initial qpos: the worlds' f32[W, nq], except that a value
-  equal to the MJCF's pose ``qpos0`` (f64[nq]) rounded to float32 (nothing
-  randomized it) is the MJCF's value itself.
+def exact_pose(qpos: np.ndarray, model: mujoco.MjModel) -> np.ndarray:
+  """f64[W, nq] initial qpos: the worlds' f32[W, nq], except that in the
+  trees that start asleep (sleep policy ``init``) a value equal to the MJCF's
+  pose ``model.qpos0`` rounded to float32 (nothing randomized it) is the
+  MJCF's value itself.
 
   MuJoCo wakes a sleeping tree whose ``qpos`` changed: a tree that starts
-  asleep (sleep policy ``init``) stays asleep only at the very pose it was
-  put to sleep at, and a float32 rounding of it is another pose.
+  asleep stays asleep only at the very pose it was put to sleep at, and a
+  float32 rounding of it is another pose. Other trees keep the rounding
+  (their worlds stay those of banks sampled before).
   """
-  qpos0 = np.asarray(qpos0, np.float64)
-  return np.where(qpos == qpos0.astype(np.float32), qpos0, qpos.astype(np.float64))
+  qpos0 = np.asarray(model.qpos0, np.float64)
+  exact = sleep_lib.starts_asleep(model) & (qpos == qpos0.astype(np.float32))
+  return np.where(exact, qpos0, qpos.astype(np.float64))
 
 
 class _Chunk(NamedTuple):
@@ -109,7 +113,7 @@ class NativeBackend:
     m = self.model
     data = mujoco.MjData(m)
     states = np.zeros((len(qpos), self.nstate))
-    qpos = exact_pose(np.asarray(qpos), m.qpos0)
+    qpos = exact_pose(np.asarray(qpos), m)
     for w in range(len(qpos)):
       mujoco.mj_resetData(m, data)
       data.qpos[:] = qpos[w]

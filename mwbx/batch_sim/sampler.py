@@ -552,7 +552,7 @@ def pilot_counts(scene: Scene, n_worlds: int = 8, seed: int = 0, end_time: float
       qpos0, qvel0 = (np.asarray(x) for x in sampler._init(init_keys))
       model = sampler.backend.model
       counts = counts._replace(awake_dofs=budget_lib.awake_dofs(
-          model, exact_pose(qpos0, model.qpos0), qvel0.astype(np.float64), (sampler.n_frames - 1) * sampler.params.steps_per_frame))
+          model, exact_pose(qpos0, model), qvel0.astype(np.float64), (sampler.n_frames - 1) * sampler.params.steps_per_frame))
   return counts._replace(dofs=int(scene.model.nv))
 
 

@@ -31,6 +31,8 @@ from mwbx.host_jit import host_jit
 _SLEEP_BIT = int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 # Scenes with at least this many trees that may sleep get sleep under ``auto``.
 AUTO_MIN_TREES = 32
+_QPOS_WIDTH = {int(mujoco.mjtJoint.mjJNT_FREE): 7, int(mujoco.mjtJoint.mjJNT_BALL): 4,
+               int(mujoco.mjtJoint.mjJNT_SLIDE): 1, int(mujoco.mjtJoint.mjJNT_HINGE): 1}
 _NEVER = (int(mujoco.mjtSleepPolicy.mjSLEEP_NEVER), int(mujoco.mjtSleepPolicy.mjSLEEP_AUTO_NEVER))
 
 
@@ -89,6 +91,19 @@ def resolve(model: mujoco.MjModel, sleep: bool | str = "auto", tolerance: float 
   if trees >= AUTO_MIN_TREES:
     return SleepSettings(True, tol, f"auto: {trees} trees may sleep")
   return SleepSettings(False, tol, f"auto: off below {AUTO_MIN_TREES} trees that may sleep ({trees})")
+
+
+def starts_asleep(model: mujoco.MjModel) -> np.ndarray:
+  """bool[nq]: the qpos columns of the trees whose sleep policy is ``init``
+  (asleep from the start where sleep is on)."""
+  init = np.asarray(model.tree_sleep_policy) == int(mujoco.mjtSleepPolicy.mjSLEEP_INIT)
+  columns = np.zeros(model.nq, bool)
+  for j in range(model.njnt):
+    tree = int(model.body_treeid[model.jnt_bodyid[j]])
+    if tree >= 0 and init[tree]:
+      adr = int(model.jnt_qposadr[j])
+      columns[adr:adr + _QPOS_WIDTH[int(model.jnt_type[j])]] = True
+  return columns
 
 
 def resolve_warp(model: mujoco.MjModel, sleep: bool | str = "auto", tolerance: float | None = None) -> SleepSettings:
