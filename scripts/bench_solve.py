@@ -233,7 +233,7 @@ def main() -> None:
         runs.append({k: r[k] for k in ("scene", "seed", "solved", "satisfied", "n_queries", "refinements",
                                        "world_steps", "solve_seconds", "message", "world", "worlds_sampled",
                                        "queries", "per_query_rate", "independent_estimate", "load_average_before",
-                                       "load_average_after")} | {"commit": result["machine"]["commit"]})
+                                       "load_average_after", "budget_seconds")} | {"commit": result["machine"]["commit"]})
         print(f"{name} seed {seed}: {r['message']}", flush=True)
         result["robustness"] = {"runs": sorted(runs, key=lambda x: (x["scene"], x["seed"]))}
         out.write_text(json.dumps(result, indent=1))

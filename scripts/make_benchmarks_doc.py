@@ -919,7 +919,9 @@ def _seed_summary(runs: list) -> list[str]:
         continue
       times = sorted(r["solve_seconds"] for r in rs if r["solved"])
       when = f", median {statistics.median(times):.0f} s, worst {times[-1]:.0f} s" if times else ""
-      parts.append(f"{label}: {len(times)} of {len(rs)} solved{when}")
+      budgets = sorted({r["budget_seconds"] for r in rs if "budget_seconds" in r})
+      within = f" within {', '.join(f'{b:.0f}' for b in budgets)} s" if budgets else ""
+      parts.append(f"{label}: {len(times)} of {len(rs)} solved{within}{when}")
     lines.append(f"* {scene}: " + "; ".join(parts) + ".")
   return lines + [""] if lines else []
 

@@ -551,8 +551,9 @@ def pilot_counts(scene: Scene, n_worlds: int = 8, seed: int = 0, end_time: float
       _, init_keys, _ = world_keys(jax.random.key(seed), np.arange(n_worlds))
       qpos0, qvel0 = (np.asarray(x) for x in sampler._init(init_keys))
       model = sampler.backend.model
+      n_steps = (sampler.n_frames - 1) * sampler.params.steps_per_frame
       counts = counts._replace(awake_dofs=budget_lib.awake_dofs(
-          model, exact_pose(qpos0, model), qvel0.astype(np.float64), (sampler.n_frames - 1) * sampler.params.steps_per_frame))
+          model, exact_pose(qpos0, model), qvel0.astype(np.float64), n_steps))
   return counts._replace(dofs=int(scene.model.nv))
 
 

@@ -27,12 +27,11 @@ import mujoco
 import numpy as np
 
 from mwbx.host_jit import host_jit
+from mwbx.joints import QPOS_WIDTH
 
 _SLEEP_BIT = int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 # Scenes with at least this many trees that may sleep get sleep under ``auto``.
 AUTO_MIN_TREES = 32
-_QPOS_WIDTH = {int(mujoco.mjtJoint.mjJNT_FREE): 7, int(mujoco.mjtJoint.mjJNT_BALL): 4,
-               int(mujoco.mjtJoint.mjJNT_SLIDE): 1, int(mujoco.mjtJoint.mjJNT_HINGE): 1}
 _NEVER = (int(mujoco.mjtSleepPolicy.mjSLEEP_NEVER), int(mujoco.mjtSleepPolicy.mjSLEEP_AUTO_NEVER))
 
 
@@ -102,7 +101,7 @@ def starts_asleep(model: mujoco.MjModel) -> np.ndarray:
     tree = int(model.body_treeid[model.jnt_bodyid[j]])
     if tree >= 0 and init[tree]:
       adr = int(model.jnt_qposadr[j])
-      columns[adr:adr + _QPOS_WIDTH[int(model.jnt_type[j])]] = True
+      columns[adr:adr + QPOS_WIDTH[int(model.jnt_type[j])]] = True
   return columns
 
 
