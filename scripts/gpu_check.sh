@@ -85,7 +85,7 @@ while [ $# -gt 0 ]; do
     --variant-scene) VARIANT_SCENE="$2"; shift ;;
     --variant-worlds) VARIANT_WORLDS="$2"; shift ;;
     --sleep-worlds) SLEEP_WORLDS="$2"; shift ;;
-    *) fail "unknown argument $1 (use --dry-run, --worlds N, --python PY, --wheels DIR, --out FILE, --scenes A,B, --engines jax,warp, --timeout S, --append, --sample N, --variants A,B, --variant-scene NAME, --variant-worlds N,M)" ;;
+    *) fail "unknown argument $1 (use --dry-run, --worlds N, --python PY, --wheels DIR, --out FILE, --scenes A,B, --engines jax,warp, --timeout S, --append, --sample N, --variants A,B, --variant-scene NAME, --variant-worlds N,M, --sleep-worlds N)" ;;
   esac
   shift
 done
