@@ -219,3 +219,35 @@ def test_info_prints_the_budget_and_counts_flagged_worlds(tiny_native_bank, tmp_
   assert f"({bank.n_worlds - 3} valid, 0 unstable, 3 over the contact budget)" in out
   assert "contact budget      max_contact_points 12, max_geom_pairs 5 (jax); nconmax 13, njmax 42" in out
   assert "from pilot (8 worlds, 755 frames, headroom 1.5)" in out
+
+
+def test_awake_dofs_size_nvmax_with_headroom_and_old_records_load():
+  """MuJoCo Warp's nvmax: the pilot's most dofs awake at once with headroom
+  and slack, never above nv; none (0) where the pilot did not sleep; a run
+  record from before nvmax loads with 0."""
+  counts = contact_budget.PilotCounts(3, 8, 5, 4, 20, worlds=8, frames=100, awake_dofs=30, dofs=600)
+  assert contact_budget.budget_from_counts(counts, 1.5).nvmax == 45
+  assert contact_budget.budget_from_counts(counts._replace(awake_dofs=590), 1.5).nvmax == 600
+  assert contact_budget.budget_from_counts(counts._replace(awake_dofs=0), 1.5).nvmax == 0
+  budget = contact_budget.budget_from_counts(counts, 1.5)
+  assert "nvmax 45" in budget.describe()
+  record = budget._asdict()
+  assert contact_budget.ContactBudget.from_dict(record) == budget
+  del record["nvmax"]
+  assert contact_budget.ContactBudget.from_dict(record).nvmax == 0
+
+
+def test_awake_dofs_counts_what_a_hit_wakes():
+  """Two boxes resting asleep from the start and a ball rolling into the
+  first: the most dofs awake at once are the ball's and the box's it wakes
+  (6 + 6), never the far box's."""
+  mjcf = ('<mujoco><option timestep="0.002"><flag sleep="enable"/></option><worldbody>'
+          '<geom type="plane" size="3 3 0.1"/>'
+          '<body name="near" pos="0.3 0 0.05" sleep="init"><freejoint/><geom type="box" size="0.05 0.05 0.05"/></body>'
+          '<body name="far" pos="2 2 0.05" sleep="init"><freejoint/><geom type="box" size="0.05 0.05 0.05"/></body>'
+          '<body name="ball" pos="0 0 0.05"><freejoint/><geom type="sphere" size="0.05"/></body>'
+          '</worldbody></mujoco>')
+  model = mujoco.MjModel.from_xml_string(mjcf)
+  qvel = np.zeros((1, model.nv))
+  qvel[0, 12] = 2.0  # the ball rolls towards the near box
+  assert contact_budget.awake_dofs(model, model.qpos0[None], qvel, 400) == 12

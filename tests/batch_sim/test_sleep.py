@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import mwbx
+from mwbx.batch_sim import native_backend
 from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.bank.core import FLAG_AT_REST
 
@@ -140,6 +141,40 @@ def test_all_asleep():
   assert sleep_lib.all_asleep(np.array([0, 1, 1], np.int32))
   assert not sleep_lib.all_asleep(np.array([0, -1, 1], np.int32))
   assert not sleep_lib.all_asleep(np.zeros(0, np.int32))
+
+
+def test_mjx_warp_sleeps_only_when_asked_or_the_mjcf_says():
+  """On mjx:warp (MuJoCo Warp sleeps under Newton only; not measured on a
+  GPU) ``auto`` stays off where native would turn sleep on; true, false and
+  an MJCF's own flag are as on native."""
+  forty = mujoco.MjModel.from_xml_string(boxes_mjcf(40))
+  assert sleep_lib.resolve(forty, "auto").enabled
+  settings = sleep_lib.resolve_warp(forty, "auto")
+  assert not settings.enabled and "mjx:warp" in settings.reason and "40 trees" in settings.reason
+  assert sleep_lib.resolve_warp(forty, True).enabled and not sleep_lib.resolve_warp(forty, False).enabled
+  enabled = mujoco.MjModel.from_xml_string(boxes_mjcf(2, '<flag sleep="enable"/>'))
+  assert sleep_lib.resolve_warp(enabled, "auto").enabled
+
+
+def test_only_trees_that_start_asleep_keep_the_mjcfs_exact_pose():
+  """A float32 initial qpos equal to the MJCF's pose rounded becomes the
+  MJCF's exact value in the trees with sleep policy init (else MuJoCo would
+  see a changed pose and wake them); a randomized value there, and every
+  value of the other trees, stays the float32 one (their worlds as before)."""
+  extra = ('<body name="resting" pos="0.3 0.7 0.1" euler="0 0 17" sleep="init"><freejoint/>'
+           '<geom type="box" size="0.04 0.04 0.04" mass="0.1"/></body>')
+  model = mujoco.MjModel.from_xml_string(boxes_mjcf(2, extra=extra))
+  init = sleep_lib.starts_asleep(model)
+  resting = int(model.jnt_qposadr[model.body("resting").jntadr[0]])
+  assert init.sum() == 7 and init[resting:resting + 7].all()
+  qpos = np.tile(model.qpos0.astype(np.float32), (2, 1))
+  qpos[1, resting] += 0.01  # randomized in world 1
+  exact = native_backend.exact_pose(qpos, model)
+  assert exact.dtype == np.float64
+  np.testing.assert_array_equal(exact[0, init], model.qpos0[init])
+  assert exact[1, resting] == np.float64(qpos[1, resting])
+  np.testing.assert_array_equal(exact[:, ~init], qpos[:, ~init].astype(np.float64))
+  assert (exact[0, ~init] != model.qpos0[~init]).any()  # the other trees keep float32's rounding
 
 
 # -- sampling ----------------------------------------------------------------------
