@@ -78,20 +78,26 @@ def sample(sleep: bool, n: int, seed: int):
   return bank, timing
 
 
+def _knocked_down(bank) -> tuple[list[int], np.ndarray]:
+  """(the blocks' body indices, bool[W, blocks] each block ending more than
+  KNOCKED_DOWN from where it started)."""
+  rows = np.arange(bank.n_worlds)
+  blocks = [i for i, b in enumerate(bank.body_names) if b.startswith("block_")]
+  moved = bank.com[rows, bank.com_count - 1][:, blocks] - bank.com[:, 0][:, blocks]
+  return blocks, np.linalg.norm(moved, axis=-1) > KNOCKED_DOWN
+
+
 def outcomes(bank) -> dict[str, np.ndarray]:
   """Per world: what a viewer of the tower would tell apart."""
-  rows = np.arange(bank.n_worlds)
-  last = bank.com[rows, bank.com_count - 1]  # f32[W, B, 3]
-  first = bank.com[:, 0]
+  last = bank.com[np.arange(bank.n_worlds), bank.com_count - 1]  # f32[W, B, 3]
   names = list(bank.body_names)
-  blocks = [i for i, b in enumerate(names) if b.startswith("block_")]
-  knocked = np.linalg.norm(last[:, blocks] - first[:, blocks], axis=-1) > KNOCKED_DOWN
+  blocks, knocked = _knocked_down(bank)
   out = {"blocks_knocked_down": knocked.sum(axis=1).astype(float)}
   for body in ["rock"] + [b for b in names if b.startswith("bystander_")]:
     for axis, label in enumerate("xyz"):
       out[f"{body}_{label}"] = last[:, names.index(body), axis].astype(float)
-  # Summed over the knocked-down blocks: a standing block's share is the jitter
-  # of resting awake (resting_jitter), which a tower asleep does not have.
+  # Summed over the knocked-down blocks: a standing block's share is its
+  # jitter (resting_jitter), which sleep removes from the blocks no hit wakes.
   metrics = list(bank.metric_names)
   for metric in ("path_length", "collisions"):
     out[f"knocked_{metric}"] = (bank.metrics[:, blocks, metrics.index(metric)] * knocked).sum(axis=1).astype(float)
@@ -100,14 +106,11 @@ def outcomes(bank) -> dict[str, np.ndarray]:
 
 def resting_jitter(bank) -> dict:
   """What the blocks that stay standing do meanwhile (per world, summed over
-  them): awake, they creep and rattle on their contacts; asleep, not at all."""
-  rows = np.arange(bank.n_worlds)
-  names = list(bank.body_names)
-  blocks = [i for i, b in enumerate(names) if b.startswith("block_")]
-  standing = np.linalg.norm(bank.com[rows, bank.com_count - 1][:, blocks] - bank.com[:, 0][:, blocks],
-                            axis=-1) <= KNOCKED_DOWN
+  them): awake, they creep and rattle on their contacts; asleep, only those a
+  hit woke do."""
+  blocks, knocked = _knocked_down(bank)
   metrics = list(bank.metric_names)
-  return {f"mean_{metric}": round(float((bank.metrics[:, blocks, metrics.index(metric)] * standing).sum(axis=1).mean()), 4)
+  return {f"mean_{metric}": round(float((bank.metrics[:, blocks, metrics.index(metric)] * ~knocked).sum(axis=1).mean()), 4)
           for metric in ("path_length", "collisions")}
 
 
