@@ -137,16 +137,17 @@ def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
     flag = np.zeros(p_idx.size, bool) if flag is None else np.asarray(flag)[p_idx, f_idx]
     return rows[p_idx], f_idx, vel, flag
 
-  # Paths sorted by length so each call scans only as many frames as its longest
-  # path, padded to a multiple of 128 so few shapes compile.
-  d = 3 if kind == "rot" else width
-  held = np.zeros(n.size, bool) if constant is None else constant & (skip is None or ~skip)
+  skip = np.zeros(n.size, bool) if skip is None else np.asarray(skip, bool)
+  held = np.zeros(n.size, bool) if constant is None else constant & ~skip
   rows = np.flatnonzero(held)
+  d = 3 if kind == "rot" else width
   held_ends = (rows, n[rows] - 1, np.zeros((rows.size, d), np.int64), np.zeros(rows.size, bool))
   if n.size == 0 or t == 0:
     return _FitJob(kind, fit_batch, [], held_ends)
+  # Paths sorted by length so each call scans only as many frames as its longest
+  # path, padded to a multiple of 128 so few shapes compile.
   order = np.argsort(n, kind="stable")
-  order = order[~(held if skip is None else held | skip)[order]]
+  order = order[~(held | skip)[order]]
   return _FitJob(kind, fit_batch, [order[lo:lo + FIT_BATCH] for lo in range(0, order.size, FIT_BATCH)],
                  held_ends)
 
@@ -164,7 +165,7 @@ def _run_fits(jobs: Sequence[_FitJob]) -> list[tuple]:
     results = [jobs[j].batch(rows) for j, rows in calls]
   out = []
   for j, job in enumerate(jobs):
-    parts = [job.held] * bool(job.held[0].size) + [r for (k, _), r in zip(calls, results) if k == j]
+    parts = ([job.held] if job.held[0].size else []) + [r for (k, _), r in zip(calls, results) if k == j]
     if not parts:
       d = 3 if job.kind == "rot" else WIDTH[job.kind]
       out.append((np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, d), np.int64), np.zeros(0, bool)))
