@@ -17,12 +17,14 @@ move most). Tunnelling shows as bodies lower than the shipped step ever puts
 them: the lowest COM height of each body over every world and frame is
 compared with the shipped step's.
 
-A factor is a candidate for a scene's default only where every outcome
-agrees, nothing goes lower and its physics is faster (``safe``; the wall of
-the first scene of a run includes the process's warm-up); the table in
-docs/benchmarks.md says which. No shipped default changes on this alone.
+A factor is safe on a seed where every outcome agrees, nothing goes lower
+and its physics is faster (the wall of the first run of a process includes
+its warm-up), and a candidate for a scene's default only where it is safe
+on every seed (``--seeds``; each seed's worlds are a run of their own); the
+tables in docs/benchmarks.md say which.
 
-  .venv/bin/python scripts/bench_steps.py [--scenes trebuchet_tower] [--factors 2] [--worlds 64] [--append]
+  .venv/bin/python scripts/bench_steps.py [--scenes trebuchet_tower] [--factors 2] [--worlds 64] [--seeds 1]
+      [--append]
 
 Writes out/bench/steps.json (``--out``).
 """
@@ -93,11 +95,11 @@ def _with_step(attributes: str, step: str) -> str:
   return f'{attributes} timestep="{step}"'
 
 
-def sample(config_path: pathlib.Path, n: int):
+def sample(config_path: pathlib.Path, n: int, seed: int):
   config = mwbx.load_config(config_path)
   t0 = time.perf_counter()
   with mwbx.Sampler(config, "native") as sampler:
-    bank, st = sampler.run(n, jax.random.key(1))
+    bank, st = sampler.run(n, jax.random.key(seed))
   return bank, {"wall_seconds": round(time.perf_counter() - t0, 2), "physics_seconds": round(st.run_seconds, 2),
                 "world_steps": int(st.world_steps), "timestep": float(bank.model().opt.timestep),
                 "mean_perturbations": round(float(bank.perturbations.mean()), 1), "valid": int(bank.valid.sum())}
@@ -126,42 +128,51 @@ def main():
   parser.add_argument("--scenes", default="trebuchet_tower")
   parser.add_argument("--factors", default="2")
   parser.add_argument("--worlds", type=int, default=64)
+  parser.add_argument("--seeds", default="1", help="the run keys; each seed is a run of its own")
   parser.add_argument("--out", default=str(REPO / "out" / "bench" / "steps.json"))
-  parser.add_argument("--append", action="store_true", help="keep the scenes already in --out")
+  parser.add_argument("--append", action="store_true", help="keep the runs already in --out (a scene and seed"
+                      " measured again replaces its run)")
   args = parser.parse_args()
   result = {"machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}", "worlds": args.worlds,
-            "scenes": {}}
+            "runs": []}
   if args.append and pathlib.Path(args.out).exists():
-    result["scenes"] = json.loads(pathlib.Path(args.out).read_text())["scenes"]
+    result["runs"] = json.loads(pathlib.Path(args.out).read_text())["runs"]
   for name in args.scenes.split(","):
-    config_path = REPO / "configs" / f"{name}.yaml"
-    base, base_t = sample(config_path, args.worlds)
-    print(name, "shipped", base_t, flush=True)
-    moving = None
-    if name != "trebuchet_tower":
-      path = np.array(base.metrics[:, :, list(base.metric_names).index("path_length")].mean(axis=0))
-      moving = list(np.argsort(path)[::-1][:MOST_MOVING])
-    base_low = lowest(base)
-    rows = {"shipped": base_t, "factors": {}}
-    for factor in (float(f) for f in args.factors.split(",")):
-      with tempfile.TemporaryDirectory() as folder:
-        other, t = sample(speculative_copy(config_path, factor, pathlib.Path(folder)), args.worlds)
-      agree = bench_tower.agreement(outcomes(name, base, moving), outcomes(name, other, moving))
-      deeper = base_low - lowest(other)
-      t.update(agreement=agree, speedup_wall=round(base_t["wall_seconds"] / t["wall_seconds"], 2),
-               speedup_physics=round(base_t["physics_seconds"] / t["physics_seconds"], 2),
-               deepest_below_shipped_m=round(float(deeper.max()), 4),
-               deepest_body=base.body_names[int(np.argmax(deeper))],
-               ks_fails=[k for k, r in agree["outcomes"].items() if r["ks_p"] < 0.01 / len(agree["outcomes"])])
-      t["safe"] = bool(agree["all_pass"] and not t["ks_fails"] and t["deepest_below_shipped_m"] <= LOWER_TOLERANCE
-                       and t["speedup_physics"] > 1.0)
-      rows["factors"][str(factor)] = t
-      print(name, f"x{factor}", {k: v for k, v in t.items() if k != "agreement"}, flush=True)
-    result["scenes"][name] = rows
+    for seed in (int(s) for s in args.seeds.split(",")):
+      result["runs"] = [r for r in result["runs"] if (r["scene"], r["seed"]) != (name, seed)]
+      result["runs"].append(run_scene(name, seed, args))
   out = pathlib.Path(args.out)
   out.parent.mkdir(parents=True, exist_ok=True)
   out.write_text(json.dumps(result, indent=2) + "\n")
   print(f"wrote {out}")
+
+
+def run_scene(name: str, seed: int, args) -> dict:
+  """The shipped step and each factor of one scene on the worlds of one seed."""
+  config_path = REPO / "configs" / f"{name}.yaml"
+  base, base_t = sample(config_path, args.worlds, seed)
+  print(name, f"seed {seed}", "shipped", base_t, flush=True)
+  moving = None
+  if name != "trebuchet_tower":
+    path = np.array(base.metrics[:, :, list(base.metric_names).index("path_length")].mean(axis=0))
+    moving = list(np.argsort(path)[::-1][:MOST_MOVING])
+  base_low = lowest(base)
+  rows = {"scene": name, "seed": seed, "shipped": base_t, "factors": {}}
+  for factor in (float(f) for f in args.factors.split(",")):
+    with tempfile.TemporaryDirectory() as folder:
+      other, t = sample(speculative_copy(config_path, factor, pathlib.Path(folder)), args.worlds, seed)
+    agree = bench_tower.agreement(outcomes(name, base, moving), outcomes(name, other, moving))
+    deeper = base_low - lowest(other)
+    t.update(agreement=agree, speedup_wall=round(base_t["wall_seconds"] / t["wall_seconds"], 2),
+             speedup_physics=round(base_t["physics_seconds"] / t["physics_seconds"], 2),
+             deepest_below_shipped_m=round(float(deeper.max()), 4),
+             deepest_body=base.body_names[int(np.argmax(deeper))],
+             ks_fails=[k for k, r in agree["outcomes"].items() if r["ks_p"] < 0.01 / len(agree["outcomes"])])
+    t["safe"] = bool(agree["all_pass"] and not t["ks_fails"] and t["deepest_below_shipped_m"] <= LOWER_TOLERANCE
+                     and t["speedup_physics"] > 1.0)
+    rows["factors"][str(factor)] = t
+    print(name, f"seed {seed}", f"x{factor}", {k: v for k, v in t.items() if k != "agreement"}, flush=True)
+  return rows
 
 
 if __name__ == "__main__":
