@@ -27,7 +27,7 @@ import numpy as np
 from mwbx.batch_sim import host_loops, world
 from mwbx.batch_sim.world import (ANGULAR_TRAVEL, COLLISIONS, MAX_HEIGHT, ORIENTATION_ERROR, PATH_LENGTH,
                                    REST_TIME)
-from mwbx.host_jit import host_jit
+from mwbx.host_jit import borrowed, held, host_jit
 from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR_WIDTH
 
 _MASK32 = np.uint64(0xFFFFFFFF)
@@ -438,14 +438,16 @@ def frame_update(rows, buffers, before, qpos_start, frame, running):
     frame: frame index to record into.
     running: bool[C] out: whether each stepped world needs the next frame.
   """
+  rows, buffers, before, running = borrowed((rows, buffers, before, running))  # the caller holds them
   sensordata, key_data, p, carry = buffers.sensordata, buffers.key_data, buffers.params, buffers.carry
   tracked, qpos_buf, com_buf, wrench_full = buffers.tracked_ids, buffers.qpos_buf, buffers.com_buf, buffers.wrench_full
   n_steps = sensordata.shape[1]
   n_bodies = tracked.size
   nq = qpos_buf.shape[2]
-  impacts = FrameImpacts(np.empty((n_steps, n_bodies, 3)), np.empty((n_steps, n_bodies, 3)),
-                         np.empty((n_steps, n_bodies), np.bool_), np.empty((n_steps, n_bodies), np.bool_))
-  scratch = WrenchScratch(np.empty(6), np.empty(3), np.empty(3), np.empty(4), np.empty(6), np.empty(3))
+  owned = (FrameImpacts(np.empty((n_steps, n_bodies, 3)), np.empty((n_steps, n_bodies, 3)),
+                       np.empty((n_steps, n_bodies), np.bool_), np.empty((n_steps, n_bodies), np.bool_)),
+           WrenchScratch(np.empty(6), np.empty(3), np.empty(3), np.empty(4), np.empty(6), np.empty(3)))
+  impacts, scratch = borrowed(owned)  # handed to a helper per world: no reference counting (held to the end)
   for i in range(rows.size):
     r = rows[i]
     obs = sensordata[r]
@@ -470,3 +472,4 @@ def frame_update(rows, buffers, before, qpos_start, frame, running):
         for a in range(3):
           com_buf[r, frame, b, a] = obs[0, b * SENSOR_WIDTH + a]
     running[r] = keep_going
+  held(owned)
