@@ -49,7 +49,7 @@ from mwbx.batch_sim import compiled_world
 from mwbx.batch_sim.compiled_world import WorldInputs, physics_step
 from mwbx.batch_sim.host_bookkeeping import ChunkBuffers
 from mwbx.batch_sim.compiled_world import monotonic_seconds as _now
-from mwbx.host_jit import host_jit
+from mwbx.host_jit import borrowed, held, host_jit
 from mwbx.refinement import interactions
 from mwbx.refinement.loop import RefineOutput, start_active
 from mwbx.scene import ANG_ACC, ANG_VEL, COM_POS, LIN_ACC, LIN_VEL, QUAT, SENSOR_WIDTH
@@ -336,7 +336,10 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
   Returns:
     (FINISHED or ACTIVATED, seconds inside ``mj_step``).
   """
-  b, p, inter = buffers, buffers.params, objects.interaction
+  # The arguments without reference counting from here on (the caller holds them; host_jit.borrowed).
+  data, inputs, parent, objects, b, refined, running, events, world_events = borrowed(
+      (data, inputs, parent, objects, buffers, refined, running, events, world_events))
+  p, inter = b.params, objects.interaction
   free, timestep = inputs.free, inputs.timestep
   active, prev_inactive = refined.active, refined.prev_inactive
   frame_of = refined.frame_of
@@ -345,17 +348,13 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
   nq = b.qpos_buf.shape[2]
   n_bodies = b.tracked_ids.size
   n_objects = active.shape[1]
-  rows = np.full(1, row, np.int64)
-  before = np.empty((1, nstate))
-  after = np.empty((1, n_steps, nstate))
-  sensors = np.zeros((1, n_steps, 0 if free else data.sensordata.size))
-  com_sim = np.empty((n_bodies, 3))
-  speed_sim = np.empty(n_bodies)
-  inactive = np.empty(n_objects, np.bool_)
-  nxt = np.empty(n_objects, np.bool_)
-  ts = np.zeros(2, np.int64)
+  owned = (np.full(1, row, np.int64), np.empty((1, nstate)), np.empty((1, n_steps, nstate)),
+           np.zeros((1, n_steps, 0 if free else data.sensordata.size)), np.empty((n_bodies, 3)),
+           np.empty(n_bodies), np.empty(n_objects, np.bool_), np.empty(n_objects, np.bool_), np.zeros(2, np.int64),
+           np.empty(3))
+  # this world's scratch, held to the end
+  rows, before, after, sensors, com_sim, speed_sim, inactive, nxt, ts, flex_delta = borrowed(owned)
   physics = 0.0
-  flex_delta = np.empty(3)
   for i in range(n_bodies):
     p.perturbable[i] = objects.perturbable[i] and active[row, inter.body_object[i]]
   for f in range(objects.flex_perturbable.size):
@@ -413,7 +412,9 @@ def run_refined_world(row, data, inputs, parent, objects, buffers, refined, runn
         grew = True
     frame_of[row] = frame + 1
     if grew:
+      held(owned)
       return ACTIVATED, physics
+  held(owned)
   return FINISHED, physics
 
 
