@@ -153,6 +153,9 @@ def _print_run(run) -> None:
       w = s.warp_solver
       print(f"warp solver         {w['solver']}, tolerance {w['tolerance']:g}, {w['iterations']} iterations"
             f" ({w['reason']})")
+    if st.asleep_share is not None:
+      print(f"asleep              {st.asleep_share:.1%} of the tree-frames (island sleep: MuJoCo skipped their"
+            f" physics)")
     print(f"world-steps/s       {st.world_steps_per_second:,.0f} ({st.backend};"
           f" {st.world_steps:,} steps in {st.run_seconds:.2f} s, compile {st.compile_seconds:.1f} s,"
           f" compression {st.codec_seconds:.1f} s, contact events {st.events_seconds:.1f} s)")
@@ -170,6 +173,23 @@ def _rest_saved(bank) -> str:
   total = full * bank.n_worlds
   saved = 1.0 - float(bank.frame_count.clip(max=full).sum()) / total
   return f" (stopping there saved {saved:.1%} of the frames to the end time)" if saved > 0 else ""
+
+
+def _sleep_saved(path) -> str:
+  """What island sleep skipped in the bank's sampling runs: the share of
+  kinematic trees asleep over the frames their worlds stepped (each run
+  records its own; banks sampled before runs recorded it say nothing)."""
+  if not shards.has_manifest(pathlib.Path(path)):
+    return ""
+  runs = shards.read_manifest(pathlib.Path(path)).get("runs")
+  counted = [r["tree_frames"] for r in (runs if isinstance(runs, list) else []) if isinstance(r, dict)
+             and isinstance(r.get("tree_frames"), list) and len(r["tree_frames"]) == 2
+             and all(isinstance(x, int) and x >= 0 for x in r["tree_frames"])]  # a crafted record counts nothing
+  asleep, total = (sum(c[i] for c in counted) for i in (0, 1))
+  if total <= 0 or asleep > total:
+    return ""
+  return (f"; asleep {asleep / total:.1%} of the tree-frames sampled (MuJoCo skipped their physics:"
+          f" {asleep:,} of {total:,})")
 
 
 def _budget_line(record: dict) -> str:
@@ -207,7 +227,7 @@ def _cmd_info(args) -> int:
   print(f"at rest             {s['at_rest_fraction']:.1%}{_rest_saved(bank)}")
   if bank.run.get("sleep"):
     from mwbx.batch_sim.sleep import SleepSettings  # lazy: the bank alone needs no engine
-    print(f"sleep               {SleepSettings.from_record(bank.run['sleep']).describe()}")
+    print(f"sleep               {SleepSettings.from_record(bank.run['sleep']).describe()}{_sleep_saved(args.bank)}")
   print(f"mean collisions     {s['mean_collisions']:.2f} per world")
   print(f"perturbations       {s['perturbations']}")
   print(f"storage             {_disk_bytes(args.bank):,} bytes on disk, {s['storage_bytes']:,} bytes in memory")

@@ -47,6 +47,9 @@ class ChunkResult(NamedTuple):
       ``(a, b, first, last)`` in steps, f32[C, cap, 2] their strength, i64[C]
       how many (more than cap: overflowed); None where the engine did not
       report its steps' contacts (events are then found on the stored frames).
+    tree_frames: i64[C, 2] per world, summed over the frames it stepped: the
+      kinematic trees asleep at the frame's end (MuJoCo skipped their physics)
+      and the model's trees; None where the engine did not sleep.
   """
 
   qpos: np.ndarray
@@ -64,6 +67,7 @@ class ChunkResult(NamedTuple):
   event_rows: np.ndarray | None = None
   event_strength: np.ndarray | None = None
   event_count: np.ndarray | None = None
+  tree_frames: np.ndarray | None = None
 
   def first(self, n: int) -> ChunkResult:
     """The result of the first ``n`` worlds (a padded chunk without its padding)."""

@@ -270,7 +270,7 @@ PHYSICS_CLOCK_EVERY = 8
 
 
 @host_jit
-def run_world(row, data, inputs, initial_states, buffers, running, events, event_buffers):
+def run_world(row, data, inputs, initial_states, buffers, running, events, event_buffers, tree_frames):
   """Runs world ``row`` of a chunk until it finishes; returns seconds inside
   ``mj_step`` (estimated from every :data:`PHYSICS_CLOCK_EVERY`-th step).
 
@@ -282,10 +282,12 @@ def run_world(row, data, inputs, initial_states, buffers, running, events, event
     buffers: the chunk's :class:`host_bookkeeping.ChunkBuffers` (row ``row`` written).
     running: bool[C] as :func:`host_bookkeeping.frame_update` (out).
     events: :class:`StepEventInputs`; event_buffers: :class:`EventBuffers` (row ``row`` written).
+    tree_frames: i64[C, 2] (row ``row`` added to where the model sleeps): per
+      frame stepped, the kinematic trees asleep at its end and the model's trees.
   """
   # The arguments without reference counting from here on (the caller holds them).
-  data, inputs, initial_states, b, running, events, event_buffers = borrowed(
-      (data, inputs, initial_states, buffers, running, events, event_buffers))
+  data, inputs, initial_states, b, running, events, event_buffers, tree_frames = borrowed(
+      (data, inputs, initial_states, buffers, running, events, event_buffers, tree_frames))
   free = inputs.free
   n_steps = b.wrench_full.shape[1]
   nstate = initial_states.shape[1]
@@ -315,6 +317,9 @@ def run_world(row, data, inputs, initial_states, buffers, running, events, event
       host_loops.observe_free_bodies(rows, before, after, inputs.timestep, inputs.gravity, 1, 1 + nq,
                                      inputs.free_bodies, b.sensordata)
     host_bookkeeping.frame_update(rows, b, before, 1, frame, running)
+    if inputs.rest_when_asleep:
+      tree_frames[row, 0] += sleep.asleep_count(data.tree_asleep)
+      tree_frames[row, 1] += data.tree_asleep.size
     if inputs.rest_when_asleep and running[row] and sleep.all_asleep(data.tree_asleep):
       b.carry.status[row] = world.AT_REST  # nothing moves until something wakes it: nothing will
       running[row] = False

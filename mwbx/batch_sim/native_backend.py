@@ -260,10 +260,11 @@ class NativeBackend:
 
     events = self.step_events(scene.object_names)
     found = compiled_world.event_buffers(c, events)
+    tree_frames = np.zeros((c, 2), np.int64)
 
     def run(row, data, running_flags):
       return compiled_world.run_world(row, mujoco_c.data_views(model, data), inputs, initial, buffers,
-                                      running_flags, events, found)
+                                      running_flags, events, found, tree_frames)
 
     # The first call compiles the loop, or loads it from numba's cache (no world
     # is marked running, so it returns at once).
@@ -286,6 +287,8 @@ class NativeBackend:
     result = self._result(ch, compile_seconds, run_seconds, physics_seconds)._replace(errors=tuple(sim_errors))
     if events.on:
       result = result._replace(event_rows=found.rows, event_strength=found.strength, event_count=found.count)
+    if inputs.rest_when_asleep:
+      result = result._replace(tree_frames=tree_frames)
     return result
 
   def step_events(self, object_names) -> compiled_world.StepEventInputs:

@@ -49,6 +49,9 @@ class SampleStats:
     wall_seconds: everything, s.
     sim_errors: (world id, MuJoCo's message) of each world a MuJoCo error
       stopped (flagged ``FLAG_SIM_ERROR``; the run went on).
+    asleep_tree_frames, tree_frames: summed over the frames the worlds
+      stepped, the kinematic trees asleep at a frame's end (MuJoCo skipped
+      their physics) and all of them (0 where the engine did not sleep).
   """
 
   backend: str = ""
@@ -60,6 +63,13 @@ class SampleStats:
   physics_seconds: float = 0.0
   wall_seconds: float = 0.0
   sim_errors: list = dataclasses.field(default_factory=list)
+  asleep_tree_frames: int = 0
+  tree_frames: int = 0
+
+  @property
+  def asleep_share(self) -> float | None:
+    """The share of tree-frames asleep (None where none were counted)."""
+    return self.asleep_tree_frames / self.tree_frames if self.tree_frames else None
 
   @property
   def world_steps_per_second(self) -> float:
@@ -343,6 +353,9 @@ class Sampler:
       stats.run_seconds += result.run_seconds
       stats.compile_seconds += result.compile_seconds
       stats.physics_seconds += result.physics_seconds
+      if result.tree_frames is not None:
+        stats.asleep_tree_frames += int(result.tree_frames[:, 0].sum())
+        stats.tree_frames += int(result.tree_frames[:, 1].sum())
       done_worlds += n
       part = self._assemble(ids[lo:lo + n], keys[lo:lo + n], [result], store, events)
       stats.wall_seconds = time.perf_counter() - start_wall

@@ -380,3 +380,29 @@ def test_trees_that_start_asleep_stay_asleep_until_hit(tmp_path):
       np.testing.assert_array_equal(travelled["box2"], 0.0)
     else:
       assert (travelled["box2"] > 0).all(), travelled
+
+
+def test_info_says_what_sleep_skipped(tmp_path, capsys):
+  """A sampling run records the tree-frames its worlds slept (the boxes,
+  once landed; never the swinging pendulum) against all of them, and
+  ``mwbx info`` states the share; a run with sleep off records nothing and
+  info says nothing of it."""
+  from mwbx import cli
+  from mwbx.bank import shards
+  config = drop_config(tmp_path, "true", extra=PENDULUM)
+  run = mwbx.sample_run(config, tmp_path / "on", n_worlds=3, seed=0, backend="native")
+  bank = mwbx.Bank.load(run.out)
+  np.testing.assert_array_equal(bank.frame_count, n_frames(config))  # the pendulum keeps every world running
+  asleep, total = shards.read_manifest(run.out)["runs"][0]["tree_frames"]
+  assert total == 5 * int(bank.frame_count.sum())  # 4 boxes and the pendulum, every frame stepped
+  assert 0.3 * total < asleep <= 0.8 * total, (asleep, total)  # the pendulum never sleeps: 4 of 5 at most
+  assert run.summary.stats.asleep_share == asleep / total
+  capsys.readouterr()
+  assert cli.main(["info", str(run.out)]) == 0
+  line = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("sleep"))
+  assert f"asleep {asleep / total:.1%} of the tree-frames sampled" in line and f"{total:,}" in line
+  off = mwbx.sample_run(drop_config(tmp_path, "false"), tmp_path / "off", n_worlds=2, seed=0, backend="native")
+  assert "tree_frames" not in shards.read_manifest(off.out)["runs"][0]
+  assert off.summary.stats.asleep_share is None
+  assert cli.main(["info", str(off.out)]) == 0
+  assert "asleep" not in capsys.readouterr().out
