@@ -15,6 +15,7 @@ import pytest
 
 import mwbx
 from mwbx import cli
+from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.errors import MwbxError
 from mwbx.progress import NOTICE
 from mwbx.events import actors_of, touch_margin
@@ -86,13 +87,26 @@ def sample_unperturbed(config, n_worlds, seed=0):
   return bank, qpos0, qvel0
 
 
-def _reference_episodes(bank, qpos0, qvel0, row) -> set:
+def _reference_episodes(bank, qpos0, qvel0, row, held_ticks=None) -> set:
   """The episodes of a world replayed step by step with ``mj_step``:
   MuJoCo's contacts not in their gap, runs of steps broken by a frame's
-  steps apart, each with its largest summed normal force and impulse."""
+  steps apart, each with its largest summed normal force and impulse. With
+  the bank's sleep on, a pair touching at the step before whose actors have
+  no awake tree (MuJoCo does not test them) still touches; ``held_ticks``
+  (a list) gets how many steps that held."""
   model = bank.model()
+  if bank.run.get("sleep"):
+    model = sleep_lib.sleeping_copy(model, sleep_lib.SleepSettings.from_record(bank.run["sleep"]))
   data = mujoco.MjData(model)
   actors = actors_of(model, list(bank.objects))
+  trees = {}  # actor -> the kinematic trees of its geoms
+  for g in range(model.ngeom):
+    tree = int(model.body_treeid[model.geom_bodyid[g]])
+    trees.setdefault(int(actors.geom_actor[g]), set()).update([tree] if tree >= 0 else [])
+  for f in range(model.nflex):  # a flex moves with its vertex bodies' trees
+    bodies = model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]
+    trees.setdefault(int(actors.flex_actor[f]), set()).update(int(t) for t in model.body_treeid[bodies] if t >= 0)
+  moving = lambda actor: any(data.tree_asleep[t] < 0 for t in trees.get(actor, ()))
   spf = bank.events.ticks_per_frame
   gap = spf * round(bank.record_fps / bank.query_fps)  # a query point's steps apart end an episode
   last_tick = (int(bank.frame_count[row]) - 1) * spf
@@ -120,6 +134,11 @@ def _reference_episodes(bank, qpos0, qvel0, row) -> set:
       first, _, peak, impulse = touching.get(key, (tick, tick, 0.0, 0.0))
       touching[key] = (first, tick, max(peak, f), impulse + f * model.opt.timestep)
     for key, (first, seen, peak, impulse) in list(touching.items()):
+      if seen == tick - 1 and not (moving(key[0]) or moving(key[1])):  # asleep together: still touching
+        touching[key] = (first, tick, peak, impulse)
+        if held_ticks is not None:
+          held_ticks.append(key)
+    for key, (first, seen, peak, impulse) in list(touching.items()):
       if tick - seen >= gap:
         done.append((*key, first, seen, peak, impulse))
         del touching[key]
@@ -129,14 +148,14 @@ def _reference_episodes(bank, qpos0, qvel0, row) -> set:
           if first <= last_tick}
 
 
-def _check_events_against_reference(bank, qpos0, qvel0):
+def _check_events_against_reference(bank, qpos0, qvel0, held_ticks=None):
   rng = np.random.default_rng(0)
   actors = list(bank.event_actors)
   objects = list(bank.objects)
   rate = bank.record_fps * bank.events.ticks_per_frame
   assert bank.events.ticks_per_frame > 1
   for row in range(bank.n_worlds):
-    expected = _reference_episodes(bank, qpos0, qvel0, row)
+    expected = _reference_episodes(bank, qpos0, qvel0, row, held_ticks)
     lo, hi = bank.events.offsets[row], bank.events.offsets[row + 1]
     got = {tuple(r) for r in bank.events.rows[lo:hi].tolist()}
     assert got == {e[:4] for e in expected}, row
@@ -347,6 +366,49 @@ def test_a_fast_impact_between_two_stored_frames_is_a_touch_with_its_impulse(tmp
   # The impact lasts fewer steps than a frame holds: stored frames can fall either side of it.
   first_hit = [bank.events.world(i)[0] for i in range(bank.n_worlds)]
   assert all(r[3] - r[2] + 1 < bank.events.ticks_per_frame for r in first_hit), first_hit
+
+
+# Boxes dropped onto the floor fall asleep there; the pendulum beside them
+# never sleeps, so the world runs on while they lie still.
+SLEEPY_XML = """
+<mujoco>
+  <option timestep="0.002"><flag sleep="enable"/></option>
+  <worldbody>
+    <geom name="floor" type="plane" size="3 3 0.1"/>
+    BOXES
+    <body name="arm" pos="1 1 0.6"><joint name="swing" type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" mass="0.1" contype="0" conaffinity="0"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_touches_held_while_asleep_are_mujocos_contacts_before_they_slept(tmp_path):
+  """With island sleep MuJoCo stops testing the contacts of sleeping trees:
+  a box asleep on the floor keeps touching it to the end of the world, as a
+  replay that holds a pair touching while neither side has an awake tree
+  has it (the held steps are most of the run)."""
+  boxes = "".join(f'<body name="box{i}" pos="{0.2 * i - 0.3:.2f} 0 0.25"><freejoint/>'
+                  f'<geom type="box" size="0.05 0.05 0.05" mass="0.2"/></body>' for i in range(3))
+  (tmp_path / "sleepy.xml").write_text(SLEEPY_XML.replace("BOXES", boxes))
+  (tmp_path / "sleepy.yaml").write_text(
+      "scene: {mjcf: sleepy.xml}\n"
+      "randomize:\n  box0:\n    angular_velocity: {dist: normal, scale: [2, 2, 2]}\n"
+      "sim: {end_time: 2.0, sleep: true}\n")
+  bank, qpos0, qvel0 = sample_unperturbed(mwbx.load_config(tmp_path / "sleepy.yaml"), 2)
+  assert bank.run["sleep"]["enabled"]
+  held = []
+  _check_events_against_reference(bank, qpos0, qvel0, held)
+  last_tick = (bank.frame_count - 1) * bank.events.ticks_per_frame
+  np.testing.assert_array_equal(bank.frame_count, round(2.0 * bank.record_fps) + 1)  # the arm swings on
+  actors = list(bank.event_actors)
+  for row in range(bank.n_worlds):
+    rows = bank.events.world(row)
+    for box in ("box0", "box1", "box2"):
+      pair = {actors.index("floor"), actors.index(box)}
+      episodes = [r for r in rows if {int(r[0]), int(r[1])} == pair]
+      assert episodes and episodes[-1][3] == last_tick[row], (row, box, rows)
+  assert len(held) > 0.5 * bank.n_worlds * 3 * last_tick.max(), len(held)  # held: most box-floor steps
 
 
 def domino_row_xml(n: int = 6) -> str:
