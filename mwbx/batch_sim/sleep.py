@@ -148,9 +148,3 @@ def asleep_count(tree_asleep) -> int:
     n += tree_asleep[t] >= 0
   return n
 
-
-def asleep_share(tree_frames) -> float | None:
-  """The share of tree-frames asleep in ``tree_frames`` ((asleep, trees) pairs
-  summed, i64[..., 2]); None where none were counted."""
-  counts = np.asarray(tree_frames, np.int64).reshape(-1, 2).sum(axis=0)
-  return float(counts[0] / counts[1]) if counts[1] > 0 else None
