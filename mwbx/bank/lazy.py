@@ -141,7 +141,11 @@ class LazyRows:
       return self._all[rows]
     out = np.empty((rows.size,) + self.row_shape, self.dtype)
     for p, where, local in self._map.groups(rows):
-      out[where] = self._map.pieces.get(p)[local]
+      piece = self._map.pieces.get(p)
+      if _is_run(where) and _is_run(local):  # a piece's rows in order: one copy, no temporary
+        out[where[0]:where[0] + where.size] = piece[local[0]:local[0] + local.size]
+      else:
+        out[where] = piece[local]
     return out
 
   def __getitem__(self, key):
@@ -319,3 +323,8 @@ class LazyQposStore:
     if name.startswith("_"):
       raise AttributeError(name)
     return getattr(self.concrete(), name)
+
+
+def _is_run(index: np.ndarray) -> bool:
+  """Whether i64[k] ``index`` is k consecutive increasing values (k > 0)."""
+  return index.size > 0 and int(index[-1]) - int(index[0]) == index.size - 1 and bool(np.all(np.diff(index) == 1))

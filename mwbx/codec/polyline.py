@@ -19,6 +19,7 @@ import zlib
 import numpy as np
 
 from mwbx.codec.layout import CodecError
+from mwbx.host_jit import host_jit
 
 # Grid coordinates beyond this are not encoded (float64 holds them exactly, and
 # float32 products of them with the step stay on the grid).
@@ -93,13 +94,38 @@ def decode(data: np.ndarray) -> np.ndarray:
     if raw[:1] == b"R":
       out = np.asarray(arrays["raw"], np.float32)
     else:
-      first = arrays["first"].astype(np.int64)
-      rest = arrays["rest"].astype(np.int64)
-      steps = np.cumsum(rest, axis=1)  # first step, then the second differences summed
-      q = np.concatenate([first, first + np.cumsum(steps, axis=1)], axis=1)
-      out = (q.astype(np.float64) * step).astype(np.float32)
+      first, rest = arrays["first"], arrays["rest"]
+      if (first.ndim < 2 or first.shape[1] != 1 or rest.shape[:1] + rest.shape[2:] != first.shape[:1] + first.shape[2:]
+          or rest.dtype.kind != "i"):
+        raise CodecError("COM polylines: corrupt block (first point and differences disagree)")
+      width = int(np.prod(first.shape[2:], dtype=np.int64))
+      out = np.empty((first.shape[0], rest.shape[1] + 1) + first.shape[2:], np.float32)
+      _integrate(np.ascontiguousarray(first, np.int64).reshape(first.shape[0], width),
+                 np.ascontiguousarray(rest).reshape(rest.shape[0], rest.shape[1], width), step,
+                 out.reshape(out.shape[0], out.shape[1], width))
   except CodecError:
     raise
   except Exception as err:  # noqa: BLE001 - zlib and np.load raise many kinds on damage
     raise CodecError(f"COM polylines: corrupt block ({type(err).__name__})") from None
   return out
+
+
+@host_jit
+def _integrate(first, rest, step, out):
+  """Grid paths from their first points (i64[W, K]) and differences
+  (int[W, P - 1, K]: the first step, then second differences), in metres:
+  ``out`` f32[W, P, K] (one pass; float64(q) * step rounded to float32, as
+  :func:`round_to_grid` made them)."""
+  n_worlds, n_rest, width = rest.shape
+  q = np.empty(width, np.int64)
+  velocity = np.empty(width, np.int64)
+  for w in range(n_worlds):
+    for k in range(width):
+      q[k] = first[w, k]
+      velocity[k] = 0
+      out[w, 0, k] = np.float32(np.float64(q[k]) * step)
+    for p in range(n_rest):
+      for k in range(width):
+        velocity[k] += np.int64(rest[w, p, k])
+        q[k] += velocity[k]
+        out[w, p + 1, k] = np.float32(np.float64(q[k]) * step)
