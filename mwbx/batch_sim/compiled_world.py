@@ -318,11 +318,12 @@ def run_world(row, data, inputs, initial_states, buffers, running, events, event
                                      inputs.free_bodies, b.sensordata)
     host_bookkeeping.frame_update(rows, b, before, 1, frame, running)
     if inputs.rest_when_asleep:
-      tree_frames[row, 0] += sleep.asleep_count(data.tree_asleep)
-      tree_frames[row, 1] += data.tree_asleep.size
-    if inputs.rest_when_asleep and running[row] and sleep.all_asleep(data.tree_asleep):
-      b.carry.status[row] = world.AT_REST  # nothing moves until something wakes it: nothing will
-      running[row] = False
+      asleep, trees = sleep.asleep_count(data.tree_asleep), data.tree_asleep.size
+      tree_frames[row, 0] += asleep
+      tree_frames[row, 1] += trees
+      if running[row] and sleep.every_tree(asleep, trees):
+        b.carry.status[row] = world.AT_REST  # nothing moves until something wakes it: nothing will
+        running[row] = False
     frame += 1
   if events.on:
     event_buffers.count[row] = finish_events(events, world_events, (b.carry.frame_count[row] - 1) * n_steps)

@@ -129,18 +129,6 @@ def sleeping_copy(model: mujoco.MjModel, settings: SleepSettings) -> mujoco.MjMo
 
 
 @host_jit
-def all_asleep(tree_asleep) -> bool:
-  """Whether every tree of a world sleeps (``tree_asleep``: i32[ntree], MjData's;
-  < 0 is awake). False for a model without trees."""
-  if tree_asleep.size == 0:
-    return False
-  for t in range(tree_asleep.size):
-    if tree_asleep[t] < 0:
-      return False
-  return True
-
-
-@host_jit
 def asleep_count(tree_asleep) -> int:
   """How many trees of a world sleep (``tree_asleep``: i32[ntree], MjData's; < 0 is awake)."""
   n = 0
@@ -148,3 +136,15 @@ def asleep_count(tree_asleep) -> int:
     n += tree_asleep[t] >= 0
   return n
 
+
+@host_jit
+def every_tree(asleep: int, trees: int) -> bool:
+  """Whether ``asleep`` of a world's ``trees`` are all of them (False for a model without trees)."""
+  return trees > 0 and asleep == trees
+
+
+@host_jit
+def all_asleep(tree_asleep) -> bool:
+  """Whether every tree of a world sleeps (``tree_asleep``: i32[ntree], MjData's;
+  < 0 is awake). False for a model without trees."""
+  return every_tree(asleep_count(tree_asleep), tree_asleep.size)
