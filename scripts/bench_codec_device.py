@@ -1,11 +1,11 @@
-"""The codec's fit on JAX's default device against the host's CPU, in one run.
+"""The codec with JAX's default device the accelerator and the host's CPU, in one run.
 
-On a GPU machine JAX's default device is the GPU. The codec pins its fit to
-the host CPU (``mwbx.codec.encode.fit_device``); this measures what that
-changes, on the same recordings (boxes dropped in MuJoCo C, 8 free bodies):
-the seconds of ``encode_batch_checked`` with the fit on the default device
-(the pin undone) and on the host CPU, alternating (the first of each includes
-its compile), and whether the two give the same streams.
+On a GPU machine JAX's default device is the GPU. The codec's fit is
+compiled host code (``mwbx.codec.fit_kernels``), so a bank's streams must not
+depend on it; this checks that on the same recordings (boxes dropped in
+MuJoCo C, 8 free bodies): the seconds of ``encode_batch_checked`` with each
+default, alternating (the first run includes loading the compiled code), and
+whether the two give the same streams.
 
   python scripts/bench_codec_device.py [--worlds 512] [--frames 600] --out out/bench/gpu.json
 
@@ -23,7 +23,8 @@ import time
 import jax
 import numpy as np
 
-from mwbx.codec import ChannelLayout, CodecBounds, encode, encode_batch_checked
+from mwbx.codec import ChannelLayout, CodecBounds, encode_batch_checked
+from mwbx.host_device import host_cpu
 from mwbx.testing import codec_data as testing
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -43,23 +44,19 @@ def main() -> None:
   layout = ChannelLayout.from_joints(model.jnt_type, model.jnt_qposadr, model.nq)
   print(f"recorded {args.worlds} worlds x {args.frames} frames in {time.perf_counter() - start:.1f} s;"
         f" JAX's default device {jax.devices()[0]}", flush=True)
-  pinned = encode.fit_device
   result = {"worlds": args.worlds, "frames": args.frames, "bodies": 8, "default_device": str(jax.devices()[0]),
-            "host_device": str(pinned()), "runs": []}
+            "host_device": str(host_cpu()), "runs": []}
   streams = {}
-  try:
-    for repeat in range(args.repeats):
-      for fit_on in ("default", "host cpu"):
-        encode.fit_device = (lambda: None) if fit_on == "default" else pinned
+  for repeat in range(args.repeats):
+    for fit_on in ("default", "host cpu"):
+      with jax.default_device(None if fit_on == "default" else host_cpu()):
         start = time.perf_counter()
         encoded = encode_batch_checked(qpos, frames, layout, CodecBounds(), 120.0, float(model.opt.gravity[2]))
         seconds = time.perf_counter() - start
-        streams[fit_on] = encoded.streams
-        result["runs"].append({"repeat": repeat, "fit_on": fit_on, "seconds": seconds,
-                               "bytes": sum(map(len, encoded.streams))})
-        print(result["runs"][-1], flush=True)
-  finally:
-    encode.fit_device = pinned
+      streams[fit_on] = encoded.streams
+      result["runs"].append({"repeat": repeat, "fit_on": fit_on, "seconds": seconds,
+                             "bytes": sum(map(len, encoded.streams))})
+      print(result["runs"][-1], flush=True)
   result["same_streams"] = streams["default"] == streams["host cpu"]
   print(f"same streams: {result['same_streams']}")
   data = json.loads(args.out.read_text()) if args.out.exists() else {}

@@ -190,7 +190,7 @@ if [ "$DRY" = 0 ] && [ "$SAMPLE" != 0 ]; then
   echo "gpu_check: mwbx sample configs/siggraph.yaml --backend mjx --worlds $SAMPLE (at most ${TIMEOUT} s)"
   measure "mwbx sample" "$PY" scripts/bench_backends.py --scenes "" --time-sample "$SAMPLE" --out "$OUT"
 fi
-echo "gpu_check: the codec's fit on the default device against the host CPU (at most ${TIMEOUT} s)"
+echo "gpu_check: the codec with the GPU and the host CPU as JAX's default (at most ${TIMEOUT} s)"
 CODEC=(--worlds 256 --frames 600); [ "$DRY" = 0 ] || CODEC=(--worlds 8 --frames 60 --repeats 1)
 measure "the codec's fit" "$PY" scripts/bench_codec_device.py "${CODEC[@]}" --out "$OUT"
 [ -f "$OUT" ] || fail "nothing measured; see above"

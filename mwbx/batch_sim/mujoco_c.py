@@ -27,6 +27,7 @@ from typing import Callable, NamedTuple
 import llvmlite.binding as llvm
 import mujoco
 import numpy as np
+import numba
 from numba import types
 
 STATE_FULLPHYSICS = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -290,3 +291,56 @@ def trap_errors(on_error: Callable[[str], None]):
       slot.value = previous
       if not fired:  # no thread is inside it: let it (and what on_error holds) go
         _callbacks.remove(callback)
+
+
+# -- MuJoCo's profiling timers, not read while compiled loops step ------------------
+
+
+@numba.cfunc(types.float64(), cache=True)
+def _zero_clock():
+  return 0.0
+
+
+_timers_lock = threading.Lock()
+_timers = {"users": 0, "saved": None}  # callers inside engine_timers_off; the callback they replaced
+
+
+def _time_slot():
+  """``mjcb_time``, MuJoCo's global timer callback, as a ctypes pointer slot."""
+  path = _library()
+  if path is None:
+    return None
+  try:
+    return ctypes.c_void_p.in_dll(ctypes.CDLL(path), "mjcb_time")
+  except (OSError, ValueError):
+    return None
+
+
+@contextlib.contextmanager
+def engine_timers_off():
+  """While inside: MuJoCo's per-stage profiling timers (``MjData.timer``) read
+  a clock that returns 0 instead of the system's.
+
+  MuJoCo 4's default timer reads the monotonic clock about 30 times a step to
+  fill ``MjData.timer``, which nothing in mwbx reads: 8 % of a quickstart
+  step (``scripts/bench_sampler.py``). A timer callback set through
+  ``mujoco.set_mjcb_time`` (a profiler) is left as it is. The slot is global,
+  so overlapping callers count themselves in and the last one out restores it.
+  """
+  slot = _time_slot()
+  if slot is None:
+    yield
+    return
+  with _timers_lock:
+    if _timers["users"] == 0:
+      _timers["saved"] = slot.value
+      if mujoco.get_mjcb_time() is None:
+        slot.value = _zero_clock.address
+    _timers["users"] += 1
+  try:
+    yield
+  finally:
+    with _timers_lock:
+      _timers["users"] -= 1
+      if _timers["users"] == 0:
+        slot.value = _timers["saved"]

@@ -374,7 +374,7 @@ class NativeBackend:
       with lock:
         return [th for th in threads if th.is_alive() and th.ident not in parked]
 
-    with mujoco_c.trap_errors(on_error):
+    with mujoco_c.trap_errors(on_error), mujoco_c.engine_timers_off():
       with lock:
         for _ in range(self.threads):
           start_worker()

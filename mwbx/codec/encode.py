@@ -1,6 +1,7 @@
-"""Encoder: jitted fit over all worlds x channels, then per-world streams, verified.
+"""Encoder: the compiled fit over all worlds x channels, then per-world streams, verified.
 
-The fit runs in float32 with a small safety margin on the bound; every stream
+The fit (:mod:`mwbx.codec.fit_kernels`) keeps a small safety margin on the
+bound for the decoder's float32 evaluation; every stream
 is then decoded with the real decoder and compared with the input, frame by
 frame. A channel that misses its bound (float32 rounding on huge coordinates,
 non-finite values from an unstable world) is stored raw instead, so the bound is
@@ -11,10 +12,9 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple, Sequence
 
-import jax
 import numpy as np
 
-from mwbx.codec import fit as fit_lib
+from mwbx.codec import fit_kernels
 from mwbx.codec import eval_kernels
 from mwbx.codec.batch import BatchCode, parse_batch, serialize_batch
 from mwbx.codec.decode import KIND_ID, decode_code, evaluate
@@ -22,10 +22,9 @@ from mwbx.codec.layout import ChannelLayout, CodecBounds, CodecError
 from mwbx.codec.splice import ParentChannels
 from mwbx.codec.stream import (DIM, MODE_FIT, MODE_RAW, WIDTH, Quanta, Segments, WorldCode,
                                initial_steps, parse, quantize_initial, serialize)
-from mwbx.host_device import host_cpu
 from mwbx.host_pool import LazyPool
 
-# Fraction of each bound kept back for float32 rounding inside the fit.
+# Fraction of each bound the fit keeps back for the decoder's float32 evaluation.
 FIT_MARGIN = 2.0**-6
 DEFAULT_GRAVITY = -9.81
 
@@ -45,33 +44,11 @@ def default_quanta(fps: float, gravity: float = DEFAULT_GRAVITY) -> Quanta:
   return Quanta(quad=float(np.float32(0.5 * float(gravity) / float(fps) ** 2)))
 
 
-def _bucket(n: int, multiple: int) -> int:
-  """Pad a batch size to a power of two (>= multiple) so the jitted fit compiles rarely."""
-  size = multiple
-  while size < n:
-    size *= 2
-  return size
-
-
-# Paths per call of the jitted fit: its scan carries stay in cache (on 2 CPU cores
-# one call of 1024 paths took 2.4x as long as four calls of 256).
+# Paths per fit call: the calls of every kind are spread over a thread per core.
 FIT_BATCH = 256
 
 
 _FIT_POOL = LazyPool("mwbx-codec-fit")  # the fit's batches, a thread per core
-
-
-def fit_device() -> jax.Device | None:
-  """The device the fit runs on: :func:`mwbx.host_device.host_cpu`.
-
-  The codec is a host stage: its batches go to a thread per core, and a
-  bank's streams must not depend on the accelerator that simulated it. Left
-  to JAX's default device on an H200 machine, the fit gave other streams
-  than on the CPU (float32 rounds differently there) and compiled for 13.9 s
-  against 1.6 s, each new batch shape again (``scripts/bench_codec_device.py``;
-  tests/test_host_device.py checks the pin).
-  """
-  return host_cpu()
 
 
 def _columns(adrs: tuple[int, ...]) -> np.ndarray:
@@ -108,33 +85,22 @@ def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
   width = WIDTH[kind]
   t = qpos.shape[1]
   columns = _columns(adrs)
-  device = fit_device()
 
   def fit_batch(rows):
     m = rows.size
     t_fit = int(min(t, max(n[rows].max(), 1)))
-    t_pad = -(-t_fit // 128) * 128
-    n_pad = _bucket(m, 8)
-    buf = np.zeros((n_pad, t_pad, width), np.float32)
+    buf = np.zeros((m, t_fit, width), np.float32)
+    eval_kernels.gather_paths(qpos, rows, columns.size, columns, initial, kind != "rot", finite, buf)
+    e_paths = np.full(m, e)
     if kind == "rot":
-      buf[:, :, 0] = 1.0
-      buf[:m, :t_fit] = 0.0
-    eval_kernels.gather_paths(qpos, rows, columns.size, columns, initial, kind != "rot", finite,
-                         buf[:m, :t_fit])
-    n_buf = np.zeros(n_pad, np.int32)
-    n_buf[:m] = n[rows]
-    e_buf = np.full(n_pad, e, np.float32)
-    with jax.default_device(device):  # thread-local: set in each of the pool's threads
-      if kind == "rot":
-        res = fit_lib.fit_rotation_batch(buf, n_buf, e_buf, np.float32(step), np.int32(coarse))
-        flag = None
-      else:
-        res = fit_lib.fit_linear_batch(buf, n_buf, e_buf, np.float32(step), np.float32(quad),
-                                       np.int32(coarse), np.int32(g_fp), gravity=kind == "pos")
-        flag = res.flag
-    p_idx, f_idx = np.nonzero(np.asarray(res.ends)[:m, :t_fit])
-    vel = np.asarray(res.vel)[p_idx, f_idx].astype(np.int64)
-    flag = np.zeros(p_idx.size, bool) if flag is None else np.asarray(flag)[p_idx, f_idx]
+      res = fit_kernels.fit_rotation_batch(buf, n[rows], e_paths, step, coarse)
+      flag = None
+    else:
+      res = fit_kernels.fit_linear_batch(buf, n[rows], e_paths, step, quad, coarse, g_fp, gravity=kind == "pos")
+      flag = res.flag
+    p_idx, f_idx = np.nonzero(res.ends)
+    vel = res.vel[p_idx, f_idx]
+    flag = np.zeros(p_idx.size, bool) if flag is None else flag[p_idx, f_idx]
     return rows[p_idx], f_idx, vel, flag
 
   skip = np.zeros(n.size, bool) if skip is None else np.asarray(skip, bool)
@@ -144,8 +110,7 @@ def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
   held_ends = (rows, n[rows] - 1, np.zeros((rows.size, d), np.int64), np.zeros(rows.size, bool))
   if n.size == 0 or t == 0:
     return _FitJob(kind, fit_batch, [], held_ends)
-  # Paths sorted by length so each call scans only as many frames as its longest
-  # path, padded to a multiple of 128 so few shapes compile.
+  # Paths sorted by length so each call gathers only as many frames as its longest path.
   order = np.argsort(n, kind="stable")
   order = order[~(held | skip)[order]]
   return _FitJob(kind, fit_batch, [order[lo:lo + FIT_BATCH] for lo in range(0, order.size, FIT_BATCH)],
@@ -154,7 +119,7 @@ def _fit_job(kind: str, qpos: np.ndarray, adrs: tuple[int, ...], n: np.ndarray,
 
 def _run_fits(jobs: Sequence[_FitJob]) -> list[tuple]:
   """Runs the calls of every kind's fit together, a thread per core (a
-  jitted call runs on one core: a small batch has one call per kind, and the
+  call runs on one core: a small batch has one call per kind, and the
   kinds run side by side). Returns, per job, its segment ends (path i64[S],
   frame i64[S]) in path-major order with the velocity i64[S, D] and gravity
   flag bool[S] of each."""
