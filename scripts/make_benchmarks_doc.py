@@ -68,11 +68,12 @@ def sampler(d: dict) -> tuple[list[str], list[str]]:
       walls.append(f"{scene} {s['ratios']['f_over_b']:.2f}× (b){against_g} ({f['wall_s']:.2f} s: stepping "
                    f"{f['stepping_s']:.2f}, compression {f['codec_s']:.2f}, the rest {f['rest_s']:.2f})")
   if walls:
-    lines += ["", f"The whole `Sampler.run`, (f)/(b): {'; '.join(walls)}. Both cores step worlds, so "
-              "compression competes with physics for them: overlapping the phases gains only the idle "
-              "time at the end of a chunk, and what is left to win is compression's own cost (the fit is "
-              "compiled, `mwbx/codec/fit_kernels.py`). Against (g), the baseline that also skips MuJoCo's "
-              "timers, the ratio is what the sampler's own work costs."]
+    lines += ["", f"The whole `Sampler.run`, (f)/(b): {'; '.join(walls)}. Worlds that finish early are "
+              "compressed while the others still step (so stepping and compression share the two cores, and "
+              "the compression seconds are its thread's, overlapped); what is left to win is compression's "
+              "own cost (the fit is compiled, `mwbx/codec/fit_kernels.py`) and the loop's bookkeeping. "
+              "Against (g), the baseline that also skips MuJoCo's timers, the ratio is what the sampler's "
+              "own work costs."]
   lines += ["", "MJX on CPU is for checking, not speed: its figures come from short runs of small "
             "batches. Compile time is kept apart from every rate."]
   return lines, [f"**sampling** (native): {'; '.join(head)}"]

@@ -74,6 +74,22 @@ class ChunkResult(NamedTuple):
     return ChunkResult(*(x[:n] if isinstance(x, np.ndarray) else x for x in self))
 
 
+class FinishedWorlds(NamedTuple):
+  """Worlds of a chunk that finished while others still run, handed over
+  before the chunk ends (they can be compressed meanwhile).
+
+  Attributes:
+    rows: i64[k] their chunk rows.
+    qpos: f32[k, F, nq] their frames (past ``frame_count`` undefined).
+    frame_count: i32[k] frames recorded; status: i32[k] as in :class:`ChunkResult`.
+  """
+
+  rows: np.ndarray
+  qpos: np.ndarray
+  frame_count: np.ndarray
+  status: np.ndarray
+
+
 @runtime_checkable
 class Backend(Protocol):
   """What the sampler needs of a backend (``NativeBackend``, ``MjxBackend``).
@@ -86,7 +102,8 @@ class Backend(Protocol):
 
   def run_chunk(self, scene, params, qpos0: np.ndarray, qvel0: np.ndarray, step_keys: jax.Array,
                 active: np.ndarray, n_frames: int,
-                progress: Callable[[int, int], None] | None = None) -> ChunkResult:
+                progress: Callable[[int, int], None] | None = None,
+                finished: Callable[[FinishedWorlds], None] | None = None) -> ChunkResult:
     """Runs C worlds from their initial states until every one has finished.
 
     Args:
@@ -97,6 +114,10 @@ class Backend(Protocol):
       active: bool[C] false for padding slots.
       n_frames: frames per world at most (end_frame + 1).
       progress: optional callback(world_steps, worlds_finished) within the chunk.
+      finished: optional callback given batches of worlds that have finished
+        while the chunk still runs, one call at a time from a thread of the
+        backend's (a backend that steps in lockstep never calls it); the
+        result holds every world all the same.
     """
 
   def close(self) -> None:

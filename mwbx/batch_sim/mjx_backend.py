@@ -300,8 +300,9 @@ class MjxBackend:
     return fn
 
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
-                n_frames: int, progress=None) -> ChunkResult:
-    """Runs C worlds in lockstep until all have finished (see NativeBackend.run_chunk).
+                n_frames: int, progress=None, finished=None) -> ChunkResult:
+    """Runs C worlds in lockstep until all have finished (see NativeBackend.run_chunk;
+    in lockstep no world finishes before the chunk: ``finished`` is never called).
 
     With several devices, each runs C / devices of the worlds with the same
     compiled block a one-device run of that batch uses (dispatched to all,

@@ -16,9 +16,10 @@ passed as ``xfrc_applied`` controls, the bookkeeping of the worlds that ran
 from __future__ import annotations
 
 import os
+import queue
 import threading
 import time
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import mujoco
@@ -29,7 +30,7 @@ from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx import controls
 from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, world, compiled_world
 from mwbx.batch_sim import sleep as sleep_lib
-from mwbx.batch_sim.backend import ChunkResult, fill_tail
+from mwbx.batch_sim.backend import ChunkResult, FinishedWorlds, fill_tail
 from mwbx.events import actors as events_lib
 from mwbx.errors import MwbxError
 
@@ -229,9 +230,11 @@ class NativeBackend:
         physics_seconds=physics_seconds)
 
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
-                n_frames: int, progress=None) -> ChunkResult:
+                n_frames: int, progress=None, finished=None) -> ChunkResult:
     """Runs C worlds until all have finished, each from start to finish on one
     thread (:mod:`compiled_world`), or in lockstep where that is not available.
+    ``finished``: as :meth:`mwbx.batch_sim.backend.Backend.run_chunk`, in
+    batches of :func:`handover_batch` worlds.
 
     Args:
       scene: the :class:`mwbx.scene.Scene`.
@@ -262,8 +265,12 @@ class NativeBackend:
     found = compiled_world.event_buffers(c, events)
     tree_frames = np.zeros((c, 2), np.int64)
 
+    views: dict[int, tuple] = {}  # id(data) -> (data, its views): each thread's, made once
+
     def run(row, data, running_flags):
-      return compiled_world.run_world(row, mujoco_c.data_views(model, data), inputs, initial, buffers,
+      if id(data) not in views:
+        views[id(data)] = (data, mujoco_c.data_views(model, data))  # data held: its id is not reused
+      return compiled_world.run_world(row, views[id(data)][1], inputs, initial, buffers,
                                       running_flags, events, found, tree_frames)
 
     # The first call compiles the loop, or loads it from numba's cache (no world
@@ -276,9 +283,21 @@ class NativeBackend:
       if progress is not None:
         progress(int(carry.step.sum()), int((~running & active).sum()))
 
+    handover = None if finished is None else _Handover(finished, buffers, handover_batch(c))
+
+    def work(row, data):
+      seconds = run(row, data, running)
+      if handover is not None:
+        handover.put(row)
+      return seconds
+
     t0 = time.perf_counter()
-    physics, busy, sim_errors = self.run_per_world(
-        np.flatnonzero(active), lambda row, data: run(row, data, running), model, running, carry.status, poll)
+    try:
+      physics, busy, sim_errors = self.run_per_world(np.flatnonzero(active), work, model, running, carry.status,
+                                                     poll)
+    finally:
+      if handover is not None:
+        handover.close()
     run_seconds = time.perf_counter() - t0
     if progress is not None:
       progress(int(carry.step.sum()), int(active.sum()))
@@ -445,3 +464,44 @@ class NativeBackend:
     if progress is not None:
       progress(world_steps, int(active.sum()))
     return self._result(ch, compile_seconds, run_seconds, physics_seconds)
+
+
+def handover_batch(chunk_worlds: int) -> int:
+  """Finished worlds handed over at a time: an eighth of the chunk, at least
+  16 (fewer calls cost the codec less; the last batch waits for the chunk's end)."""
+  return max(16, chunk_worlds // 8)
+
+
+class _Handover:
+  """Hands finished worlds over in batches, on a thread of its own."""
+
+  def __init__(self, finished: Callable[[FinishedWorlds], None], buffers, batch: int):
+    self._rows: queue.SimpleQueue = queue.SimpleQueue()
+    self._errors: list = []
+    self._thread = threading.Thread(target=self._run, args=(finished, buffers, batch), name="mwbx-finished",
+                                    daemon=True)
+    self._thread.start()
+
+  def put(self, row: int) -> None:
+    """World ``row`` has finished: its buffers are final."""
+    self._rows.put(row)
+
+  def _run(self, finished, b, batch: int) -> None:
+    rows: list[int] = []
+    while (row := self._rows.get()) is not None:
+      rows.append(row)
+      if len(rows) < batch or self._errors:
+        continue
+      taken, rows = np.asarray(rows, np.int64), []
+      try:
+        finished(FinishedWorlds(taken, b.qpos_buf[taken], b.carry.frame_count[taken].copy(),
+                                b.carry.status[taken].copy()))
+      except BaseException as exc:  # noqa: BLE001 - re-raised by close() on the calling thread
+        self._errors.append(exc)
+
+  def close(self) -> None:
+    """Waits for the batch in hand; raises what ``finished`` raised."""
+    self._rows.put(None)
+    self._thread.join()
+    if self._errors:
+      raise self._errors[0]

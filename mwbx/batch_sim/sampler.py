@@ -22,7 +22,7 @@ from mwbx.bank.stores import store_for
 from mwbx.batch_sim import engine_probe, memory, world
 from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.batch_sim import rows as rows_lib
-from mwbx.batch_sim.backend import ChunkResult, resolve_backend, resolve_mjx_impl
+from mwbx.batch_sim.backend import ChunkResult, FinishedWorlds, resolve_backend, resolve_mjx_impl
 from mwbx.batch_sim.native_backend import NativeBackend, exact_pose
 from mwbx.config import Config, MjxSection
 from mwbx import events as events_lib
@@ -43,7 +43,8 @@ class SampleStats:
     world_steps: physics steps summed over worlds.
     run_seconds: stepping time, s.
     compile_seconds: compilation time, s.
-    codec_seconds: compressing recorded qpos, s.
+    codec_seconds: compressing recorded qpos, s (on the native backend most of it
+      while other worlds still step: :class:`_ChunkStore`).
     events_seconds: finding the contact events in the stored worlds, s.
     physics_seconds: inside the physics engine (native backend; NaN on mjx), s.
     wall_seconds: everything, s.
@@ -329,19 +330,19 @@ class Sampler:
         if progress is not None:
           progress(Progress("simulating", _done + finished, n_worlds, _base + world_steps))
 
+      # Compress as worlds are produced (those that finish early while the others
+      # still step): raw qpos never outlives its chunk.
+      chunk_store = _ChunkStore(template, n)
       result = self.backend.run_chunk(
           self.scene, self.params, np.asarray(qpos0), np.asarray(qvel0), step_keys[pad],
-          active, self.n_frames, progress=report)
+          active, self.n_frames, progress=report, finished=chunk_store.add)
       result = result.first(n)
       stats.sim_errors.extend((int(ids[lo + row]), message) for row, message in result.errors)
-      # Compress as worlds are produced: raw qpos never outlives its chunk.
       chunk_steps = base_steps + int(result.steps.sum())
       if progress is not None:
         progress(Progress("compressing", done_worlds, n_worlds, chunk_steps))
-      codec_start = time.perf_counter()
-      store = template.empty()
-      result = _store_chunk(store, result)
-      stats.codec_seconds += time.perf_counter() - codec_start
+      store, result = chunk_store.finish(result)
+      stats.codec_seconds += chunk_store.seconds
       if progress is not None:
         progress(Progress("compressing", done_worlds + n, n_worlds, chunk_steps))
       events_start = time.perf_counter()
@@ -471,21 +472,56 @@ def check_chunk_memory(scene: Scene, batch: int, n_in_memory: int = 0) -> None:
   memory.check(needed, what, advice)
 
 
-def _store_chunk(store, result: ChunkResult) -> ChunkResult:
-  """Appends a chunk's qpos to ``store``; returns the chunk without its qpos.
+class _ChunkStore:
+  """The stored qpos of one chunk's first ``n`` worlds, compressed a batch at
+  a time as the worlds finish (:meth:`add`, on the backend's thread, while
+  other worlds still step), the rest once the chunk is done; in row order.
 
   Last guard of the promise that no NaN enters the bank: a world with a
-  non-finite recorded frame is cut before it and flagged unstable.
+  non-finite recorded frame is cut before it and flagged unstable. A world's
+  stream does not depend on the batch it was compressed in.
   """
-  counts = np.asarray(result.frame_count).astype(np.int32).copy()
-  status = np.asarray(result.status).copy()
-  for w in range(len(result.qpos)):
-    bad = ~np.isfinite(result.qpos[w, :counts[w]]).all(axis=-1)
-    if bad.any():
-      counts[w] = int(np.argmax(bad))
-      status[w] = world.UNSTABLE
-  store.append(result.qpos, counts)
-  return result._replace(qpos=None, frame_count=counts, status=status)
+
+  def __init__(self, template: QposStore, n: int):
+    self.template, self.n = template, n
+    self.parts: list = []  # (rows i64[k], store, frames kept i32[k]) in the order compressed
+    self.seconds = 0.0  # spent compressing
+
+  def add(self, worlds: FinishedWorlds) -> None:
+    """Compresses finished worlds (padding rows past ``n`` are dropped)."""
+    keep = worlds.rows < self.n
+    if not keep.any():
+      return
+    start = time.perf_counter()
+    qpos, counts = worlds.qpos[keep], np.asarray(worlds.frame_count[keep]).astype(np.int32)
+    bad = ~np.isfinite(qpos).all(axis=-1) & (np.arange(qpos.shape[1]) < counts[:, None])  # [k, T]
+    cut = bad.any(axis=1)
+    counts[cut] = np.argmax(bad[cut], axis=1)
+    store = self.template.empty()
+    store.append(qpos, counts)
+    self.parts.append((worlds.rows[keep], store, counts))
+    self.seconds += time.perf_counter() - start
+
+  def finish(self, result: ChunkResult) -> tuple[QposStore, ChunkResult]:
+    """(the chunk's store, the chunk without its qpos, frames cut and worlds
+    flagged where a frame was not finite): compresses the worlds not added yet."""
+    done = np.zeros(self.n, bool)
+    for rows, _, _ in self.parts:
+      done[rows] = True
+    rest = np.flatnonzero(~done)
+    if rest.size:
+      self.add(FinishedWorlds(rest, result.qpos[rest], result.frame_count[rest], result.status[rest]))
+    rows = np.concatenate([part[0] for part in self.parts])
+    store = self.parts[0][1]
+    for _, part, _ in self.parts[1:]:
+      store.extend(part)
+    if np.any(np.diff(rows) < 0):
+      store = store.take(np.argsort(rows, kind="stable"))
+    counts = np.asarray(result.frame_count).astype(np.int32).copy()
+    counts[rows] = np.concatenate([part[2] for part in self.parts])
+    status = np.asarray(result.status).copy()
+    status[counts < result.frame_count] = world.UNSTABLE
+    return store, result._replace(qpos=None, frame_count=counts, status=status)
 
 
 def sample(scene: Scene | Config, n_worlds: int, key: jax.Array, *, backend: str | None = None,

@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+import threading
 
 import jax
 import mujoco
@@ -123,6 +124,47 @@ def test_nan_world_does_not_disturb_the_batch(tiny_native):
   for w in (0, 1, 3):
     assert dirty.status[w] == clean.status[w]
     np.testing.assert_array_equal(dirty.qpos[w], clean.qpos[w])
+
+
+def test_worlds_compressed_as_they_finish_are_stored_as_in_one_pass(tiny_config, monkeypatch):
+  """The native backend hands worlds that finished to the codec while others
+  still step: the bank is, bit for bit and in world order, the one that
+  compressing the whole chunk at its end gives."""
+  from mwbx.batch_sim import native_backend
+  from mwbx.batch_sim import sampler as sampler_lib
+
+  threads = []
+  add = sampler_lib._ChunkStore.add
+
+  def recording_add(self, worlds):
+    threads.append(threading.current_thread().name)
+    return add(self, worlds)
+
+  monkeypatch.setattr(sampler_lib._ChunkStore, "add", recording_add)
+  key = jax.random.key(3)
+  with mwbx.Sampler(tiny_config, backend="native", chunk_size=64) as sampler:
+    overlapped, _ = sampler.run(64, key)
+    run_chunk = native_backend.NativeBackend.run_chunk
+    monkeypatch.setattr(native_backend.NativeBackend, "run_chunk",
+                        lambda self, *args, finished=None, **kwargs: run_chunk(self, *args, **kwargs))
+    at_the_end, _ = sampler.run(64, key)
+  assert "mwbx-finished" in threads  # batches went to the codec while the chunk ran
+  a, b = overlapped.qpos_store.state()[0], at_the_end.qpos_store.state()[0]
+  for name in a:
+    np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+  for i in range(64):
+    same_world(overlapped, i, at_the_end, i)
+
+
+def test_a_failing_handover_stops_the_chunk_with_its_error(tiny_native, monkeypatch):
+  from mwbx.batch_sim import sampler as sampler_lib
+
+  def broken(self, worlds):
+    raise RuntimeError("codec broke")
+
+  monkeypatch.setattr(sampler_lib._ChunkStore, "add", broken)
+  with pytest.raises(RuntimeError, match="codec broke"):
+    tiny_native.run(64, jax.random.key(0))
 
 
 def test_save_load_append(tmp_path, tiny_native_bank, tiny_config):
