@@ -65,8 +65,9 @@ def sampler(d: dict) -> tuple[list[str], list[str]]:
     f = next((r for r in s["rows"] if r["key"] == "f"), None)
     if f is not None:
       against_g = f", {s['ratios']['f_over_g']:.2f}× (g)" if "f_over_g" in s["ratios"] else ""
-      walls.append(f"{scene} {s['ratios']['f_over_b']:.2f}× (b){against_g} ({f['wall_s']:.2f} s: stepping "
-                   f"{f['stepping_s']:.2f}, compression {f['codec_s']:.2f}, the rest {f['rest_s']:.2f})")
+      walls.append(f"{scene} {s['ratios']['f_over_b']:.2f}× (b){against_g} ({f['wall_s']:.2f} s wall: stepping "
+                   f"{f['stepping_s']:.2f} s and {f['wall_s'] - f['stepping_s']:.2f} s after it; compression "
+                   f"{f['codec_s']:.2f} thread-seconds, most of them beside the stepping)")
   if walls:
     lines += ["", f"The whole `Sampler.run`, (f)/(b): {'; '.join(walls)}. Worlds that finish early are "
               "compressed while the others still step (so stepping and compression share the two cores, and "
