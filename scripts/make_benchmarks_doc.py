@@ -489,8 +489,8 @@ def geometry_tightness(d: dict) -> tuple[list[str], list[str]]:
            "run, each a whole-geometry include query over the whole run. References from the decoded frames "
            "with MuJoCo's kinematics and plain geometry, independent of the query code: *exact* (a geom meets "
            "the box at a stored frame; "
-           f"{d['exact_reference_hits']} hits) and *with margin* (a geom within its stored frame's step margin "
-           "plus the codec's bound). An extra is an answer the exact reference does not have; its distance is "
+           f"{d['exact_reference_hits']} hits) and *with margin* (a geom within the codec's bound of the box at "
+           "a stored frame: the stated bound). An extra is an answer the exact reference does not have; its distance is "
            "how near its geoms came to the box.", "",
            f"Machine: {d['machine']}; commit {d.get('commit', '?')}; load average "
            f"{d.get('load_average', float('nan')):.1f} when it ended"

@@ -261,8 +261,9 @@ class StoredFrames:
   """A bank's poses at every stored frame, for the worlds a query settles there.
 
   A hit found only with an interval's sweep margin is settled on the stored
-  frames, by the same evaluation on a stride-1 :class:`GeometryIndex`
-  (margins: the motion between consecutive stored frames). Where the whole
+  frames, by the same evaluation on a stride-1 :class:`GeometryIndex` (each
+  stored frame in the window on its own, the codec's bound its only margin:
+  :func:`.geometry_query.window_frames`). Where the whole
   bank's stored-frame poses fit in ``STORED_FRAMES_BYTES``, that index is
   built for every world on the first settle (one more decode of the bank)
   and kept: a settle is then one masked pass. Otherwise it holds just the

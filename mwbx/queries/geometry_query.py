@@ -47,7 +47,7 @@ def frame_margins(index: GeometryIndex, window) -> tuple[np.ndarray, "_Margins"]
     the end; margin: indexed as f32[B, W, K], the largest margin of a
     relevant interval at each frame, 0 where none).
   """
-  relevant, overlap = _relevant(index.times, window)
+  relevant, overlap = window_frames(index, window)
   return relevant, _Margins(index.sweep, overlap)
 
 
@@ -57,6 +57,21 @@ def _clamped(times: np.ndarray, window) -> tuple[float, float]:
   end = float(times[-1])
   return (0.0 if t0 is None else min(max(float(t0), 0.0), end),
           end if t1 is None else min(max(float(t1), 0.0), end))
+
+
+def window_frames(index: GeometryIndex, window) -> tuple[np.ndarray, np.ndarray]:
+  """(relevant bool[K] kept frames, overlap bool[K - 1] intervals) a window
+  reaches. Where every stored frame is kept (stride 1: a bank recorded at
+  the query rate, or the stored frames a borderline world is settled on),
+  the answer is that of the stored frames in the window, each on its own (the
+  nearest one where none lies in it): no interval's motion is added, only
+  the codec's bound."""
+  if index.stride > 1:
+    return _relevant(index.times, window)
+  relevant = _inside(index.times, window)
+  if not relevant.any():
+    relevant[np.argmin(np.abs(index.times - _clamped(index.times, window)[0]))] = True
+  return relevant, np.zeros(max(len(index.times) - 1, 0), bool)
 
 
 def _relevant(times: np.ndarray, window) -> tuple[np.ndarray, np.ndarray]:
@@ -126,7 +141,7 @@ def _hits(index: GeometryIndex, frustum: Frustum, body_mask: np.ndarray, window,
   if len(volume.vertices) == 0:  # empty inside the box that holds every shape
     return hits
   valid = index.valid if worlds is None else index.valid & worlds
-  relevant, overlap = _relevant(index.times, window)
+  relevant, overlap = window_frames(index, window)
   n_chunks = index.bounds[6].shape[2]
   chunk_relevant = np.array([relevant[h * index.chunk:(h + 1) * index.chunk].any() for h in range(n_chunks)])
   settle = index.stored is not None
