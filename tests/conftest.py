@@ -1,8 +1,10 @@
 """Shared fixtures: tiny scenes and samplers compiled once per test session."""
 
+import atexit
 import importlib.util
 import os
 import pathlib
+import shutil
 import tempfile
 
 import jax
@@ -11,9 +13,12 @@ import pytest
 import mwbx
 
 # One on-disk compilation cache for this test session, shared with the `mwbx`
-# commands the CLI tests start (they read MWBX_CACHE_DIR), apart from the
-# user's own cache.
-os.environ.setdefault("MWBX_CACHE_DIR", tempfile.mkdtemp(prefix="mwbx-test-jax-cache-"))
+# commands the CLI tests start and the session's workers (they read
+# MWBX_CACHE_DIR), apart from the user's own cache; the process that made it
+# removes it when it exits.
+if "MWBX_CACHE_DIR" not in os.environ:
+  os.environ["MWBX_CACHE_DIR"] = tempfile.mkdtemp(prefix="mwbx-test-jax-cache-")
+  atexit.register(shutil.rmtree, os.environ["MWBX_CACHE_DIR"], ignore_errors=True)
 jax.config.update("jax_compilation_cache_dir", os.environ["MWBX_CACHE_DIR"])
 
 TESTS = pathlib.Path(__file__).parent
