@@ -81,13 +81,12 @@ class FinishedWorlds(NamedTuple):
   Attributes:
     rows: i64[k] their chunk rows.
     qpos: f32[k, F, nq] their frames (past ``frame_count`` undefined).
-    frame_count: i32[k] frames recorded; status: i32[k] as in :class:`ChunkResult`.
+    frame_count: i32[k] frames recorded.
   """
 
   rows: np.ndarray
   qpos: np.ndarray
   frame_count: np.ndarray
-  status: np.ndarray
 
 
 @runtime_checkable

@@ -494,8 +494,7 @@ class _Handover:
         continue
       taken, rows = np.asarray(rows, np.int64), []
       try:
-        finished(FinishedWorlds(taken, b.qpos_buf[taken], b.carry.frame_count[taken].copy(),
-                                b.carry.status[taken].copy()))
+        finished(FinishedWorlds(taken, b.qpos_buf[taken], b.carry.frame_count[taken].copy()))
       except BaseException as exc:  # noqa: BLE001 - re-raised by close() on the calling thread
         self._errors.append(exc)
 

@@ -510,7 +510,7 @@ class _ChunkStore:
       done[rows] = True
     rest = np.flatnonzero(~done)
     if rest.size:
-      self.add(FinishedWorlds(rest, result.qpos[rest], result.frame_count[rest], result.status[rest]))
+      self.add(FinishedWorlds(rest, result.qpos[rest], result.frame_count[rest]))
     rows = np.concatenate([part[0] for part in self.parts])
     store = self.parts[0][1]
     for _, part, _ in self.parts[1:]:
