@@ -50,7 +50,7 @@ import numpy as np
 from mwbx import rotations
 
 # Velocities are kept in int32; windows are clipped to this magnitude first.
-_INT_CAP = 2.0**30
+INT_CAP = 2.0**30
 
 
 class LinearFit(NamedTuple):
@@ -81,7 +81,7 @@ MAX_SEGMENT = 4096
 # stay inside the cube of half-width e_rot / sqrt(3). 8 frames kept most of the
 # gain of 32 on the shipped scenes at a quarter of the cost.
 EXACT_SPAN = 8
-_CUBE = float(1.0 / np.sqrt(3.0)) * (1.0 - 2.0**-20)
+CUBE = float(1.0 / np.sqrt(3.0)) * (1.0 - 2.0**-20)
 
 
 def lattice_exponent(length, coarse):
@@ -104,8 +104,8 @@ def _pick(lo, hi, pred, m):
   split into integer and fractional parts before ``pred`` is subtracted, so a
   large ``pred`` (after an impact) costs no float32 precision.
   """
-  lo = jnp.clip(lo, -_INT_CAP, _INT_CAP)
-  hi = jnp.clip(hi, -_INT_CAP, _INT_CAP)
+  lo = jnp.clip(lo, -INT_CAP, INT_CAP)
+  hi = jnp.clip(hi, -INT_CAP, INT_CAP)
   lo_floor, hi_floor = jnp.floor(lo), jnp.floor(hi)
   below = lo_floor.astype(jnp.int32) - pred
   above = hi_floor.astype(jnp.int32) - pred
@@ -216,7 +216,7 @@ def _fit_linear_path(x, n, e, step, quad, coarse, g_fp, gravity: bool) -> Linear
 def _pick_near(lo, hi, pred, target, m):
   """Like ``_pick`` but the lattice point ``pred + r * 2**m`` nearest ``target``."""
   spacing = jnp.left_shift(jnp.int32(1), m)
-  r_t = jnp.round((jnp.clip(target, -_INT_CAP, _INT_CAP) - pred) / spacing).astype(jnp.int32)
+  r_t = jnp.round((jnp.clip(target, -INT_CAP, INT_CAP) - pred) / spacing).astype(jnp.int32)
   v, r, ok = _pick(lo, hi, pred + r_t * spacing, m)
   return v, r + r_t, ok
 
@@ -259,7 +259,7 @@ def _fit_rotation_paths(q, n, e, step, coarse):
   dtype = q.dtype
   num = q.shape[-1]
   # Velocity windows (lo, hi: f32[2, 3, N]): the cube, the ball's bounding box.
-  half = jnp.asarray([[_CUBE], [1.0]], dtype)[:, :, None] * e
+  half = jnp.asarray([[CUBE], [1.0]], dtype)[:, :, None] * e
   frame_of_row = jnp.arange(1, span + 1)[:, None, None]  # row i holds frame i + 1
   taus = frame_of_row.astype(dtype)
   int_max = jnp.iinfo(jnp.int32).max

@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from mwbx.codec.fit import _CUBE, _INT_CAP, EXACT_SPAN, MAX_SEGMENT, LinearFit, RotationFit
+from mwbx.codec.fit import CUBE, EXACT_SPAN, INT_CAP, MAX_SEGMENT, LinearFit, RotationFit
 from mwbx.host_jit import borrowed, held, host_jit
 
 _INT_MAX = np.iinfo(np.int64).max
@@ -45,8 +45,8 @@ def lattice_exponent(length, coarse):
 @host_jit
 def _pick(lo, hi, pred, m):
   """(velocity, r, non-empty) of :func:`mwbx.codec.fit._pick` for one coordinate."""
-  lo = min(max(lo, -_INT_CAP), _INT_CAP)
-  hi = min(max(hi, -_INT_CAP), _INT_CAP)
+  lo = min(max(lo, -INT_CAP), INT_CAP)
+  hi = min(max(hi, -INT_CAP), INT_CAP)
   lo_floor, hi_floor = math.floor(lo), math.floor(hi)
   below = np.int64(lo_floor) - pred
   above = np.int64(hi_floor) - pred
@@ -60,7 +60,7 @@ def _pick(lo, hi, pred, m):
 def _pick_near(lo, hi, pred, target, m):
   """:func:`_pick` for the lattice point ``pred + r * 2**m`` nearest ``target``."""
   spacing = np.int64(1) << m
-  r_t = np.int64(np.rint((min(max(target, -_INT_CAP), _INT_CAP) - pred) / spacing))
+  r_t = np.int64(np.rint((min(max(target, -INT_CAP), INT_CAP) - pred) / spacing))
   v, r, ok = _pick(lo, hi, pred + r_t * spacing, m)
   return v, r + r_t, ok
 
@@ -314,7 +314,7 @@ def fit_rotation_path(q, n, e, step, coarse, ends, vel):
   num_t = q.shape[0]
   # The arrays without reference counting from here on (held to the end).
   q, ends, vel = borrowed((q, ends, vel))
-  owned = (np.array([_CUBE * e, e]), np.full((2, 3), -np.inf), np.full((2, 3), np.inf), np.empty((2, 3)),
+  owned = (np.array([CUBE * e, e]), np.full((2, 3), -np.inf), np.full((2, 3), np.inf), np.empty((2, 3)),
            np.empty((2, 3)), np.zeros((EXACT_SPAN, 3)), np.zeros(3), np.zeros(3, np.int64),
            np.zeros((3, 3), np.int64), np.empty((3, 4)), np.empty((2, 3)))
   half, lo, hi, nlo, nhi, logs, sum_wt, pred, w3, q3, o2 = borrowed(owned)
