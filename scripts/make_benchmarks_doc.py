@@ -939,7 +939,10 @@ def _seed_summary(runs: list) -> list[str]:
       times = sorted(r["solve_seconds"] for r in rs if r["solved"])
       when = f", median {statistics.median(times):.0f} s, worst {times[-1]:.0f} s" if times else ""
       budgets = sorted({r["budget_seconds"] for r in rs if "budget_seconds" in r})
-      within = f" within {', '.join(f'{b:.0f}' for b in budgets)} s" if budgets else ""
+      # A search stops after the refinement that crosses its budget: solved in time only within it.
+      in_time = sum(r["solved"] and r["solve_seconds"] <= r["budget_seconds"] for r in rs if "budget_seconds" in r)
+      within = (f" ({in_time} within {', '.join(f'{b:.0f}' for b in budgets)} s)" if budgets and in_time < len(times)
+                else f" within {', '.join(f'{b:.0f}' for b in budgets)} s" if budgets else "")
       parts.append(f"{label}: {len(times)} of {len(rs)} solved{within}{when}")
     lines.append(f"* {scene}: " + "; ".join(parts) + ".")
   return lines + [""] if lines else []
