@@ -238,13 +238,14 @@ _trap_lock = threading.Lock()
 _callbacks: list = []  # callbacks a parked thread is still inside: never freed
 
 
-def _user_error_slot():
-  """``mju_user_error``, MuJoCo's global error callback, as a ctypes pointer slot."""
+def _global_slot(name: str):
+  """MuJoCo's global callback pointer ``name`` (``mju_user_error``,
+  ``mjcb_time``) as a ctypes pointer slot; None where it cannot be reached."""
   path = _library()
   if path is None:
     return None
   try:
-    return ctypes.c_void_p.in_dll(ctypes.CDLL(path), "mju_user_error")
+    return ctypes.c_void_p.in_dll(ctypes.CDLL(path), name)
   except (OSError, ValueError):
     return None
 
@@ -266,7 +267,7 @@ def trap_errors(on_error: Callable[[str], None]):
     True if the handler is installed (False where the library's global cannot
     be reached: an error then ends the process as before).
   """
-  slot = _user_error_slot()
+  slot = _global_slot("mju_user_error")
   if slot is None:
     yield False
     return
@@ -305,17 +306,6 @@ _timers_lock = threading.Lock()
 _timers = {"users": 0, "saved": None}  # callers inside engine_timers_off; the callback they replaced
 
 
-def _time_slot():
-  """``mjcb_time``, MuJoCo's global timer callback, as a ctypes pointer slot."""
-  path = _library()
-  if path is None:
-    return None
-  try:
-    return ctypes.c_void_p.in_dll(ctypes.CDLL(path), "mjcb_time")
-  except (OSError, ValueError):
-    return None
-
-
 @contextlib.contextmanager
 def engine_timers_off():
   """While inside: MuJoCo's per-stage profiling timers (``MjData.timer``) read
@@ -327,7 +317,7 @@ def engine_timers_off():
   ``mujoco.set_mjcb_time`` (a profiler) is left as it is. The slot is global,
   so overlapping callers count themselves in and the last one out restores it.
   """
-  slot = _time_slot()
+  slot = _global_slot("mjcb_time")
   if slot is None:
     yield
     return

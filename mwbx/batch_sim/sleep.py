@@ -7,7 +7,7 @@ with static geometry) are no longer computed. Contact with an awake body, a
 ``qpos`` change or a nonzero ``xfrc_applied`` wakes it. A sleeping body gets
 no perturbation: its contact velocity change is what holds it against
 gravity, below every impact threshold, as for a body resting awake. A world
-whose every tree sleeps is at rest (:func:`all_asleep`) and stops.
+whose every tree sleeps is at rest (:func:`every_tree` of :func:`asleep_count`) and stops.
 
 ``sim.sleep: auto`` turns sleep on where it was measured to agree with sleep
 off (docs/sampling.md, "Sleep"): scenes of many rigid trees, where most
@@ -141,10 +141,3 @@ def asleep_count(tree_asleep) -> int:
 def every_tree(asleep: int, trees: int) -> bool:
   """Whether ``asleep`` of a world's ``trees`` are all of them (False for a model without trees)."""
   return trees > 0 and asleep == trees
-
-
-@host_jit
-def all_asleep(tree_asleep) -> bool:
-  """Whether every tree of a world sleeps (``tree_asleep``: i32[ntree], MjData's;
-  < 0 is awake). False for a model without trees."""
-  return every_tree(asleep_count(tree_asleep), tree_asleep.size)

@@ -138,9 +138,13 @@ def test_forced_values_and_tolerance():
 
 def test_all_asleep():
   """A world is asleep when every tree is (>= 0), never with no trees."""
-  assert sleep_lib.all_asleep(np.array([0, 1, 1], np.int32))
-  assert not sleep_lib.all_asleep(np.array([0, -1, 1], np.int32))
-  assert not sleep_lib.all_asleep(np.zeros(0, np.int32))
+
+  def all_asleep(tree_asleep):  # the compiled loop's rest rule
+    return sleep_lib.every_tree(sleep_lib.asleep_count(tree_asleep), tree_asleep.size)
+
+  assert all_asleep(np.array([0, 1, 1], np.int32))
+  assert not all_asleep(np.array([0, -1, 1], np.int32))
+  assert not all_asleep(np.zeros(0, np.int32))
 
 
 def test_mjx_warp_sleeps_only_when_asked_or_the_mjcf_says():
