@@ -678,15 +678,15 @@ def _add_solve(sub) -> None:
                  help="wall seconds at most (alone: no refinement limit)")
   p.add_argument("--step-budget", type=float, default=None, metavar="N", help="world-steps at most")
   p.add_argument("--samples", type=int, default=32, help="refined worlds per refinement (default 32)")
-  p.add_argument("--keep", type=int, default=4, help="best children kept per refinement (default 4)")
-  p.add_argument("--tries", type=int, default=4, help="refinements from one world before moving on (default 4)")
+  p.add_argument("--keep", type=int, default=4, help="children kept per refinement (default 4)")
+  p.add_argument("--tries", type=int, default=4, help="refinements from one world at most (default 4)")
   p.add_argument("--patience", type=int, default=40,
-                 help="refinements without progress before the blocking query is fixed (default 40)")
+                 help="refinements without progress before guided reseeding (default 40)")
   p.add_argument("--guided-rounds", type=int, default=0, metavar="R",
                  help="batches of guided sampling added before the search (default 0)")
   p.add_argument("--guided-batch", type=int, default=64, metavar="M", help="worlds per guided batch")
   p.add_argument("--reseed-rounds", type=int, default=4, metavar="R",
-                 help="at a stall, guided batches aimed at the blocking query (default 4; 0: none)")
+                 help="at a stall, guided batches aimed at the query refinements meet least (default 4; 0: none)")
   p.add_argument("--seed", type=int, default=0, help="search seed (default 0: repeatable)")
   p.add_argument("--backend", choices=("auto", "mjx", "native"), default=None)
   p.add_argument("--out", default=None, help="bank directory to write (default: BANK, as a new step)")

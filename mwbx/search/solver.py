@@ -2,49 +2,41 @@
 
 The paper leaves the search to a person and sketches how an algorithm could
 do it (§6): repair the objects that are wrong, from a time before they go
-wrong, keep what works, back-track when stuck. :func:`solve` is that search,
-best-first over the bank's refinement tree:
+wrong, keep what works, back-track when stuck. :func:`solve` is that search
+over the bank's refinement tree, with every world in the bank as its
+population:
 
-1. Rank the worlds: most places met (every query but the orientations:
-   :func:`place_queries`), then most queries met, less the summed gap to the
-   unmet ones (:func:`mwbx.queries.query_gaps`, each squashed by a typical
-   gap), then the fewest collisions (or another metric). Each query counts
-   by a weight, 1 at first; on a plateau the queries the top world fails
-   weigh more (:meth:`_Search.reweigh`, clause weighting as in breakout local
-   search), until worlds meeting them outrank it: a letter whose slot was
-   decided in the crowd is not won back by late repairs, and a count would
-   keep the search on the plateau (the best world is reported unweighted).
-2. Take the best world that has been tried fewer than ``tries_per_world``
-   times. Its n unmet queries are ordered places first, then poses, each
-   farthest first; attempt k repairs
-   query ``k mod n``, alone in the first round; after, in turn, together
-   with the next one (pairs of objects, as the paper's user did) and alone
-   from earlier; the longer the search goes without a better best world,
-   the later the round every world starts at: :func:`repair_plan`.
+1. Pick a world by lexicase selection (:mod:`mwbx.search.lexicase`): a
+   random order of the queries, places first (:func:`place_queries`), filters
+   the worlds tried fewer than ``tries_per_world`` times; the world left is
+   the best at that order's first queries, the nearest to the rest among
+   equals. Its first unmet queries in that order are what it repairs. The
+   best world is picked most, and every world meeting a set of queries no
+   other world's contains (a letter in the slot no better world has it in)
+   is picked too, so no one lineage decides the search.
+2. Draw how: one query or two together, restarted from which fraction of
+   the time they go wrong, by Thompson sampling over the gains measured so
+   far (:mod:`mwbx.search.restarts`).
 3. The objects involved (the query's bodies' objects, or the object a joint
    query's joint belongs to; of a ``mode: any`` query, not an object that
-   alone holds another: ``_Search.repair_target``) are refined from a time
-   before they go wrong: when they leave the nearest path of a world that
-   meets the query (:func:`divergence_time`), no earlier than where an
-   include query's bodies settle (:func:`settle_time`); without such a
-   world, the query's deadline: an include query's window start, an exclude
-   query's first entry, a joint query's window; an orientation query's
-   bodies: when they settle. A fraction of it that shrinks at each round
-   (:data:`RESTART_FRACTIONS`); a world whose one unmet query is a place,
-   once the search has not risen for :data:`LAST_PLACE_PLATEAU`
-   refinements, from earlier still (:data:`LAST_PLACE_FRACTION`).
-4. The best ``keep`` children join the bank under their parent; the others
-   are dropped. A branch that stops improving is abandoned once its worlds'
-   tries run out, and the search goes on from the next best world: an
-   ancestor, a sibling, or another sampled world (back-tracking).
-5. After ``patience`` refinements without a better best world, the query the
-   search has aimed at most and still fails is *fixed*: ``reseed_rounds``
-   batches of guided sampling aimed at it add worlds where it holds (where
-   the initial conditions put a letter in its slot, say), and the search goes
-   on only in worlds that meet it, repairing the other queries there. Only
-   a query that some world within :data:`FIX_MARGIN` places of the best
-   meets is fixed: fixing one that only worse worlds meet would throw the
-   search's progress away.
+   alone holds another: ``_Search.repair_target``) are refined from that
+   fraction of the time they go wrong (:func:`restart_goal`): when they leave
+   the nearest path of a world that meets the query (:func:`divergence_time`),
+   no earlier than where an include query's bodies settle (:func:`settle_time`);
+   without such a world, the query's deadline; an orientation query's
+   bodies: when they settle.
+4. ``keep`` children join the bank under their parent, each a lexicase pick
+   among them, the first with the repaired queries first: the child nearest
+   the repair's goal is kept even where it lost something else. The others
+   are dropped. The refinement *gains* where a child meets more places, or as
+   many and more queries, than its parent: that is what the restart's arm
+   learns from.
+5. After ``patience`` refinements without a better best world,
+   ``reseed_rounds`` batches of guided sampling aimed at the best world's
+   unmet query that refinements have met least often add worlds where it
+   holds (where the initial conditions put a letter in its slot, say):
+   refinement cannot change initial conditions, and lexicase selection works
+   on such worlds as soon as they meet it.
 
 Every step is an ordinary :func:`mwbx.refine`: the result is an ordinary,
 plausible world with its full lineage, viewable and refinable by hand.
@@ -74,76 +66,9 @@ from mwbx.queries.selection import selection_mask
 from mwbx.refinement import RefineRequest, run_refinement, sampler_for
 from mwbx.refinement.plan import refined_events
 from mwbx.search.guided import fitness, guided_sample, typical_gaps
+from mwbx.search.lexicase import first_unmet, lexicase, lexicase_keep, query_order
 from mwbx.search.objects import spare_objects
-
-# Restart times of successive attempts on one world, as fractions of the time
-# its objects go wrong: late first (small changes keep more of what works),
-# then earlier (bigger changes). Never from the start: there every object is
-# still in the crowd and becomes active, and a restart is a resample (initial
-# conditions are guided sampling's job, fix_blocking_query). Measured:
-# docs/search.md, scripts/refinement_yield.py.
-RESTART_FRACTIONS = (0.85, 0.6, 0.35)
-# A world whose one unmet query is a place, once the best world has not risen
-# for LAST_PLACE_PLATEAU refinements, restarts that place's objects from
-# LAST_PLACE_FRACTION of when they go wrong, earlier than any round: a body
-# that its first collisions sent off its way reaches its place only from
-# there, and a world that meets every other query is worth the bigger
-# change. Measured: docs/search.md.
-LAST_PLACE_PLATEAU = 30
-LAST_PLACE_FRACTION = 0.25
-# A stall fixes a query only where some world meeting it (and the queries
-# fixed already) meets at most this many fewer places than the best world:
-# fixing one that only worse worlds meet throws the search's progress away.
-FIX_MARGIN = 2
-# On a plateau every repair starts one round later (an earlier restart, pairs
-# and single queries in turn) each STALL_STEP refinements without a better
-# best world: a world with as many unmet queries as tries would otherwise only
-# get round 0 (each query alone, late), and moving an object far needs an
-# early restart.
-STALL_STEP = 10
-# At each STALL_STEP of a plateau the queries the search's top world fails
-# weigh this much more in its ranking (clause weighting, as in breakout local
-# search): a query no late repair wins comes to outweigh one other query, and
-# the search moves to worlds that meet it, which a count of queries met would
-# rank below its plateau forever.
-WEIGHT_STEP = 1.0
-
-
-def repair_plan(unmet: Sequence[int], attempt: int, stalled: int = 0,
-                last_place: bool = False) -> tuple[list[int], float]:
-  """Which unmet queries attempt ``attempt`` on a world repairs, and from
-  what fraction of the time they go wrong.
-
-  Round r = attempt // n over the world's n unmet queries (farthest first),
-  plus ``stalled`` (the search's plateau, in :data:`STALL_STEP` refinements
-  without a better best world): round 0 repairs each alone from late on
-  (each gets its own try: the farthest is not always the one a small change
-  can fix); later rounds restart earlier (:data:`RESTART_FRACTIONS` by
-  round) and take turns: one attempt pairs a query with the next (objects
-  that meet each other, as the paper's user did), the next repairs one
-  alone (an early restart of one object moves it farther and disturbs
-  less). One unmet query: alone, earlier at each attempt; from
-  :data:`LAST_PLACE_FRACTION` if ``last_place`` (that query is a place and
-  the search has not risen for :data:`LAST_PLACE_PLATEAU` refinements).
-
-  Example:
-    >>> repair_plan([5, 2, 9], 1), repair_plan([5, 2, 9], 3), repair_plan([5, 2, 9], 4)
-    (([2], 0.85), ([5, 2], 0.6), ([2], 0.6))
-    >>> repair_plan([5], 0, last_place=True)
-    ([5], 0.25)
-  """
-  n = len(unmet)
-  if n == 0:
-    raise MwbxError("solve: repair_plan needs at least one unmet query")
-  attempt = int(attempt)
-  rounds = (attempt // n if n > 1 else attempt) + max(int(stalled), 0)
-  chosen = [int(unmet[attempt % n])]
-  if rounds >= 1 and n >= 2 and (attempt + attempt // n) % 2 == 0:
-    chosen.append(int(unmet[(attempt + 1) % n]))
-  if last_place and n == 1:
-    return chosen, LAST_PLACE_FRACTION
-  return chosen, RESTART_FRACTIONS[min(rounds, len(RESTART_FRACTIONS) - 1)]
-
+from mwbx.search.restarts import ARMS, RestartArms
 
 class KeyStream(enum.IntEnum):
   """The search's independent random streams: each is folded into the search
@@ -153,6 +78,7 @@ class KeyStream(enum.IntEnum):
   GUIDED = 0  # the guided sampling before the search
   RESEED = 1  # guided reseeding when the search stalls, by refinement count
   REFINE = 2  # each refinement's perturbations, by refinement count
+  SELECT = 3  # lexicase orders and restart arms (one generator for the whole search)
 
 
 def stream_key(key: jax.Array, stream: KeyStream, index: int = 0) -> jax.Array:
@@ -211,19 +137,19 @@ class SolveOptions:
       becomes ``Budget(refinements=int(budget))``.
     key: search key (default ``jax.random.key(0)``: a search is repeatable).
     samples: refined worlds per refinement. keep: children kept per refinement.
-    tries_per_world: refinements from one world before the search moves on.
+    tries_per_world: refinements from one world; after, lexicase selection
+      no longer picks it.
     patience: refinements without a better best world before the search
-      fixes the query that blocks it: from then on it works only in worlds
-      that meet that query (see the module docstring).
+      reseeds (``reseed_rounds``; see the module docstring).
     backend: ``native`` | ``mjx`` (default: the bank's config's).
     guided_rounds: batches of guided sampling (:func:`guided_sample`) added to
       the bank before the search, ``guided_batch`` worlds each.
     guided_batch: worlds per batch of guided sampling (``guided_rounds``,
       ``reseed_rounds``).
-    reseed_rounds: at a stall, batches of guided sampling aimed at the query
-      that blocks the search (``guided_batch`` worlds each), added to the bank
-      before that query is fixed: more worlds where it holds to repair the
-      rest in. 0: none.
+    reseed_rounds: at a stall, batches of guided sampling aimed at the best
+      world's unmet query that refinements have met least often
+      (``guided_batch`` worlds each), added to the bank: more worlds where it
+      holds to repair the rest in. 0: none.
     tie_metric: metric (summed over bodies) that breaks ties, smaller first.
     throw: raise :class:`~mwbx.MwbxError` when the budget runs out unsolved.
 
@@ -384,7 +310,7 @@ def settle_time(bank, row: int, bodies: np.ndarray) -> float:
   return float(last_away[-1] + 1 if last_away.size else 0) / float(bank.query_fps)
 
 
-def _restart_goal(bank, row: int, world: int, query, met: np.ndarray) -> float:
+def restart_goal(bank, row: int, world: int, query, met: np.ndarray) -> float:
   """The time a query's objects go wrong in a world: when they leave the
   nearest path of a world that meets it, else the query's deadline. An
   orientation query's bodies go wrong where they settle (how a body lands
@@ -482,15 +408,18 @@ def solve(bank: Bank, queries, options: SolveOptions | None = None, *, progress=
 
 
 class _Search:
-  """The state of one :func:`solve`: the bank as it grows, each world's query
-  gaps (and so which queries it meets), the tie metric, and the bookkeeping
-  that decides where to refine next. :meth:`begin`, then :meth:`step` until
-  it returns False, then :meth:`result`."""
+  """The state of one :func:`solve`: the bank as it grows (its worlds are the
+  population), each world's query gaps (and so which queries it meets), the
+  tie metric, the restart arms' measured gains and the bookkeeping of tries
+  and plateaus. :meth:`begin`, then :meth:`step` until it returns False,
+  then :meth:`result`."""
 
   def __init__(self, bank: Bank, queries, options: SolveOptions, progress):
     self.options = options
     self.bank, self.queries, self.budget = bank, queries, options.budget
     self.key = jax.random.key(0) if options.key is None else options.key
+    self.rng = np.random.default_rng(
+        np.asarray(jax.random.key_data(stream_key(self.key, KeyStream.SELECT))).ravel().tolist())
     self.tie_metric, self.backend, self.progress = options.tie_metric, options.backend, progress
     self.start = time.perf_counter()
     self.n_queries = len(queries)
@@ -501,20 +430,17 @@ class _Search:
     self.alone = [(q, obj, query) for q in range(len(queries)) for obj, query in queries[q].per_object(bank).items()]
     self.alone_met = self._alone_met(bank)  # bool[W, len(self.alone)]
     self.scale = typical_gaps(self.gaps)
-    self.places = place_queries(queries)  # bool[Q]: ranked and repaired before the poses
-    self.weights = np.ones(self.n_queries)  # f64[Q]: grow on plateaus (reweigh)
+    self.places = place_queries(queries)  # bool[Q]: first in every order, ranked first
     self.ties = metric(bank, self.tie_metric)
+    self.arms = RestartArms()
     self.steps: list[SolveStep] = []
     self.spent_steps, self.refinements = 0, 0
     self.tries: dict[int, int] = {}  # refinements started from each world id
-    self.fixed: list[int] = []  # queries every world worked on must meet (stalls)
-    self.released: set[int] = set()  # fixed once, every world meeting them tried: not fixed again
     self.attempts = np.zeros(self.n_queries, np.int64)  # refinements aimed at each query
-    # The plateau (step): the search gains when the best world's (places, queries met) rise.
+    self.hits = np.zeros(self.n_queries, np.int64)  # of those, refinements with a child meeting it
+    # The plateau: the search gains when the best world's (places, queries met) rise.
     self.best_met = (-1, -1)  # the best world's (places, queries met) at the last gain
-    self.last_gain = 0  # refinements at the last gain, or at the last stall fixing a query
-    self.last_rise = 0  # refinements at the last gain (unlike last_gain, not moved on by fixing a query)
-    self.last_reweigh = 0  # refinements at the last reweigh
+    self.last_gain = 0  # refinements at the last gain, or at the last reseeding
     self.reason = ""  # why the search ended unsolved; meanwhile, the last world it could not refine
 
   def begin(self) -> None:
@@ -526,10 +452,10 @@ class _Search:
 
   def step(self) -> bool:
     """One turn of the search: the plateau's bookkeeping (:meth:`track_plateau`),
-    then the best world not yet tried out repaired (:meth:`repair`: at most one
-    refinement). Returns whether the search goes on: False once the best
-    world meets every query, the budget is spent or every world was tried
-    (:attr:`reason` says which of the last two)."""
+    then a world picked by lexicase selection repaired (:meth:`repair`: at
+    most one refinement). Returns whether the search goes on: False once the
+    best world meets every query, the budget is spent or every world was
+    tried (:attr:`reason` says which of the last two)."""
     best = self.steps[-1]
     if best.satisfied == self.n_queries:
       return False
@@ -538,9 +464,6 @@ class _Search:
       return False
     self.track_plateau(best)
     picked = self.pick(self.options.tries_per_world)
-    if picked is None and self.fixed:
-      self.release_fixed()  # every world meeting them was tried: all worlds again
-      return True
     if picked is None:
       self.reason = "every world tried"
       return False
@@ -548,33 +471,51 @@ class _Search:
     return True
 
   def track_plateau(self, best: SolveStep) -> None:
-    """Notes a gain of the best world ``best``; on a plateau, fixes the query
-    that blocks the search after ``patience`` refinements and reweighs the
-    queries every :data:`STALL_STEP`."""
-    if (best.places, best.satisfied) > self.best_met:  # the search gains when these rise
+    """Notes a gain of the best world ``best``; after ``patience``
+    refinements without one, reseeds (:meth:`reseed`)."""
+    if (best.places, best.satisfied) > self.best_met:
       self.best_met, self.last_gain = (best.places, best.satisfied), self.refinements
-      self.last_rise = self.refinements
     elif self.refinements - self.last_gain >= self.options.patience:
-      self.fix_blocking_query(best.world, self.options.reseed_rounds, self.options.guided_batch)
+      self.reseed(best.world, self.options.reseed_rounds, self.options.guided_batch)
       self.last_gain = self.refinements
-    if (self.refinements > max(self.last_gain, self.last_reweigh)
-        and (self.refinements - self.last_gain) % STALL_STEP == 0):
-      self.reweigh()
-      self.last_reweigh = self.refinements
 
-  def repair(self, row: int, world: int, attempt: int) -> None:
+  def pick(self, tries_per_world: int) -> tuple[int, int, int, list[int]] | None:
+    """A world tried fewer than ``tries_per_world`` times, by lexicase
+    selection over one random order of the queries: (row, world id, tries
+    so far, its unmet queries in that order), counted as tried; None if none."""
+    valid = np.flatnonzero(self.bank.valid)
+    rows = np.asarray([r for r in valid if self.tries.get(int(self.bank.world_ids[r]), 0) < tries_per_world],
+                      np.int64)
+    if rows.size == 0:
+      return None
+    order = query_order(self.places, self.rng)
+    row = int(rows[lexicase(self.met[rows], order, self.score(rows))])
+    world = int(self.bank.world_ids[row])
+    attempt = self.tries.get(world, 0)
+    self.tries[world] = attempt + 1
+    return row, world, attempt, first_unmet(self.met[row], order)
+
+  def score(self, rows: np.ndarray) -> np.ndarray:
+    """f64[n] higher is better among worlds meeting the same queries: the
+    fitness (the squashed gaps to the unmet ones), then the smallest tie metric."""
+    order = np.lexsort((self.ties[rows], -fitness(self.gaps[rows], self.scale)))
+    score = np.empty(rows.size)
+    score[order] = -np.arange(rows.size)
+    return score
+
+  def repair(self, row: int, world: int, attempt: int, unmet: list[int]) -> None:
     """Attempt ``attempt`` on world ``world`` (at ``row``): refines the objects
-    of the queries :func:`repair_plan` picks from before they go wrong; a
+    of its first unmet queries (``unmet``, in the pick's order), one or two as
+    the drawn arm says, from the arm's fraction of the time they go wrong; a
     world it cannot refine is tried out."""
     tries_per_world = self.options.tries_per_world
-    unmet = self.repair_order(row)
     if not unmet:  # a world guided reseeding just added meets every query
       self.note()
       return
-    last_place = (len(unmet) == 1 and bool(self.places[unmet[0]])
-                  and self.refinements - self.last_rise >= LAST_PLACE_PLATEAU)
-    chosen, fraction = repair_plan(unmet, attempt, stalled=(self.refinements - self.last_gain) // STALL_STEP,
-                                   last_place=last_place)
+    goal = self.queries[unmet[0]].goal
+    arm = self.arms.draw(goal, max_group=len(unmet), rng=self.rng)
+    fraction, group = ARMS[arm]
+    chosen = unmet[:group]
     self.attempts[chosen] += 1
     objects, targets = [], [self.repair_target(row, q) for q in chosen]
     for target_objects, _, _ in targets:
@@ -582,14 +523,15 @@ class _Search:
     if not objects:
       self.tries[world] = tries_per_world  # nothing to refine for these queries here
       return
-    t_goal = min(_restart_goal(self.bank, row, world, query, met) for _, query, met in targets)
+    t_goal = min(restart_goal(self.bank, row, world, query, met) for _, query, met in targets)
     t_min = fraction * t_goal
     try:
-      self.refine(world, objects, t_min, self.options.samples, self.options.keep)
+      gained = self.refine(row, world, objects, t_min, chosen)
     except MwbxError as err:  # e.g. a restart past the end: this world cannot be repaired so
       self.tries[world] = tries_per_world
       self.reason = f"world {world}: {err}"
       return
+    self.arms.record(goal, arm, gained)
     self.note(world, objects, t_min, tuple(_label(self.queries[q], q) for q in chosen), attempt)
 
   def elapsed(self) -> float:
@@ -598,33 +540,17 @@ class _Search:
   def budget_spent(self) -> bool:
     return self.budget.spent(self.refinements, self.elapsed(), self.spent_steps)
 
-  def best_rows(self, rows: np.ndarray, weighted: bool = False) -> np.ndarray:
+  def best_rows(self, rows: np.ndarray) -> np.ndarray:
     """``rows`` best first (:meth:`rank_order`)."""
-    return rows[self.rank_order(self.gaps[rows], self.ties[rows], weighted)]
+    return rows[self.rank_order(self.gaps[rows], self.ties[rows])]
 
-  def rank_order(self, gaps: np.ndarray, ties: np.ndarray, weighted: bool = False) -> np.ndarray:
+  def rank_order(self, gaps: np.ndarray, ties: np.ndarray) -> np.ndarray:
     """i[n] the order of worlds with query gaps ``gaps: f64[n, Q]`` and tie
-    metric ``ties: f[n]``, best first: most places met (:func:`place_queries`),
-    then the fitness of every query, then the smallest tie metric.
-    ``weighted``: each query counted by its weight (:meth:`reweigh`), as the
-    search picks worlds and keeps children; unweighted, as it reports the
-    best world."""
-    weights = self.weights if weighted else np.ones(gaps.shape[1])
-    places_met = ((gaps == 0) & self.places) @ weights
-    return np.lexsort((ties, -fitness(gaps, self.scale, weights), -places_met))
-
-  def reweigh(self) -> None:
-    """On a plateau: the queries the top world (weighted, meeting the fixed
-    queries) fails weigh :data:`WEIGHT_STEP` more from now on."""
-    rows = self.best_rows(np.flatnonzero(self.eligible()), weighted=True)
-    if rows.size:
-      self.weights[~self.met[rows[0]]] += WEIGHT_STEP
-
-  def repair_order(self, row: int) -> list[int]:
-    """World ``row``'s unmet queries in the order its attempts repair them:
-    places first, then poses, each farthest first."""
-    order = np.lexsort((-self.gaps[row] / self.scale, ~self.places))
-    return [int(q) for q in order if not self.met[row, q]]
+    metric ``ties: f[n]``, best first, as the search reports its best world:
+    most places met (:func:`place_queries`), then the fitness of every
+    query, then the smallest tie metric."""
+    places_met = ((gaps == 0) & self.places).sum(axis=1)
+    return np.lexsort((ties, -fitness(gaps, self.scale), -places_met))
 
   def note(self, refined: int = -1, objects=(), t_min: float = float("nan"), repaired=(), attempt: int = -1) -> None:
     """Records a step (the best world now) and reports progress."""
@@ -702,53 +628,34 @@ class _Search:
     self._add(result.bank, query_gaps(result.bank, self.queries), metric(result.bank, self.tie_metric))
     self.spent_steps += int(result.bank.steps.sum())
 
-  def fix_blocking_query(self, best_world: int, reseed_rounds: int, batch: int) -> None:
-    """At a stall: the query the search keeps failing on may be out of reach
-    from these worlds (their initial conditions decide it). Adds worlds guided
-    toward it, then works on only in worlds that meet it."""
-    best_row = self.bank.row_of(best_world)
-    blocking = [q for q in np.argsort(-self.attempts, kind="stable")
-                if not self.met[best_row, q] and q not in self.fixed and q not in self.released]
-    if blocking and reseed_rounds > 0:
-      try:  # more worlds where the blocking query holds (its objects' initial conditions)
-        self.add_guided([self.queries[blocking[0]]], reseed_rounds, batch,
-                        stream_key(self.key, KeyStream.RESEED, self.refinements))
-      except MwbxError:
-        pass  # nothing randomized to guide: fix among the worlds there are
-    pool = self.eligible()
-    good_enough = self.met[:, self.places].sum(axis=1) >= self.met[best_row, self.places].sum() - FIX_MARGIN
-    for q in blocking:
-      if (pool & self.met[:, q] & good_enough).any():
-        self.fixed.append(int(q))
-        break
+  def reseed(self, best_world: int, reseed_rounds: int, batch: int) -> None:
+    """On a plateau: the best world's unmet query that refinements have met
+    least often (as a share of those aimed at it) may be out of reach from
+    these worlds (their initial conditions decide it). Adds worlds guided
+    toward it; lexicase selection works on them where they meet it."""
+    if reseed_rounds <= 0:
+      return
+    row = self.bank.row_of(best_world)
+    unmet = np.flatnonzero(~self.met[row])
+    if unmet.size == 0:
+      return
+    rate = self.hits[unmet] / np.maximum(self.attempts[unmet], 1)
+    blocking = int(unmet[np.lexsort((-self.attempts[unmet], rate))[0]])
+    try:  # more worlds where the blocking query holds (its objects' initial conditions)
+      self.add_guided([self.queries[blocking]], reseed_rounds, batch,
+                      stream_key(self.key, KeyStream.RESEED, self.refinements))
+    except MwbxError:
+      pass  # nothing randomized to guide
 
-  def eligible(self) -> np.ndarray:
-    """bool[W]: the valid worlds that meet every fixed query, where the search works."""
-    return np.asarray(self.bank.valid, bool) & self.met[:, self.fixed].all(axis=1)
-
-  def release_fixed(self) -> None:
-    self.released.update(self.fixed)
-    self.fixed.clear()
-
-  def pick(self, tries_per_world: int) -> tuple[int, int, int] | None:
-    """The best world meeting the fixed queries not yet tried ``tries_per_world``
-    times: (row, world id, tries so far), counted as tried; None if none."""
-    rows = [r for r in self.best_rows(np.flatnonzero(self.eligible()), weighted=True)
-            if self.tries.get(int(self.bank.world_ids[r]), 0) < tries_per_world]
-    if not rows:
-      return None
-    row = rows[0]
-    world = int(self.bank.world_ids[row])
-    attempt = self.tries.get(world, 0)
-    self.tries[world] = attempt + 1
-    return row, world, attempt
-
-  def refine(self, world: int, objects, t_min: float, samples: int, keep: int) -> None:
-    """Refines ``objects`` of ``world`` from ``t_min``; keeps its ``keep`` best
-    valid children in the bank."""
+  def refine(self, row: int, world: int, objects, t_min: float, repaired: list[int]) -> bool:
+    """Refines ``objects`` of ``world`` (at ``row``) from ``t_min``; keeps
+    ``keep`` valid children in the bank, each a lexicase pick, the first with
+    the ``repaired`` queries first. Returns whether it gained: some child
+    meets more places than the parent, or as many and more queries."""
     # Contact events of every child only where a query reads them; else of the kept children alone.
     events = any(q.needs_events for q in self.queries)
-    done = run_refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=samples, backend=self.backend,
+    done = run_refinement(self.bank, RefineRequest(world, objects, t_min=t_min, n_samples=self.options.samples,
+                                               backend=self.backend,
                                                key=stream_key(self.key, KeyStream.REFINE, self.refinements),
                                                events=events))
     children, stats = done.new, done.stats
@@ -756,16 +663,27 @@ class _Search:
     self.spent_steps += int(stats.world_steps)
     c_gaps = query_gaps(children, self.queries)
     c_ties = metric(children, self.tie_metric)
-    order = self.rank_order(c_gaps, c_ties, weighted=True)
-    kept = np.sort(order[:keep][children.valid[order[:keep]]])
-    if kept.size:
-      dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
-      chosen = children.drop(children.world_ids[dropped]) if dropped.size else children
-      if not events and self.bank.events is not None:
-        found, actors = refined_events(done.parent_bank, done.plan.row, done.plan.first_frame, chosen.qpos_store,
-                                       sampler_for(done.parent_bank, self.backend))
-        chosen = dataclasses.replace(chosen, events=found, event_actors=actors)
-      self._add(chosen, c_gaps[kept], c_ties[kept])
+    c_met = c_gaps == 0
+    valid = np.flatnonzero(children.valid)
+    self.hits[repaired] += c_met[valid][:, repaired].any(axis=0)
+    if valid.size == 0:
+      return False
+    first = [q for q in repaired] + [q for q in query_order(self.places, self.rng) if q not in repaired]
+    orders = [np.asarray(first)] + [query_order(self.places, self.rng) for _ in range(self.options.keep - 1)]
+    order = np.lexsort((c_ties[valid], -fitness(c_gaps[valid], self.scale)))
+    score = np.empty(valid.size)
+    score[order] = -np.arange(valid.size)
+    kept = np.sort(valid[lexicase_keep(c_met[valid], score, self.options.keep, orders)])
+    dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
+    chosen = children.drop(children.world_ids[dropped]) if dropped.size else children
+    if not events and self.bank.events is not None:
+      found, actors = refined_events(done.parent_bank, done.plan.row, done.plan.first_frame, chosen.qpos_store,
+                                     sampler_for(done.parent_bank, self.backend))
+      chosen = dataclasses.replace(chosen, events=found, event_actors=actors)
+    parent = (int(self.met[row, self.places].sum()), int(self.met[row].sum()))
+    self._add(chosen, c_gaps[kept], c_ties[kept])
+    best = max((int(c_met[k, self.places].sum()), int(c_met[k].sum())) for k in valid)
+    return best > parent
 
   def result(self, reason: str, throw: bool) -> SolveResult:
     """What the search found, with one line saying so."""

@@ -9,7 +9,6 @@ import doctest
 import json
 import pathlib
 import re
-import types
 
 import jax
 import numpy as np
@@ -25,9 +24,9 @@ from mwbx.search import objects as search_objects
 from mwbx.search import proposal as proposal_lib
 from mwbx.queries.paths import body_radii
 from mwbx.search import solver
-from mwbx.search.solver import (DIVERGENCE_TOLERANCE, FIX_MARGIN, LAST_PLACE_FRACTION, LAST_PLACE_PLATEAU,
-                                RESTART_FRACTIONS, STALL_STEP, KeyStream,
-                                repair_plan, settle_time, stream_key)
+from mwbx.search import lexicase as search_lexicase
+from mwbx.search import restarts as search_restarts
+from mwbx.search.solver import DIVERGENCE_TOLERANCE, KeyStream, settle_time, stream_key
 
 TESTS = pathlib.Path(__file__).parents[1]
 
@@ -322,7 +321,7 @@ def test_solve_with_guided_rounds_adds_guided_worlds_first(tiny_bank):
 
 def test_a_stall_reseeds_with_worlds_guided_at_the_blocking_query(tiny_bank):
   # Out of reach for the striker: the search stalls at once (patience 1) and
-  # guided sampling aimed at the query adds worlds before it is fixed.
+  # guided sampling aimed at the query adds worlds to the bank.
   far = Query.region((1.0, -1.0, 0.0), (2.0, 1.0, 0.5), bodies="striker", window=(0.5, None), name="striker_far")
   result = mwbx.solve(tiny_bank, [far], budget=3, samples=2, backend="native", patience=1, reseed_rounds=1,
                       guided_batch=4, key=jax.random.key(3))
@@ -365,84 +364,70 @@ def test_settle_time_is_when_the_bodies_stay_near_where_they_end(tiny_bank):
   assert moved > 0  # the striker moves in every world: some settle time is after the start
 
 
-def test_repair_plan_tries_each_unmet_query_alone_before_pairs():
-  unmet = [7, 3, 11]
-  plans = [repair_plan(unmet, k) for k in range(7)]
-  assert plans[:3] == [([7], RESTART_FRACTIONS[0]), ([3], RESTART_FRACTIONS[0]), ([11], RESTART_FRACTIONS[0])]
-  # Later rounds take turns: a pair, then one alone, each from earlier.
-  assert plans[3:6] == [([7, 3], RESTART_FRACTIONS[1]), ([3], RESTART_FRACTIONS[1]),
-                        ([11, 7], RESTART_FRACTIONS[1])]
-  assert plans[6] == ([7, 3], RESTART_FRACTIONS[2])
-  # One unmet query: alone, from earlier at each attempt, the last fraction kept.
-  fractions = RESTART_FRACTIONS + RESTART_FRACTIONS[-1:] * (6 - len(RESTART_FRACTIONS))
-  assert [repair_plan([4], k) for k in range(6)] == [([4], f) for f in fractions]
-  with pytest.raises(mwbx.MwbxError, match="at least one unmet"):
-    repair_plan([], 0)
+def _lexicase_reference(met, order, score):
+  """Lexicase selection as its papers state it, with sets: the worlds meeting
+  each query in turn survive, unless none does."""
+  alive = set(range(len(met)))
+  for q in order:
+    meeting = {w for w in alive if met[w][q]}
+    alive = meeting or alive
+  return max(sorted(alive), key=lambda w: score[w])
 
 
-def test_a_last_place_restarts_earliest_once_the_search_stalls():
-  """A world whose one unmet query is a place, on a plateau of
-  LAST_PLACE_PLATEAU refinements, restarts it earlier than any round; with
-  other queries unmet the rounds decide as before."""
-  assert repair_plan([4], 0, last_place=True) == ([4], LAST_PLACE_FRACTION)
-  assert repair_plan([4], 5, stalled=3, last_place=True) == ([4], LAST_PLACE_FRACTION)
-  assert LAST_PLACE_FRACTION < min(RESTART_FRACTIONS)
-  assert [repair_plan([4, 5], k, last_place=True) for k in range(4)] == [repair_plan([4, 5], k) for k in range(4)]
-  assert LAST_PLACE_PLATEAU >= STALL_STEP
+def test_lexicase_agrees_with_the_set_reference_and_picks_every_specialist():
+  rng = np.random.default_rng(0)
+  for _ in range(200):
+    n, q = rng.integers(1, 9), rng.integers(1, 7)
+    met = rng.random((n, q)) < 0.4
+    score = rng.permutation(n).astype(float)  # distinct: one world left
+    order = rng.permutation(q)
+    assert search_lexicase.lexicase(met, order, score) == _lexicase_reference(met.tolist(), order, score)
+  # World 0 meets most; world 1 alone meets query 3; world 2 meets a subset of world 0's: never picked.
+  met = np.array([[1, 1, 1, 0], [0, 0, 0, 1], [1, 0, 0, 0]], bool)
+  picks = {search_lexicase.lexicase(met, search_lexicase.query_order(np.ones(4, bool), rng), np.zeros(3))
+           for _ in range(200)}
+  assert picks == {0, 1}
+  with pytest.raises(ValueError, match="no candidate"):
+    search_lexicase.lexicase(np.zeros((0, 2), bool), np.arange(2), np.zeros(0))
 
 
-def test_a_plateau_moves_every_repair_to_a_later_round():
-  """Four unmet queries and four tries: without a plateau a world only ever
-  gets round 0 (each alone, late); each STALL_STEP refinements without a
-  better world start it a round later (earlier restarts, pairs and single
-  queries in turn)."""
-  unmet = [7, 3, 11, 2]
-  assert {repair_plan(unmet, k)[1] for k in range(4)} == {RESTART_FRACTIONS[0]}
-  assert [repair_plan(unmet, k, stalled=1) for k in range(2)] == [([7, 3], RESTART_FRACTIONS[1]),
-                                                                  ([3], RESTART_FRACTIONS[1])]
-  assert repair_plan(unmet, 0, stalled=9) == ([7, 3], RESTART_FRACTIONS[-1])
-  assert repair_plan([4], 1, stalled=1) == ([4], RESTART_FRACTIONS[2])
-  assert STALL_STEP >= 1
+def test_lexicase_orders_put_places_first_and_keep_picks_distinct():
+  rng = np.random.default_rng(1)
+  places = np.array([False, True, False, True, True])
+  for _ in range(50):
+    order = search_lexicase.query_order(places, rng)
+    assert sorted(order) == list(range(5)) and set(order[:3]) == {1, 3, 4}
+  assert search_lexicase.first_unmet(np.array([1, 0, 1, 0, 0], bool), np.array([4, 3, 0, 1, 2])) == [4, 3, 1]
+  met = np.array([[1, 0], [1, 0], [0, 1], [0, 0]], bool)
+  score = np.array([0.0, 1.0, 0.0, 5.0])
+  kept = search_lexicase.lexicase_keep(met, score, 3, [np.array([0, 1])] * 5)
+  # The best meeting query 0 (world 1, by score), then world 0, then the one meeting query 1.
+  assert list(kept) == [1, 0, 2]
+  assert list(search_lexicase.lexicase_keep(met, score, 9, [np.array([1, 0])] * 2)) == [2, 1]
 
 
-class _Worlds:
-  """The little of a bank that fix_blocking_query reads: rows by world id and validity."""
-
-  def __init__(self, n):
-    self.valid = np.ones(n, bool)
-
-  def row_of(self, world):
-    return int(world)
-
-
-def test_a_stall_fixes_only_a_query_that_a_good_enough_world_meets():
-  # Queries 0-5; world 0 is the best (meets 0-3). Query 4 is met only by
-  # world 1, which meets FIX_MARGIN + 1 fewer queries: fixing it would drop
-  # the search back to worlds that bad. Query 5 is met by world 2, within
-  # the margin of the best.
-  met = np.zeros((3, 6), bool)
-  met[0, :4] = True
-  met[1, 4] = True
-  met[2, [0, 5]] = True
-  met[2, 1:4 - FIX_MARGIN] = True
-  assert met[0].sum() - met[1].sum() > FIX_MARGIN and met[0].sum() - met[2].sum() <= FIX_MARGIN
-  search = object.__new__(solver._Search)
-  search.bank, search.met, search.fixed, search.released = _Worlds(3), met, [], set()
-  search.places = np.ones(6, bool)
-  search.attempts = np.array([0, 0, 0, 0, 9, 5])  # query 4 blocks the most
-  search.fix_blocking_query(0, reseed_rounds=0, batch=1)
-  assert search.fixed == [5]
-  met[2, 5] = False  # no good-enough world meets either: nothing is fixed
-  search.fixed = []
-  search.fix_blocking_query(0, reseed_rounds=0, batch=1)
-  assert search.fixed == []
+def test_restart_arms_learn_the_arm_that_gains_per_goal():
+  """Thompson sampling: an arm that gains is drawn more, for its goal only;
+  arms repairing two queries are drawn only where two are unmet."""
+  arms = search_restarts.RestartArms()
+  rng = np.random.default_rng(2)
+  late_single = search_restarts.ARMS.index(search_restarts.RestartArm(0.9, 1))
+  for _ in range(40):
+    arm = arms.draw("place", max_group=2, rng=rng)
+    arms.record("place", arm, gained=(arm == late_single))
+  draws = [arms.draw("place", max_group=2, rng=rng) for _ in range(200)]
+  assert np.mean(np.equal(draws, late_single)) > 0.5
+  assert arms.rates("place")[late_single] == arms.rates("place").max()
+  np.testing.assert_array_equal(arms.rates("pose"), 0.5)  # poses learn apart: nothing yet
+  singles = {arms.draw("pose", max_group=1, rng=rng) for _ in range(200)}
+  assert {search_restarts.ARMS[a].group for a in singles} == {1} and len(singles) == len(search_restarts.FRACTIONS)
+  assert all(0 < f < 1 for f in search_restarts.FRACTIONS)
 
 
-def test_places_rank_and_are_repaired_before_poses():
+def test_places_rank_before_poses():
   """A world with more places met ranks above one with more queries met in
   all (SIGGRAPH: letters in their slots beat letters upright elsewhere);
-  among equal places, the fitness of every query, then the tie metric. A
-  world's unmet places are repaired before its unmet poses."""
+  among equal places, the fitness of every query, then the tie metric."""
   place = Query.region((0, 0, 0), (1, 1, 1), bodies="striker", name="place")
   pose = mwbx.OrientationQuery(bodies="striker", within_deg=20, axis="z", name="pose")
   np.testing.assert_array_equal(solver.place_queries([place, pose, place, pose]), [True, False, True, False])
@@ -459,41 +444,9 @@ def test_places_rank_and_are_repaired_before_poses():
   ])
   ties = np.array([0.0, 0.0, 0.0, 3.0, 1.0])
   assert list(search.rank_order(gaps, ties)) == [0, 4, 3, 2, 1]
-  search.gaps = np.array([[2.0, 1.0, 9.0, 0.0, 3.0]])
-  search.met = search.gaps == 0
-  assert search.repair_order(0) == [0, 1, 2, 4]  # places, then poses, each farthest first
-
-
-def test_plateaus_weigh_the_queries_the_top_world_fails():
-  """Each reweigh (a STALL_STEP of a plateau) adds WEIGHT_STEP to the queries
-  the top world fails: a world meeting a place the top world never
-  wins comes to outrank it in the search's (weighted) order, which then turns
-  back as the new top world's own failures gain weight. The unweighted order,
-  which reports the best world, stays the count of places."""
-  assert solver.WEIGHT_STEP == 1  # the orders below are those of the shipped step
-  search = object.__new__(solver._Search)
-  search.places = np.array([True, True, True, False])
-  search.weights = np.ones(4)
-  search.scale = np.ones(4)
-  search.fixed = []
-  search.gaps = np.array([
-      [0.0, 0.0, 5.0, 0.0],  # 0: places 0 and 1 and the pose
-      [5.0, 5.0, 0.0, 0.0],  # 1: place 2 only (and the pose)
-  ])
-  search.met = search.gaps == 0
-  search.ties = np.zeros(2)
-  search.bank = types.SimpleNamespace(valid=np.ones(2, bool))
-  rows = np.arange(2)
-  assert list(search.best_rows(rows, weighted=True)) == [0, 1]
-  search.reweigh()  # world 0 fails place 2: 2 against 2, fitness still prefers world 0
-  np.testing.assert_array_equal(search.weights, [1, 1, 2, 1])
-  assert list(search.best_rows(rows, weighted=True)) == [0, 1]
-  search.reweigh()
-  assert list(search.best_rows(rows, weighted=True)) == [1, 0]  # place 2 now outweighs places 0 and 1
-  search.reweigh()  # world 1's failures (places 0 and 1) gain weight in turn
-  np.testing.assert_array_equal(search.weights, [2, 2, 3, 1])
-  assert list(search.best_rows(rows, weighted=True)) == [0, 1]
-  assert list(search.best_rows(rows)) == [0, 1]  # unweighted: more places first, whatever the weights
+  search.gaps, search.ties = gaps, ties
+  score = search.score(np.arange(5))
+  assert score[4] > score[3] > score[2]  # among equals (worlds 2-4 meet the same): nearer, then fewer collisions
 
 
 def test_solve_records_and_reports_the_places_its_best_world_meets(tiny_bank, tmp_path):
@@ -587,7 +540,7 @@ def test_a_mode_any_repair_leaves_alone_the_object_holding_another_query(tiny_ba
 
 
 def test_search_docstring_examples_run():
-  for module in (search_objects, solver):
+  for module in (search_objects, search_lexicase):
     failed, tried = doctest.testmod(module, optionflags=doctest.ELLIPSIS)[:2]
     assert tried >= 1 and failed == 0, module.__name__
 
