@@ -48,3 +48,58 @@ def test_finish_cuts_at_the_last_stored_tick_and_reports_overflow():
   many = {2 * t: [(0, 1, 1.0)] for t in range(5)}
   n, _, _ = run(many, 12, gap=1, cap=2)
   assert n == 5  # more than the buffer holds: the caller finds them another way
+
+
+def run_jax(touches, n_ticks, gap=3, cap=16, last_tick=None):
+  """The JAX twin (steps.track_tick in a jitted scan, steps.finish_track) on
+  the same touches: every actor awake (MJX does not sleep)."""
+  import jax
+  import jax.numpy as jnp
+  k = max((len(v) for v in touches.values()), default=1)
+  side_a = np.full((n_ticks, k), -1, np.int32)
+  side_b = np.full((n_ticks, k), -1, np.int32)
+  force = np.zeros((n_ticks, k), np.float32)
+  for tick, contacts in touches.items():
+    for i, (a, b, f) in enumerate(contacts):
+      side_a[tick, i], side_b[tick, i], force[tick, i] = a, b, f
+
+  @jax.jit
+  def scan(track, xs):
+    def body(track, x):
+      a, b, f, tick = x
+      touching, pair_force = steps.pair_touches(a, b, jnp.ones(a.shape, bool), f, N_ACTORS)
+      return steps.track_tick(track, touching, pair_force, tick, N_ACTORS, gap, DT), None
+    return jax.lax.scan(body, track, xs)[0]
+
+  track = scan(steps.new_track(N_ACTORS, cap), (side_a, side_b, force, jnp.arange(n_ticks, dtype=jnp.int32)))
+  track = jax.tree.map(np.array, track)
+  n = steps.finish_track(track.first, track.seen, track.peak, track.impulse, track.rows, track.strength,
+                         int(track.count), N_ACTORS, n_ticks - 1 if last_tick is None else last_tick)
+  return n, track.rows[:min(n, cap)], track.strength[:min(n, cap)]
+
+
+def test_the_jax_twin_finds_the_same_episodes_as_the_host_kernels():
+  """Random contacts (several a tick, repeated pairs, contacts inside one
+  actor or with none), short and long breaks, a cut before the end and an
+  overflowing buffer: the jitted tracker's episodes and strengths are the
+  host kernels' (forces summed in float32 there: 1e-5)."""
+  rng = np.random.default_rng(0)
+  compared = 0
+  for trial in range(20):
+    n_ticks = int(rng.integers(5, 60))
+    touches = {}
+    for tick in range(n_ticks):
+      if rng.random() < 0.5:
+        touches[tick] = [(int(rng.integers(-1, N_ACTORS)), int(rng.integers(0, N_ACTORS)), float(rng.random() * 5))
+                         for _ in range(int(rng.integers(1, 4)))]
+    gap = int(rng.integers(1, 5))
+    cap = 16 if trial % 4 else 3
+    last = n_ticks - 1 - int(rng.integers(0, 4))
+    host = run(touches, n_ticks, gap=gap, cap=cap, last_tick=last)
+    twin = run_jax(touches, n_ticks, gap=gap, cap=cap, last_tick=last)
+    assert host[0] == twin[0], trial
+    if host[0] <= cap:
+      np.testing.assert_array_equal(twin[1], host[1])
+      np.testing.assert_allclose(twin[2], host[2], rtol=1e-5, atol=1e-6)
+      compared += host[0]
+  assert compared > 20

@@ -25,10 +25,12 @@ from mwbx import controls
 from mwbx.batch_sim import contact_budget
 from mwbx.batch_sim import sleep as sleep_lib
 from mwbx.batch_sim import mjx_collision
+from mwbx.batch_sim import mjx_events
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import warp_solver as warp_solver_lib
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
+from mwbx.events import actors as events_lib
 
 # Frames per jitted block at most: long enough to amortize dispatch, short
 # enough for a live progress bar and an early exit once every world has
@@ -109,7 +111,8 @@ def _per_world(tree, path) -> bool:
 
 
 def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=None,
-                pack_rows: bool | None = None, warp_solver=None, sleep=None) -> "MjxBackend":
+                pack_rows: bool | None = None, warp_solver=None, sleep=None,
+                event_gap: int | None = None) -> "MjxBackend":
   """The MJX backend of a scene under a contact budget (the entry point for
   sampling and benchmarks: ``backend.make_data`` and ``backend.step`` are one
   budgeted batched step, ``backend.overflow`` its flag).
@@ -119,7 +122,7 @@ def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=
     impl: ``jax`` or ``warp``.
     budget: the budget (:func:`mwbx.batch_sim.sampler.resolve_contact_budget`:
       the config's ``sim.mjx`` values, the rest from a native pilot).
-    devices, pack_rows: as for :class:`MjxBackend`.
+    devices, pack_rows, event_gap: as for :class:`MjxBackend`.
     warp_solver: impl warp: the :class:`warp_solver.WarpSolverSettings` (or
       its dict, as a bank's ``run`` stores it) to use; None: chosen from the
       model and the config's ``sim.mjx`` (:func:`warp_solver.warp_solver_settings`).
@@ -134,7 +137,8 @@ def backend_for(scene, impl: str, budget: contact_budget.ContactBudget, devices=
     model = sleep_lib.sleeping_copy(model, sleep)
   if impl == "warp" and warp_solver is None:
     warp_solver = warp_solver_lib.warp_solver_settings(model, scene.config.sim.mjx)
-  return MjxBackend(model, impl, devices, budget=budget, pack_rows=pack_rows, warp_solver=warp_solver)
+  return MjxBackend(model, impl, devices, budget=budget, pack_rows=pack_rows, warp_solver=warp_solver,
+                    event_gap=event_gap)
 
 
 class MjxBackend:
@@ -158,11 +162,15 @@ class MjxBackend:
       (:class:`warp_solver.WarpSolverSettings` or its dict), applied to a copy
       of ``model`` before it is put on the device; None: chosen from the model
       alone (:func:`warp_solver.warp_solver_settings`). Ignored on impl ``jax``.
+    event_gap: physics steps apart that end a contact episode: the scan then
+      finds contact events at every step (:mod:`mjx_events`; the sampler's:
+      a query point's steps); None: it does not (they are found on the
+      stored frames).
   """
 
   def __init__(self, model: mujoco.MjModel, impl: str = "jax", devices=None,
                budget: contact_budget.ContactBudget | None = None, pack_rows: bool | None = None,
-               warp_solver=None):
+               warp_solver=None, event_gap: int | None = None):
     # impl warp: the solver settings in a copy of the model (the scene's model is shared).
     self.warp_solver = None
     if impl == "warp":
@@ -193,6 +201,8 @@ class MjxBackend:
     self.check = contact_budget.JaxOverflowCheck(model) if impl == "jax" else None
     self._quiet_mx = None
     self._blocks: dict = {}
+    self.event_gap = None if event_gap is None else int(event_gap)
+    self._event_inputs = None
 
   def _put(self, model: mujoco.MjModel):
     try:
@@ -250,11 +260,14 @@ class MjxBackend:
       return jnp.zeros(d_next.qpos.shape[0], bool)
     return jax.vmap(self.check)(d_next)
 
-  def block(self, params: world.WorldParams, body_ids: np.ndarray, n_frames: int):
+  def block(self, params: world.WorldParams, body_ids: np.ndarray, n_frames: int,
+            events: mjx_events.MjxEventInputs | None = None):
     """``run(state, ctrl_table, count)`` for up to ``n_frames`` sampled frames
     (cached; see :func:`frame_block`). ``ctrl_table``: f32[N, nu] control of
-    each step (:mod:`mwbx.controls`), or None for a scene without controls."""
-    cache_key = (id(params), n_frames)
+    each step (:mod:`mwbx.controls`), or None for a scene without controls.
+    ``events``: find contact episodes at every step (:mod:`mjx_events`; the
+    state's last entry is then the batch's trackers)."""
+    cache_key = (id(params), n_frames, events is not None)
     if cache_key in self._blocks:
       return self._blocks[cache_key][1]
     nbody = self.model.nbody
@@ -262,14 +275,6 @@ class MjxBackend:
     # Free bodies are observed from their states: MJX then steps without sensors.
     bodies = free_bodies_lib.free_bodies(self.model, body_ids)
     mx = self.mx if bodies is None else self.quiet_mx
-
-    def physics_step(d, inputs):
-      xfrc_tracked, ctrl = inputs  # ctrl: f32[W, nu] or None
-      d = d.replace(xfrc_applied=scatter_wrench(xfrc_tracked, nbody, ids))
-      if ctrl is not None:
-        d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype))
-      d_next = self.batched_step(mx, d)
-      return d_next, (d_next.sensordata if bodies is None else (d.qpos, d.qvel), self.overflow(d_next))
 
     def observe(d_next, out):
       """f32[W, S, B * SENSOR_WIDTH] sensor block of the frame's steps."""
@@ -281,23 +286,47 @@ class MjxBackend:
           qpos, qvel, bodies, params.dt, params.gravity)
 
     def frame(ctrl_table, state):
-      d, carry, wrench, keys, overflow = state  # wrench: f32[W, S, B, 6]; overflow: bool[W]
+      d, carry, wrench, keys, overflow, tracks = state  # wrench: f32[W, S, B, 6]; overflow: bool[W]
       qpos = d.qpos  # s_k at the frame boundary, recorded if `record`.
+      running = carry.status == world.RUNNING
+
+      def physics_step(stepping, inputs):
+        d, tracks = stepping
+        xfrc_tracked, ctrl, s = inputs  # ctrl: f32[W, nu] or None
+        d = d.replace(xfrc_applied=scatter_wrench(xfrc_tracked, nbody, ids))
+        if ctrl is not None:
+          d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype))
+        d_next = self.batched_step(mx, d)
+        if events is not None:  # the step's contacts are those of the state it started from: tick k0 + s
+          tracks = mjx_events.track_step(tracks, d_next, self.impl, events, carry.step + s, running, params.dt)
+        return (d_next, tracks), (d_next.sensordata if bodies is None else (d.qpos, d.qvel), self.overflow(d_next))
+
       ctrl = None
       if ctrl_table is not None:  # f32[N, nu]: row k is step k's control
         rows = jnp.minimum(carry.step[:, None] + jnp.arange(params.steps_per_frame), ctrl_table.shape[0] - 1)
         ctrl = jnp.swapaxes(ctrl_table[rows], 0, 1)  # [S, W, nu]
-      d_next, (out, step_overflow) = jax.lax.scan(physics_step, d, (jnp.swapaxes(wrench, 0, 1), ctrl))
-      overflow = overflow | (step_overflow.any(axis=0) & (carry.status == world.RUNNING))
+      (d_next, tracks), (out, step_overflow) = jax.lax.scan(
+          physics_step, (d, tracks), (jnp.swapaxes(wrench, 0, 1), ctrl, jnp.arange(params.steps_per_frame)))
+      overflow = overflow | (step_overflow.any(axis=0) & running)
       obs = jax.vmap(jax.vmap(lambda s: world.Observation.from_sensordata(s, params.gravity)))(
           observe(d_next, out))
       carry, out = world.frame_update(carry, obs, keys, params)
       d = hold_finished(out.running, d_next, d)
-      return (d, carry, out.wrench, keys, overflow), (out.record, qpos, obs.com_pos[:, 0])
+      return (d, carry, out.wrench, keys, overflow, tracks), (out.record, qpos, obs.com_pos[:, 0])
 
     fn = frame_block(frame, n_frames)
     self._blocks[cache_key] = (params, fn)
     return fn
+
+  def event_inputs(self, scene) -> mjx_events.MjxEventInputs | None:
+    """How this backend's scan finds the scene's contact events (cached);
+    None where the backend was made without an event gap."""
+    if self.event_gap is None:
+      return None
+    if self._event_inputs is None:
+      self._event_inputs = mjx_events.event_inputs(self.model, events_lib.actors_of(self.model, scene.object_names),
+                                                   self.event_gap)
+    return self._event_inputs
 
   def run_chunk(self, scene, params: world.WorldParams, qpos0, qvel0, step_keys, active,
                 n_frames: int, progress=None, finished=None) -> ChunkResult:
@@ -313,7 +342,8 @@ class MjxBackend:
     active = np.asarray(active)
     body_ids = scene.body_ids
     block_frames = min(FRAMES_PER_BLOCK, n_frames)
-    fn = self.block(params, body_ids, block_frames)
+    events = self.event_inputs(scene)
+    fn = self.block(params, body_ids, block_frames, events)
     n_dev = len(self.devices)
     if c % n_dev:
       raise ValueError(f"a batch of {c} worlds does not split over {n_dev} devices")
@@ -321,7 +351,8 @@ class MjxBackend:
 
     carry = jax.vmap(world.init_carry, in_axes=(None, 0))(len(body_ids), jnp.asarray(active))
     wrench = jnp.zeros((c, params.steps_per_frame, len(body_ids), 6), jnp.float32)
-    rest = (carry, wrench, step_keys, jnp.zeros(c, bool))
+    tracks = None if events is None else mjx_events.new_tracks(c, events)
+    rest = (carry, wrench, step_keys, jnp.zeros(c, bool), tracks)
     # Each device's Data is made for its share (MuJoCo Warp's contact pool is
     # per batch, not per world, so it is not sliced).
     states = [jax.device_put((self.make_data(jnp.asarray(qpos0[k * per:(k + 1) * per]),
@@ -365,9 +396,15 @@ class MjxBackend:
 
     carry = jax.tree.map(lambda *xs: gather(xs), *[s[1] for s in states])
     frame_count = np.asarray(carry.frame_count)
+    found = {}
+    if events is not None:
+      tracks = jax.tree.map(lambda *xs: gather(xs), *[s[5] for s in states])
+      rows, strength, count = mjx_events.finish_tracks(tracks, (frame_count - 1) * params.steps_per_frame,
+                                                       events.n_actors)
+      found = {"event_rows": rows, "event_strength": strength, "event_count": count}
     return ChunkResult(
         qpos=fill_tail(qpos_buf, frame_count), com=fill_tail(com_buf, frame_count),
         frame_count=frame_count, status=np.asarray(carry.status),
         metrics=world.finalize_metrics(carry), perturbations=np.asarray(carry.perturbations),
         steps=np.asarray(carry.step), compile_seconds=compile_seconds, run_seconds=run_seconds,
-        contact_overflow=gather([s[4] for s in states]))
+        contact_overflow=gather([s[4] for s in states]), **found)

@@ -201,8 +201,9 @@ class Sampler:
       impl = impl or resolve_mjx_impl(cfg.sim.mjx_impl)
       if impl == "warp":  # MuJoCo Warp sleeps too (under Newton); MJX's jax step does not
         self.sleep = self._sleep(sleep, model, sleep_lib.resolve_warp)
+      # A contact episode ends after a query point's steps apart: see mwbx.events.steps.
       self.backend = backend_for(self.scene, impl, self._budget(contact_budget), pack_rows=cfg.sim.mjx.pack_rows,
-                                 warp_solver=warp_solver, sleep=self.sleep)
+                                 warp_solver=warp_solver, sleep=self.sleep, event_gap=spf * self.query_stride)
       self.pack_rows = self.backend.pack_rows
       self.contact_budget = self.backend.budget
       self.warp_solver = self.backend.warp_solver

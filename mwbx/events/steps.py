@@ -38,6 +38,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from mwbx.host_jit import host_jit
@@ -190,3 +192,99 @@ def actors_moving(tree_asleep, actor_tree_start, actor_trees, moving):
       if tree_asleep[actor_trees[k]] < 0:
         moving[a] = True
         break
+
+
+# The same episodes inside a jitted scan (MJX): the JAX twin of new_episodes,
+# touch and end_tick for ONE world, vmapped over the batch by the caller, and
+# of the row buffer they write; finish runs on the host (track_episodes).
+
+
+class EpisodeTrack(NamedTuple):
+  """One world's contact episodes as a jitted loop keeps them: the JAX twin
+  of :class:`OpenEpisodes` with its row buffer (pair code ``a * n_actors + b``).
+
+  Attributes:
+    first: i32[P] the first tick of the pair's open episode; NOT_OPEN if none.
+    seen: i32[P] the last tick the pair touched.
+    peak: f32[P] the open episode's largest normal force, N.
+    impulse: f32[P] its normal impulse so far, N·s.
+    rows: i32[cap, 4] ended episodes ``(a, b, first, last)``, in the order ended.
+    strength: f32[cap, 2] their ``(peak force, impulse)``.
+    count: i32[] episodes ended so far (more than cap: the buffer overflowed).
+  """
+
+  first: jax.Array
+  seen: jax.Array
+  peak: jax.Array
+  impulse: jax.Array
+  rows: jax.Array
+  strength: jax.Array
+  count: jax.Array
+
+
+def new_track(n_actors: int, cap: int) -> EpisodeTrack:
+  """An empty :class:`EpisodeTrack` for ``n_actors`` actors and ``cap`` rows."""
+  p = n_actors * n_actors
+  return EpisodeTrack(jnp.full(p, NOT_OPEN, jnp.int32), jnp.full(p, NOT_OPEN, jnp.int32), jnp.zeros(p, jnp.float32),
+                      jnp.zeros(p, jnp.float32), jnp.zeros((cap, 4), jnp.int32), jnp.zeros((cap, 2), jnp.float32),
+                      jnp.zeros((), jnp.int32))
+
+
+def pair_touches(side_a: jax.Array, side_b: jax.Array, touching: jax.Array, normal_force: jax.Array,
+                 n_actors: int) -> tuple[jax.Array, jax.Array]:
+  """(bool[P], f32[P]) which actor pairs touch in one world's step and their
+  normal force summed over its contacts, from its contacts' actors
+  (``side_a``, ``side_b``: i32[K], -1: none), whether each touches (bool[K])
+  and its normal force (f32[K], N); as :func:`touch` counts them (contacts
+  inside one actor are not events)."""
+  lo, hi = jnp.minimum(side_a, side_b), jnp.maximum(side_a, side_b)
+  real = touching & (lo >= 0) & (lo != hi)
+  code = jnp.where(real, lo * n_actors + hi, 0)
+  p = n_actors * n_actors
+  touches = jnp.zeros(p, jnp.int32).at[code].add(real.astype(jnp.int32)) > 0
+  force = jnp.zeros(p, jnp.float32).at[code].add(jnp.where(real, jnp.maximum(normal_force, 0.0), 0.0))
+  return touches, force
+
+
+def track_tick(track: EpisodeTrack, touches: jax.Array, force: jax.Array, tick, n_actors: int, gap: int,
+               timestep: float, still: jax.Array | None = None) -> EpisodeTrack:
+  """One tick of one world (:func:`touch` then :func:`end_tick`): pairs
+  touching (bool[P], ``force`` f32[P] N) open or go on and add their force;
+  an open pair that touched at the tick before and is ``still`` (bool[P]: its
+  actors all asleep, so not tested) still touches; a pair apart for ``gap``
+  ticks ends at the last tick it touched (a row written)."""
+  if still is not None:
+    held = ~touches & still & (track.first != NOT_OPEN) & (track.seen == tick - 1)
+    track = track._replace(seen=jnp.where(held, tick, track.seen))
+  opening = touches & (track.first == NOT_OPEN)
+  first = jnp.where(opening, tick, track.first)
+  peak = jnp.where(opening, 0.0, track.peak)
+  impulse = jnp.where(opening, 0.0, track.impulse)
+  seen = jnp.where(touches, tick, track.seen)
+  peak = jnp.where(touches, jnp.maximum(peak, force), peak)
+  impulse = jnp.where(touches, impulse + force * timestep, impulse)
+  ending = (first != NOT_OPEN) & ~touches & (tick - seen >= gap)
+  cap = track.rows.shape[0]
+  slot = track.count + jnp.cumsum(ending) - 1
+  slot = jnp.where(ending & (slot < cap), slot, cap)  # cap: dropped (out of bounds)
+  codes = jnp.arange(first.shape[0], dtype=jnp.int32)
+  row = jnp.stack([codes // n_actors, codes % n_actors, first, seen], axis=1)
+  rows = track.rows.at[slot].set(row, mode="drop")
+  strength = track.strength.at[slot].set(jnp.stack([peak, impulse], axis=1), mode="drop")
+  return EpisodeTrack(jnp.where(ending, NOT_OPEN, first), seen, peak, impulse, rows, strength,
+                      track.count + ending.sum().astype(jnp.int32))
+
+
+def finish_track(first: np.ndarray, seen: np.ndarray, peak: np.ndarray, impulse: np.ndarray, rows: np.ndarray,
+                 strength: np.ndarray, count: int, n_actors: int, last_tick: int) -> int:
+  """:func:`finish` of one world's :class:`EpisodeTrack` (host arrays;
+  ``rows`` and ``strength`` are written in place): returns its episode count,
+  sorted in ``rows[:count]``, or more than ``len(rows)`` where it overflowed."""
+  codes = np.flatnonzero(first != NOT_OPEN).astype(np.int32)
+  p = first.shape[0]
+  codes_buf = np.zeros(p, np.int32)
+  codes_buf[:codes.size] = codes
+  open_ = OpenEpisodes(first.astype(np.int32).copy(), seen.astype(np.int32).copy(), np.zeros(p),
+                       peak.astype(np.float64), impulse.astype(np.float64), codes_buf,
+                       np.array([codes.size, count], np.int64))
+  return finish(open_, n_actors, last_tick, rows, strength)
