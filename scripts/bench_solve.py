@@ -66,11 +66,13 @@ def _machine() -> dict:
 
 
 def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: pathlib.Path, seed: int = 0,
-                save_bank: bool = False, unsolved_start: bool = False) -> dict:
+                save_bank: bool = False, unsolved_start: bool = False, budget_steps: float | None = None) -> dict:
   """Samples ``worlds`` worlds of the scene and solves its query file; ``seed``
   keys both the sampling and the search. ``save_bank``: keep the solved bank
   in ``out/../solve_<scene>_seed<seed>``. ``unsolved_start``: drop the sampled
-  worlds that already meet every query first (the search must make one)."""
+  worlds that already meet every query first (the search must make one).
+  ``budget_steps``: a world-step budget instead of ``budget_s`` (the search
+  then takes the same path whatever else the machine runs)."""
   config = mwbx.load_config(REPO / "configs" / f"{name}.yaml")
   load_before = os.getloadavg()[0]  # 1-minute load average: the machine may be shared
   start = time.perf_counter()
@@ -85,7 +87,9 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
     dropped = int(each.all(axis=1).sum())
     bank = bank.drop(bank.world_ids[each.all(axis=1)])
   with reporter(f"{name}: solve") as update:
-    options = mwbx.SolveOptions(budget=mwbx.search.Budget(seconds=budget_s), key=jax.random.key(seed),
+    budget = (mwbx.search.Budget(world_steps=int(budget_steps)) if budget_steps else
+              mwbx.search.Budget(seconds=budget_s))
+    options = mwbx.SolveOptions(budget=budget, key=jax.random.key(seed),
                                 samples=samples, backend="native")
     result = mwbx.solve(bank, queries, options, progress=update)
   wall = time.perf_counter() - start
@@ -107,6 +111,7 @@ def solve_scene(name: str, worlds: int, budget_s: float, samples: int, out: path
       "dropped_before_solving": dropped,
       "independent_estimate": float(np.prod(rates)),
       "budget_seconds": budget_s, "samples_per_refinement": samples,
+      **({"budget_world_steps": int(budget_steps)} if budget_steps else {}),
       "solved": bool(result.solved), "satisfied": result.satisfied, "n_queries": result.n_queries,
       "message": result.message, "world": result.world,
       "lineage_depth": int(len(result.bank.ancestors(result.world))),
@@ -202,6 +207,11 @@ def main() -> None:
   parser.add_argument("--robustness-seeds", default="",
                       help="part 'robustness': siggraph and staircase again with these seeds, e.g. 1,2")
   parser.add_argument("--robustness-scenes", default="siggraph,spiral_staircase")
+  parser.add_argument("--budget-world-steps", type=float, default=None,
+                      help="robustness siggraph: a world-step budget instead of --budget-s (the same search path"
+                           " under any load; its time is then world-steps over --reference-rate)")
+  parser.add_argument("--reference-rate", type=float, default=27000.0,
+                      help="world-steps/s of a solve alone on this machine (with --budget-world-steps)")
   parser.add_argument("--chain-seeds", default="0,1,2", help="part 'chain': one solve per seed")
   parser.add_argument("--save-banks", action="store_true",
                       help="robustness: keep each solved bank in out/bench/solve_<scene>_seed<seed>")
@@ -228,12 +238,17 @@ def main() -> None:
     for seed in (int(x) for x in args.robustness_seeds.split(",")):
       for name in args.robustness_scenes.split(","):
         budget = args.budget_s if name == "siggraph" else args.staircase_budget_s
-        r = solve_scene(name, args.worlds, budget, args.samples, out, seed, save_bank=args.save_banks)
+        steps = args.budget_world_steps if name == "siggraph" else None
+        r = solve_scene(name, args.worlds, budget, args.samples, out, seed, save_bank=args.save_banks,
+                        budget_steps=steps)
         runs = [x for x in runs if (x["scene"], x["seed"]) != (name, seed)]
+        extra = ({"budget_world_steps": r["budget_world_steps"], "reference_rate": args.reference_rate,
+                  "budget_seconds": r["budget_world_steps"] / args.reference_rate} if steps else {})
         runs.append({k: r[k] for k in ("scene", "seed", "solved", "satisfied", "n_queries", "refinements",
                                        "world_steps", "solve_seconds", "message", "world", "worlds_sampled",
                                        "queries", "per_query_rate", "independent_estimate", "load_average_before",
-                                       "load_average_after", "budget_seconds")} | {"commit": result["machine"]["commit"]})
+                                       "load_average_after", "budget_seconds")} | extra
+                    | {"commit": result["machine"]["commit"]})
         print(f"{name} seed {seed}: {r['message']}", flush=True)
         result["robustness"] = {"runs": sorted(runs, key=lambda x: (x["scene"], x["seed"]))}
         out.write_text(json.dumps(result, indent=1))
