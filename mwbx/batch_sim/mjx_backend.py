@@ -318,13 +318,14 @@ class MjxBackend:
     self._blocks[cache_key] = (params, fn)
     return fn
 
-  def event_inputs(self, scene) -> mjx_events.MjxEventInputs | None:
-    """How this backend's scan finds the scene's contact events (cached);
-    None where the backend was made without an event gap."""
+  def event_inputs(self, object_names) -> mjx_events.MjxEventInputs | None:
+    """How this backend's scans (sampling and refinement) find the contact
+    events of a scene with these objects (cached); None where the backend
+    was made without an event gap."""
     if self.event_gap is None:
       return None
     if self._event_inputs is None:
-      self._event_inputs = mjx_events.event_inputs(self.model, events_lib.actors_of(self.model, scene.object_names),
+      self._event_inputs = mjx_events.event_inputs(self.model, events_lib.actors_of(self.model, object_names),
                                                    self.event_gap)
     return self._event_inputs
 
@@ -342,7 +343,7 @@ class MjxBackend:
     active = np.asarray(active)
     body_ids = scene.body_ids
     block_frames = min(FRAMES_PER_BLOCK, n_frames)
-    events = self.event_inputs(scene)
+    events = self.event_inputs(scene.object_names)
     fn = self.block(params, body_ids, block_frames, events)
     n_dev = len(self.devices)
     if c % n_dev:

@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mwbx.batch_sim import free_bodies as free_bodies_lib
+from mwbx.batch_sim import mjx_events
 from mwbx.batch_sim import world
 from mwbx.batch_sim.backend import ChunkResult, fill_tail
 from mwbx.refinement import interactions, stored_motion
@@ -63,7 +64,7 @@ class RefineInputs(NamedTuple):
       (:mod:`mwbx.controls`; width 0: none).
     act0: f64[C, na] actuator activations at f0 (None: the model has none).
     event_objects: the scene's object names where contact events are found
-      at every step (the compiled native loop; None: not there).
+      at every step (the compiled native loop and the MJX scan; None: not there).
   """
 
   params: world.WorldParams
@@ -184,7 +185,7 @@ def start_active(inp: RefineInputs):
 
 
 def _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, run_seconds, audit,
-            contact_overflow=None):
+            contact_overflow=None, events=None):
   frame_count = np.asarray(carry.frame_count)
   steps = np.asarray(carry.step) - inp.first_frame * inp.params.steps_per_frame
   chunk = ChunkResult(
@@ -192,6 +193,8 @@ def _finish(inp, carry, qpos_buf, com_buf, active, activated, compile_seconds, r
       status=np.asarray(carry.status), metrics=world.finalize_metrics(carry),
       perturbations=np.asarray(carry.perturbations), steps=np.where(inp.running0, steps, 0).astype(np.int32),
       compile_seconds=compile_seconds, run_seconds=run_seconds, contact_overflow=contact_overflow)
+  if events is not None:  # (rows, strength, count) found at every step
+    chunk = chunk._replace(event_rows=events[0], event_strength=events[1], event_count=events[2])
   return RefineOutput(chunk=chunk, active=np.asarray(active), activated=activated,
                       max_perturbation_ratio=np.asarray(audit[0]), inactive_perturbations=np.asarray(audit[1]),
                       asleep_object_frames=np.zeros(len(np.asarray(audit[1])), np.int64))
@@ -376,15 +379,17 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
             jnp.asarray(inp.qpos_object, jnp.float32), jnp.asarray(inp.dof_object, jnp.float32), inter,
             tuple(jnp.asarray(x) for x in (path.com, path.quat, path.lin_vel, path.ang_vel)),
             None if inp.ctrl is None or inp.ctrl.shape[1] == 0 else jnp.asarray(inp.ctrl, jnp.float32))
-  run = _mjx_block(backend, params, np.asarray(inp.body_ids), block, len(inter.radius) * world.SENSOR_WIDTH)
+  events = backend.event_inputs(inp.event_objects) if inp.event_objects is not None else None
+  run = _mjx_block(backend, params, np.asarray(inp.body_ids), block, len(inter.radius) * world.SENSOR_WIDTH, events)
   d = backend.make_data(jnp.asarray(inp.qpos0), jnp.asarray(inp.qvel0),
                         None if inp.act0 is None else jnp.asarray(inp.act0))
   d = d.replace(time=jnp.full((c,), f0 * spf * m.opt.timestep, d.time.dtype))
   t0 = time.perf_counter()
   active = start_active(inp)
   wrench = jnp.zeros((c, spf, len(inp.body_ids), 6), jnp.float32)
+  tracks = None if events is None else mjx_events.new_tracks(c, events)
   state = (d, inp.carry0, wrench, inp.step_keys, active, jnp.asarray(~np.asarray(inp.active0)),
-           jnp.int32(f0), jnp.zeros(c, bool))
+           jnp.int32(f0), jnp.zeros(c, bool), tracks)
   # Committed like the block's outputs, so later blocks reuse the first compile.
   state, consts = jax.device_put((state, consts), jax.devices()[0])
   state, first = run(state, consts, jnp.int32(min(block, n_out)))  # compiled on first use
@@ -418,17 +423,23 @@ def run_mjx(backend, inp: RefineInputs, progress=None, frames_per_block: int = 3
       break
   jax.block_until_ready(state)
   run_seconds = time.perf_counter() - t0
+  found = None
+  if events is not None:  # a world ends at its last frame's first step
+    last_ticks = (f0 + np.asarray(state[1].frame_count).astype(np.int64) - 1) * spf
+    found = mjx_events.finish_tracks(state[8], last_ticks, events.n_actors)
   return _finish(inp, state[1], qpos_buf, com_buf, state[4], activated, compile_seconds, run_seconds,
-                 (audit_ratio, audit_stray), contact_overflow=np.asarray(state[7]))
+                 (audit_ratio, audit_stray), contact_overflow=np.asarray(state[7]), events=found)
 
 
 _BLOCKS: dict = {}
 
 
-def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: int, n_sensor: int):
-  """``run(state, consts, count)`` for up to ``block`` refined frames on MJX (cached)."""
+def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: int, n_sensor: int, events=None):
+  """``run(state, consts, count)`` for up to ``block`` refined frames on MJX
+  (cached); ``events``: contact episodes found at every step
+  (:mod:`mwbx.batch_sim.mjx_events`, the state's last entry)."""
   from mwbx.batch_sim.mjx_backend import frame_block, hold_finished, scatter_wrench  # lazy: mujoco.mjx
-  cache_key = (id(backend), id(params), block, n_sensor)
+  cache_key = (id(backend), id(params), block, n_sensor, events is not None)
   if cache_key in _BLOCKS:
     return _BLOCKS[cache_key][2]
   spf = params.steps_per_frame
@@ -444,11 +455,13 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
 
   def frame_fn(consts, state):  # one refined frame: see mjx_backend.frame_block
     com_path, inter = consts[2], consts[5]
-    d, carry, wrench, keys, active, prev_inactive, frame, overflow = state
+    d, carry, wrench, keys, active, prev_inactive, frame, overflow, tracks = state
     d = put_on_path(d, prev_inactive, frame, 0, consts)
     qpos = d.qpos
+    running = carry.status == world.RUNNING
 
-    def physics_step(d, inputs):
+    def physics_step(stepping, inputs):
+      d, tracks = stepping
       j, xfrc_tracked = inputs
       d = jax.lax.cond(j > 0, lambda x: put_on_path(x, ~active, frame, j, consts), lambda x: x, d)
       ctrl_table = consts[7]
@@ -456,10 +469,12 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
         row = jnp.minimum(frame * spf + j, ctrl_table.shape[0] - 1)
         d = d.replace(ctrl=jnp.broadcast_to(ctrl_table[row], d.ctrl.shape).astype(d.ctrl.dtype))
       d = backend.step(d, scatter_wrench(xfrc_tracked, nbody, ids))
-      return d, (d.sensordata, backend.overflow(d))
+      if events is not None:  # tick: the step's index from the world's start
+        tracks = mjx_events.track_step(tracks, d, backend.impl, events, carry.step + j, running, params.dt)
+      return (d, tracks), (d.sensordata, backend.overflow(d))
 
-    d_next, (sensordata, step_overflow) = jax.lax.scan(
-        physics_step, d, (jnp.arange(spf), jnp.swapaxes(wrench, 0, 1)))
+    (d_next, tracks), (sensordata, step_overflow) = jax.lax.scan(
+        physics_step, (d, tracks), (jnp.arange(spf), jnp.swapaxes(wrench, 0, 1)))
     # Over the contact budget in a step of a running world (mjx_backend.MjxBackend.overflow).
     overflow = overflow | (step_overflow.any(axis=0) & (carry.status == world.RUNNING))
     sensordata = jnp.swapaxes(sensordata, 0, 1)[..., :n_sensor]
@@ -471,7 +486,7 @@ def _mjx_block(backend, params: world.WorldParams, body_ids: np.ndarray, block: 
     nxt = jnp.where(out.running[:, None], nxt, active)
     d = hold_finished(out.running, d_next, d)
     audit = _audit(obs, out, active, params, inter)
-    return ((d, carry, out.wrench, keys, nxt, ~active, frame + 1, overflow),
+    return ((d, carry, out.wrench, keys, nxt, ~active, frame + 1, overflow, tracks),
             (out.record, qpos, obs.com_pos[:, 0], nxt, audit))
 
   fn = frame_block(frame_fn, block)

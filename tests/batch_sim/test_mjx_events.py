@@ -19,6 +19,7 @@ import pytest
 import mwbx
 from mwbx.batch_sim.sampler import world_keys
 from mwbx.events import actors_of
+from mwbx.refinement import run_refinement
 
 FAST_XML = """
 <mujoco>
@@ -140,6 +141,19 @@ def test_mjx_finds_a_fast_impact_and_a_domino_row_at_every_step(tmp_path):
     assert strength[first, 0] >= 0.05 * 9.81 * 0.99
     knocked = mwbx.queries.event.first_touch(bank, ("domino_2",), ("domino_3",))[w]
     assert strength[first, 1] >= 0.05 * 9.81 * knocked * 0.95, (strength[first], knocked)
+  # Refined on MJX from before the ball lands: each child's own hit is found
+  # at its steps too (on stored frames it would have no strength, and could
+  # fall between two of them), after the restart; the dominoes' episodes
+  # before it are the parent's.
+  refined = run_refinement(bank, mwbx.RefineRequest(int(bank.world_ids[0]), ("ball",), t_min=0.01, n_samples=4,
+                                                    backend="mjx", key=jax.random.key(1))).new
+  restart = round(0.01 * bank.record_fps) * bank.events.ticks_per_frame
+  for w in range(refined.n_worlds):
+    rows = refined.events.world(w)
+    strength = refined.events.strength[refined.events.offsets[w]:refined.events.offsets[w + 1]]
+    k = next(k for k, r in enumerate(rows) if sorted(r[:2]) == ball_floor)
+    assert rows[k][2] >= restart and rows[k][3] - rows[k][2] + 1 < bank.events.ticks_per_frame, rows[k]
+    assert np.isfinite(strength).all() and strength[k, 1] > 0.2 * 15.5, strength[k]
 
 
 def test_mujoco_warp_finds_the_fast_impact_as_native_does(tmp_path):
