@@ -205,19 +205,53 @@ def loop_cost(name: str, n_worlds: int, repeats: int = 3) -> dict:
   return row
 
 
+def mjx_loop_cost(name: str, n_worlds: int, repeats: int = 2) -> dict:
+  """Best simulation seconds of n_worlds on MJX (impl jax) with contact
+  episodes tracked inside the scan at every step and without (the scan then
+  tracks nothing; their events would be found on the stored frames)."""
+  config = mwbx.load_config(ROOT / "configs" / f"{name}.yaml")
+  best = {"every physics step": np.inf, "none in the scan": np.inf}
+  with contextlib.ExitStack() as stack:
+    stepping = stack.enter_context(mwbx.Sampler(config, backend="mjx"))
+    plain = stack.enter_context(mwbx.Sampler(config, backend="mjx"))
+    plain.backend.event_gap = None  # MjxBackend: no trackers in its scan
+    for sampler in (stepping, plain):
+      sampler.run(n_worlds, jax.random.key(99))  # compiles the scan, untimed
+    for _ in range(repeats):
+      for how, sampler in (("every physics step", stepping), ("none in the scan", plain)):
+        _, stats = sampler.run(n_worlds, jax.random.key(0))
+        best[how] = min(best[how], stats.run_seconds)
+  row = {"scene": name, "worlds": n_worlds, "repeats": repeats, "backend": "mjx:jax", "simulation_seconds": best,
+         "ratio": best["every physics step"] / best["none in the scan"]}
+  print(f"{name} {n_worlds} worlds on MJX: simulation with episodes tracked in the scan"
+        f" {best['every physics step']:.2f} s, without {best['none in the scan']:.2f} s: {row['ratio']:.3f}x"
+        f" (best of {repeats})")
+  return row
+
+
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--worlds", type=int, default=256, help="quickstart worlds sampled (default 256)")
   parser.add_argument("--tower", type=int, default=32, help="tower worlds sampled (default 32; 0: skip)")
   parser.add_argument("--fast", type=int, default=128, help="fast-impact worlds (default 128; 0: skip)")
+  parser.add_argument("--mjx", type=int, default=64, help="quickstart worlds on MJX, tracked or not (0: skip)")
+  parser.add_argument("--only-mjx", action="store_true", help="run the MJX part alone, into the existing --out")
   parser.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "bench" / "events.json")
   args = parser.parse_args()
+  if args.only_mjx:
+    result = json.loads(args.out.read_text())
+    result["mjx_loop_cost"] = mjx_loop_cost("quickstart", args.mjx) | {"machine": machine()}
+    args.out.write_text(json.dumps(result, indent=1))
+    print(f"wrote {args.out}")
+    return
   result = {"machine": machine(), "mujoco": __import__("mujoco").__version__}
   result["cost"], bank = cost(args.worlds)
   result["latency"] = latency(bank)
   result["loop_cost"] = [loop_cost("quickstart", args.worlds)]
   if args.tower:
     result["loop_cost"].append(loop_cost("trebuchet_tower", args.tower))
+  if args.mjx:
+    result["mjx_loop_cost"] = mjx_loop_cost("quickstart", args.mjx) | {"machine": machine()}
   if args.fast:
     result["fast"] = fast_impacts(args.fast)
   if args.tower:
