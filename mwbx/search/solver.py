@@ -198,6 +198,9 @@ class SolveStep(NamedTuple):
     places: places (:func:`place_queries`) the best world meets; the search
       ranks by them first, so ``satisfied`` may dip when a place is won at
       the cost of poses (-1: not recorded).
+    fraction: the restart arm's fraction of the time the objects go wrong
+      (nan: none). gained: whether a child met more places than its parent,
+      or as many and more queries (what the arm learnt).
   """
 
   refinements: int
@@ -211,6 +214,8 @@ class SolveStep(NamedTuple):
   repaired: tuple[str, ...] = ()
   attempt: int = -1
   places: int = -1
+  fraction: float = float("nan")
+  gained: bool = False
 
 
 class SolveResult(NamedTuple):
@@ -532,7 +537,7 @@ class _Search:
       self.reason = f"world {world}: {err}"
       return
     self.arms.record(goal, arm, gained)
-    self.note(world, objects, t_min, tuple(_label(self.queries[q], q) for q in chosen), attempt)
+    self.note(world, objects, t_min, tuple(_label(self.queries[q], q) for q in chosen), attempt, fraction, gained)
 
   def elapsed(self) -> float:
     return time.perf_counter() - self.start
@@ -552,14 +557,16 @@ class _Search:
     places_met = ((gaps == 0) & self.places).sum(axis=1)
     return np.lexsort((ties, -fitness(gaps, self.scale), -places_met))
 
-  def note(self, refined: int = -1, objects=(), t_min: float = float("nan"), repaired=(), attempt: int = -1) -> None:
+  def note(self, refined: int = -1, objects=(), t_min: float = float("nan"), repaired=(), attempt: int = -1,
+           fraction: float = float("nan"), gained: bool = False) -> None:
     """Records a step (the best world now) and reports progress."""
     bank = self.bank
     rows = self.best_rows(np.flatnonzero(bank.valid)) if bank.valid.any() else np.zeros(0, int)
     row = rows[0] if rows.size else 0
     self.steps.append(SolveStep(self.refinements, self.spent_steps, self.elapsed(), int(self.met[row].sum()),
                                 int(bank.world_ids[row]), int(refined), tuple(objects), float(t_min),
-                                tuple(repaired), int(attempt), int(self.met[row, self.places].sum())))
+                                tuple(repaired), int(attempt), int(self.met[row, self.places].sum()),
+                                float(fraction), bool(gained)))
     if self.progress is not None:
       total = self.budget.expected_refinements(self.refinements, self.elapsed(), self.spent_steps)
       self.progress(Progress(SOLVE_PHASE, min(self.refinements, total), total, self.spent_steps, self._best_note()))

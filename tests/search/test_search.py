@@ -459,6 +459,8 @@ def test_solve_records_and_reports_the_places_its_best_world_meets(tiny_bank, tm
   for step in result.steps:
     row = result.bank.row_of(step.world)
     assert step.places == met[row, [0, 2]].sum() and step.satisfied == met[row].sum()
+    if step.refined >= 0:  # the restart arm it drew, as a fraction of when its objects go wrong
+      assert step.fraction in search_restarts.FRACTIONS and isinstance(step.gained, bool)
   assert notes and all(note.endswith(" of 2 places)") for note in notes)
   png = mwbx.search.progress_plot(result.steps, tmp_path / "solve.png")
   assert pathlib.Path(png).stat().st_size > 0
