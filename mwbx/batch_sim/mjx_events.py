@@ -158,10 +158,11 @@ def track_step(tracks: steps_lib.EpisodeTrack, d, impl: str, inputs: MjxEventInp
   """The batch's trackers after one step (``ticks``: i32[W] the step's tick
   in each world; worlds not ``running`` keep theirs)."""
   touches, force, still = step_touches(d, impl, inputs)
-  step = lambda t, touch, f, s, tick: steps_lib.track_tick(t, touch, f, tick, inputs.n_actors, inputs.gap,
-                                                             timestep, still=s)
-  new = jax.vmap(step)(tracks, touches, force, still if still is not None else jnp.zeros_like(touches), ticks)
-  return jax.tree.map(lambda n, o: jnp.where(running.reshape((-1,) + (1,) * (n.ndim - 1)), n, o), new, tracks)
+  step = lambda t, touch, f, s, tick, live: steps_lib.track_tick(t, touch, f, tick, inputs.n_actors, inputs.gap,
+                                                                   timestep, still=s, live=live)
+  # (An ended world is masked inside: a select over every world's row buffer each step would copy them all.)
+  return jax.vmap(step)(tracks, touches, force, still if still is not None else jnp.zeros_like(touches), ticks,
+                        running)
 
 
 def finish_tracks(tracks: steps_lib.EpisodeTrack, last_ticks: np.ndarray, n_actors: int):

@@ -247,14 +247,16 @@ def pair_touches(side_a: jax.Array, side_b: jax.Array, touching: jax.Array, norm
 
 
 def track_tick(track: EpisodeTrack, touches: jax.Array, force: jax.Array, tick, n_actors: int, gap: int,
-               timestep: float, still: jax.Array | None = None) -> EpisodeTrack:
+               timestep: float, still: jax.Array | None = None, live=True) -> EpisodeTrack:
   """One tick of one world (:func:`touch` then :func:`end_tick`): pairs
   touching (bool[P], ``force`` f32[P] N) open or go on and add their force;
   an open pair that touched at the tick before and is ``still`` (bool[P]: its
   actors all asleep, so not tested) still touches; a pair apart for ``gap``
-  ticks ends at the last tick it touched (a row written)."""
+  ticks ends at the last tick it touched (a row written). A world not
+  ``live`` (bool[]: it has ended) changes nothing."""
+  touches = touches & live
   if still is not None:
-    held = ~touches & still & (track.first != NOT_OPEN) & (track.seen == tick - 1)
+    held = ~touches & still & (track.first != NOT_OPEN) & (track.seen == tick - 1) & live
     track = track._replace(seen=jnp.where(held, tick, track.seen))
   opening = touches & (track.first == NOT_OPEN)
   first = jnp.where(opening, tick, track.first)
@@ -263,7 +265,7 @@ def track_tick(track: EpisodeTrack, touches: jax.Array, force: jax.Array, tick, 
   seen = jnp.where(touches, tick, track.seen)
   peak = jnp.where(touches, jnp.maximum(peak, force), peak)
   impulse = jnp.where(touches, impulse + force * timestep, impulse)
-  ending = (first != NOT_OPEN) & ~touches & (tick - seen >= gap)
+  ending = (first != NOT_OPEN) & ~touches & (tick - seen >= gap) & live
   cap = track.rows.shape[0]
   slot = track.count + jnp.cumsum(ending) - 1
   slot = jnp.where(ending & (slot < cap), slot, cap)  # cap: dropped (out of bounds)

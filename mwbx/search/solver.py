@@ -357,6 +357,17 @@ def place_queries(queries) -> np.ndarray:
   return places if places.any() else np.ones_like(places)
 
 
+def nearness(gaps: np.ndarray, ties: np.ndarray, scale: np.ndarray) -> np.ndarray:
+  """f64[n] higher is better, between worlds meeting the same queries (what
+  lexicase selection breaks its ties by): the fitness of query gaps ``gaps``
+  (f64[n, Q], the squashed gaps to the unmet ones), then the smallest tie
+  metric ``ties`` (f[n]); ranks, so only the order counts."""
+  order = np.lexsort((ties, -fitness(gaps, scale)))
+  rank = np.empty(len(order))
+  rank[order] = -np.arange(len(order))
+  return rank
+
+
 def _label(query, index: int) -> str:
   return query.name or f"query {index}"
 
@@ -494,19 +505,11 @@ class _Search:
     if rows.size == 0:
       return None
     order = query_order(self.places, self.rng)
-    row = int(rows[lexicase(self.met[rows], order, self.score(rows))])
+    row = int(rows[lexicase(self.met[rows], order, nearness(self.gaps[rows], self.ties[rows], self.scale))])
     world = int(self.bank.world_ids[row])
     attempt = self.tries.get(world, 0)
     self.tries[world] = attempt + 1
     return row, world, attempt, first_unmet(self.met[row], order)
-
-  def score(self, rows: np.ndarray) -> np.ndarray:
-    """f64[n] higher is better among worlds meeting the same queries: the
-    fitness (the squashed gaps to the unmet ones), then the smallest tie metric."""
-    order = np.lexsort((self.ties[rows], -fitness(self.gaps[rows], self.scale)))
-    score = np.empty(rows.size)
-    score[order] = -np.arange(rows.size)
-    return score
 
   def repair(self, row: int, world: int, attempt: int, unmet: list[int]) -> None:
     """Attempt ``attempt`` on world ``world`` (at ``row``): refines the objects
@@ -677,9 +680,7 @@ class _Search:
       return False
     first = [q for q in repaired] + [q for q in query_order(self.places, self.rng) if q not in repaired]
     orders = [np.asarray(first)] + [query_order(self.places, self.rng) for _ in range(self.options.keep - 1)]
-    order = np.lexsort((c_ties[valid], -fitness(c_gaps[valid], self.scale)))
-    score = np.empty(valid.size)
-    score[order] = -np.arange(valid.size)
+    score = nearness(c_gaps[valid], c_ties[valid], self.scale)
     kept = np.sort(valid[lexicase_keep(c_met[valid], score, self.options.keep, orders)])
     dropped = np.setdiff1d(np.arange(children.n_worlds), kept)
     chosen = children.drop(children.world_ids[dropped]) if dropped.size else children

@@ -444,8 +444,7 @@ def test_places_rank_before_poses():
   ])
   ties = np.array([0.0, 0.0, 0.0, 3.0, 1.0])
   assert list(search.rank_order(gaps, ties)) == [0, 4, 3, 2, 1]
-  search.gaps, search.ties = gaps, ties
-  score = search.score(np.arange(5))
+  score = solver.nearness(gaps, ties, search.scale)
   assert score[4] > score[3] > score[2]  # among equals (worlds 2-4 meet the same): nearer, then fewer collisions
 
 
