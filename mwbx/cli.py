@@ -305,7 +305,7 @@ def _bodies_line(bank) -> str:
 
 def _cameras(bank) -> list[str]:
   """'name (aspect a)' of each named MJCF camera."""
-  model = bank.model()
+  model = bank.model
   out = []
   for i in range(model.ncam):
     name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i)
@@ -370,7 +370,7 @@ def _cmd_refine(args) -> int:
       u0, v0, u1, v1 = (float(x) for x in args.box.split(","))
     except ValueError:
       raise MwbxError(f"--box: expected u0,v0,u1,v1 in normalised screen coordinates, got {args.box!r}") from None
-    frustum = Camera.from_model(bank.model(), args.camera).frustum(ScreenBox(u0, v0, u1, v1))
+    frustum = Camera.from_model(bank.model, args.camera).frustum(ScreenBox(u0, v0, u1, v1))
   out = pathlib.Path(args.out or args.bank)
   # Without --seed every run draws new worlds; the seed is printed to repeat one.
   seed = secrets.randbits(31) if args.seed is None else args.seed
@@ -520,9 +520,9 @@ def _cmd_export(args) -> int:
   bank = _load_bank(args)
   n_frames = int(bank.frame_count[bank.row_of(args.world)])  # names an id the bank does not hold
   if args.mp4:
-    check_size(args.width, args.height, bank.model(), prefix="--")  # up to the MJCF's offscreen buffer
-  if args.camera is not None and mujoco.mj_name2id(bank.model(), mujoco.mjtObj.mjOBJ_CAMERA, args.camera) < 0:
-    model = bank.model()
+    check_size(args.width, args.height, bank.model, prefix="--")  # up to the MJCF's offscreen buffer
+  if args.camera is not None and mujoco.mj_name2id(bank.model, mujoco.mjtObj.mjOBJ_CAMERA, args.camera) < 0:
+    model = bank.model
     names = [model.camera(c).name for c in range(model.ncam) if model.camera(c).name]
     raise MwbxError(f"--camera: no camera {args.camera!r} in the MJCF (have: {', '.join(names) or 'none'})")
   video_fps = 30.0 if args.fps is None else args.fps

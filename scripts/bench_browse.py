@@ -249,7 +249,7 @@ def main() -> None:
   for part in parts[1:]:
     bank = bank.append(part)
   page = Browser(Session(bank))
-  camera = mq.Camera.from_model(bank.model(), "front")
+  camera = mq.Camera.from_model(bank.model, "front")
   in_browser = _in_browser(page, camera) if args.browser else None
   rng = np.random.default_rng(0)
   add_s, sort_s = [], []

@@ -76,7 +76,7 @@ def bank_data(config: str, n_worlds: int, seed: int = 1) -> tuple[Data, dict]:
     timing["codec_overhead"] = timing["sample_codec_s"] / timing["sample_raw_s"] - 1.0
     timing["codec_share_of_wall"] = stats.codec_seconds / stats.wall_seconds
   fc = raw_bank.frame_count.astype(np.int64)
-  model = raw_bank.model()
+  model = raw_bank.model
   qpos = np.zeros((n_worlds, int(fc.max()), model.nq), np.float32)
   for w in range(n_worlds):
     qpos[w, :fc[w]] = raw_bank.qpos_frames(w)

@@ -149,7 +149,7 @@ def latency(bank: mwbx.Bank, n_worlds: int = 4096) -> dict:
   for _ in range(copies - 1):
     parts.append(bank._renumbered_after(parts[-1]))
   big = mwbx.Bank.concatenate(parts)._take(np.arange(n_worlds))
-  camera = mwbx.Camera.from_model(big.model(), "front")
+  camera = mwbx.Camera.from_model(big.model, "front")
   box = mwbx.Query.screen(camera, [0.3, 0.4, 0.5, 0.6], bodies="ball")
   touch = mwbx.TouchQuery("ball", "floor", window=(1.0, 3.0))
   order = mwbx.OrderQuery([("box_a", "ramp_upper"), ("box_a", "ramp_lower"), ("box_a", "floor")])

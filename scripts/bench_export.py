@@ -65,7 +65,7 @@ def gl_renderer_name(renderer) -> str:
 def render_only(bank, world: int, width: int, height: int, fps: float) -> tuple[float, str]:
   """Seconds to render the video's frames without encoding them, and the GL renderer."""
   poses = world_poses(bank, world, fps=fps)
-  model = copy.copy(bank.model())
+  model = copy.copy(bank.model)
   model.vis.global_.offwidth, model.vis.global_.offheight = width, height
   renderer = video.open_renderer(model, width, height)
   try:
@@ -92,7 +92,7 @@ def main() -> None:
   valid = np.flatnonzero(bank.valid)
   world = int(bank.world_ids[valid[np.argmax(bank.frame_count[valid])]])  # the longest recording
   n_frames = int(bank.frame_count[bank.row_of(world)])
-  model = bank.model()
+  model = bank.model
   case = (f"SIGGRAPH world {world}: {n_frames} frames at {bank.record_fps:g} fps "
           f"({(n_frames - 1) / bank.record_fps:g} s), {model.nbody - 1} bodies, {model.ngeom} geoms")
   print(f"sampled {args.worlds} SIGGRAPH worlds in {sample_s:.1f} s; {case}")

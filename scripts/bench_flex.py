@@ -69,7 +69,7 @@ def _rollout(sampler, ids: np.ndarray) -> tuple[int, float]:
 
 def _flex_columns(bank, flex: str) -> np.ndarray:
   """The qpos columns of a flex's vertex bodies' joints."""
-  model = bank.model()
+  model = bank.model
   bodies = {mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in bank.objects[flex]}
   cols = []
   for j in range(model.njnt):

@@ -102,7 +102,7 @@ def main() -> None:
   bank = base
   for _ in range(max(1, args.worlds // base.n_worlds) - 1):
     bank = bank.append(base)
-  camera = mq.Camera.from_model(bank.model(), "front")
+  camera = mq.Camera.from_model(bank.model, "front")
   rng = np.random.default_rng(0)
   boxes = []
   for k in range(args.boxes):  # as scripts/bench_browse.py draws them

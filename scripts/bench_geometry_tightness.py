@@ -111,7 +111,7 @@ class Geoms:
 
 
 def geom_poses(bank) -> Geoms:
-  model = bank.model()
+  model = bank.model
   data = mujoco.MjData(model)
   body_index = {int(b): i for i, b in enumerate(bank.body_ids)}
   geoms = np.array([g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in body_index])

@@ -101,7 +101,7 @@ def sample(config_path: pathlib.Path, n: int, seed: int):
   with mwbx.Sampler(config, "native") as sampler:
     bank, st = sampler.run(n, jax.random.key(seed))
   return bank, {"wall_seconds": round(time.perf_counter() - t0, 2), "physics_seconds": round(st.run_seconds, 2),
-                "world_steps": int(st.world_steps), "timestep": float(bank.model().opt.timestep),
+                "world_steps": int(st.world_steps), "timestep": float(bank.model.opt.timestep),
                 "mean_perturbations": round(float(bank.perturbations.mean()), 1), "valid": int(bank.valid.sum())}
 
 

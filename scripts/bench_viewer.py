@@ -197,7 +197,7 @@ def main() -> None:
     # Fig. 5 of the paper: an include box where paths land, an exclude box.
     from mwbx import queries as mq
 
-    camera = mq.Camera.from_model(bank.model(), "front")
+    camera = mq.Camera.from_model(bank.model, "front")
     queries = [mq.Query.screen(camera, [0.3, 0.5, 0.42, 0.6], near=2.0, far=5.0, bodies="ball"),
                mq.Query.screen(camera, [0.1, 0.45, 0.2, 0.55], near=2.0, far=5.0, bodies="ball",
                                sign="exclude")]

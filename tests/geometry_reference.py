@@ -61,7 +61,7 @@ class ShapesBank(StandInBank):
 
   def __post_init__(self):
     self._xml = SHAPES_XML
-    model = self.model()
+    model = self.model
     self.body_names = BODIES
     self.body_ids = np.array([model.body(n).id for n in BODIES], np.int32)
     self.objects = {"crate": ("crate",), "pill": ("pill",), "gem": ("gem",), "arm": ("upper", "lower")}
@@ -250,7 +250,7 @@ def stored_frames(bank, row: int, window) -> list[int]:
 def brute_geometry_hits(bank, frustum, bodies_mask, window, spacing: float) -> np.ndarray:
   """bool[W, B]: some dense surface point of the body inside the volume at
   some stored frame in the window (MuJoCo kinematics, plain loops)."""
-  model = bank.model()
+  model = bank.model
   data = mujoco.MjData(model)
   surf = {b: body_surface(model, int(bank.body_ids[b]), spacing) for b in np.flatnonzero(bodies_mask)}
   out = np.zeros((bank.n_worlds, len(bank.body_names)), bool)
@@ -270,7 +270,7 @@ def bound_geometry_hits(bank, index, frustum, bodies_mask, window, spacing: floa
   lies in the volume grown by that frame's stated margin (sweep + codec) plus
   the point spacing: every hit the query reports must be here."""
   from mwbx.queries.geometry_query import frame_margins
-  model = bank.model()
+  model = bank.model
   data = mujoco.MjData(model)
   relevant, margin = frame_margins(index, window)
   surf = {b: body_surface(model, int(bank.body_ids[b]), spacing) for b in np.flatnonzero(bodies_mask)}

@@ -58,7 +58,7 @@ class StandInBank:
   def __post_init__(self):
     n_bodies = self.com.shape[2]
     self._xml = scene_xml(n_bodies)
-    model = self.model()
+    model = self.model
     self.body_names = tuple(f"b{i}" for i in range(n_bodies))
     self.body_ids = np.array([model.body(n).id for n in self.body_names], np.int32)
     free = n_bodies - 2 if n_bodies >= 3 else n_bodies
@@ -85,6 +85,7 @@ class StandInBank:
   def valid(self) -> np.ndarray:
     return (self.flags & FLAG_UNSTABLE) == 0
 
+  @property
   def model(self) -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_string(self._xml)
 

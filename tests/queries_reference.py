@@ -71,7 +71,7 @@ def path_hits(bank, query) -> np.ndarray:
   w_count, p_count, b_count, _ = bank.com.shape
   selected = set(range(b_count)) if query.bodies is None else (
       set(int(i) for i in bank.select_bodies(list(query.bodies))) if query.bodies else set())
-  model = bank.model() if query.radius == "auto" else None
+  model = bank.model if query.radius == "auto" else None
   w0, w1 = window_units(query.window, bank.query_fps, p_count)
   hits = np.zeros((w_count, b_count), bool)
   for w in range(w_count):
@@ -107,7 +107,7 @@ def first_entry(bank, world, bodies, frustum, window=None, radius=0.0) -> float 
   selected = range(b_count) if bodies is None else sorted(
       set(int(i) for i in bank.select_bodies(list(bodies))))
   w0, w1 = window_units(window, bank.query_fps, bank.com.shape[1])
-  model = bank.model()
+  model = bank.model
   best = None
   for b in selected:
     r = bounding_radius(model, int(bank.body_ids[b])) if radius == "auto" else float(radius)

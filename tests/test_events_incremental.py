@@ -42,7 +42,7 @@ def heap_bank(tmp_path_factory):
 
 
 def test_frame_to_frame_events_equal_every_pair_at_every_frame(heap_bank, monkeypatch):
-  model = heap_bank.model()
+  model = heap_bank.model
   actors = actors_of(model, list(heap_bank.objects))
   assert len(actors.names) >= detect.INCREMENTAL_MIN_ACTORS  # the frame-to-frame path runs
   assert qpos_actors(model, actors) is not None
@@ -61,7 +61,7 @@ def test_frame_to_frame_events_equal_every_pair_at_every_frame(heap_bank, monkey
 def test_a_frame_where_nothing_moves_keeps_the_frame_before(heap_bank):
   """Frames repeated (a world at rest held) change nothing; a moved actor's
   contacts are found again where it now is."""
-  model = detect.margin_model(heap_bank.model(), 0.002)
+  model = detect.margin_model(heap_bank.model, 0.002)
   actors = actors_of(model, list(heap_bank.objects))
   qpos_actor = qpos_actors(model, actors)
   frames = heap_bank.qpos_store.frames_of_rows([0])[0]

@@ -259,7 +259,7 @@ def test_the_page_draws_the_cloth_surface_where_its_vertices_are(tmp_path):
     page.play(world)
     page.player.seek(10)
     mesh = page.stage._slots[0][2][-1]
-    model = bank.model()
+    model = bank.model
     data = mujoco.MjData(model)
     data.qpos[:] = bank.qpos_frames(world)[10]
     mujoco.mj_kinematics(model, data)
@@ -279,7 +279,7 @@ def test_viewers_draw_one_path_per_flex(tmp_path, tiny_native_bank):
 def test_queries_on_a_flex(tmp_path):
   bank = mwbx.sample(flex_config(tmp_path), n_worlds=2, key=jax.random.key(0), backend="native")
   # A COM query with radius auto grows each vertex by the flex's radius (0.01 m), as its collisions do.
-  radii = mwbx.queries.body_radii(bank.model(), bank.body_ids)
+  radii = mwbx.queries.body_radii(bank.model, bank.body_ids)
   cloth = [bank.body_names.index(b) for b in bank.objects["cloth"]]
   np.testing.assert_allclose(radii[cloth], 0.01)
   below = mwbx.Query.region((-1, -1, -1), (1, 1, 0.25), bodies="cloth", radius="auto", window=(0.4, None))
@@ -348,7 +348,7 @@ def test_whole_geometry_queries_on_a_flex_against_its_vertices(tmp_path):
   against MuJoCo's own vertex positions (flexvert_xpos) at every stored frame."""
   from mwbx.queries import geometry as geometry_lib
   bank = mwbx.sample(flex_config(tmp_path), n_worlds=4, key=jax.random.key(2), backend="native")
-  model = bank.model()
+  model = bank.model
   data = mujoco.MjData(model)
   radius = float(model.flex_radius[0])
   n_frames = int(bank.frame_count.max())
@@ -415,7 +415,7 @@ def test_a_rope_is_drawn_and_exported_around_its_vertices(tmp_path):
   (tmp_path / "rope.yaml").write_text("scene: {mjcf: rope.xml}\nsim: {end_time: 0.3}\n")
   bank = mwbx.sample(mwbx.load_config(tmp_path / "rope.yaml"), n_worlds=2, key=jax.random.key(0),
                      backend="native")
-  model = bank.model()
+  model = bank.model
   (rope,) = flex_surfaces(model)
   assert rope.name == "rope" and rope.faces.shape == (7 * 12, 3)  # 7 segments, 3 ribbons, 2 sides, 2 triangles
   assert [bank.body_names[i] for i in path_bodies(bank)] == ["rope_3"]  # one path (a middle vertex), not eight
@@ -442,7 +442,7 @@ def test_usd_export_writes_the_cloth_where_mujoco_puts_its_vertices(tmp_path):
   stage = Usd.Stage.Open(str(mwbx.export_usd(bank, world, tmp_path / "cloth.usdc")))
   mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/flexes/cloth"))
   assert len(mesh.GetFaceVertexCountsAttr().Get()) == 32
-  model = bank.model()
+  model = bank.model
   data = mujoco.MjData(model)
   frame = int(bank.frame_count[0]) - 1
   data.qpos[:] = bank.qpos_frames(world)[frame]
@@ -513,7 +513,7 @@ def test_a_banks_flexes_are_its_compiled_models_not_its_texts(tmp_path):
                        backend="native")
 
   rigid = bank_of(NOT_A_FLEX)
-  assert rigid.model().nflex == 0 and rigid.flex_objects == () and not rigid.flex_body_mask().any()
+  assert rigid.model.nflex == 0 and rigid.flex_objects == () and not rigid.flex_body_mask().any()
   cloth = bank_of(MJCF.replace("DOF", "").replace("PIN", ""))
   assert cloth.flex_objects == ("cloth",)
   np.testing.assert_array_equal(cloth.flex_body_mask(), [False] + [True] * 25)

@@ -56,7 +56,7 @@ def test_relative_mesh_paths_survive_save_load_and_refine(tmp_path, monkeypatch)
   monkeypatch.chdir(elsewhere)
   loaded = mwbx.Bank.load(tmp_path / "bank")
   assert loaded.mjcf_dir() == str(scene_dir.resolve())
-  model = loaded.model()
+  model = loaded.model
   assert model.nmesh == 1 and model.nq == 14
   refined = mwbx.refine(loaded, 0, ["ball"], t_min=0.1, n_samples=2, key=jax.random.key(1),
                         backend="native")
@@ -98,7 +98,7 @@ def test_scene_that_includes_its_robot_file(tmp_path, monkeypatch):
   bank.save(tmp_path / "bank")
   (scene_dir / "robot.xml").unlink()  # the bank keeps the included file's text
   loaded = mwbx.Bank.load(tmp_path / "bank")
-  assert loaded.model().nmesh == 1 and loaded.digest == bank.digest
+  assert loaded.model.nmesh == 1 and loaded.digest == bank.digest
   first = int(loaded.world_ids[0])
   refined = mwbx.refine(loaded, first, ["ball"], t_min=0.1, n_samples=2, key=jax.random.key(1),
                         backend="native")

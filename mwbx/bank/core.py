@@ -20,6 +20,7 @@ import pathlib
 import uuid
 from typing import Mapping, Sequence
 
+import mujoco
 import numpy as np
 
 from mwbx import scene as scene_lib
@@ -247,7 +248,7 @@ class Bank:
   def qpos_columns(self, bodies: str | Sequence[str]) -> np.ndarray:
     """i64[k] qpos columns of the joints placing the named bodies (body, object or
     group names): the joints of each body and of its ancestors."""
-    model = self.model()
+    model = self.model
     columns = []
     for b in self.select_bodies(bodies).tolist():
       body = int(self.body_ids[b])
@@ -291,7 +292,8 @@ class Bank:
       raise MwbxError("bank: the tracked bodies do not match its own config")
     return scene
 
-  def model(self):
+  @property
+  def model(self) -> mujoco.MjModel:
     """The scene's ``MjModel`` (with the mwbx observation sensors), built from
     the MJCF text, includes and files stored in the bank alone.
 
@@ -335,7 +337,7 @@ class Bank:
     Raises:
       MwbxError: the bank's model cannot be built (:meth:`model`).
     """
-    return scene_lib.flex_bodies(self.model())
+    return scene_lib.flex_bodies(self.model)
 
   @property
   def flex_objects(self) -> tuple[str, ...]:

@@ -102,7 +102,7 @@ def _check_compatible(bank, scene) -> list[str]:
     if scene.config.resolved().get(section) != bank.config.get(section):
       raise MwbxError(f"{src}: {section}: must equal the bank's (a scene version changes objects, not "
                       f"rates, bounds or rest rules)")
-  old, new = bank.model(), scene.model
+  old, new = bank.model, scene.model
   for j in range(old.njnt):
     name = mujoco.mj_id2name(old, mujoco.mjtObj.mjOBJ_JOINT, j)
     k = mujoco.mj_name2id(new, mujoco.mjtObj.mjOBJ_JOINT, name) if name else j

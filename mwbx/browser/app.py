@@ -154,7 +154,7 @@ class Browser:
 
   def _build_stage(self) -> None:
     bank = self.session.bank
-    self.model = bank.model()
+    self.model = bank.model
     rows = np.flatnonzero(np.asarray(bank.valid, bool))
     extent = (np.full(3, -0.5), np.full(3, 0.5))
     if rows.size:
@@ -182,7 +182,7 @@ class Browser:
     """After a refinement moved the bank to a later scene version (new
     bodies): a new stage, and the new names in the pickers."""
     bank = self.session.bank
-    if bank.model().nbody == self.model.nbody:
+    if bank.model.nbody == self.model.nbody:
       return
     with self.lock:
       self.player.forget()

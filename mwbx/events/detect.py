@@ -232,8 +232,8 @@ def detect_events(model: mujoco.MjModel, actors: Actors, frames: Iterable[np.nda
 
   Example::
 
-    actors = actors_of(bank.model(), list(bank.objects))
-    record = detect_events(bank.model(), actors, bank.qpos_store.frames_of_rows(None), touch_margin(1e-3))
+    actors = actors_of(bank.model, list(bank.objects))
+    record = detect_events(bank.model, actors, bank.qpos_store.frames_of_rows(None), touch_margin(1e-3))
   """
   model = margin_model(model, margin)
   # Frame to frame testing only what moved pays in scenes of many actors (16 tower worlds: 1.38x);

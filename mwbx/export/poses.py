@@ -164,7 +164,7 @@ def world_poses(bank, world: int, *, fps: float | None = None, start: float = 0.
   if not np.all(np.isfinite(qpos)):
     raise MwbxError(f"world {world}: its recorded coordinates are not finite (an unstable world); "
                     "nothing to export")
-  model = bank.model()
+  model = bank.model
   xpos, xquat = body_trajectories(model, qpos, np.arange(model.nbody))
   return WorldPoses(world=world, fps=float(bank.record_fps if fps is None else fps),
                     record_fps=float(bank.record_fps), times=times, frames=frames, qpos=qpos,

@@ -343,5 +343,5 @@ def export_usd(bank, world: int, path: str | os.PathLike, *, fps: float | None =
   _pxr()
   target.check_target(path, "usd")  # before decoding: a bad name costs nothing
   poses = world_poses(bank, world, fps=fps, start=start, stop=stop)
-  return write_stage(bank.model(), poses, path, progress)
+  return write_stage(bank.model, poses, path, progress)
 

@@ -286,11 +286,11 @@ def render_video(bank, world: int, path: str | os.PathLike, *, camera: str | Non
   """
   imageio_ffmpeg = _ffmpeg()
   path = target.check_target(path, "mp4")
-  check_size(width, height, bank.model())
+  check_size(width, height, bank.model)
   check_fps(fps)
   gl_backend_name()  # a bad MUJOCO_GL is named before any work
   poses = world_poses(bank, world, fps=fps, start=start, stop=stop)
-  model = copy.copy(bank.model())  # the renderer's own: buffer size, fovy and hidden groups change
+  model = copy.copy(bank.model)  # the renderer's own: buffer size, fovy and hidden groups change
   model.vis.global_.offwidth = max(int(width), model.vis.global_.offwidth)
   model.vis.global_.offheight = max(int(height), model.vis.global_.offheight)
   cam = _camera(bank, int(world), model, camera, look_at, width / height)

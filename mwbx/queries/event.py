@@ -250,7 +250,7 @@ def approach_gap(bank, a: Side, b: Side, window=None) -> np.ndarray:
   side's objects (less both bounding radii) or static geoms (a plane's
   distance, else to its bounding sphere), less the object's bounding radius;
   >= 0. 0 where neither side has an object."""
-  model = bank.model()
+  model = bank.model
   radii = paths.body_radii(model, np.asarray(bank.body_ids))
   com = np.asarray(bank.com[np.arange(bank.n_worlds)], np.float32)[:, paths.window_points(bank, window)]
   best = np.full(bank.n_worlds, np.inf)

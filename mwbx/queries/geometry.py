@@ -185,7 +185,7 @@ def build(bank, valid: np.ndarray, stride: int | None = None, chunk: int = CHUNK
   """The geometry index of a bank's tracked bodies (decodes every world once)."""
   if stride is None:
     stride = max(1, int(round(float(bank.record_fps) / float(bank.query_fps))))
-  model = bank.model()
+  model = bank.model
   body_ids = np.asarray(bank.body_ids, np.int64)
   counts = np.asarray(bank.frame_count, np.int64)
   n_frames = max(int(counts.max(initial=1)), 1)

@@ -83,7 +83,7 @@ class JointQuery(Query):
 
   def objects(self, owner) -> list[str]:
     """The object the joint belongs to (none if its body is no object)."""
-    model = owner.model() if callable(owner.model) else owner.model
+    model = owner.model  # a bank's or a scene's MjModel
     body = model.jnt_bodyid[model.joint(self.joint).id]
     root = model.body(int(model.body_rootid[body])).name
     return [root] if root in owner.objects else []
@@ -97,7 +97,7 @@ class JointQuery(Query):
     return mask
 
   def check(self, bank) -> None:
-    joint_column(bank.model(), self.joint)
+    joint_column(bank.model, self.joint)
 
   def describe(self) -> str:
     return f"joint {self.joint} turns {self.turn}" + ("" if self.of == "change" else f" ({self.of})")
@@ -151,7 +151,7 @@ def joint_column(model: mujoco.MjModel, joint: str) -> int:
 def joint_paths(bank, joint: str) -> np.ndarray:
   """f32[W, F] the joint's decoded value at every recorded frame (tails hold
   the last frame), cached per bank and joint."""
-  column = joint_column(bank.model(), joint)
+  column = joint_column(bank.model, joint)
   return _CACHE.get(bank, joint, (bank.n_worlds, id(bank.qpos_store)), lambda: _decoded(bank, column))
 
 

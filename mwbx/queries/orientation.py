@@ -248,7 +248,7 @@ def all_quats(bank, bodies) -> dict:
       missing.append(int(body))
   if not missing:
     return out
-  model = bank.model()
+  model = bank.model
   body_ids = [int(np.asarray(bank.body_ids)[b]) for b in missing]
   columns = np.unique(np.concatenate([_chain_columns(model, b) for b in body_ids]))
   counts = np.asarray(bank.frame_count, np.int64)

@@ -119,7 +119,7 @@ def body_radii(model: mujoco.MjModel, body_ids) -> np.ndarray:
 
 def _radii(bank, state: _BankState) -> np.ndarray:
   if state.radii is None:
-    state.radii = body_radii(bank.model(), bank.body_ids)
+    state.radii = body_radii(bank.model, bank.body_ids)
   return state.radii
 
 

@@ -358,7 +358,7 @@ class VolumeQuery(Query):
     if not mask.any():
       return np.full(bank.n_worlds, np.inf if self.include else 0.0)
     if self.radius == "auto" or self.shape == "geometry":
-      radius = paths.body_radii(bank.model(), np.asarray(bank.body_ids)[mask])
+      radius = paths.body_radii(bank.model, np.asarray(bank.body_ids)[mask])
     else:
       radius = np.full(int(mask.sum()), float(self.radius))
     points = com[:, paths.window_points(bank, self.window)][:, :, mask]  # [W, P, b, 3]

@@ -263,7 +263,7 @@ def load_queries(path: str | os.PathLike, bank=None, model=None) -> QuerySet:
     first = max(err.errors(), key=lambda e: len(e["loc"]))
     raise MwbxError(f"{path}: {_location(first['loc'])}: {first['msg']}") from None
   if model is None and bank is not None:
-    model = bank.model()
+    model = bank.model
   default_camera = None if spec.camera is None else _camera(spec.camera, "camera", path, model)
   context = FileContext(path, default_camera, model, bank)
   queries = [_query(entry, i, context) for i, entry in enumerate(spec.queries)]

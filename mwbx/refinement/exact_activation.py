@@ -63,7 +63,7 @@ def exact_active(bank, world: int, margin: float = 0.01) -> tuple[str, ...]:
   """
   entry = bank.lineage[str(int(world))]
   parent = int(entry["parent"])
-  model = bank.model()
+  model = bank.model
   names = tuple(bank.objects)
   geoms = _object_geoms(model, names)
   active = np.array([o in entry["objects"] for o in names])

@@ -271,7 +271,7 @@ def _apart(bank, bodies: np.ndarray, com: np.ndarray, reference: np.ndarray) -> 
   """bool[...]: where some chosen body's COM (``com`` f32[..., b, 3], m) is
   more than :data:`DIVERGENCE_TOLERANCE` of its bounding radius from
   ``reference`` (broadcast against ``com``)."""
-  radius = np.maximum(body_radii(bank.model(), np.asarray(bank.body_ids)[bodies]), 1e-3)
+  radius = np.maximum(body_radii(bank.model, np.asarray(bank.body_ids)[bodies]), 1e-3)
   return (np.linalg.norm(com - reference, axis=-1) > DIVERGENCE_TOLERANCE * radius).any(axis=-1)
 
 

@@ -126,7 +126,7 @@ def draw(vis, bank, worlds: Sequence[int] | None = None, *, paths: Any = None,
   """
   if layout not in LAYOUTS:
     raise ViewerError(f"layout must be one of {LAYOUTS}, got {layout!r}")
-  model = bank.model()
+  model = bank.model
   worlds = resolve_worlds(bank, worlds)
   bodies = resolve_bodies(bank, paths)
   queries = as_query_list(queries)

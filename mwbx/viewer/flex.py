@@ -138,7 +138,7 @@ def path_bodies(bank) -> np.ndarray:
   every tracked body but a flex's vertices, and for each flex one path, its
   centre vertex's (the vertex nearest the mean of its vertices at the
   model's initial configuration), not one per vertex."""
-  model = bank.model()
+  model = bank.model
   if not model.nflex:
     return np.arange(len(bank.body_names), dtype=np.int64)
   tracked = {int(b): i for i, b in enumerate(np.asarray(bank.body_ids))}

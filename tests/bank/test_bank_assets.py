@@ -123,14 +123,14 @@ def test_a_bank_stores_the_files_its_mjcf_names_and_loads_without_them(files_ban
   elsewhere.mkdir()
   monkeypatch.chdir(elsewhere)
   bank = mwbx.Bank.load(bank_dir)
-  _same_files(bank.model(), reference)  # meshes of one base name each from its own file
+  _same_files(bank.model, reference)  # meshes of one base name each from its own file
   _same_files(bank.scene().model, reference)
   first = int(bank.world_ids[0])
   refined = mwbx.refine(bank, first, ["piece"], t_min=0.1, n_samples=2, key=jax.random.key(1), backend="native")
   refined.save(bank_dir)
   again = mwbx.Bank.load(bank_dir, lazy=False)
   assert again.n_worlds == 4
-  _same_files(again.model(), reference)
+  _same_files(again.model, reference)
   assert mwbx.bank.shards.verify(bank_dir) == []
 
 
@@ -142,7 +142,7 @@ def test_a_stored_file_that_is_a_link_is_refused_even_with_the_right_bytes(files
   (bank_dir / "assets" / digest).unlink()
   (bank_dir / "assets" / digest).symlink_to(copy)
   with pytest.raises(MwbxError) as err:
-    mwbx.Bank.load(bank_dir).model()
+    mwbx.Bank.load(bank_dir).model
   assert "'meshes/tet.obj'" in str(err.value) and "cannot be read" in str(err.value), err.value
   assert str(bank_dir / "assets" / digest) in str(err.value) and "\n" not in str(err.value)
   assert any("meshes/tet.obj" in line for line in mwbx.bank.shards.verify(bank_dir))
@@ -158,9 +158,9 @@ def test_a_bank_saved_before_banks_stored_files_is_refused_until_sampled_into_ag
   (bank_dir / "manifest.json").write_text(json.dumps(manifest))
   with pytest.raises(MwbxError, match=r"<mesh file='tet.obj'> \(in folder 'meshes'\) names 'meshes/tet.obj',"
                                       r" which is not stored with it"):
-    mwbx.Bank.load(bank_dir).model()
+    mwbx.Bank.load(bank_dir).model
   mwbx.sample(cfg, n_worlds=2, key=jax.random.key(1), backend="native").save(bank_dir)
-  _same_files(mwbx.Bank.load(bank_dir).model(), mwbx.Scene(cfg).model)
+  _same_files(mwbx.Bank.load(bank_dir).model, mwbx.Scene(cfg).model)
 
 
 def test_a_scene_naming_a_file_outside_its_folder_is_refused_before_sampling(tmp_path):
@@ -246,7 +246,7 @@ def test_a_crafted_bank_naming_a_file_outside_it_is_refused_in_one_line(tiny_ban
   _outside_files(out)
   _craft(tiny_bank_dir, snippet.format(out=out))
   bank = mwbx.Bank.load(tiny_bank_dir)
-  for build in (bank.model, bank.scene):  # the bank's model, and the scene refinement resamples
+  for build in (lambda: bank.model, bank.scene):  # the bank's model, and the scene refinement resamples
     with pytest.raises(MwbxError) as err:
       build()
     text = str(err.value)
@@ -260,7 +260,7 @@ def test_a_relative_name_leaving_the_folder_is_refused(tiny_bank_dir, tmp_path):
   (tmp_path / "scene").mkdir()
   _craft(tiny_bank_dir, '<asset><mesh name="m" file="../elsewhere/tet.obj"/></asset>', scene_dir=tmp_path / "scene")
   with pytest.raises(MwbxError, match=r"<mesh file='../elsewhere/tet.obj'> names a file outside the bank"):
-    mwbx.Bank.load(tiny_bank_dir).model()
+    mwbx.Bank.load(tiny_bank_dir).model
 
 
 def test_a_relative_name_the_bank_does_not_store_is_refused(tiny_bank_dir, tmp_path):
@@ -269,7 +269,7 @@ def test_a_relative_name_the_bank_does_not_store_is_refused(tiny_bank_dir, tmp_p
   (tmp_path / "scene" / "meshes" / "tet.obj").write_bytes(_tet(0.1))
   _craft(tiny_bank_dir, '<asset><mesh name="m" file="meshes/tet.obj"/></asset>', scene_dir=tmp_path / "scene")
   with pytest.raises(MwbxError, match=r"<mesh file='meshes/tet.obj'> names 'meshes/tet.obj', which is not stored"):
-    mwbx.Bank.load(tiny_bank_dir).model()
+    mwbx.Bank.load(tiny_bank_dir).model
 
 
 def test_refine_of_a_crafted_bank_exits_2_naming_the_model_file(tiny_bank_dir, tmp_path, capsys):

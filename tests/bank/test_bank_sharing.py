@@ -509,7 +509,7 @@ def test_a_bank_model_is_built_only_from_the_text_it_stores(small_bank, tmp_path
   _plant_include(small_bank, tmp_path)
   bank = mwbx.Bank.load(small_bank)
   with pytest.raises(MwbxError, match=r"includes '.*planted.xml', which is not stored with it"):
-    bank.model()
+    bank.model
 
 
 def test_refine_never_reads_a_file_a_crafted_bank_includes(small_bank, tmp_path, capsys):

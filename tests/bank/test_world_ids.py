@@ -63,7 +63,7 @@ def test_ids_not_rows_everywhere(offset_bank, tmp_path):
   child, parent = refined.qpos_frames(108)[:f0], bank.qpos_frames(chosen)[:f0]
   np.testing.assert_allclose(child[:, striker[:3]], parent[:, striker[:3]], rtol=0,
                              atol=bank.config["codec"]["e_pos"] * 1.001)
-  others = np.setdiff1d(np.arange(bank.model().nq), striker)
+  others = np.setdiff1d(np.arange(bank.model.nq), striker)
   np.testing.assert_array_equal(child[:, others], parent[:, others])
 
 

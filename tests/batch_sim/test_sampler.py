@@ -72,7 +72,7 @@ def test_bank_contents(tiny_native_bank):
   assert (bank.frame_count[~at_rest] == end_frame + 1).all()  # the others ran to the end time
   stride = int(cfg["sim"]["record_fps"] / cfg["sim"]["query_fps"])
   np.testing.assert_array_equal(bank.com_count, (bank.frame_count - 1) // stride + 1)
-  model = bank.model()
+  model = bank.model
   for w in (0, 5):
     qpos = bank.qpos_frames(w)
     assert qpos.shape == (bank.frame_count[w], model.nq) and np.isfinite(qpos).all()

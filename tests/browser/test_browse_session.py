@@ -20,7 +20,7 @@ def session():
 
 
 def _boxes(bank):
-  cam = mq.Camera.from_model(bank.model(), "front")
+  cam = mq.Camera.from_model(bank.model, "front")
   include = mq.Query.screen(cam, [0.08, 0.35, 0.27, 0.65], bodies=["ball"], window=(3.5, None))
   exclude = mq.Query.screen(cam, [0.78, 0.55, 1.0, 0.75], bodies=["capsule"], sign="exclude")
   return include, exclude

@@ -86,7 +86,7 @@ def test_mwbx_info_shows_codec_stats(quickstart, tmp_path, capsys):
 
 def test_qpos_frames_of_some_bodies_decodes_only_their_joints(quickstart):
   _, bank, raw = quickstart
-  model = bank.model()
+  model = bank.model
   name = bank.body_names[1]
   body = int(bank.body_ids[1])
   joint = int(model.body_jntadr[body])

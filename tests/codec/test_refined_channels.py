@@ -306,7 +306,7 @@ def test_refinement_end_to_end_keeps_inactive_objects_exactly(quickstart_config,
   seen = _count_fitted_paths(monkeypatch)
   new = mwbx.refine(bank, parent_id, "ball", t_min=1.0, n_samples=4, key=jax.random.key(5), backend="native")
   assert new.n_worlds == bank.n_worlds + 4
-  model = bank.model()
+  model = bank.model
   qpos_of = {}
   for name, bodies in bank.objects.items():
     cols = []

@@ -93,7 +93,7 @@ def test_npz_holds_the_decoded_qpos_exactly_and_its_forward_kinematics(bank, tmp
   qpos = bank.qpos_frames(world)
   assert out["qpos"].dtype == np.float32
   np.testing.assert_array_equal(out["qpos"], qpos)
-  model = bank.model()
+  model = bank.model
   xpos, xquat = reference_poses(model, qpos)
   np.testing.assert_allclose(out["xpos"], xpos, rtol=0, atol=1e-12)
   assert np.all(angle_between(out["xquat"], xquat) < 1e-6)
@@ -108,7 +108,7 @@ def test_usd_poses_match_the_decoded_poses_within_the_codec_bounds(bank, tmp_pat
   world = int(bank.world_ids[0])
   path = export_usd(bank, world, tmp_path / "w.usda")
   stage = Usd.Stage.Open(str(path))
-  model = bank.model()
+  model = bank.model
   qpos = bank.qpos_frames(world)
   xpos, xquat = reference_poses(model, qpos)
   assert stage.GetTimeCodesPerSecond() == bank.record_fps
@@ -141,7 +141,7 @@ def test_usd_has_one_prim_per_geom_with_its_shape_and_mjcf_colours(bank, tmp_pat
   stage = Usd.Stage.Open(str(export_usd(bank, int(bank.world_ids[0]), tmp_path / "w.usdc",
                                         progress=reports.append)))
   assert reports[-1].phase == "writing USD" and reports[-1].done == reports[-1].total == 1
-  model = bank.model()
+  model = bank.model
   geoms = {p.GetCustomDataByKey("mujoco:geom_id"): p for p in stage.Traverse()
            if p.GetCustomDataByKey("mujoco:geom_id") is not None}
   assert sorted(geoms) == list(range(model.ngeom))
@@ -186,7 +186,7 @@ class _FakeBank:
 
 
 def test_absent_objects_are_hidden_over_their_span(bank, tmp_path):
-  model = bank.model()
+  model = bank.model
   poses = world_poses(bank, int(bank.world_ids[0]))
   present = poses_lib.presence(_FakeBank(), 0, model, poses.times)
   arm = [model.body("arm").id, model.body("forearm").id]

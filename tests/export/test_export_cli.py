@@ -64,7 +64,7 @@ def test_export_writes_the_npz_and_usd_of_a_world(saved, tmp_path, capsys):
   np.testing.assert_array_equal(out["qpos"], qpos)  # exactly what the bank decodes
   np.testing.assert_array_equal(out["frames"], np.arange(frames))
   assert int(out["world"]) == world and float(out["fps"]) == bank.record_fps
-  model = bank.model()
+  model = bank.model
   xpos = forward_kinematics(model, qpos)
   np.testing.assert_allclose(out["xpos"], xpos, rtol=0, atol=1e-12)
 
@@ -98,7 +98,7 @@ def test_export_passes_fps_and_span_to_the_usd_and_keeps_every_frame_in_the_npz(
 
   stage = Usd.Stage.Open(str(usd))
   assert stage.GetTimeCodesPerSecond() == 30 and stage.GetEndTimeCode() == 15
-  model = bank.model()
+  model = bank.model
   shown = np.rint((0.5 + np.arange(16) / 30) * fps).astype(int)
   xpos = forward_kinematics(model, qpos[shown])
   prim = UsdGeom.Xformable(stage.GetPrimAtPath("/World/bodies/ball"))

@@ -32,7 +32,7 @@ def saved_bank(quick_bank, tmp_path_factory):
 
 
 def test_real_bank_matches_reference(quick_bank):
-  cam = Camera.from_model(quick_bank.model(), "front")
+  cam = Camera.from_model(quick_bank.model, "front")
   queries = list(load_queries(EXAMPLE, quick_bank).queries)
   rng = np.random.default_rng(0)
   for _ in range(6):

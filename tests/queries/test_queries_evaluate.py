@@ -71,8 +71,8 @@ def test_all_mode_is_stricter_than_any(bank):
 
 
 def test_auto_radius_is_each_bodies_bounding_radius(bank):
-  radii = query_lib.body_radii(bank.model(), bank.body_ids)
-  model = bank.model()
+  radii = query_lib.body_radii(bank.model, bank.body_ids)
+  model = bank.model
   np.testing.assert_allclose(radii, [ref.bounding_radius(model, int(i)) for i in bank.body_ids])
   # b1 is a box at 5 cm from its COM plus a sphere: its radius exceeds either geom's.
   assert radii[1] > 0.05 and radii[0] == pytest.approx(0.03)

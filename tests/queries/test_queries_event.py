@@ -94,7 +94,7 @@ def _reference_episodes(bank, qpos0, qvel0, row, held_ticks=None) -> set:
   the bank's sleep on, a pair touching at the step before whose actors have
   no awake tree (MuJoCo does not test them) still touches; ``held_ticks``
   (a list) gets how many steps that held."""
-  model = bank.model()
+  model = bank.model
   if bank.run.get("sleep"):
     model = sleep_lib.sleeping_copy(model, sleep_lib.SleepSettings.from_record(bank.run["sleep"]))
   data = mujoco.MjData(model)
@@ -447,7 +447,7 @@ def test_a_bank_whose_events_were_found_on_frames_still_answers(drop_bank, tmp_p
   manifest = json.loads((path / "manifest.json").read_text())
   entry = manifest["shards"][0]
   spf = drop_bank.events.ticks_per_frame
-  frames = mwbx.events.detect_events(drop_bank.model(), actors_of(drop_bank.model(), list(drop_bank.objects)),
+  frames = mwbx.events.detect_events(drop_bank.model, actors_of(drop_bank.model, list(drop_bank.objects)),
                                      drop_bank.qpos_store.frames_of_rows(None),
                                      touch_margin(drop_bank.config["codec"]["e_pos"]))
   folder = path / "shards" / entry["name"]
@@ -490,7 +490,7 @@ def test_worlds_whose_episodes_overflow_are_found_on_their_frames(drop_bank, mon
   monkeypatch.setattr(steps, "EPISODES_PER_ACTOR", 0)
   config = drop_bank.config
   bank = mwbx.sample(mwbx.config.Config.model_validate(config), n_worlds=2, key=jax.random.key(0), backend="native")
-  frames = mwbx.events.detect_events(bank.model(), actors_of(bank.model(), list(bank.objects)),
+  frames = mwbx.events.detect_events(bank.model, actors_of(bank.model, list(bank.objects)),
                                      bank.qpos_store.frames_of_rows(None),
                                      touch_margin(bank.config["codec"]["e_pos"])).in_ticks(bank.events.ticks_per_frame)
   np.testing.assert_array_equal(bank.events.rows, frames.rows)

@@ -84,7 +84,7 @@ def test_a_corner_enters_where_the_com_misses():
 def test_sweep_margins_bound_every_stored_frame(bank):
   """Every stored frame between two kept frames, and the motion between
   stored frames, stays within the interval's margin of a kept frame."""
-  model = bank.model()
+  model = bank.model
   data = mujoco.MjData(model)
   index = geometry_lib.geometry_index(bank)
   stride = int(index.frames[1] - index.frames[0])

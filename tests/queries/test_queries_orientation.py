@@ -43,7 +43,7 @@ def test_forward_kinematics_matches_mujoco():
 def _reference_errors(bank, body: str, error, window):
   """f64[W] the largest error over the stored frames of the window (the last
   frame without one), from mj_kinematics, plain loops."""
-  model = bank.model()
+  model = bank.model
   data = mujoco.MjData(model)
   bid = model.body(body).id
   out = []

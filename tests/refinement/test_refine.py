@@ -42,7 +42,7 @@ def bank():
 
 @pytest.fixture(scope="module")
 def cols(bank):
-  model = bank.model()
+  model = bank.model
   adr = lambda name: int(model.jnt_qposadr[model.body(name).jntadr[0]])
   return {name: slice(adr(name), adr(name) + 3) for name in ("striker", "target", "far")}
 
@@ -82,7 +82,7 @@ def test_untouched_object_keeps_its_stored_path_exactly(bank, case_a, case_b, co
       assert "far" not in lineage["active"]
       q = new.qpos_frames(new.world_ids[w])
       assert len(q) == len(stored)
-      model = bank.model()
+      model = bank.model
       jnt = model.body("far").jntadr[0]
       a = int(model.jnt_qposadr[jnt])
       np.testing.assert_array_equal(q[:, a:a + 7], stored[:, a:a + 7])  # frame by frame, bit for bit
@@ -127,7 +127,7 @@ def test_fig6b_object_no_longer_hit_is_activated_by_the_ghost_and_stays(bank, ca
 
 
 def test_continuity_at_t_min_and_plausibility_bound(bank, case_a, case_b):
-  model = bank.model()
+  model = bank.model
   e_pos = bank.config["codec"]["e_pos"]
   free = [int(model.jnt_qposadr[j]) for j in range(model.njnt)]
   for parent, new, stats in (case_a, case_b):
@@ -172,7 +172,7 @@ def test_refined_worlds_are_ordinary_bank_worlds(bank, case_a, tmp_path):
 def test_frustum_picks_t_min_with_first_entry(bank, case_a):
   from mwbx.queries import Camera, ScreenBox, first_entry
   parent = case_a[0]
-  camera = Camera.from_model(bank.model(), "front")
+  camera = Camera.from_model(bank.model, "front")
   box = ScreenBox(0.0, 0.0, 1.0, 0.62)  # upper part of the image: the striker enters it late in its fall
   frustum = camera.frustum(box)
   t = first_entry(bank, parent, ["striker"], frustum)

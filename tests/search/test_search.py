@@ -169,7 +169,7 @@ def test_solve_reaches_a_reachable_goal(tiny_bank):
   # Without event queries the search finds contact events for the children it keeps only: their
   # parent's before the restart, then found on their stored frames (a frame's resolution).
   from mwbx.events import actors_of, detect_events, touch_margin
-  model = bank.model()
+  model = bank.model
   spf = bank.events.ticks_per_frame
   for world in bank.world_ids[tiny_bank.n_worlds:].tolist():
     restart = int(round(bank.lineage[str(world)]["t_min"] * bank.record_fps)) * spf
@@ -355,7 +355,7 @@ def test_settle_time_is_when_the_bodies_stay_near_where_they_end(tiny_bank):
       t = settle_time(tiny_bank, row, bodies)
       frame = round(t * tiny_bank.query_fps)
       com = np.asarray(tiny_bank.com[row], np.float64)[:, bodies]
-      radius = body_radii(tiny_bank.model(), np.asarray(tiny_bank.body_ids)[bodies])
+      radius = body_radii(tiny_bank.model, np.asarray(tiny_bank.body_ids)[bodies])
       near = (np.linalg.norm(com - com[-1], axis=-1) <= DIVERGENCE_TOLERANCE * radius + 1e-6).all(axis=-1)
       assert near[frame:].all(), (row, chosen, t)
       if frame > 0:

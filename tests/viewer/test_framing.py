@@ -110,7 +110,7 @@ def test_frame_box_puts_the_eye_outside_seeing_every_corner(direction):
 
 
 def test_page_first_view_of_a_lying_figure_is_from_outside_its_paths(bank):
-  model = bank.model()
+  model = bank.model
   lo, hi = paths_box(bank, model)
   page = app.browse(bank, block=False)
   try:
@@ -125,7 +125,7 @@ def test_page_first_view_of_a_lying_figure_is_from_outside_its_paths(bank):
 
 
 def test_viewer_first_view_of_a_lying_figure_is_from_outside_its_paths(bank):
-  model = bank.model()
+  model = bank.model
   lo, hi = paths_box(bank, model)
   rows = np.flatnonzero(np.asarray(bank.valid, bool))
   box_lo, box_hi = framing.scene_bounds(bank, model, rows, None, None)

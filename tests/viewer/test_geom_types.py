@@ -192,8 +192,8 @@ def test_bank_of_every_geom_opens_in_the_viewer_and_the_page(bank):
            and o["object"].get("geometries")}
   assert {"BoxGeometry", "SphereGeometry", "CylinderGeometry", "BufferGeometry"} <= kinds
   names = " ".join(o["path"] for o in drawn if o["type"] == "set_object")
-  for g in range(bank.model().ngeom):
-    assert f"g{g}_" in names, bank.model().geom(g).name
+  for g in range(bank.model.ngeom):
+    assert f"g{g}_" in names, bank.model.geom(g).name
   browser = app.browse(bank, block=False)
   try:
     drawn = {v.geom_id for v in browser.visuals}

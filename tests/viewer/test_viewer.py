@@ -448,7 +448,7 @@ def real_bank():
 def test_real_bank_with_screen_queries(real_bank, tmp_path):
   from mwbx import queries as mq
 
-  model = real_bank.model()
+  model = real_bank.model
   camera = mq.Camera.from_model(model, "front")
   include = mq.Query.screen(camera, [0.0, 0.4, 1.0, 1.0], bodies="round")
   exclude = mq.Query.screen(camera, [0.0, 0.0, 0.45, 0.6], bodies="box_a", sign="exclude")

@@ -33,7 +33,7 @@ def bank():
 def object_colours(bank) -> list[tuple[float, float, float]]:
   """MJCF colours of moving, saturated geoms whose hue is far from the sky
   background (blue) and from the path colour (green)."""
-  model = bank.model()
+  model = bank.model
   out = []
   for v in mv.geometry.scene_visuals(model):
     rgb = np.asarray(v.rgba[:3])
@@ -119,7 +119,7 @@ def test_query_camera_marker_never_covers_the_view(bank, browser, tmp_path, came
   (``--camera front``) or from the fitted default view, the camera's eye
   marker stays a dot and the scene is visible (it used to fill the screen)."""
   from mwbx import queries as mq
-  cam = mq.Camera.from_model(bank.model(), "front")
+  cam = mq.Camera.from_model(bank.model, "front")
   qs = [mq.Query.screen(cam, [0.3, 0.5, 0.42, 0.6], near=2, far=5, bodies="ball"),
         mq.Query.screen(cam, [0.1, 0.45, 0.2, 0.55], near=2, far=5, bodies="ball", sign="exclude")]
   world = int(bank.world_ids[np.flatnonzero(np.asarray(bank.valid))[0]])
