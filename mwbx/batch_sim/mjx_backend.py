@@ -46,12 +46,9 @@ BLOCK_SECONDS = 1.0
 LANE = 8
 
 # impl jax: caps on the constraint solver's iterations and line-search steps
-# per iteration (a model's lower limits stand). Vmapped, MJX runs every
-# line-search step and a batch iterates until its slowest world converges;
-# float32 rarely meets MuJoCo's 1e-8 tolerance, so MuJoCo's default 100 / 50
-# would cost a SIGGRAPH step half its time. 20 / 4 give the same accelerations
-# (tests/batch_sim/test_mjx_solver_limits.py: within 1e-5 of |qacc|), and 4
-# line-search steps sample SIGGRAPH 1.27x as fast as 10 (docs/sampling.md).
+# per iteration (a model's lower limits stand): a vmapped batch iterates until
+# its slowest world converges, which float32 rarely does at MuJoCo's 1e-8.
+# Same accelerations within 1e-5 of |qacc| (tests/batch_sim/test_mjx_solver_limits.py).
 SOLVER_ITERATIONS = 20
 LS_ITERATIONS = 4
 
