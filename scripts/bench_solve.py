@@ -208,7 +208,7 @@ def main() -> None:
                       help="part 'robustness': siggraph and staircase again with these seeds, e.g. 1,2")
   parser.add_argument("--robustness-scenes", default="siggraph,spiral_staircase")
   parser.add_argument("--budget-world-steps", type=float, default=None,
-                      help="robustness siggraph: a world-step budget instead of --budget-s (the same search path"
+                      help="robustness: a world-step budget instead of the scenes' seconds (the same search path"
                            " under any load; its time is then world-steps over --reference-rate)")
   parser.add_argument("--reference-rate", type=float, default=27000.0,
                       help="world-steps/s of a solve alone on this machine (with --budget-world-steps)")
@@ -238,7 +238,7 @@ def main() -> None:
     for seed in (int(x) for x in args.robustness_seeds.split(",")):
       for name in args.robustness_scenes.split(","):
         budget = args.budget_s if name == "siggraph" else args.staircase_budget_s
-        steps = args.budget_world_steps if name == "siggraph" else None
+        steps = args.budget_world_steps
         r = solve_scene(name, args.worlds, budget, args.samples, out, seed, save_bank=args.save_banks,
                         budget_steps=steps)
         runs = [x for x in runs if (x["scene"], x["seed"]) != (name, seed)]
