@@ -118,6 +118,7 @@ class StandinBank:
     row = self.row_of(world)
     return self.qpos[row, : self.frame_count[row]]
 
+  @property
   def model(self) -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_string(self.xml)
 
