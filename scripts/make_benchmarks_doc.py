@@ -285,19 +285,19 @@ def solve(d: dict) -> tuple[list[str], list[str]]:
     lines.append("")
     stepped = [r for r in robust["runs"] if "reference_rate" in r]
     if stepped:
-      rates = sorted({(r["budget_world_steps"], r["reference_rate"]) for r in stepped})
-      lines += [f"Runs on a world-step budget ({', '.join(sorted({r['scene'] for r in stepped}))}: "
-                + "; ".join(f"{n / 1e6:.1f} M world-steps, {n / rate / 60:.0f} min at {rate / 1e3:.0f} k "
-                            "world-steps/s" for n, rate in rates)
-                + ", the rate of a solve alone on this machine) take the same path on any machine and under any "
-                "load; the summary counts their time as world-steps at that rate, the table shows the wall time "
-                "they took while the machine also ran other work.", ""]
+      budgets = sorted({(r["scene"], r["budget_world_steps"], r["reference_rate"]) for r in stepped})
+      lines += ["Runs on a world-step budget ("
+                + "; ".join(f"{scene}: {n / 1e6:.2f} M world-steps, {n / rate / 60:.0f} min at {rate / 1e3:.1f} k "
+                            "world-steps/s" for scene, n, rate in budgets)
+                + "; each scene's rate as its solves ran on this machine at load 2 or less) take the same path on any machine and "
+                "under any load; the summary counts their time as world-steps at that rate, the table shows the "
+                "wall time they took while the machine also ran other work.", ""]
     lines += _seed_summary(robust["runs"])
     upright = [r for r in robust["runs"] if r["scene"] == "siggraph" and r["n_queries"] == 16]
     if upright:
       solved = [r for r in upright if r["solved"]]
       commits = ", ".join(sorted({r["commit"] for r in upright if "commit" in r}))
-      head.append(f"SIGGRAPH upright (16 queries): {len(solved)} of {len(upright)} seeds solved in timed runs"
+      head.append(f"SIGGRAPH upright (16 queries): {len(solved)} of {len(upright)} seeds solved within 10 min"
                   + (f", {max(_solve_time(r) for r in solved) / 60:.1f} min at most" if solved else "")
                   + f" (load ≤ {max(r['load_average_after'] for r in upright):.0f}"
                   + (f", {commits})" if commits else ")"))
