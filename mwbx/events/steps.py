@@ -196,7 +196,7 @@ def actors_moving(tree_asleep, actor_tree_start, actor_trees, moving):
 
 # The same episodes inside a jitted scan (MJX): the JAX twin of new_episodes,
 # touch and end_tick for ONE world, vmapped over the batch by the caller, and
-# of the row buffer they write; finish runs on the host (track_episodes).
+# of the row buffer they write; finish runs on the host (finish_track).
 
 
 class EpisodeTrack(NamedTuple):
