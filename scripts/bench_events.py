@@ -184,20 +184,27 @@ def tower(n_worlds: int) -> dict:
   return row
 
 
+def _best_simulation(samplers: dict, n_worlds: int, repeats: int) -> dict:
+  """{how: best simulation seconds} of n_worlds run by each sampler, the
+  samplers alternating (each compiled by an untimed run first)."""
+  for sampler in samplers.values():
+    sampler.run(n_worlds, jax.random.key(99))  # compiles, untimed
+  best = {how: np.inf for how in samplers}
+  for _ in range(repeats):
+    for how, sampler in samplers.items():
+      _, stats = sampler.run(n_worlds, jax.random.key(0))
+      best[how] = min(best[how], stats.run_seconds)
+  return best
+
+
 def loop_cost(name: str, n_worlds: int, repeats: int = 3) -> dict:
   """Best simulation seconds of n_worlds with events read at every step and without."""
   config = mwbx.load_config(ROOT / "configs" / f"{name}.yaml")
-  best = {"every physics step": np.inf, "none in the loop": np.inf}
   with contextlib.ExitStack() as stack:
     stepping = stack.enter_context(mwbx.Sampler(config, backend="native"))
     with mock.patch.object(mujoco_c, "contact_layout", lambda: None):
       plain = stack.enter_context(mwbx.Sampler(config, backend="native"))
-    for sampler in (stepping, plain):
-      sampler.run(n_worlds, jax.random.key(99))  # compiles the loop, untimed
-    for _ in range(repeats):
-      for how, sampler in (("every physics step", stepping), ("none in the loop", plain)):
-        _, stats = sampler.run(n_worlds, jax.random.key(0))
-        best[how] = min(best[how], stats.run_seconds)
+    best = _best_simulation({"every physics step": stepping, "none in the loop": plain}, n_worlds, repeats)
   row = {"scene": name, "worlds": n_worlds, "repeats": repeats, "simulation_seconds": best,
          "ratio": best["every physics step"] / best["none in the loop"]}
   print(f"{name} {n_worlds} worlds: simulation with events read at every step {best['every physics step']:.2f} s,"
@@ -210,17 +217,11 @@ def mjx_loop_cost(name: str, n_worlds: int, repeats: int = 2) -> dict:
   episodes tracked inside the scan at every step and without (the scan then
   tracks nothing; their events would be found on the stored frames)."""
   config = mwbx.load_config(ROOT / "configs" / f"{name}.yaml")
-  best = {"every physics step": np.inf, "none in the scan": np.inf}
   with contextlib.ExitStack() as stack:
     stepping = stack.enter_context(mwbx.Sampler(config, backend="mjx"))
     plain = stack.enter_context(mwbx.Sampler(config, backend="mjx"))
     plain.backend.event_gap = None  # MjxBackend: no trackers in its scan
-    for sampler in (stepping, plain):
-      sampler.run(n_worlds, jax.random.key(99))  # compiles the scan, untimed
-    for _ in range(repeats):
-      for how, sampler in (("every physics step", stepping), ("none in the scan", plain)):
-        _, stats = sampler.run(n_worlds, jax.random.key(0))
-        best[how] = min(best[how], stats.run_seconds)
+    best = _best_simulation({"every physics step": stepping, "none in the scan": plain}, n_worlds, repeats)
   row = {"scene": name, "worlds": n_worlds, "repeats": repeats, "backend": "mjx:jax", "simulation_seconds": best,
          "ratio": best["every physics step"] / best["none in the scan"]}
   print(f"{name} {n_worlds} worlds on MJX: simulation with episodes tracked in the scan"

@@ -109,13 +109,11 @@ def _warp_batch(impl, n_worlds: int, inputs: MjxEventInputs) -> tuple[jax.Array,
   in_use = jnp.arange(dist.shape[0]) < jnp.reshape(impl.nacon, (-1,))[0]
   touching = in_use & (dist < impl.contact__includemargin)
   world = jnp.clip(impl.contact__worldid, 0, n_worlds - 1)
+  # Each contact's rows are addressed within its world's efc__force [W, njmax]: flattened, offset by world.
+  efc = impl.efc__force
   addresses = jnp.asarray(impl.contact__efc_address)
-  efc = impl.efc__force  # [W, njmax]
-  rows = jnp.clip(addresses, 0, efc.shape[-1] - 1)
-  dim = impl.contact__dim
-  edges = jnp.where((dim > 1) & inputs.pyramidal, 2 * (dim - 1), 1)
-  use = (jnp.arange(addresses.shape[1])[None, :] < edges[:, None]) & (addresses >= 0)
-  force = jnp.where(use, efc[world[:, None], rows], 0.0).sum(axis=1).astype(jnp.float32)
+  addresses = jnp.where(addresses >= 0, addresses + world[:, None] * efc.shape[-1], -1)
+  force = _normal_force(efc.reshape(-1), addresses, impl.contact__dim, inputs.pyramidal)
   geom, flex = impl.contact__geom, impl.contact__flex
   geom_actor, flex_actor = jnp.asarray(inputs.geom_actor), jnp.asarray(inputs.flex_actor)
   by_geom = jnp.where(geom >= 0, geom_actor[jnp.maximum(geom, 0)], -1)

@@ -678,7 +678,7 @@ class _Search:
     self.hits[repaired] += c_met[valid][:, repaired].any(axis=0)
     if valid.size == 0:
       return False
-    first = [q for q in repaired] + [q for q in query_order(self.places, self.rng) if q not in repaired]
+    first = list(repaired) + [q for q in query_order(self.places, self.rng) if q not in repaired]
     orders = [np.asarray(first)] + [query_order(self.places, self.rng) for _ in range(self.options.keep - 1)]
     score = nearness(c_gaps[valid], c_ties[valid], self.scale)
     kept = np.sort(valid[lexicase_keep(c_met[valid], score, self.options.keep, orders)])

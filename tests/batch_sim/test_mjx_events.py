@@ -20,20 +20,9 @@ import mwbx
 from mwbx.batch_sim.sampler import world_keys
 from mwbx.events import actors_of
 from mwbx.refinement import run_refinement
+from event_scenes import FAST_XML, domino_row_xml
 
-FAST_XML = """
-<mujoco>
-  <option timestep="0.001"/>
-  <worldbody>
-    <geom name="floor" type="plane" size="3 3 0.1" solref="-1e6 -10"/>
-    <body name="ball" pos="0 0 13.05"><freejoint/><geom type="sphere" size="0.05" mass="0.2" solref="-1e6 -10"/></body>
-  </worldbody>
-</mujoco>
-"""
-DOMINOES = "".join(f'<body name="domino_{k}" pos="{0.12 * k:.2f} 0 0.1"><freejoint/>'
-                   f'<geom type="box" size="0.01 0.05 0.1" mass="0.05"/></body>' for k in range(4))
-DOMINO_XML = (f'<mujoco><option timestep="0.002"/><worldbody><geom name="floor" type="plane" size="3 3 0.1"/>'
-              f'{DOMINOES}</worldbody></mujoco>')
+DOMINO_XML = domino_row_xml(4)
 # Episode strengths are stored to 7 bits of mantissa; MJX sums a step's force in float32.
 STRENGTH_RTOL = 2.0**-7 + 1e-4
 

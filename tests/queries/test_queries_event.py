@@ -22,6 +22,7 @@ from mwbx.events import actors_of, touch_margin
 from mwbx.batch_sim.sampler import world_keys
 from mwbx.search.solver import place_queries
 from conftest import REPO
+from event_scenes import FAST_XML, domino_row_xml
 
 DROP_XML = """
 <mujoco>
@@ -327,19 +328,6 @@ def test_an_order_gap_with_a_touch_that_never_happens_is_finite_and_quiet(drop_b
   assert np.all(np.isfinite(gaps)) and np.all(gaps[:, 0] > 0.3)
 
 
-# A ball falling 13 m hits a stiff, bouncy floor at 16 m/s: its contact lasts
-# a few milliseconds, less than a stored frame (8.3 ms at 120 fps).
-FAST_XML = """
-<mujoco>
-  <option timestep="0.001"/>
-  <worldbody>
-    <geom name="floor" type="plane" size="3 3 0.1" solref="-1e6 -10"/>
-    <body name="ball" pos="0 0 13.05"><freejoint/><geom type="sphere" size="0.05" mass="0.2" solref="-1e6 -10"/></body>
-  </worldbody>
-</mujoco>
-"""
-
-
 def test_a_fast_impact_between_two_stored_frames_is_a_touch_with_its_impulse(tmp_path):
   (tmp_path / "fast.xml").write_text(FAST_XML)
   (tmp_path / "fast.yaml").write_text("scene: {mjcf: fast.xml}\nsim: {end_time: 1.75}\n")
@@ -409,14 +397,6 @@ def test_touches_held_while_asleep_are_mujocos_contacts_before_they_slept(tmp_pa
       episodes = [r for r in rows if {int(r[0]), int(r[1])} == pair]
       assert episodes and episodes[-1][3] == last_tick[row], (row, box, rows)
   assert len(held) > 0.5 * bank.n_worlds * 3 * last_tick.max(), len(held)  # held: most box-floor steps
-
-
-def domino_row_xml(n: int = 6) -> str:
-  """``n`` dominoes 20 cm tall standing 12 cm apart in a row along x."""
-  dominoes = "".join(f'<body name="domino_{k}" pos="{0.12 * k:.2f} 0 0.1"><freejoint/>'
-                     f'<geom type="box" size="0.01 0.05 0.1" mass="0.05"/></body>' for k in range(n))
-  return (f'<mujoco><option timestep="0.002"/><worldbody><geom name="floor" type="plane" size="3 3 0.1"/>'
-          f'{dominoes}</worldbody></mujoco>')
 
 
 def test_a_domino_row_knocks_down_in_order_as_mujoco_steps_it(tmp_path):
