@@ -25,7 +25,7 @@ import numpy as np
 from mwbx.batch_sim import free_bodies as free_bodies_lib
 from mwbx.batch_sim import host_bookkeeping, host_loops, mujoco_c, sleep, world
 from mwbx.events import steps as steps_lib
-from mwbx.events.actors import Actors
+from mwbx.events.actors import Actors, actor_trees
 from mwbx.host_jit import borrowed, held, host_jit
 
 
@@ -105,20 +105,7 @@ def step_event_inputs(model, actors: Actors | None, gap: int) -> StepEventInputs
   layout = mujoco_c.contact_layout()
   on = actors is not None and layout is not None
   n_actors = len(actors.names) if actors is not None else 0
-  trees = [[] for _ in range(n_actors)]
-  if on:
-    for body in range(1, model.nbody):
-      tree = int(model.body_treeid[body])
-      for g in range(model.body_geomadr[body], model.body_geomadr[body] + model.body_geomnum[body]):
-        a = int(actors.geom_actor[g])
-        if tree >= 0 and tree not in trees[a]:
-          trees[a].append(tree)
-    for f in range(model.nflex):  # a flex moves with the trees of its vertex bodies
-      a = int(actors.flex_actor[f])
-      for b in model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]:
-        tree = int(model.body_treeid[b])
-        if tree >= 0 and tree not in trees[a]:
-          trees[a].append(tree)
+  trees = actor_trees(model, actors) if on else [[] for _ in range(n_actors)]
   flex_actor = np.asarray(actors.flex_actor if actors is not None else [], np.int32)
   return StepEventInputs(
       on=on, contact_words=np.asarray(layout if layout is not None else [0] * len(mujoco_c.ContactLayout._fields),

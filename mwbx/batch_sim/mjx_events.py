@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from mwbx.events import steps as steps_lib
-from mwbx.events.actors import Actors
+from mwbx.events.actors import Actors, actor_trees
 
 # Rows of a pyramidal contact at most: 2 (condim − 1), condim up to 6.
 MAX_PYRAMID_EDGES = 10
@@ -63,15 +63,8 @@ def event_inputs(model: mujoco.MjModel, actors: Actors, gap: int) -> MjxEventInp
   """The :class:`MjxEventInputs` of a model and its actors."""
   n = len(actors.names)
   trees = np.zeros((n, max(int(model.ntree), 1)), bool)
-  for body in range(1, model.nbody):
-    tree = int(model.body_treeid[body])
-    for g in range(model.body_geomadr[body], model.body_geomadr[body] + model.body_geomnum[body]):
-      if tree >= 0:
-        trees[int(actors.geom_actor[g]), tree] = True
-  for f in range(model.nflex):  # a flex moves with the trees of its vertex bodies
-    for b in model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]:
-      if int(model.body_treeid[b]) >= 0:
-        trees[int(actors.flex_actor[f]), int(model.body_treeid[b])] = True
+  for a, moved_with in enumerate(actor_trees(model, actors)):
+    trees[a, moved_with] = True
   flex_actor = np.asarray(actors.flex_actor, np.int32)
   return MjxEventInputs(np.asarray(actors.geom_actor, np.int32),
                         flex_actor if flex_actor.size else np.full(1, -1, np.int32), n,

@@ -95,6 +95,26 @@ def actors_of(model: mujoco.MjModel, objects: Sequence[str]) -> Actors:
   return Actors(names, geom_actor, len(objects), flex_actor)
 
 
+def actor_trees(model: mujoco.MjModel, actors: Actors) -> list[list[int]]:
+  """Per actor, the kinematic trees it moves with, in the order first met: its
+  geoms' bodies' trees, and a flex's vertex bodies' trees (a static actor: none).
+  An actor moves while one of them is awake (MuJoCo's island sleep)."""
+  trees: list[list[int]] = [[] for _ in actors.names]
+  for body in range(1, model.nbody):
+    tree = int(model.body_treeid[body])
+    for g in range(model.body_geomadr[body], model.body_geomadr[body] + model.body_geomnum[body]):
+      a = int(actors.geom_actor[g])
+      if tree >= 0 and tree not in trees[a]:
+        trees[a].append(tree)
+  for f in range(model.nflex):
+    a = int(actors.flex_actor[f])
+    for b in model.flex_vertbodyid[model.flex_vertadr[f]:model.flex_vertadr[f] + model.flex_vertnum[f]]:
+      tree = int(model.body_treeid[b])
+      if tree >= 0 and tree not in trees[a]:
+        trees[a].append(tree)
+  return trees
+
+
 def qpos_actors(model: mujoco.MjModel, actors: Actors) -> np.ndarray | None:
   """i64[nq] the actor each qpos coordinate moves (an object: the tree or
   flex its joint's body belongs to); None where a joint moves no actor."""
