@@ -93,10 +93,12 @@ def cost(n_worlds: int) -> tuple[dict, mwbx.Bank]:
     with tempfile.TemporaryDirectory() as tmp:
       bank.save(tmp)
       total = _dir_bytes(pathlib.Path(tmp) / "shards")
+      bank_total = _dir_bytes(pathlib.Path(tmp))
       events = _dir_bytes(pathlib.Path(tmp) / "shards", "events_*.npy")
     rows[how] = {"wall_seconds": wall, "episodes": int(len(bank.events.rows)),
                  "events_seconds": stats.events_seconds, "simulation_seconds": stats.run_seconds,
-                 "shard_bytes": total, "event_bytes": events, "event_fraction": events / total}
+                 "shard_bytes": total, "bank_bytes": bank_total, "event_bytes": events,
+                 "event_fraction": events / total, "event_fraction_of_bank": events / bank_total}
     if not on_frames:
       stepped = bank
     print(f"quickstart {n_worlds} worlds, events at {how}: wall {wall:.2f} s, simulation {stats.run_seconds:.2f} s,"

@@ -891,10 +891,12 @@ def events(d: dict) -> tuple[list[str], list[str]]:
            f"against a COM screen box on the same bank (the baseline). Machine: {d['machine']}, MuJoCo "
            f"{d['mujoco']}.", "",
            "| events found at | worlds | wall s | simulation s | events afterwards s | episodes | event bytes | "
-           "of shard bytes |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+           "bytes an episode | of shard bytes | of the bank's bytes |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
   for how, r in c.get("how", {}).items():
+    of_bank = f"{r['event_fraction_of_bank']:.1%}" if "event_fraction_of_bank" in r else "—"
     lines.append(f"| {how} | {c['worlds']} | {r['wall_seconds']:.2f} | {r['simulation_seconds']:.2f} | "
-                 f"{r['events_seconds']:.2f} | {r['episodes']:,} | {r['event_bytes']:,} | {r['event_fraction']:.1%} |")
+                 f"{r['events_seconds']:.2f} | {r['episodes']:,} | {r['event_bytes']:,} | "
+                 f"{r['event_bytes'] / max(r['episodes'], 1):.1f} | {r['event_fraction']:.1%} | {of_bank} |")
   if "wall_ratio" in c:
     step, frames = c["how"]["every physics step"], c["how"]["stored frames (baseline)"]
     lines += ["", f"Wall with events at every step / on the stored frames: {c['wall_ratio']:.2f}; the simulation "

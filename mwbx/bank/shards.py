@@ -333,7 +333,7 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   arrays["com_grid"] = polyline.encode(part.com, com_step(bank.config))
   arrays.update({f"qpos_{k}": np.ascontiguousarray(v) for k, v in store_arrays.items()})
   if part.events is not None:
-    arrays.update(part.events.arrays())
+    arrays.update(part.events.arrays(part.frame_count))
   lineage = {str(int(i)): bank.lineage[str(int(i))] for i in part.world_ids if str(int(i)) in bank.lineage}
   lineage_bytes = json.dumps(lineage).encode()
   shards = path / SHARDS
@@ -443,13 +443,13 @@ def _shard_events(path: pathlib.Path, entry: dict, arrays: dict):
   before contact events were recorded (or of a later events version). Version
   1 held frames and no strength: one tick a frame, strength unknown."""
   meta = entry.get("events")
-  if not meta or meta.get("version") not in (1, events_lib.EVENTS_VERSION) or "events_rows" not in arrays:
+  if not meta or meta.get("version") not in (1, 2, events_lib.EVENTS_VERSION) or "events_rows" not in arrays:
     return (), None
   ticks = meta.get("ticks_per_frame", 1) if meta["version"] > 1 else 1
   if not isinstance(ticks, int) or isinstance(ticks, bool):
     raise MwbxError(f"{path / SHARDS / entry['name']}: corrupt contact events (ticks_per_frame {ticks!r})")
   record = events_lib.EventRecord.from_arrays(arrays, int(entry["worlds"]), str(path / SHARDS / entry["name"]),
-                                              ticks_per_frame=ticks)
+                                              ticks_per_frame=ticks, version=meta["version"])
   return tuple(meta["actors"]), record
 
 

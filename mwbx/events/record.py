@@ -21,48 +21,55 @@ from __future__ import annotations
 
 from typing import NamedTuple, Sequence
 
+import lzma
 import zlib
 
 import numpy as np
 
 from mwbx.errors import MwbxError
 
-EVENTS_VERSION = 2  # the record's layout; a bank's manifest names it (1: frames, no strength)
+EVENTS_VERSION = 3  # the record's layout; a bank's manifest names it (see :func:`EventRecord.from_arrays`)
 ROW = {"a": 0, "b": 1, "first": 2, "last": 3}  # columns of a row
 STRENGTH = {"peak_force": 0, "impulse": 1}  # columns of ``strength``: N, N·s
 
-
-# Strength is kept to 7 bits of mantissa (within 0.8 %): a float's top two bytes, bfloat16.
-STRENGTH_MANTISSA_BITS = 7
+# A strength is kept as the nearest power of RATIO above FLOOR (within
+# STRENGTH_RELATIVE_ERROR; below FLOOR it reads 0): about 11 bits a number
+# where a float's mantissa alone, to that error, takes 14 that zlib cannot squeeze.
+STRENGTH_RELATIVE_ERROR = 0.009
+_STRENGTH_RATIO = (1.0 + STRENGTH_RELATIVE_ERROR) ** 2
+_STRENGTH_FLOOR = 1e-9  # N or N·s
+_STRENGTH_CODE = {"zero": 0, "nan": 1, "first_power": 2}  # u16 codes; FLOOR · RATIO^k is code k + 2
+# Raw LZMA2, no container: the small integer streams below squeeze 35 % more
+# than with zlib; literal contexts off (lc=0) suit bytes that are digits of numbers.
+_LZMA_FILTERS = [{"id": lzma.FILTER_LZMA2, "preset": 6, "lc": 0, "lp": 0, "pb": 0}]
 
 
 def _no_strength(n: int) -> np.ndarray:
   return np.full((n, 2), np.nan, np.float32)
 
 
+def strength_codes(strength) -> np.ndarray:
+  """u16[n, 2] the codes of f32[n, 2] strengths (:data:`STRENGTH_RELATIVE_ERROR`)."""
+  s = np.asarray(strength, np.float64).reshape(-1, 2)
+  with np.errstate(divide="ignore", invalid="ignore"):
+    power = np.round(np.log(np.maximum(s, _STRENGTH_FLOOR) / _STRENGTH_FLOOR) / np.log(_STRENGTH_RATIO))
+  codes = np.clip(power + _STRENGTH_CODE["first_power"], _STRENGTH_CODE["first_power"], 0xFFFF)
+  codes = np.where(s < _STRENGTH_FLOOR, _STRENGTH_CODE["zero"], codes)
+  return np.where(np.isnan(s), _STRENGTH_CODE["nan"], codes).astype(np.uint16)
+
+
+def strength_values(codes) -> np.ndarray:
+  """f32[n, 2] the strengths :func:`strength_codes` coded."""
+  codes = np.asarray(codes, np.int64)
+  values = _STRENGTH_FLOOR * _STRENGTH_RATIO ** (codes - _STRENGTH_CODE["first_power"]).astype(np.float64)
+  values = np.where(codes == _STRENGTH_CODE["zero"], 0.0, values)
+  return np.where(codes == _STRENGTH_CODE["nan"], np.nan, values).astype(np.float32)
+
+
 def kept_strength(strength) -> np.ndarray:
-  """f32[n, 2] ``strength`` as a record keeps it: each float's mantissa cut to
-  :data:`STRENGTH_MANTISSA_BITS` bits (within 0.8 %; NaN stays NaN)."""
-  bits = np.ascontiguousarray(strength, np.float32).reshape(-1, 2).view(np.uint32)
-  drop = np.uint32((1 << (23 - STRENGTH_MANTISSA_BITS)) - 1)
-  return (bits & ~drop).view(np.float32)
-
-
-def pack_strength(strength: np.ndarray) -> np.ndarray:
-  """u8[k] a record's strength as a shard keeps it: the top two bytes of each
-  (kept) float, byte planes one after the other, zlib'd."""
-  top = (kept_strength(strength).view(np.uint32) >> 16).astype(np.uint16).reshape(-1)
-  planes = top.view(np.uint8).reshape(-1, 2).T
-  return np.frombuffer(zlib.compress(planes.tobytes(), 6), np.uint8).copy()
-
-
-def unpack_strength(blob: np.ndarray, n_rows: int) -> np.ndarray:
-  """f32[n_rows, 2] from :func:`pack_strength`'s bytes (ValueError if they do not hold that many)."""
-  raw = np.frombuffer(zlib.decompress(np.asarray(blob, np.uint8).tobytes()), np.uint8)
-  if raw.size != 4 * n_rows:
-    raise ValueError(f"{raw.size // 4} strengths stored, {n_rows} counted")
-  top = np.ascontiguousarray(raw.reshape(2, -1).T).view(np.uint16).reshape(-1)
-  return (top.astype(np.uint32) << 16).view(np.float32).reshape(n_rows, 2)
+  """f32[n, 2] ``strength`` as a record keeps it: within
+  :data:`STRENGTH_RELATIVE_ERROR` (NaN stays NaN; below 1e-9 reads 0)."""
+  return strength_values(strength_codes(strength))
 
 
 class EventRecord(NamedTuple):
@@ -166,23 +173,33 @@ class EventRecord(NamedTuple):
                np.concatenate([r.counts for r in records]).astype(np.int32, copy=False),
                np.concatenate([r.strength for r in records]).astype(np.float32, copy=False), ticks)
 
-  def arrays(self) -> dict[str, np.ndarray]:
-    """The arrays a shard stores (checksummed with the others): ``events_rows``
-    and ``events_strength`` packed (:func:`pack`, :func:`pack_strength`), ``events_counts`` as they are."""
-    return {"events_rows": pack(self.rows), "events_counts": np.ascontiguousarray(self.counts, np.int32),
-            "events_strength": pack_strength(self.strength)}
+  def arrays(self, frame_count: np.ndarray) -> dict[str, np.ndarray]:
+    """The arrays a shard stores (checksummed with the others), each packed
+    (:func:`pack`): ``events_counts``, ``events_rows``, ``events_strength``;
+    ``frame_count`` i64[W] the worlds' recorded frames (an episode lasting to
+    the world's end is stored as such)."""
+    return pack(self, frame_count)
 
   @classmethod
-  def from_arrays(cls, arrays: dict, n_worlds: int, where: str = "bank", ticks_per_frame: int = 1) -> "EventRecord":
+  def from_arrays(cls, arrays: dict, n_worlds: int, where: str = "bank", ticks_per_frame: int = 1,
+                  version: int = EVENTS_VERSION) -> "EventRecord":
     """A shard's record, checked (MwbxError naming ``where`` if the arrays
-    disagree); a shard without ``events_strength`` (events version 1) has none."""
-    counts = np.asarray(arrays["events_counts"])
-    n_rows = int(counts.sum(dtype=np.int64)) if counts.ndim == 1 else -1
+    disagree). ``arrays`` holds the shard's ``frame_count`` too. Versions:
+    3 (:func:`pack`); 2, rows and strengths zlib'd in world order, strengths as
+    bfloat16; 1, as 2 in frames and without ``events_strength`` (none known)."""
     try:
-      rows = unpack(np.asarray(arrays["events_rows"]), n_rows)
-      strength = (unpack_strength(arrays["events_strength"], len(rows)) if "events_strength" in arrays
-                  else _no_strength(len(rows)))
-    except (ValueError, zlib.error) as err:
+      if version >= 3:
+        counts = _unpack_counts(arrays["events_counts"], n_worlds)
+        ends = (np.asarray(arrays["frame_count"], np.int64) - 1) * int(ticks_per_frame)
+        rows = _unpack_rows(arrays["events_rows"], counts, ends)
+        strength = _unpack_strength(arrays["events_strength"], rows, counts)
+      else:
+        counts = np.asarray(arrays["events_counts"])
+        n_rows = int(counts.sum(dtype=np.int64)) if counts.ndim == 1 else -1
+        rows = _unpack_rows_v2(np.asarray(arrays["events_rows"]), n_rows)
+        strength = (_unpack_strength_v2(arrays["events_strength"], len(rows)) if "events_strength" in arrays
+                    else _no_strength(len(rows)))
+    except (ValueError, KeyError, zlib.error, lzma.LZMAError) as err:
       raise MwbxError(f"{where}: corrupt contact events ({err})") from None
     if counts.shape != (n_worlds,) or (counts < 0).any() \
         or (rows.size and (rows[:, ROW["a"]] >= rows[:, ROW["b"]]).any()) or strength.shape != (len(rows), 2) \
@@ -193,21 +210,114 @@ class EventRecord(NamedTuple):
                int(ticks_per_frame))
 
 
-def pack(rows: np.ndarray) -> np.ndarray:
-  """u8[n] episode rows as a shard keeps them: one byte giving the width of
-  a number (2 bytes below 65,536, else 4), then zlib of the columns one after
-  the other, the last frame kept as the run's length (``last - first``), so
-  alike numbers sit together: about 2.4 bytes an episode on quickstart."""
-  rows = np.asarray(rows, np.int64).reshape(-1, 4)
-  columns = rows.T.copy()
-  columns[ROW["last"]] -= columns[ROW["first"]]
-  wide = columns.size and int(columns.max()) >= (1 << 16)
-  data = columns.astype(np.int32 if wide else np.uint16)
-  return np.frombuffer(bytes([data.itemsize]) + zlib.compress(data.tobytes(), 6), np.uint8).copy()
+# A record as a shard keeps it (version 3). Each world's rows are sorted by
+# pair, so a row is stored as its pair, the ticks since the pair's previous
+# episode ended (since 0 for its first), and its length (0 for one lasting to
+# the world's end, else length + 1); strengths as codes, the impulse's
+# relative to the peak force's. The numbers are stored column by column, each
+# column's bytes low plane then high, the time and strength columns in the
+# order of _stored_order (rows alike in pair and rank, of all worlds,
+# together): most of what LZMA squeezes is alike numbers side by side.
+_ALIKE_RANKS = 3  # a pair's episodes from the 3rd on are alike enough to be stored together
 
 
-def unpack(blob: np.ndarray, n_rows: int) -> np.ndarray:
-  """i32[n_rows, 4] episode rows from :func:`pack`'s bytes (ValueError if they do not hold that many)."""
+def pack(record: EventRecord, frame_count: np.ndarray) -> dict[str, np.ndarray]:
+  """``events_counts``, ``events_rows``, ``events_strength``: u8 blobs of
+  ``record`` (quickstart: about 3.7 bytes an episode with its strength)."""
+  rows = np.asarray(record.rows, np.int64).reshape(-1, 4)
+  counts = np.asarray(record.counts, np.int64)
+  order, same_pair = _stored_order(rows, counts)
+  since = rows[:, ROW["first"]].copy()
+  since[1:][same_pair[1:]] -= rows[:-1, ROW["last"]][same_pair[1:]]
+  # "To the world's end" only for a pair's last episode: a later one counts from this one's last.
+  pair_last = np.append(~same_pair[1:], True)
+  to_end = pair_last & (rows[:, ROW["last"]] == np.repeat(record.end_ticks(frame_count), counts))
+  length = np.where(to_end, 0, rows[:, ROW["last"]] - rows[:, ROW["first"]] + 1)
+  codes = strength_codes(record.strength).astype(np.int64)[order]
+  relative = (codes[:, STRENGTH["impulse"]] - codes[:, STRENGTH["peak_force"]]) % (1 << 16)
+  return {"events_counts": _pack_columns(counts[None]),
+          "events_rows": _pack_columns(np.stack([rows[:, ROW["a"]], rows[:, ROW["b"]], since[order], length[order]])),
+          "events_strength": _pack_columns(np.stack([codes[:, STRENGTH["peak_force"]], relative]))}
+
+
+def _stored_order(rows: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+  """(i64[N] the rows' stored order: by pair, rank within the world's
+  episodes of the pair (capped at :data:`_ALIKE_RANKS`), world; bool[N] each
+  row has the pair of the row before it in the same world)."""
+  n = len(rows)
+  world = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
+  same_pair = np.zeros(n, bool)
+  same_pair[1:] = ((rows[1:, ROW["a"]] == rows[:-1, ROW["a"]]) & (rows[1:, ROW["b"]] == rows[:-1, ROW["b"]])
+                   & (world[1:] == world[:-1]))
+  run_start = np.flatnonzero(~same_pair)
+  rank = np.arange(n) - np.repeat(run_start, np.diff(np.append(run_start, n)))
+  return np.lexsort((world, np.minimum(rank, _ALIKE_RANKS), rows[:, ROW["b"]], rows[:, ROW["a"]])), same_pair
+
+
+def _pack_columns(columns: np.ndarray) -> np.ndarray:
+  """u8 blob of i64[k, n]: a byte giving the width of a number (2: all in
+  [0, 65536), else 4), then LZMA of the columns' byte planes."""
+  columns = np.asarray(columns, np.int64)
+  width = 2 if columns.size == 0 or (columns.min() >= 0 and columns.max() < 1 << 16) else 4
+  data = columns.astype(np.uint16 if width == 2 else np.int32)
+  planes = data.view(np.uint8).reshape(len(data), -1, width).transpose(0, 2, 1)
+  packed = lzma.compress(np.ascontiguousarray(planes).tobytes(), format=lzma.FORMAT_RAW, filters=_LZMA_FILTERS)
+  return np.frombuffer(bytes([width]) + packed, np.uint8).copy()
+
+
+def _unpack_columns(blob, k: int, n: int) -> np.ndarray:
+  """i64[k, n] from :func:`_pack_columns`'s bytes (ValueError if they do not hold that many)."""
+  blob = np.asarray(blob, np.uint8).reshape(-1)
+  if blob.size < 1 or int(blob[0]) not in (2, 4):
+    raise ValueError("unknown packing")
+  width = int(blob[0])
+  raw = np.frombuffer(lzma.decompress(blob[1:].tobytes(), format=lzma.FORMAT_RAW, filters=_LZMA_FILTERS), np.uint8)
+  if raw.size != k * n * width:
+    raise ValueError(f"{raw.size // max(k * width, 1)} numbers stored where {n} were counted")
+  planes = np.ascontiguousarray(raw.reshape(k, width, n).transpose(0, 2, 1))
+  return planes.view(np.uint16 if width == 2 else np.int32).reshape(k, n).astype(np.int64)
+
+
+def _unpack_counts(blob, n_worlds: int) -> np.ndarray:
+  return _unpack_columns(blob, 1, n_worlds)[0]
+
+
+def _unpack_rows(blob, counts: np.ndarray, world_end: np.ndarray) -> np.ndarray:
+  """i32[N, 4] rows from :func:`pack`'s ``events_rows``; ``world_end`` i64[W]
+  each world's last tick."""
+  counts = np.asarray(counts, np.int64)
+  n = int(counts.sum())
+  a, b, since_stored, length_stored = _unpack_columns(blob, 4, n)
+  rows = np.zeros((n, 4), np.int64)
+  rows[:, ROW["a"]], rows[:, ROW["b"]] = a, b
+  order, same_pair = _stored_order(rows, counts)
+  since, length = np.empty(n, np.int64), np.empty(n, np.int64)
+  since[order], length[order] = since_stored, length_stored
+  # first = the previous episode's last + since, last = first + length - 1:
+  # a running sum restarted at each pair's first episode.
+  step = since.copy()
+  step[1:][same_pair[1:]] += length[:-1][same_pair[1:]] - 1
+  total = np.cumsum(step)
+  run_start = np.flatnonzero(~same_pair)
+  rows[:, ROW["first"]] = total - np.repeat(total[run_start] - step[run_start], np.diff(np.append(run_start, n)))
+  rows[:, ROW["last"]] = np.where(length == 0, np.repeat(np.asarray(world_end, np.int64), counts),
+                                  rows[:, ROW["first"]] + length - 1)
+  return rows.astype(np.int32)
+
+
+def _unpack_strength(blob, rows: np.ndarray, counts: np.ndarray) -> np.ndarray:
+  """f32[N, 2] from :func:`pack`'s ``events_strength`` and the rows it belongs to."""
+  peak, relative = _unpack_columns(blob, 2, len(rows))
+  order, _ = _stored_order(np.asarray(rows, np.int64), counts)
+  codes = np.empty((len(rows), 2), np.int64)
+  codes[order, STRENGTH["peak_force"]] = peak
+  codes[order, STRENGTH["impulse"]] = (peak + relative) % (1 << 16)
+  return strength_values(codes)
+
+
+def _unpack_rows_v2(blob: np.ndarray, n_rows: int) -> np.ndarray:
+  """i32[n_rows, 4] of events version 1 or 2: a byte giving the width (2 or
+  4), then zlib of the columns, ``last`` as ``last - first``."""
   blob = np.asarray(blob, np.uint8).reshape(-1)
   if blob.size < 1 or int(blob[0]) not in (2, 4) or n_rows < 0:
     raise ValueError("unknown packing")
@@ -218,6 +328,15 @@ def unpack(blob: np.ndarray, n_rows: int) -> np.ndarray:
   rows = columns.reshape(4, n_rows).T.astype(np.int32)
   rows[:, ROW["last"]] += rows[:, ROW["first"]]
   return np.ascontiguousarray(rows)
+
+
+def _unpack_strength_v2(blob: np.ndarray, n_rows: int) -> np.ndarray:
+  """f32[n_rows, 2] of events version 2: each float's top two bytes (bfloat16), byte planes, zlib'd."""
+  raw = np.frombuffer(zlib.decompress(np.asarray(blob, np.uint8).tobytes()), np.uint8)
+  if raw.size != 4 * n_rows:
+    raise ValueError(f"{raw.size // 4} strengths stored, {n_rows} counted")
+  top = np.ascontiguousarray(raw.reshape(2, -1).T).view(np.uint16).reshape(-1)
+  return (top.astype(np.uint32) << 16).view(np.float32).reshape(n_rows, 2)
 
 
 def merge(parts: Sequence[tuple[tuple[str, ...], "EventRecord | None"]]):
