@@ -33,8 +33,8 @@ ROW = {"a": 0, "b": 1, "first": 2, "last": 3}  # columns of a row
 STRENGTH = {"peak_force": 0, "impulse": 1}  # columns of ``strength``: N, N·s
 
 # A strength is kept as the nearest power of RATIO above FLOOR (within
-# STRENGTH_RELATIVE_ERROR; below FLOOR it reads 0): about 11 bits a number
-# where a float's mantissa alone, to that error, takes 14 that zlib cannot squeeze.
+# STRENGTH_RELATIVE_ERROR; below FLOOR it reads 0): a u16 code, alike for
+# alike episodes, where a float's low mantissa bits are noise no compressor squeezes.
 STRENGTH_RELATIVE_ERROR = 0.009
 _STRENGTH_RATIO = (1.0 + STRENGTH_RELATIVE_ERROR) ** 2
 _STRENGTH_FLOOR = 1e-9  # N or N·s

@@ -683,11 +683,11 @@ class _Search:
     self.hits[repaired] += c_met[valid][:, repaired].any(axis=0)
     if valid.size == 0:
       return False
-    # The first child: the repaired queries first, then the others only the
+    # The first child: the repaired queries first, then the poses only the
     # refined objects decide (a letter's pose after its place: where it lands
     # decides both, and a letter that lands in its slot lying down is seldom
     # turned upright there by a later restart), then the rest.
-    decided = [q for q in range(self.n_queries) if q not in repaired
+    decided = [int(q) for q in self.rng.permutation(np.flatnonzero(~self.places)) if q not in repaired
                and self.query_objects[q] and self.query_objects[q] <= set(objects)]
     first = list(repaired) + decided + [q for q in query_order(self.places, self.rng, self.follows)
                                         if q not in repaired and q not in decided]
