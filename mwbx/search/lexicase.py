@@ -14,14 +14,8 @@ world has it in). Every world meeting a set of queries no other world's set
 contains is picked by some order, and so worked on.
 
 The queries the search ranks first (:func:`~mwbx.search.place_queries`)
-come first in every order, each followed by the queries its objects alone
-decide: a letter's place, then its pose, then another letter's. A world
-lacking a place is never chosen over one that has it for a pose it meets,
-but a world whose letter lands in its slot upright is chosen over one whose
-letter lies there whenever that letter comes first: where a letter lands
-decides both, and one that lands lying is seldom turned upright by a later
-restart, so a search ranking every place before every pose follows the
-lineage with the most letters in their slots, however they lie.
+come first in every order: a world lacking a place is never chosen over
+one that has it for a pose it meets.
 """
 
 from __future__ import annotations
@@ -29,28 +23,12 @@ from __future__ import annotations
 import numpy as np
 
 
-def query_order(first: np.ndarray, rng: np.random.Generator, follows=None) -> np.ndarray:
+def query_order(first: np.ndarray, rng: np.random.Generator) -> np.ndarray:
   """i[Q] a random order of the queries: those marked in ``first`` (bool[Q])
-  in a random order, each followed by the queries ``follows`` gives it
-  (``follows[q]``: the others its objects alone decide, e.g. a letter's pose
-  after its place) not placed yet, then the others in a random order.
-
-  Example:
-    >>> order = query_order(np.array([1, 1, 0, 0], bool), np.random.default_rng(0), follows=[[2], [3], [], []])
-    >>> [int(q) for q in order] in ([0, 2, 1, 3], [1, 3, 0, 2])
-    True
-  """
+  in a random order, then the others in a random order."""
   first = np.asarray(first, bool)
   head, tail = np.flatnonzero(first), np.flatnonzero(~first)
-  order: list[int] = []
-  placed = np.zeros(first.size, bool)
-  for q in rng.permutation(head):
-    followers = [] if follows is None else [f for f in follows[q] if not placed[f] and not first[f]]
-    for f in [int(q)] + [int(f) for f in rng.permutation(np.asarray(followers, np.int64))]:
-      order.append(f)
-      placed[f] = True
-  order += [int(q) for q in rng.permutation(tail) if not placed[q]]
-  return np.asarray(order, np.int64)
+  return np.concatenate([rng.permutation(head), rng.permutation(tail)]).astype(np.int64)
 
 
 def lexicase(met: np.ndarray, order: np.ndarray, score: np.ndarray) -> int:

@@ -447,11 +447,6 @@ class _Search:
     self.alone_met = self._alone_met(bank)  # bool[W, len(self.alone)]
     self.scale = typical_gaps(self.gaps)
     self.places = place_queries(queries)  # bool[Q]: first in every order, ranked first
-    self.query_objects = [frozenset(q.objects(bank)) for q in queries]  # the objects whose motion decides each
-    # Each place's followers in every order: the other queries its objects alone decide (a letter's pose).
-    self.follows = [[f for f in range(self.n_queries) if f != q and self.query_objects[f]
-                     and self.query_objects[f] <= self.query_objects[q]] if self.places[q] else []
-                    for q in range(self.n_queries)]
     self.ties = metric(bank, self.tie_metric)
     self.arms = RestartArms()
     self.steps: list[SolveStep] = []
@@ -509,7 +504,7 @@ class _Search:
                       np.int64)
     if rows.size == 0:
       return None
-    order = query_order(self.places, self.rng, self.follows)
+    order = query_order(self.places, self.rng)
     row = int(rows[lexicase(self.met[rows], order, nearness(self.gaps[rows], self.ties[rows], self.scale))])
     world = int(self.bank.world_ids[row])
     attempt = self.tries.get(world, 0)
@@ -683,15 +678,8 @@ class _Search:
     self.hits[repaired] += c_met[valid][:, repaired].any(axis=0)
     if valid.size == 0:
       return False
-    # The first child: the repaired queries first, then the poses only the
-    # refined objects decide (a letter's pose after its place: where it lands
-    # decides both, and a letter that lands in its slot lying down is seldom
-    # turned upright there by a later restart), then the rest.
-    decided = [int(q) for q in self.rng.permutation(np.flatnonzero(~self.places)) if q not in repaired
-               and self.query_objects[q] and self.query_objects[q] <= set(objects)]
-    first = list(repaired) + decided + [q for q in query_order(self.places, self.rng, self.follows)
-                                        if q not in repaired and q not in decided]
-    orders = [np.asarray(first)] + [query_order(self.places, self.rng, self.follows) for _ in range(self.options.keep - 1)]
+    first = list(repaired) + [q for q in query_order(self.places, self.rng) if q not in repaired]
+    orders = [np.asarray(first)] + [query_order(self.places, self.rng) for _ in range(self.options.keep - 1)]
     score = nearness(c_gaps[valid], c_ties[valid], self.scale)
     kept = np.sort(valid[lexicase_keep(c_met[valid], score, self.options.keep, orders)])
     dropped = np.setdiff1d(np.arange(children.n_worlds), kept)

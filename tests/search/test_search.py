@@ -406,24 +406,6 @@ def test_lexicase_orders_put_places_first_and_keep_picks_distinct():
   assert list(search_lexicase.lexicase_keep(met, score, 9, [np.array([1, 0])] * 2)) == [2, 1]
 
 
-def test_a_letters_pose_follows_its_place_in_every_order():
-  """Places 0 and 1 (two letters' slots), poses 2 and 3 of those letters, 4 of
-  neither: each pose right after its letter's place; a world whose letter
-  sits upright in its slot beats one whose letter lies there when that letter comes first."""
-  rng = np.random.default_rng(2)
-  places = np.array([True, True, False, False, False])
-  follows = [[2], [3], [], [], []]
-  orders = {tuple(int(q) for q in search_lexicase.query_order(places, rng, follows)) for _ in range(50)}
-  assert orders == {(0, 2, 1, 3, 4), (1, 3, 0, 2, 4)}
-  # Both letters in their slots, the first lying; letter 0 upright, letter 1 out of its slot.
-  met = np.array([[1, 1, 0, 1, 0], [1, 0, 1, 0, 0]], bool)
-  picks = {search_lexicase.lexicase(met, np.asarray(order), np.zeros(2)) for order in orders}
-  assert picks == {0, 1}
-  # Without followers every place comes before every pose: the first world always.
-  assert {search_lexicase.lexicase(met, search_lexicase.query_order(places, rng), np.zeros(2))
-          for _ in range(50)} == {0}
-
-
 def test_restart_arms_learn_the_arm_that_gains_per_goal():
   """Thompson sampling: an arm that gains is drawn more, for its goal only;
   arms repairing two queries are drawn only where two are unmet."""
