@@ -28,8 +28,9 @@ class QposStore(Protocol):
   def append(self, qpos: np.ndarray, frame_count: np.ndarray) -> None:
     """Adds worlds: qpos f32[W, T, nq] (padded past each world's count), frame_count i32[W]."""
 
-  def extend(self, other: "QposStore") -> None:
-    """Adds every world of another store of the same kind and settings, as stored."""
+  def extend(self, *others: "QposStore") -> None:
+    """Adds every world of other stores of the same kind and settings, as
+    stored, in their order (copied once, however many)."""
 
   def copy(self) -> "QposStore":
     """An independent copy."""
@@ -99,10 +100,12 @@ class RawQposStore:
     self.data = np.concatenate([self.data, *pieces]).astype(np.float32)
     self.offsets = np.concatenate([self.offsets, self.offsets[-1] + np.cumsum(frame_count)])
 
-  def extend(self, other: "RawQposStore") -> None:
-    """Adds every world of another store of the same kind, as stored."""
-    self.data = np.concatenate([self.data, other.data])
-    self.offsets = np.concatenate([self.offsets, self.offsets[-1] + other.offsets[1:]])
+  def extend(self, *others: "RawQposStore") -> None:
+    """Adds every world of other stores of the same kind, as stored."""
+    stores = [self, *others]
+    starts = np.cumsum([0] + [s.offsets[-1] for s in stores[:-1]])
+    self.offsets = np.concatenate([self.offsets[:1]] + [s.offsets[1:] + k for s, k in zip(stores, starts)])
+    self.data = np.concatenate([s.data for s in stores])
 
   def refined(self, after: np.ndarray, first_frame: int, frame_count: np.ndarray, parent: int,
               parent_frames: np.ndarray, keep_qpos: np.ndarray) -> "RawQposStore":

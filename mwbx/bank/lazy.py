@@ -218,8 +218,7 @@ def concat_stores(stores: list):
     nbytes = sum(s.nbytes for s in stores)
     return LazyQposStore(stores[0].kind, [], [], nbytes, _RowMap.concat(maps))
   out = stores[0].copy()
-  for s in stores[1:]:
-    out.extend(s)
+  out.extend(*stores[1:])
   return out
 
 
@@ -252,15 +251,13 @@ class LazyQposStore:
   def concrete(self):
     """The concrete store of the rows held, in order (reads their shards)."""
     rows = np.arange(self.n_worlds)
-    store = None
+    parts = []
     for p, _, local in self._map.groups(rows):
-      part = self._map.pieces.get(p).take(local)
-      if store is None:
-        store = part
-      else:
-        store.extend(part)
-    if store is None:  # no rows: an empty store of the first piece's settings
-      store = self._map.pieces.get(0).empty()
+      piece = self._map.pieces.get(p)
+      whole = local.size == piece.n_worlds and _is_run(local) and int(local[0]) == 0
+      parts.append(piece if whole else piece.take(local))  # a whole piece is read, not copied row by row
+    store = (parts[0] if parts else self._map.pieces.get(0)).empty()  # pieces stay as cached
+    store.extend(*parts)
     if not np.all(np.diff(self._map.piece) >= 0):  # rows not in piece order: reorder
       order = np.concatenate([where for _, where, _ in self._map.groups(rows)])
       store = store.take(np.argsort(order))
@@ -273,8 +270,8 @@ class LazyQposStore:
     store.append(qpos, frame_count)
     self.extend(store)
 
-  def extend(self, other) -> None:
-    self._map = _RowMap.concat([self._map, _store_map(other)])
+  def extend(self, *others) -> None:
+    self._map = _RowMap.concat([self._map] + [_store_map(other) for other in others])
 
   def copy(self) -> "LazyQposStore":
     return self._with(self._map.take(np.arange(self.n_worlds)))

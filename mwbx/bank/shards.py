@@ -519,8 +519,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   if eager:
     com = np.concatenate([arrays["com"] for arrays, _ in smalls])
     store = smalls[0][0]["qpos"]
-    for arrays, _ in smalls[1:]:
-      store.extend(arrays["qpos"])
+    store.extend(*[arrays["qpos"] for arrays, _ in smalls[1:]])
   else:
     row_shape = entries[0].get("com_row_shape") or list(_read_com(path, entries[0]).shape[1:])
     com = lazy_lib.LazyRows([lambda e=e: _read_com(path, e) for e in entries], counts, tuple(row_shape),

@@ -514,8 +514,7 @@ class _ChunkStore:
       self.add(FinishedWorlds(rest, result.qpos[rest], result.frame_count[rest]))
     rows = np.concatenate([part[0] for part in self.parts])
     store = self.parts[0][1]
-    for _, part, _ in self.parts[1:]:
-      store.extend(part)
+    store.extend(*[part for _, part, _ in self.parts[1:]])
     if np.any(np.diff(rows) < 0):
       store = store.take(np.argsort(rows, kind="stable"))
     counts = np.asarray(result.frame_count).astype(np.int32).copy()

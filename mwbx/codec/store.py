@@ -91,15 +91,18 @@ class CompressedQposStore:
     self.max_error = np.concatenate([self.max_error, res.max_error])
     self.raw_channels = np.concatenate([self.raw_channels, res.raw_channels])
 
-  def extend(self, other: "CompressedQposStore") -> None:
-    """Adds every world of another compressed store with the same layout and bounds."""
-    if (other.layout != self.layout or other.bounds != self.bounds or other.fps != self.fps):
+  def extend(self, *others: "CompressedQposStore") -> None:
+    """Adds every world of other compressed stores with the same layout and
+    bounds, in their order (copied once, however many)."""
+    if any(o.layout != self.layout or o.bounds != self.bounds or o.fps != self.fps for o in others):
       raise CodecError("compressed qpos stores differ in layout, bounds or fps")
-    self.data = np.concatenate([self.data, other.data])
-    self.offsets = np.concatenate([self.offsets, self.offsets[-1] + other.offsets[1:]])
-    self.frame_count = np.concatenate([self.frame_count, other.frame_count])
-    self.max_error = np.concatenate([self.max_error, other.max_error])
-    self.raw_channels = np.concatenate([self.raw_channels, other.raw_channels])
+    stores = [self, *others]
+    starts = np.cumsum([0] + [int(s.offsets[-1]) for s in stores[:-1]])
+    self.offsets = np.concatenate([self.offsets[:1]] + [s.offsets[1:] + k for s, k in zip(stores, starts)])
+    self.data = np.concatenate([s.data for s in stores])
+    self.frame_count = np.concatenate([s.frame_count for s in stores])
+    self.max_error = np.concatenate([s.max_error for s in stores])
+    self.raw_channels = np.concatenate([s.raw_channels for s in stores])
 
   def copy(self) -> "CompressedQposStore":
     return CompressedQposStore(self.layout, self.bounds, self.fps, self.gravity, self.n_bodies,

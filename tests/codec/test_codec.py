@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 
 from mwbx.codec import (ChannelLayout, CodecBounds, CodecError, CompressedQposStore,
                         decode_world, encode_batch, encode_batch_checked, encode_world, rice)
+from mwbx.qpos_store import RawQposStore
 from mwbx.testing import codec_data as testing
 from mwbx.codec import fit as fit_lib
 from mwbx.codec import fit_kernels
@@ -309,6 +310,26 @@ def test_store_append_frames_state_restore(boxes):
   both.extend(again)
   assert both.n_worlds == 8 and store.n_worlds == 4
   np.testing.assert_array_equal(both.row_frames(7), store.row_frames(3))
+  # Several stores at once are as one after another, the store extended first included.
+  many, one_by_one = store.take([1, 2]), store.take([1, 2])
+  parts = [store.take([3]), again.copy(), store.empty(), store.take([0, 2])]
+  many.extend(*parts)
+  for part in parts:
+    one_by_one.extend(part)
+  assert many.n_worlds == 2 + 1 + 4 + 0 + 2
+  for name, array in one_by_one.state()[0].items():
+    np.testing.assert_array_equal(many.state()[0][name], array, err_msg=name)
+  raw, raw_one_by_one = RawQposStore(qpos.shape[2]), RawQposStore(qpos.shape[2])
+  raw.append(qpos[:1], frame_count[:1])
+  raw_one_by_one.append(qpos[:1], frame_count[:1])
+  raw_parts = [RawQposStore(qpos.shape[2]) for _ in range(3)]
+  for k, part in enumerate(raw_parts):
+    part.append(qpos[k:k + 2], frame_count[k:k + 2])
+  raw.extend(*raw_parts)
+  for part in raw_parts:
+    raw_one_by_one.extend(part)
+  np.testing.assert_array_equal(raw.offsets, raw_one_by_one.offsets)
+  np.testing.assert_array_equal(raw.row_frames(6), qpos[3, :frame_count[3]])
 
 
 def test_store_reports_corrupt_stream_with_its_row(boxes):
