@@ -44,6 +44,11 @@ _STRENGTH_CODE = {"zero": 0, "nan": 1, "first_power": 2}  # u16 codes; FLOOR · 
 _LZMA_FILTERS = [{"id": lzma.FILTER_LZMA2, "preset": 6, "lc": 0, "lp": 0, "pb": 0}]
 
 
+def end_ticks(frame_count: np.ndarray, ticks_per_frame: int) -> np.ndarray:
+  """i64[W] each world's last tick: its last recorded frame's (it holds after)."""
+  return (np.asarray(frame_count, np.int64) - 1) * int(ticks_per_frame)
+
+
 def _no_strength(n: int) -> np.ndarray:
   return np.full((n, 2), np.nan, np.float32)
 
@@ -131,7 +136,7 @@ class EventRecord(NamedTuple):
 
   def end_ticks(self, frame_count: np.ndarray) -> np.ndarray:
     """i64[W] each world's last tick: its last recorded frame's (it holds after)."""
-    return (np.asarray(frame_count, np.int64) - 1) * self.ticks_per_frame
+    return end_ticks(frame_count, self.ticks_per_frame)
 
   @property
   def n_worlds(self) -> int:
@@ -190,9 +195,8 @@ class EventRecord(NamedTuple):
     try:
       if version >= 3:
         counts = _unpack_counts(arrays["events_counts"], n_worlds)
-        ends = (np.asarray(arrays["frame_count"], np.int64) - 1) * int(ticks_per_frame)
-        rows = _unpack_rows(arrays["events_rows"], counts, ends)
-        strength = _unpack_strength(arrays["events_strength"], rows, counts)
+        rows, order = _unpack_rows(arrays["events_rows"], counts, end_ticks(arrays["frame_count"], ticks_per_frame))
+        strength = _unpack_strength(arrays["events_strength"], order)
       else:
         counts = np.asarray(arrays["events_counts"])
         n_rows = int(counts.sum(dtype=np.int64)) if counts.ndim == 1 else -1
@@ -282,9 +286,9 @@ def _unpack_counts(blob, n_worlds: int) -> np.ndarray:
   return _unpack_columns(blob, 1, n_worlds)[0]
 
 
-def _unpack_rows(blob, counts: np.ndarray, world_end: np.ndarray) -> np.ndarray:
-  """i32[N, 4] rows from :func:`pack`'s ``events_rows``; ``world_end`` i64[W]
-  each world's last tick."""
+def _unpack_rows(blob, counts: np.ndarray, world_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+  """(i32[N, 4] rows, i64[N] their stored order) from :func:`pack`'s
+  ``events_rows``; ``world_end`` i64[W] each world's last tick."""
   counts = np.asarray(counts, np.int64)
   n = int(counts.sum())
   a, b, since_stored, length_stored = _unpack_columns(blob, 4, n)
@@ -302,14 +306,13 @@ def _unpack_rows(blob, counts: np.ndarray, world_end: np.ndarray) -> np.ndarray:
   rows[:, ROW["first"]] = total - np.repeat(total[run_start] - step[run_start], np.diff(np.append(run_start, n)))
   rows[:, ROW["last"]] = np.where(length == 0, np.repeat(np.asarray(world_end, np.int64), counts),
                                   rows[:, ROW["first"]] + length - 1)
-  return rows.astype(np.int32)
+  return rows.astype(np.int32), order
 
 
-def _unpack_strength(blob, rows: np.ndarray, counts: np.ndarray) -> np.ndarray:
-  """f32[N, 2] from :func:`pack`'s ``events_strength`` and the rows it belongs to."""
-  peak, relative = _unpack_columns(blob, 2, len(rows))
-  order, _ = _stored_order(np.asarray(rows, np.int64), counts)
-  codes = np.empty((len(rows), 2), np.int64)
+def _unpack_strength(blob, order: np.ndarray) -> np.ndarray:
+  """f32[N, 2] from :func:`pack`'s ``events_strength``, stored in ``order`` (its rows')."""
+  peak, relative = _unpack_columns(blob, 2, len(order))
+  codes = np.empty((len(order), 2), np.int64)
   codes[order, STRENGTH["peak_force"]] = peak
   codes[order, STRENGTH["impulse"]] = (peak + relative) % (1 << 16)
   return strength_values(codes)
