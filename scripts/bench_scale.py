@@ -30,6 +30,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import pathlib
@@ -190,8 +191,7 @@ def phase_synthetic(n_worlds: int, seed_worlds: int = 1024) -> dict:
   t0 = time.perf_counter()
   for start in range(0, n_worlds, seed_worlds):
     n = min(seed_worlds, n_worlds - start)
-    chunk = part._take(np.arange(n))
-    chunk.world_ids = np.arange(start, start + n, dtype=np.int64)
+    chunk = dataclasses.replace(part._take(np.arange(n)), world_ids=np.arange(start, start + n, dtype=np.int64))
     directory.append(chunk)
   write_seconds = time.perf_counter() - t0
   result = open_and_query(path, PACHINKO_QUERIES, eager_baseline=False)

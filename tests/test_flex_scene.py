@@ -3,6 +3,7 @@ cloth dropped over a static sphere beside a free box samples as the objects
 ``box, cloth``; its vertex bodies are tracked, not perturbed, moved together
 by its randomization; rigid scenes keep exactly the objects they had."""
 
+import dataclasses
 import pathlib
 
 import jax
@@ -520,6 +521,6 @@ def test_a_banks_flexes_are_its_compiled_models_not_its_texts(tmp_path):
   attached = bank_of(ATTACHED, [("sheet.xml", SHEET)])
   assert "flex" not in attached.mjcf_text and attached.flex_objects == ("s_cloth",)
   assert attached.flex_body_mask().sum() == 25
-  cloth.mjcf_text, cloth._model = "<mujoco><worldbody><flexcomp", None
+  cloth = dataclasses.replace(cloth, mjcf_text="<mujoco><worldbody><flexcomp", _model=None)
   with pytest.raises(MwbxError, match=r"^bank: MJCF failed to load"):
     cloth.flex_objects

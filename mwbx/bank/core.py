@@ -15,41 +15,43 @@ Every public function takes ids; a bank row is internal (:meth:`Bank.row_of`).
 from __future__ import annotations
 
 import dataclasses
-import os
 import pathlib
 import uuid
-from typing import Mapping, Sequence
+from typing import ClassVar, Mapping, Sequence
 
 import mujoco
 import numpy as np
 
 from mwbx import scene as scene_lib
-from mwbx.bank import lazy
+from mwbx.bank import growth
 from mwbx.bank import legacy
+from mwbx.bank import lineage as lineage_lib
+from mwbx.bank import model as model_lib
 from mwbx.bank import saving
 from mwbx.bank import shards
+from mwbx.bank import summary as summary_lib
 from mwbx.bank import versions
-from mwbx.config import ASSET_DIR
-from mwbx.config import config_from_dict
+from mwbx.bank.flags import FLAG_AT_REST
+from mwbx.bank.flags import FLAG_CONTACT_OVERFLOW  # noqa: F401 (mwbx.bank's names)
+from mwbx.bank.flags import FLAG_FINISHED  # noqa: F401
+from mwbx.bank.flags import FLAG_SIM_ERROR  # noqa: F401
+from mwbx.bank.flags import FLAG_UNSTABLE  # noqa: F401
+from mwbx.bank.flags import INVALID
 from mwbx.errors import MwbxError
-from mwbx.events import record as events_lib
 from mwbx.events.record import EventRecord
-from mwbx.joints import QPOS_WIDTH
 from mwbx.qpos_store import QposStore
 
-FLAG_FINISHED = 1
-FLAG_AT_REST = 2
-FLAG_UNSTABLE = 4
-FLAG_SIM_ERROR = 8  # MuJoCo raised an error while stepping it (stopped there)
-# A step may have needed more contacts than the batched engine's budget
-# (mwbx.batch_sim.contact_budget): kept, but out of matches like unstable worlds.
-FLAG_CONTACT_OVERFLOW = 16
-INVALID = FLAG_UNSTABLE | FLAG_SIM_ERROR | FLAG_CONTACT_OVERFLOW
 
-
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class Bank:
-  """Sampled worlds of one scene.
+  """Sampled worlds of one scene: a frozen record of arrays and metadata.
+
+  Every operation returns a new bank (:meth:`append`, :meth:`drop`,
+  :meth:`save`, refinement) and leaves this one as it was. The behaviour
+  lives beside the record: lineage (:mod:`mwbx.bank.lineage`), the scene and
+  model (:mod:`mwbx.bank.model`), new banks from old (:mod:`mwbx.bank.growth`),
+  counts (:mod:`mwbx.bank.summary`) and persistence (:mod:`mwbx.bank.saving`,
+  :mod:`mwbx.bank.shards`); the methods here call them.
 
   Attributes:
     world_ids: i64[W] world ids, unique within the bank (a sampled world's id is
@@ -131,11 +133,16 @@ class Bank:
   # later save of this family finds the worlds it wrote (mwbx.bank.saving).
   save_token: str = dataclasses.field(default_factory=lambda: uuid.uuid4().hex, repr=False, compare=False)
 
-  def __post_init__(self):
+  # The arrays with a row per world, in the order shards store them.
+  ROW_ARRAYS: ClassVar[tuple[str, ...]] = (
+      "world_ids", "keys", "flags", "frame_count", "com", "com_count", "metrics", "perturbations", "steps",
+      "parent_world", "refine_time", "scene_version")
+
+  def __post_init__(self):  # defaults computed from other fields, set once as the record is made
     if self.mjcf_assets is None:
-      self.mjcf_assets = {}
+      object.__setattr__(self, "mjcf_assets", {})
     if self.scene_version is None:  # banks of one scene version, and those saved before versions
-      self.scene_version = np.full(len(self.world_ids), len(self.versions), np.int16)
+      object.__setattr__(self, "scene_version", np.full(len(self.world_ids), len(self.versions), np.int16))
 
   # -- views --------------------------------------------------------------------
 
@@ -166,7 +173,7 @@ class Bank:
             f"{len(self.body_names)} bodies, com {tuple(self.com.shape)}, "
             f"qpos {self.qpos_store.kind} {self.qpos_store.nbytes:,} bytes)")
 
-  # -- world ids ------------------------------------------------------------------
+  # -- world ids and lineage (mwbx.bank.lineage) --------------------------------
 
   def row_of(self, ids):
     """Bank rows of world ids: an int for an int, i64[k] for a sequence.
@@ -178,52 +185,22 @@ class Bank:
 
   def children(self, world_id: int) -> np.ndarray:
     """i64[k] ids of the worlds refined directly from ``world_id``."""
-    self.row_of(int(world_id))
-    return self.world_ids[self.parent_world == int(world_id)].copy()
+    return lineage_lib.children(self, world_id)
 
   def descendants(self, world_id: int) -> np.ndarray:
     """i64[k] ids of every world refined from ``world_id``, directly or not."""
-    out, frontier = [], [int(world_id)]
-    self.row_of(int(world_id))
-    while frontier:
-      kids = self.world_ids[np.isin(self.parent_world, frontier)]
-      out.extend(kids.tolist())
-      frontier = kids.tolist()
-    return np.asarray(out, np.int64)
+    return lineage_lib.descendants(self, world_id)
 
   def ancestors(self, world_id: int) -> np.ndarray:
     """i64[k] ids of the worlds ``world_id`` was refined from, its parent first,
     up to the sampled world (or the first one dropped from the bank)."""
-    out = []
-    parent = int(self.parent_world[self.row_of(int(world_id))])
-    while parent >= 0:
-      out.append(parent)
-      hit = np.flatnonzero(self.world_ids == parent)  # absent: dropped from the bank
-      parent = int(self.parent_world[hit[0]]) if hit.size else -1
-    return np.asarray(out, np.int64)
+    return lineage_lib.ancestors(self, world_id)
 
   def under(self, world_id: int) -> np.ndarray:
     """bool[W] worlds in the family tree below ``world_id``, itself included."""
-    return np.isin(self.world_ids, np.concatenate([[int(world_id)], self.descendants(world_id)]))
+    return lineage_lib.under(self, world_id)
 
-  def drop(self, ids) -> "Bank":
-    """A bank without the worlds ``ids`` (their ids are never given again).
-
-    Their lineage entries go; worlds refined from them keep their parent id.
-    Saving the result writes a new checkpoint step (the previous step is
-    removed only once the new one is complete).
-    """
-    rows = self.row_of(np.atleast_1d(np.asarray(ids, np.int64)))
-    keep = np.setdiff1d(np.arange(self.n_worlds), rows)
-    dropped = {str(int(i)) for i in self.world_ids[rows]}
-    return self._take(keep, lineage={k: v for k, v in self.lineage.items() if k not in dropped})
-
-  def _take(self, rows: np.ndarray, **changes) -> "Bank":
-    """The bank of ``rows`` (i64[k], in that order); the store is copied."""
-    arrays = {name: lazy.take_rows(getattr(self, name), rows) for name in self._ARRAYS}
-    events = None if self.events is None else self.events.take(rows)
-    return dataclasses.replace(self, **arrays, qpos_store=self.qpos_store.take(rows), events=events,
-                               next_id=self.next_world_id, **changes)
+  # -- frames, bodies, scene and model (mwbx.bank.model) ---------------------------
 
   def qpos_frames(self, world: int, start: int = 0, stop: int | None = None, *,
                   bodies: str | Sequence[str] | None = None) -> np.ndarray:
@@ -248,69 +225,30 @@ class Bank:
   def qpos_columns(self, bodies: str | Sequence[str]) -> np.ndarray:
     """i64[k] qpos columns of the joints placing the named bodies (body, object or
     group names): the joints of each body and of its ancestors."""
-    model = self.model
-    columns = []
-    for b in self.select_bodies(bodies).tolist():
-      body = int(self.body_ids[b])
-      while body > 0:
-        for j in range(model.body_jntadr[body], model.body_jntadr[body] + model.body_jntnum[body]):
-          width = QPOS_WIDTH[int(model.jnt_type[j])]
-          columns.extend(range(model.jnt_qposadr[j], model.jnt_qposadr[j] + width))
-        body = int(model.body_parentid[body])
-    return np.unique(np.asarray(columns, np.int64))
+    return model_lib.qpos_columns(self.model, self.body_ids[self.select_bodies(bodies)])
 
   def select_bodies(self, names: str | Sequence[str]) -> np.ndarray:
     """i32[k] indices into the tracked-body axis for body, object or group names."""
     return scene_lib.select_bodies(names, self.body_names, self.objects, self.groups, "selection", "bank")
 
   def mjcf_dir(self) -> str | None:
-    """The folder the MJCF was in when the bank was sampled, as its config
-    names it (for people; nothing is read there, nor is it looked up: the
-    model is built from what the bank stores)."""
-    source = self.config.get("source")
-    mjcf = (self.config.get("scene") or {}).get("mjcf")
-    if not isinstance(mjcf, str) or not mjcf:
-      return None
-    base = os.path.dirname(source) if isinstance(source, str) and not source.startswith("<") else str(ASSET_DIR)
-    return os.path.normpath(os.path.join(os.path.abspath(base), os.path.dirname(mjcf)))
+    """The folder the MJCF was in when the bank was sampled (for people;
+    nothing is read there): :func:`mwbx.bank.model.mjcf_dir`."""
+    return model_lib.mjcf_dir(self.config)
 
   def scene(self) -> scene_lib.Scene:
     """The bank's :class:`mwbx.Scene`, built only from the config, MJCF text
-    and files stored in it (what refinement and solve resample).
-
-    Raises:
-      MwbxError: the stored MJCF names a file the bank does not store (or an
-        absolute path, or one leaving its folder), or its tracked bodies no
-        longer match its own config.
-    """
-    data = dict(self.config)
-    data.pop("source", None)
-    scene = scene_lib.Scene(config_from_dict(data, source="<bank config>"), mjcf_text=self.mjcf_text,
-                            mjcf_includes=self.mjcf_includes, mjcf_dir=self.mjcf_dir(),
-                            mjcf_assets=self.mjcf_assets)
-    if scene.body_names != tuple(self.body_names):
-      raise MwbxError("bank: the tracked bodies do not match its own config")
-    return scene
+    and files stored in it (what refinement and solve resample);
+    :func:`mwbx.bank.model.scene`."""
+    return model_lib.scene(self)
 
   @property
   def model(self) -> mujoco.MjModel:
-    """The scene's ``MjModel`` (with the mwbx observation sensors), built from
-    the MJCF text, includes and files stored in the bank alone.
-
-    Raises:
-      MwbxError: the MJCF names a file the bank does not store (or an
-        absolute path, or one leaving its folder), naming it, or does not compile.
-    """
+    """The scene's ``MjModel`` (with the mwbx observation sensors), built once
+    from the MJCF text, includes and files stored in the bank alone
+    (:func:`mwbx.bank.model.build_model`) and kept."""
     if self._model is None:
-      try:
-        self._model = scene_lib.build_model(self.mjcf_text, self.body_names, includes=self.mjcf_includes,
-                                            assets=self.mjcf_assets)
-      except MwbxError as err:
-        raise MwbxError(f"bank: {err}") from None
-      except ValueError as err:
-        raise MwbxError(f"bank: its MJCF does not compile ({scene_lib.one_line(err)})") from None
-
-      self._model.opt.timestep = self.timestep
+      object.__setattr__(self, "_model", model_lib.build_model(self))  # a cache, not a field's value
     return self._model
 
   def with_scene(self, scene, progress=None) -> "Bank":
@@ -329,66 +267,46 @@ class Bank:
       raise MwbxError(f"metric: unknown metric {name!r} (have: {', '.join(self.metric_names)})")
     return self.metrics[..., self.metric_names.index(name)]
 
-  def _flex_bodies(self) -> dict[str, tuple[int, ...]]:
-    """:func:`mwbx.scene.flex_bodies` of the bank's compiled model
-    (:meth:`model`, built once and kept): {} for a model without flexes
-    (``nflex`` 0), whatever its MJCF's text says.
-
-    Raises:
-      MwbxError: the bank's model cannot be built (:meth:`model`).
-    """
-    return scene_lib.flex_bodies(self.model)
-
   @property
   def flex_objects(self) -> tuple[str, ...]:
     """The objects that are flexes (cloth, soft solids, ropes)."""
-    flexes = self._flex_bodies()
-    return tuple(name for name in self.objects if name in flexes)
+    return model_lib.flex_objects(self)
 
   def flex_body_mask(self) -> np.ndarray:
     """bool[B] the tracked bodies that are a flex's own (vertex or node)
     bodies, which have no orientation; not a body a flex is pinned to."""
-    own = [b for ids in self._flex_bodies().values() for b in ids]
-    return np.isin(np.asarray(self.body_ids), own)
+    return model_lib.flex_body_mask(self)
+
+  # -- counts (mwbx.bank.summary) ---------------------------------------------------
 
   def object_collisions(self) -> np.ndarray:
-    """f64[W] impacts per world: each rigid body's, and for a flex those of
-    its most-struck vertex (its vertices land together: counting each would
-    give a cloth hundreds)."""
-    per_body = np.asarray(self.metric("collisions"), np.float64)
-    flex_columns = [self.select_bodies(name) for name in self.flex_objects]
-    rigid = np.ones(per_body.shape[-1], bool)
-    total = np.zeros(per_body.shape[:-1])
-    for columns in flex_columns:
-      rigid[columns] = False
-      total += per_body[..., columns].max(axis=-1) if len(columns) else 0.0
-    return total + per_body[..., rigid].sum(-1)
+    """f64[W] impacts per world (a flex counts its most-struck vertex's)."""
+    return summary_lib.object_collisions(self)
 
   def summary(self) -> dict:
     """Counts for ``mwbx info`` and the sampling summary."""
-    valid = self.valid
-    return {
-        "worlds": self.n_worlds,
-        "valid": int(valid.sum()),
-        "unstable": int(((self.flags & (FLAG_UNSTABLE | FLAG_SIM_ERROR)) != 0).sum()),
-        "sim_errors": int(((self.flags & FLAG_SIM_ERROR) != 0).sum()),
-        "contact_overflow": int(((self.flags & FLAG_CONTACT_OVERFLOW) != 0).sum()),
-        "at_rest_fraction": float(self.at_rest.mean()) if self.n_worlds else 0.0,
-        "mean_collisions": float(self.object_collisions()[valid].mean()) if valid.any() else 0.0,
-        "perturbations": int(self.perturbations.sum()),
-        "storage_bytes": int(self.nbytes),
-        "qpos": self.qpos_store.stats(),
-    }
+    return summary_lib.summary(self)
 
   @property
   def nbytes(self) -> int:
-    arrays = (self.world_ids, self.keys, self.flags, self.frame_count, self.com, self.com_count,
-              self.metrics, self.perturbations, self.steps, self.parent_world, self.refine_time,
-              self.scene_version)
+    """Bytes the bank's arrays, store and events take in memory."""
+    arrays = sum(getattr(self, name).nbytes for name in self.ROW_ARRAYS)
     events = 0 if self.events is None else self.events.nbytes
-    return int(sum(a.nbytes for a in arrays) + self.qpos_store.nbytes + events)
+    return int(arrays + self.qpos_store.nbytes + events)
 
-  # -- growth -------------------------------------------------------------------
+  # -- new banks from this one (mwbx.bank.growth) ------------------------------------
+
+  def drop(self, ids) -> "Bank":
+    """A bank without the worlds ``ids`` (their ids are never given again).
+
+    Their lineage entries go; worlds refined from them keep their parent id.
+    Saving the result records them as dropped in the bank directory.
+    """
+    return growth.drop(self, ids)
+
+  def _take(self, rows: np.ndarray, **changes) -> "Bank":
+    """The bank of ``rows`` (i64[k], in that order); the store is copied."""
+    return growth.take_rows(self, rows, **changes)
 
   def append(self, other: "Bank") -> "Bank":
     """A bank with ``other``'s worlds after this one's (same scene and config).
@@ -397,49 +315,17 @@ class Bank:
     all of ``other``'s worlds get new ids from there on (in order; parent ids
     inside ``other`` follow), else they keep theirs.
     """
-    if other.digest != self.digest:
-      raise MwbxError("append: the banks come from different configs or MJCF (digest mismatch)")
-    if other.com.shape[1:] != self.com.shape[1:]:
-      raise MwbxError("append: polyline shapes differ")
-    if other.qpos_store.kind != self.qpos_store.kind:
-      raise MwbxError("append: the banks store qpos differently (raw vs compressed)")
-    return Bank.concatenate([self, other._renumbered_after(self)])
+    return growth.append(self, other)
 
-  @classmethod
-  def concatenate(cls, banks: Sequence["Bank"]) -> "Bank":
+  @staticmethod
+  def concatenate(banks: Sequence["Bank"]) -> "Bank":
     """One bank of the worlds of ``banks`` (same scene, distinct ids), in order.
 
     Unlike chained :meth:`append` calls, each array is concatenated once.
     """
-    banks = list(banks)
-    if not banks:
-      raise MwbxError("concatenate: no banks")
-    first = banks[0]
-    ids = np.concatenate([b.world_ids for b in banks])
-    if len(np.unique(ids)) != ids.size:
-      raise MwbxError("concatenate: the banks share world ids (use append, which renumbers)")
-    for b in banks[1:]:
-      if b.digest != first.digest or b.qpos_store.kind != first.qpos_store.kind:
-        raise MwbxError("concatenate: the banks come from different scenes or qpos stores")
-    store = lazy.concat_stores([b.qpos_store for b in banks])
-    arrays = {name: lazy.concat_rows([getattr(b, name) for b in banks]) for name in cls._ARRAYS}
-    lineage = {k: v for b in banks for k, v in b.lineage.items()}
-    actors, events = events_lib.merge([(b.event_actors, b.events) for b in banks])
-    return dataclasses.replace(first, **arrays, qpos_store=store, lineage=lineage, events=events,
-                               event_actors=actors, next_id=max(b.next_world_id for b in banks))
-
-  def _renumbered_after(self, first: "Bank") -> "Bank":
-    """This bank with new ids from ``first.next_world_id`` on if any of its ids is
-    below that (ids ``first`` may have given); parent ids and lineage follow."""
-    start = first.next_world_id
-    if not self.n_worlds or self.world_ids.min() >= start:
-      return self
-    return saving.renumbered(self, dict(zip(self.world_ids.tolist(), range(start, start + self.n_worlds))))
+    return growth.concatenate(banks)
 
   # -- persistence --------------------------------------------------------------
-
-  _ARRAYS = ("world_ids", "keys", "flags", "frame_count", "com", "com_count", "metrics",
-             "perturbations", "steps", "parent_world", "refine_time", "scene_version")
 
   def save(self, path: str | pathlib.Path) -> "Bank":
     """Writes the bank to directory ``path`` as append-only shards; returns the bank as saved.
@@ -516,7 +402,7 @@ class Bank:
   def check(self) -> None:
     """Raises MwbxError if the arrays disagree with each other."""
     w = self.n_worlds
-    for name in self._ARRAYS:
+    for name in self.ROW_ARRAYS:
       if len(getattr(self, name)) != w:
         raise MwbxError(f"bank: {name} has {len(getattr(self, name))} rows, expected {w}")
     if self.qpos_store.n_worlds != w:

@@ -56,7 +56,7 @@ def load(cls, path: pathlib.Path):
     store = store_class(store_meta["kind"]).restore(
         {k[len("qpos_"):]: np.asarray(v) for k, v in tree.items() if k.startswith("qpos_")}, store_meta)
     bank = cls(
-        **{name: np.asarray(tree[name]) for name in cls._ARRAYS if name in tree},
+        **{name: np.asarray(tree[name]) for name in cls.ROW_ARRAYS if name in tree},
         qpos_store=store, body_names=tuple(meta["body_names"]), body_ids=np.asarray(tree["body_ids"]),
         objects={k: tuple(v) for k, v in meta["objects"].items()},
         groups={k: tuple(v) for k, v in meta["groups"].items()},

@@ -329,7 +329,7 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   """Writes the worlds ``rows`` of ``bank`` as shard ``name``; returns its manifest entry."""
   part = bank._take(rows)
   store_arrays, _ = part.qpos_store.state()
-  arrays = {n: np.ascontiguousarray(getattr(part, n)) for n in bank._ARRAYS if n != "com"}
+  arrays = {n: np.ascontiguousarray(getattr(part, n)) for n in bank.ROW_ARRAYS if n != "com"}
   arrays["com_grid"] = polyline.encode(part.com, com_step(bank.config))
   arrays.update({f"qpos_{k}": np.ascontiguousarray(v) for k, v in store_arrays.items()})
   if part.events is not None:
@@ -534,7 +534,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   run = dict(manifest.get("run", {}))
   if corrupt:
     run["corrupt_shards"], run["corrupt_worlds"] = corrupt, corrupt_ids
-  small_names = [n for n in cls._ARRAYS if n != "com"]
+  small_names = [n for n in cls.ROW_ARRAYS if n != "com"]
   for arrays, _ in smalls:  # shards written before scene versions: all of version 0
     arrays.setdefault("scene_version", np.zeros(len(arrays["world_ids"]), np.int16))
   event_actors, events = events_lib.merge([_shard_events(path, e, arrays) for e, (arrays, _) in zip(entries, smalls)])
@@ -562,7 +562,6 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   if dropped.size:
     keep = np.flatnonzero(~np.isin(bank.world_ids, dropped))
     bank = bank._take(keep, lineage={k: v for k, v in lineage.items() if int(k) not in set(dropped.tolist())})
-  bank.origin = Origin(str(path), np.sort(bank.world_ids))
-  return bank
+  return dataclasses.replace(bank, origin=Origin(str(path), np.sort(bank.world_ids)))
 
 

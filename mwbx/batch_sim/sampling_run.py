@@ -237,7 +237,7 @@ def _sample_share(config, scene, out, directory, record, mine, seed, group, back
     errors_shown = 0
     try:
       for part, stats in sampler.run_chunks(mine.size, jax.random.key(seed), ids=mine, progress=progress):
-        part.run = {**part.run, "seed": seed}
+        part = dataclasses.replace(part, run={**part.run, "seed": seed})
         if stats.tree_frames:  # what sleep skipped in this run's worlds so far (mwbx info sums the runs)
           record["tree_frames"] = [stats.asleep_tree_frames, stats.tree_frames]
         # Each chunk is a shard on disk as soon as it is done: a killed run loses at most the

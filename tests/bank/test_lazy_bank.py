@@ -4,6 +4,7 @@ answers as a bank in memory; a corrupt shard is named when it is read."""
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 import tracemalloc
 
@@ -94,8 +95,8 @@ def _peak_of_streamed_evaluation(memory, path: pathlib.Path, n_shards: int, per_
   bank of ``n_shards`` shards of the sampled worlds under new ids."""
   directory = mwbx.bank.BankDirectory(path)
   for s in range(n_shards):
-    part = memory._take(np.arange(per_shard) % memory.n_worlds)
-    part.world_ids = np.arange(s * per_shard, (s + 1) * per_shard, dtype=np.int64)
+    part = dataclasses.replace(memory._take(np.arange(per_shard) % memory.n_worlds),
+                               world_ids=np.arange(s * per_shard, (s + 1) * per_shard, dtype=np.int64))
     directory.append(part)
   queries = _queries(memory)
   bank = mwbx.Bank.load(path)

@@ -26,7 +26,7 @@ TINY = REPO / "tests" / "refine_scenes" / "tiny.yaml"
 def same_worlds(a, b):
   """Bit-identical worlds, ids and order included."""
   assert a.world_ids.tolist() == b.world_ids.tolist()
-  for name in mwbx.Bank._ARRAYS:
+  for name in mwbx.Bank.ROW_ARRAYS:
     np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
   for i in a.world_ids:
     np.testing.assert_array_equal(a.qpos_frames(int(i)), b.qpos_frames(int(i)))
@@ -138,7 +138,7 @@ def test_banks_of_the_orbax_format_still_load(tmp_path):
   bank = mwbx.sample(mwbx.load_config(TINY), 3, jax.random.key(0), backend="native")
   path = tmp_path / "old"
   store_arrays, store_meta = bank.qpos_store.state()
-  tree = {name: np.asarray(getattr(bank, name)) for name in mwbx.Bank._ARRAYS}
+  tree = {name: np.asarray(getattr(bank, name)) for name in mwbx.Bank.ROW_ARRAYS}
   tree["body_ids"] = np.asarray(bank.body_ids)
   tree.update({f"qpos_{k}": np.asarray(v) for k, v in store_arrays.items()})
   meta = {"format": 2, "qpos_store": store_meta, "body_names": list(bank.body_names),

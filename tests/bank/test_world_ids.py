@@ -4,6 +4,7 @@ dropped, and a refinement repeated without a seed draws new worlds."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import pathlib
 import subprocess
@@ -97,6 +98,15 @@ def test_append_keeps_ids_unique(config):
   assert merged.ancestors(child).tolist() == [6]
 
 
+def test_a_bank_is_a_frozen_record(offset_bank):
+  with pytest.raises(dataclasses.FrozenInstanceError):
+    offset_bank.flags = offset_bank.flags | mwbx.FLAG_UNSTABLE
+  # what a record's methods build comes from the modules beside it
+  assert offset_bank.model is offset_bank.model  # built once, kept
+  assert offset_bank.flex_objects == () and not offset_bank.flex_body_mask().any()
+  assert offset_bank.summary()["worlds"] == 8 and offset_bank.summary()["storage_bytes"] == offset_bank.nbytes
+
+
 def test_sampling_after_refining_gives_new_ids(config):
   bank = mwbx.sample(config, 4, jax.random.key(0), backend="native")
   bank = mwbx.refine(bank, 1, "striker", t_min=T_MIN, n_samples=2, key=jax.random.key(1),
@@ -120,6 +130,7 @@ def test_lineage_and_drop(config, tmp_path):
   assert bank.world_ids[bank.under(4)].tolist() == [4, 5, 6]
   dropped = bank.drop([5, 6])  # back-track: the last refinement was no good
   assert dropped.world_ids.tolist() == [0, 1, 2, 3, 4]
+  assert bank.world_ids.tolist() == list(range(7)) and "5" in bank.lineage  # a new bank; this one as it was
   assert "5" not in dropped.lineage and "3" in dropped.lineage
   np.testing.assert_array_equal(dropped.qpos_frames(4), bank.qpos_frames(4))
   dropped.save(tmp_path / "b")

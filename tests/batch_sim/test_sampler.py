@@ -385,14 +385,14 @@ def test_flipped_bits_are_caught_or_harmless(tmp_path, tiny_native_bank):
       target.write_bytes(bytes(data))
       try:
         loaded = mwbx.Bank.load(work)
-        arrays = {name: np.asarray(getattr(loaded, name)) for name in mwbx.Bank._ARRAYS}
+        arrays = {name: np.asarray(getattr(loaded, name)) for name in mwbx.Bank.ROW_ARRAYS}
         data = loaded.qpos_store.data
       except mwbx.MwbxError as err:
         text = str(err)
         assert str(work) in text and "\n" not in text and len(text) < 400
         caught += 1
         continue
-      for name in mwbx.Bank._ARRAYS:
+      for name in mwbx.Bank.ROW_ARRAYS:
         np.testing.assert_array_equal(arrays[name], getattr(bank, name))
       np.testing.assert_array_equal(data, bank.qpos_store.data)
   assert caught > 0
