@@ -11,16 +11,21 @@ $(PY):
 	@test -n "$(PYTHON)" || { echo "python3.12 not found: install Python 3.12 or pass PYTHON=/path/to/python3.12"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 
+# Python writes each module's bytecode into .venv (and mwbx/__pycache__) at its first
+# import, as pip would have for every file at install: scripts/install_lock.sh skips
+# that (half of pip's time), so make's commands let Python write it.
+unexport PYTHONDONTWRITEBYTECODE
+
 # What running needs, at the versions and hashes of requirements.lock (pip and setuptools
 # included: mwbx itself installs without build isolation); the tests' extras (browser,
 # property tests, Warp, linter) only for `make test`, from requirements-dev.lock.
 $(STAMP): $(PY) pyproject.toml requirements.lock
-	$(PY) -m pip install -q --require-hashes -r requirements.lock
+	bash scripts/install_lock.sh $(PY) requirements.lock
 	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
 	@touch $(STAMP)
 
 $(DEV_STAMP): $(STAMP) requirements-dev.lock
-	$(PY) -m pip install -q --require-hashes -r requirements-dev.lock
+	bash scripts/install_lock.sh $(PY) requirements-dev.lock
 	@touch $(DEV_STAMP)
 
 venv: $(DEV_STAMP)
@@ -40,7 +45,7 @@ TEST_WORKERS ?= 2
 test: $(DEV_STAMP)
 	-@bash scripts/ensure_chromium.sh
 	$(PY) -m ruff check mwbx scripts tests
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile tests
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=25 tests
 
 # Every benchmark: tables on stdout, JSON (and plots) in out/bench/, then docs/benchmarks.md from them.
 bench: $(DEV_STAMP)
