@@ -70,7 +70,19 @@ class QposStore(Protocol):
     """Bytes held in memory."""
 
   def stats(self) -> dict:
-    """Size and error figures for ``mwbx info``."""
+    """Size and error figures for ``mwbx info``: ``stats_of(row_figures())``."""
+
+  def row_figures(self) -> dict[str, np.ndarray]:
+    """Per-world figures :meth:`stats` adds up (each an array with a row per world)."""
+
+  @staticmethod
+  def figures_of_saved(arrays: dict) -> dict[str, np.ndarray]:
+    """:meth:`row_figures` of a saved store (:meth:`state`'s arrays) without
+    its ``data``: a bank's stats need not read the streams."""
+
+  def stats_of(self, figures: dict[str, np.ndarray]) -> dict:
+    """:meth:`stats` of a store like this one (its layout, not its worlds)
+    holding worlds of these :meth:`row_figures`."""
 
   def state(self) -> tuple[dict, dict]:
     """(arrays, JSON metadata) to save; :meth:`restore` reads them back."""
@@ -157,13 +169,23 @@ class RawQposStore:
     return int(self.data.nbytes + self.offsets.nbytes)
 
   def stats(self) -> dict:
-    frames = int(self.offsets[-1])
-    return {"codec": "raw float32", "bytes": self.nbytes,
-            "bytes_per_world": self.nbytes / max(1, self.n_worlds), "frames": frames}
+    return self.stats_of(self.row_figures())
+
+  def row_figures(self) -> dict[str, np.ndarray]:
+    return self.figures_of_saved({"offsets": self.offsets})
+
+  @staticmethod
+  def figures_of_saved(arrays: dict) -> dict[str, np.ndarray]:
+    return {"frames": np.diff(np.asarray(arrays["offsets"], np.int64).reshape(-1))}
+
+  def stats_of(self, figures: dict[str, np.ndarray]) -> dict:
+    worlds, frames = len(figures["frames"]), int(figures["frames"].sum())
+    nbytes = frames * self.nq * 4 + 8 * (worlds + 1)  # float32 frames, int64 offsets
+    return {"codec": "raw float32", "bytes": nbytes, "bytes_per_world": nbytes / max(1, worlds), "frames": frames}
 
   def state(self) -> tuple[dict, dict]:
     return {"data": self.data, "offsets": self.offsets}, {"kind": self.kind, "nq": self.nq}
 
   @classmethod
   def restore(cls, arrays: dict, meta: dict) -> "RawQposStore":
-    return cls(meta["nq"], arrays["data"], arrays["offsets"])
+    return cls(meta["nq"], arrays.get("data"), arrays.get("offsets"))  # none: an empty store

@@ -231,8 +231,9 @@ class LazyQposStore:
   """A :class:`~mwbx.qpos_store.QposStore` whose shards are read on demand.
 
   ``frames`` reads the one shard holding the world; ``take``, ``copy`` and
-  ``extend`` stay lazy; ``state``, ``stats``, ``refined`` and anything else
-  build the concrete store of the rows held (every shard they touch).
+  ``extend`` stay lazy; ``stats`` reads each shard's small arrays (where its
+  loader has ``figures`` and ``empty``); ``state``, ``refined`` and anything
+  else build the concrete store of the rows held (every shard they touch).
 
   Args:
     kind: the stores' kind; sources: per piece, a store or a loader returning
@@ -304,7 +305,21 @@ class LazyQposStore:
     return self._nbytes
 
   def stats(self) -> dict:
-    return self.concrete().stats()
+    """The concrete store's stats, from each piece's per-world figures: a
+    shard's from its small arrays (a loader's ``figures``), without reading
+    its streams."""
+    figures, like = [], None
+    for p, _, local in self._map.groups(np.arange(self.n_worlds)):
+      source = self._map.pieces.sources[p]
+      if hasattr(source, "figures"):
+        piece, like = source.figures(), source.empty() if like is None else like
+      else:
+        store = self._map.pieces.get(p)
+        piece, like = store.row_figures(), store if like is None else like
+      figures.append({name: values[local] for name, values in piece.items()})
+    if like is None:  # no worlds
+      return self.empty().stats()
+    return like.stats_of({name: np.concatenate([f[name] for f in figures]) for name in figures[0]})
 
   def relaid(self, target, fill):
     return self.concrete().relaid(target, fill)

@@ -47,6 +47,7 @@ from mwbx import files
 from mwbx.bank import assets as assets_lib
 from mwbx.bank import checks
 from mwbx.bank import lazy as lazy_lib
+from mwbx.bank import npy
 from mwbx.bank import runs
 from mwbx.bank.stores import store_class
 from mwbx.codec import polyline
@@ -414,7 +415,7 @@ def _load_arrays(path: pathlib.Path, entry: dict, names) -> dict:
   arrays = {}
   try:
     for key in names:
-      arrays[key] = np.load(where / f"{key}.npy", allow_pickle=False)
+      arrays[key] = npy.read(where / f"{key}.npy")
   except Exception as err:  # noqa: BLE001 - np.load of a damaged header raises many kinds
     raise MwbxError(f"{where}: corrupt or missing shard ({type(err).__name__}: "
                     f"{checks.first_line(err)})") from None
@@ -466,6 +467,29 @@ def _read_qpos(path: pathlib.Path, entry: dict, kind, meta: dict):
   """The qpos store of one shard, checked."""
   arrays = _load_arrays(path, entry, [k for k in entry["checksums"] if k.startswith("qpos_")])
   return kind.restore({k[5:]: v for k, v in arrays.items()}, meta)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _ShardQpos:
+  """A lazy bank's loader of one shard's qpos store (called when its worlds
+  are decoded); ``figures`` reads only the small arrays, for the store's stats."""
+
+  path: pathlib.Path
+  entry: dict
+  kind: type
+  meta: dict
+
+  def __call__(self):
+    return _read_qpos(self.path, self.entry, self.kind, self.meta)
+
+  def figures(self) -> dict:
+    """The store's ``row_figures``, from its arrays but the streams (checked)."""
+    names = [k for k in self.entry["checksums"] if k.startswith("qpos_") and k != "qpos_data"]
+    return self.kind.figures_of_saved({k[5:]: v for k, v in _load_arrays(self.path, self.entry, names).items()})
+
+  def empty(self):
+    """A store of the shard's kind and settings, without worlds."""
+    return self.kind.restore({}, self.meta)
 
 
 def verify(path: str | pathlib.Path) -> list[str]:
@@ -526,8 +550,8 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
                             np.float32)
     disk = sum((path / SHARDS / e["name"] / f"{k}.npy").stat().st_size
                for e in entries for k in e["checksums"] if k.startswith("qpos_"))
-    store = lazy_lib.LazyQposStore(kind.kind, [lambda e=e: _read_qpos(path, e, kind, store_meta)
-                                               for e in entries], counts, disk)
+    store = lazy_lib.LazyQposStore(kind.kind, [_ShardQpos(path, e, kind, store_meta) for e in entries], counts,
+                                   disk)
   lineage = {}
   for _, shard_lineage in smalls:
     lineage.update(shard_lineage)

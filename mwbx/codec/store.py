@@ -249,25 +249,43 @@ class CompressedQposStore:
     return int(sum(a.nbytes for a in self._arrays().values()))
 
   def stats(self) -> dict[str, float | int | str]:
-    frames = int(self.frame_count.sum())
+    return self.stats_of(self.row_figures())
+
+  def row_figures(self) -> dict[str, np.ndarray]:
+    return self.figures_of_saved(self._arrays())
+
+  @staticmethod
+  def figures_of_saved(arrays: dict) -> dict[str, np.ndarray]:
+    return {"stream_bytes": np.diff(np.asarray(arrays["offsets"], np.int64).reshape(-1)),
+            "frame_count": np.asarray(arrays["frame_count"], np.int64).reshape(-1),
+            "max_error": np.asarray(arrays["max_error"], np.float64).reshape(-1, 3),
+            "raw_channels": np.asarray(arrays["raw_channels"], np.int64).reshape(-1)}
+
+  def stats_of(self, figures: dict[str, np.ndarray]) -> dict[str, float | int | str]:
+    worlds = len(figures["frame_count"])
+    frames = int(figures["frame_count"].sum())
+    stream = int(figures["stream_bytes"].sum())
     raw_bytes = frames * self.layout.nq * 4
     body_frames = frames * self.n_bodies
-    err = self.max_error.max(axis=0) if self.n_worlds else np.zeros(3)
+    err = figures["max_error"].max(axis=0) if worlds else np.zeros(3)
+    # In memory as the constructor holds them: the streams, int64 offsets (one more than
+    # the worlds), int64 frame counts and raw channel counts, float64 errors (three a world).
+    nbytes = stream + 8 * (worlds + 1) + (8 + 3 * 8 + 8) * worlds
     return {
         "codec": "mwbx spline/Rice",
-        "bytes": self.nbytes,
-        "stream_bytes": int(self.data.size),
-        "bytes_per_world": self.data.size / max(1, self.n_worlds),
+        "bytes": nbytes,
+        "stream_bytes": stream,
+        "bytes_per_world": stream / max(1, worlds),
         "frames": frames,
-        "bits_per_body_frame": 8.0 * self.data.size / max(1, body_frames),
-        "ratio_vs_float32": raw_bytes / max(1, self.data.size),
+        "bits_per_body_frame": 8.0 * stream / max(1, body_frames),
+        "ratio_vs_float32": raw_bytes / max(1, stream),
         "bound_pos_m": self.bounds.e_pos,
         "bound_rot_deg": float(np.rad2deg(self.bounds.e_rot)),
         "bound_scalar": self.bounds.e_scalar,
         "max_error_pos_m": float(err[0]),
         "max_error_rot_deg": float(np.rad2deg(err[1])),
         "max_error_scalar": float(err[2]),
-        "raw_channels": int(self.raw_channels.sum()),
+        "raw_channels": int(figures["raw_channels"].sum()),
     }
 
   def _arrays(self, copy: bool = False) -> dict[str, np.ndarray]:

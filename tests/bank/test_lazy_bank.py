@@ -165,6 +165,30 @@ def test_refining_a_lazy_bank_saves_one_new_shard(sharded, tmp_path):
   assert again.ancestors(int(new.world_ids[0])).tolist() == [world]
 
 
+def test_a_lazy_banks_qpos_stats_read_no_streams(sharded, tmp_path, monkeypatch):
+  """``mwbx info``'s qpos figures of a lazy bank come from each shard's small
+  arrays, equal to the store in memory's: whole, a subset in another order,
+  and with refined worlds in memory appended; raw stores too."""
+  path, memory = sharded
+  bank = mwbx.Bank.load(path)
+  monkeypatch.setattr(shards, "_read_qpos", lambda *a: pytest.fail("stats read a shard's streams"))
+  assert bank.qpos_store.stats() == memory.qpos_store.stats()
+  rows = np.array([9, 2, 30, 3])
+  assert bank._take(rows).qpos_store.stats() == memory._take(rows).qpos_store.stats()
+  monkeypatch.undo()
+  grown = mwbx.refine(bank, int(bank.world_ids[9]), list(bank.objects)[:1], t_min=0.5, n_samples=2,
+                      key=jax.random.key(1))
+  assert isinstance(grown.qpos_store, lazy.LazyQposStore)
+  assert grown.qpos_store.stats() == grown.qpos_store.concrete().stats()
+  raw = mwbx.Bank.concatenate([dataclasses.replace(memory._take(np.arange(4)), qpos_store=mwbx.RawQposStore(
+      memory.model.nq, np.zeros((10, memory.model.nq)), np.array([0, 1, 3, 6, 10])))])
+  raw.save(tmp_path / "raw")
+  lazy_raw = mwbx.Bank.load(tmp_path / "raw").qpos_store
+  assert lazy_raw.stats() == raw.qpos_store.stats() == {"codec": "raw float32", "frames": 10,
+                                                        "bytes": 10 * memory.model.nq * 4 + 5 * 8,
+                                                        "bytes_per_world": (10 * memory.model.nq * 4 + 40) / 4}
+
+
 def test_lazy_rows_index_like_numpy():
   """LazyRows over three pieces against the numpy array it stands for."""
   a = np.random.default_rng(0).random((10, 4, 3)).astype(np.float32)
