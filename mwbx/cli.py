@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import json
 import os
 import pathlib
@@ -798,5 +799,13 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, previous)
 
 
-if __name__ == "__main__":
+def run() -> None:
+  """The ``mwbx`` command: :func:`main` in a process of its own."""
+  # The imported modules' objects (jax, MuJoCo, numba: millions) live as long as the
+  # process: frozen, no collection walks them again, nor Python's at exit (0.6 s a command).
+  gc.freeze()
   sys.exit(main())
+
+
+if __name__ == "__main__":
+  run()

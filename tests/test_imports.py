@@ -80,3 +80,28 @@ def test_import_mwbx_leaves_the_viewer_page_search_and_mjx_unloaded():
   before, after = out.stdout.splitlines()
   assert before == "[]"
   assert "meshcat" in after and "optax" in after
+
+
+def test_import_and_the_command_leave_the_collector_working():
+  """`import mwbx` holds the garbage collector only while it imports (and
+  leaves it off if it was off); the `mwbx` command freezes what the imports
+  made, so its objects are still collected."""
+  code = textwrap.dedent("""
+      import gc, sys
+      was = gc.isenabled()
+      import mwbx
+      print(was, gc.isenabled())
+      gc.disable()
+      import importlib; importlib.reload(mwbx)
+      print(gc.isenabled())
+      gc.enable()
+      from mwbx import cli
+      sys.argv = ["mwbx", "--version"]
+      try:
+        cli.run()
+      except SystemExit as stop:
+        print(stop.code in (0, None), gc.isenabled(), gc.get_freeze_count() > 100_000)
+      """)
+  out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=REPO)
+  assert out.returncode == 0, out.stderr
+  assert out.stdout.splitlines() == ["True True", "False", "mwbx 0.1.0", "True True True"], out.stdout
