@@ -1,8 +1,8 @@
 """The scale benchmark: the paper's trebuchet and tower at its dataset size,
 and a synthetic 100 k-world bank.
 
-Phases (``--phases``, default all; results merge into out/bench/scale.json,
-so phases can run at different times):
+Phases (``--phases``, default all but ``million``; results merge into
+out/bench/scale.json, so phases can run at different times):
 
 - ``sample``: ``mwbx sample configs/trebuchet_tower.yaml --worlds 1549`` (the
   paper's dataset size) as a child process on the native backend: wall time,
@@ -20,11 +20,17 @@ so phases can run at different times):
   configs/pachinko.yaml written again under new ids, shard after shard), then
   opened and queried as above but for eagerly; baseline: its COM polylines
   as float32 (the least an eager bank holds).
+- ``million``: ``--million-worlds`` (default 1,000,000) quickstart worlds of
+  ``--million-end-time`` seconds (default 0.5), every one sampled by ``mwbx
+  sample`` in a child process (wall, world-steps/s, peak memory, bytes); then
+  ``mwbx info`` and ``mwbx query BANK configs/queries/quickstart.yaml`` as a
+  user runs them (fresh processes: wall with Python's start and imports, peak
+  memory), and opening and querying lazily and streamed as above.
 
 Usage:
 
   .venv/bin/python scripts/bench_scale.py [--phases sample,tower,synthetic]
-      [--worlds 1549] [--synthetic-worlds 100000]
+      [--worlds 1549] [--synthetic-worlds 100000] [--million-worlds 1000000]
 """
 
 from __future__ import annotations
@@ -47,6 +53,8 @@ TOWER = ROOT / "configs" / "trebuchet_tower.yaml"
 TOWER_QUERIES = ROOT / "configs" / "queries" / "trebuchet_tower.yaml"
 PACHINKO = ROOT / "configs" / "pachinko.yaml"
 PACHINKO_QUERIES = ROOT / "configs" / "queries" / "pachinko.yaml"
+QUICKSTART = ROOT / "configs" / "quickstart.yaml"
+QUICKSTART_QUERIES = ROOT / "configs" / "queries" / "quickstart.yaml"
 
 
 def _machine() -> dict:
@@ -204,11 +212,67 @@ def phase_synthetic(n_worlds: int, seed_worlds: int = 1024) -> dict:
   return result
 
 
+_COMMAND = """
+import runpy, sys
+sys.argv = ["mwbx"] + {args!r}
+try:
+  runpy.run_module("mwbx.cli", run_name="__main__")
+except SystemExit as stop:
+  assert not stop.code, stop.code
+RESULT = {{}}
+"""
+
+
+def _command(args: list[str]) -> dict:
+  """``mwbx ARGS`` as a user runs it, in a fresh process: wall seconds
+  (Python's start and mwbx's imports included) and peak memory."""
+  t0 = time.perf_counter()
+  result = _child(_COMMAND.format(args=args))
+  return dict(result, wall_seconds=time.perf_counter() - t0)
+
+
+def phase_million(n_worlds: int, end_time: float) -> dict:
+  """``n_worlds`` short quickstart worlds, each sampled by mwbx, then browsed
+  from fresh processes."""
+  import shutil
+
+  path = BANKS / "quickstart_million"
+  if path.exists():
+    shutil.rmtree(path)
+  config = BANKS / "quickstart_short.yaml"
+  text = QUICKSTART.read_text()
+  if "end_time: 4.0" not in text:
+    raise SystemExit(f"{QUICKSTART}: no 'end_time: 4.0' to shorten")
+  config.write_text(text.replace("end_time: 4.0", f"end_time: {end_time}"))  # the packaged quickstart.xml
+  load_before = os.getloadavg()[0]
+  t0 = time.perf_counter()
+  proc = subprocess.run([sys.executable, "-m", "mwbx.cli", "sample", str(config), "--worlds", str(n_worlds),
+                         "--backend", "native", "--out", str(path)], capture_output=True, text=True, cwd=ROOT)
+  wall = time.perf_counter() - t0
+  if proc.returncode:
+    raise SystemExit(proc.stderr[-3000:])
+  peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # this phase's first child
+  summary = {line.split("  ")[0]: line for line in proc.stdout.splitlines()}
+  result = open_and_query(path, QUICKSTART_QUERIES, eager_baseline=False)
+  result.update(
+      worlds=n_worlds, end_time=end_time, sample_wall_seconds=wall, sample_peak_rss_mb=peak,
+      world_steps_per_second=float(summary["world-steps/s"].split()[1].replace(",", "")),
+      bank_bytes_per_world=result["bank_bytes"] / n_worlds,
+      shards=sum(1 for _ in (path / "shards").iterdir()),
+      info=_command(["info", str(path)]),
+      query=_command(["query", str(path), str(QUICKSTART_QUERIES)]),
+      load_average_before=load_before, load_average_after=os.getloadavg()[0],
+      summary=proc.stdout.strip().splitlines())
+  return result
+
+
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--phases", default="sample,tower,synthetic")
   parser.add_argument("--worlds", type=int, default=1549)
   parser.add_argument("--synthetic-worlds", type=int, default=100_000)
+  parser.add_argument("--million-worlds", type=int, default=1_000_000)
+  parser.add_argument("--million-end-time", type=float, default=0.5)
   args = parser.parse_args()
   OUT.mkdir(parents=True, exist_ok=True)
   BANKS.mkdir(parents=True, exist_ok=True)
@@ -223,6 +287,8 @@ def main() -> None:
       results["tower"] = phase_tower()
     elif phase == "synthetic":
       results["synthetic"] = phase_synthetic(args.synthetic_worlds)
+    elif phase == "million":
+      results["million"] = phase_million(args.million_worlds, args.million_end_time)
     else:
       raise SystemExit(f"--phases: unknown phase {phase!r}")
     results[phase]["machine"] = _machine()
