@@ -57,7 +57,7 @@ import numpy as np
 from scipy import stats
 
 import mwbx
-from mwbx.bank.core import FLAG_CONTACT_OVERFLOW
+from mwbx.bank import FLAG_CONTACT_OVERFLOW
 from mwbx.queries import Query
 from mwbx.queries.query import evaluate_each
 

@@ -32,10 +32,6 @@ from mwbx.bank import shards
 from mwbx.bank import summary as summary_lib
 from mwbx.bank import versions
 from mwbx.bank.flags import FLAG_AT_REST
-from mwbx.bank.flags import FLAG_CONTACT_OVERFLOW  # noqa: F401 (mwbx.bank's names)
-from mwbx.bank.flags import FLAG_FINISHED  # noqa: F401
-from mwbx.bank.flags import FLAG_SIM_ERROR  # noqa: F401
-from mwbx.bank.flags import FLAG_UNSTABLE  # noqa: F401
 from mwbx.bank.flags import INVALID
 from mwbx.errors import MwbxError
 from mwbx.events.record import EventRecord

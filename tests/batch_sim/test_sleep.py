@@ -12,7 +12,7 @@ import pytest
 import mwbx
 from mwbx.batch_sim import native_backend
 from mwbx.batch_sim import sleep as sleep_lib
-from mwbx.bank.core import FLAG_AT_REST
+from mwbx.bank import FLAG_AT_REST
 
 SLEEP_BIT = int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 
