@@ -97,6 +97,22 @@ RESULT = dict(steps_per_second=n / (time.perf_counter() - t0), steps=n)
 """)["steps_per_second"]
 
 
+def _sample(config: pathlib.Path, n_worlds: int, out: pathlib.Path) -> dict:
+  """``mwbx sample CONFIG --worlds N --backend native --out OUT`` in a child
+  process: wall seconds, world-steps/s as it prints them, the peak memory of
+  this process's children so far (MB) and its summary lines."""
+  t0 = time.perf_counter()
+  proc = subprocess.run([sys.executable, "-m", "mwbx.cli", "sample", str(config), "--worlds", str(n_worlds),
+                         "--backend", "native", "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
+  wall = time.perf_counter() - t0
+  if proc.returncode:
+    raise SystemExit(proc.stderr[-3000:])
+  summary = {line.split("  ")[0]: line for line in proc.stdout.splitlines()}
+  return {"wall_seconds": wall, "world_steps_per_second": float(summary["world-steps/s"].split()[1].replace(",", "")),
+          "peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
+          "summary": proc.stdout.strip().splitlines()}
+
+
 def phase_sample(n_worlds: int) -> dict:
   bank = BANKS / "trebuchet_tower"
   if bank.exists():
@@ -104,23 +120,16 @@ def phase_sample(n_worlds: int) -> dict:
     shutil.rmtree(bank)
   floor = plain_physics_rate(TOWER)
   load_before = os.getloadavg()[0]
-  t0 = time.perf_counter()
-  proc = subprocess.run([sys.executable, "-m", "mwbx.cli", "sample", str(TOWER), "--worlds", str(n_worlds),
-                         "--backend", "native", "--out", str(bank)], capture_output=True, text=True, cwd=ROOT)
-  wall = time.perf_counter() - t0
-  if proc.returncode:
-    raise SystemExit(proc.stderr[-3000:])
-  peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-  summary = {line.split("  ")[0]: line for line in proc.stdout.splitlines()}
-  rate = float(summary["world-steps/s"].split()[1].replace(",", ""))
+  run = _sample(TOWER, n_worlds, bank)
+  wall, rate = run["wall_seconds"], run["world_steps_per_second"]
   threads = os.cpu_count()
   return {
       "worlds": n_worlds, "wall_seconds": wall, "wall_minutes": wall / 60, "world_steps_per_second": rate,
       "plain_mj_step_per_second_one_thread": floor, "threads": threads,
-      "ratio_to_physics_floor": rate / (floor * threads), "peak_rss_mb": peak,
+      "ratio_to_physics_floor": rate / (floor * threads), "peak_rss_mb": run["peak_rss_mb"],
       "bank_bytes": _disk_bytes(bank), "bank_bytes_per_world": _disk_bytes(bank) / n_worlds,
       "load_average_before": load_before, "load_average_after": os.getloadavg()[0],
-      "summary": proc.stdout.strip().splitlines()}
+      "summary": run["summary"]}
 
 
 _OPEN = """
@@ -245,24 +254,16 @@ def phase_million(n_worlds: int, end_time: float) -> dict:
     raise SystemExit(f"{QUICKSTART}: no 'end_time: 4.0' to shorten")
   config.write_text(text.replace("end_time: 4.0", f"end_time: {end_time}"))  # the packaged quickstart.xml
   load_before = os.getloadavg()[0]
-  t0 = time.perf_counter()
-  proc = subprocess.run([sys.executable, "-m", "mwbx.cli", "sample", str(config), "--worlds", str(n_worlds),
-                         "--backend", "native", "--out", str(path)], capture_output=True, text=True, cwd=ROOT)
-  wall = time.perf_counter() - t0
-  if proc.returncode:
-    raise SystemExit(proc.stderr[-3000:])
-  peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # this phase's first child
-  summary = {line.split("  ")[0]: line for line in proc.stdout.splitlines()}
+  run = _sample(config, n_worlds, path)  # this phase's first child: its peak is the sampler's
   result = open_and_query(path, QUICKSTART_QUERIES, eager_baseline=False)
   result.update(
-      worlds=n_worlds, end_time=end_time, sample_wall_seconds=wall, sample_peak_rss_mb=peak,
-      world_steps_per_second=float(summary["world-steps/s"].split()[1].replace(",", "")),
+      worlds=n_worlds, end_time=end_time, sample_wall_seconds=run["wall_seconds"],
+      sample_peak_rss_mb=run["peak_rss_mb"], world_steps_per_second=run["world_steps_per_second"],
       bank_bytes_per_world=result["bank_bytes"] / n_worlds,
       shards=sum(1 for _ in (path / "shards").iterdir()),
       info=_command(["info", str(path)]),
       query=_command(["query", str(path), str(QUICKSTART_QUERIES)]),
-      load_average_before=load_before, load_average_after=os.getloadavg()[0],
-      summary=proc.stdout.strip().splitlines())
+      load_average_before=load_before, load_average_after=os.getloadavg()[0], summary=run["summary"])
   return result
 
 
