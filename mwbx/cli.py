@@ -36,13 +36,13 @@ import threading
 
 import jax
 import mujoco
-import numpy as np
 
 import mwbx
 from mwbx import __version__
 from mwbx.bank import runs, shards, warm
 from mwbx.batch_sim.sampling_run import Hosts, RunInterrupted, sample_run
 from mwbx.errors import MwbxError
+from mwbx.events import lazy as events_lazy
 from mwbx.progress import notices_to_stderr, reporter
 from mwbx.queries import Camera, ScreenBox, load_queries
 from mwbx.queries.report import run_query_file
@@ -215,7 +215,7 @@ def _cmd_info(args) -> int:
                       if bank.n_worlds else None, "next_world_id": bank.next_world_id,
                       "cameras": _cameras(bank), "objects": {k: list(v) for k, v in bank.objects.items()},
                       "bodies": list(bank.body_names), "groups": {k: list(v) for k, v in bank.groups.items()},
-                      "disk_bytes": _disk_bytes(args.bank),
+                      "disk_bytes": shards.disk_bytes(args.bank),
                       "config": bank.config, "digest": bank.digest, "run": bank.run,
                       "scene_versions": [v["digest"] for v in bank.versions] + [bank.digest]}, indent=2))
     return 1 if problems else 0
@@ -231,7 +231,7 @@ def _cmd_info(args) -> int:
     print(f"sleep               {SleepSettings.from_record(bank.run['sleep']).describe()}{_sleep_saved(args.bank)}")
   print(f"mean collisions     {s['mean_collisions']:.2f} per world")
   print(f"perturbations       {s['perturbations']}")
-  print(f"storage             {_disk_bytes(args.bank):,} bytes on disk, {s['storage_bytes']:,} bytes in memory")
+  print(f"storage             {shards.disk_bytes(args.bank):,} bytes on disk, {s['storage_bytes']:,} bytes in memory")
   for key, value in s["qpos"].items():
     print(f"qpos {key:<22}{value:,.4g}" if isinstance(value, float) else f"qpos {key:<22}{value}")
   print(f"world ids           {_id_span(bank)}")
@@ -249,11 +249,11 @@ def _cmd_info(args) -> int:
     print("contact events      none (the bank was saved before they were recorded)")
   else:
     statics = [a for a in bank.event_actors if a not in bank.objects]
-    known = ~np.isnan(bank.events.impulse)
-    found = ("at every physics step, with impulses" if known.all() else "on the stored frames (no impulses)"
-             if not known.any() else f"at every physics step ({known.mean():.0%} with impulses; the rest on stored"
+    episodes, known = events_lazy.episodes(bank.events), events_lazy.impulses_known(bank.events)
+    found = ("at every physics step, with impulses" if known == episodes else "on the stored frames (no impulses)"
+             if not known else f"at every physics step ({known / episodes:.0%} with impulses; the rest on stored"
              " frames)")
-    print(f"contact events      {len(bank.events.rows):,} episodes, found {found}; static actors:"
+    print(f"contact events      {episodes:,} episodes, found {found}; static actors:"
           f" {', '.join(statics) or 'none'}")
   print(f"rates               record {bank.record_fps:g} fps, query {bank.query_fps:g} fps,"
         f" timestep {bank.timestep:.6g} s")
@@ -285,11 +285,6 @@ def _names_line(names: list[str]) -> str:
   if len(names) <= INFO_NAMES:
     return ", ".join(names)
   return f"{', '.join(names[:INFO_NAMES])}, … ({len(names)} in all; every name: mwbx info --json)"
-
-
-def _disk_bytes(folder) -> int:
-  """Bytes of the files under a bank's folder."""
-  return sum(f.stat().st_size for f in pathlib.Path(folder).rglob("*") if f.is_file() and not f.is_symlink())
 
 
 def _bodies_line(bank) -> str:

@@ -1,11 +1,14 @@
 """The contact-event record as a shard keeps it: rows exact, strengths within
-STRENGTH_RELATIVE_ERROR, bad bytes refused in one line."""
+STRENGTH_RELATIVE_ERROR, bad bytes refused in one line; counts and known
+impulses read without the rows; records merged before they are decoded."""
 
 import numpy as np
 import pytest
 
 from mwbx.errors import MwbxError
-from mwbx.events.record import STRENGTH_RELATIVE_ERROR, EventRecord, kept_strength
+from mwbx.events.lazy import LazyEvents, impulses_known
+from mwbx.events.record import STRENGTH_RELATIVE_ERROR, EventRecord, kept_strength, merge, stored_counts
+from mwbx.events.record import stored_impulses_known
 
 
 def _random_record(rng, ticks_per_frame=3):
@@ -70,3 +73,43 @@ def test_corrupt_event_bytes_are_refused_naming_the_shard():
              ["events_counts"])
   with pytest.raises(MwbxError, match="corrupt contact events"):
     EventRecord.from_arrays(bad, record.n_worlds, "shard 00000", record.ticks_per_frame)
+
+
+def test_counts_and_known_impulses_read_without_the_rows_match_the_record():
+  rng = np.random.default_rng(2)
+  for _ in range(200):
+    record, frame_count = _random_record(rng)
+    arrays = dict(record.arrays(frame_count), frame_count=frame_count)
+    np.testing.assert_array_equal(stored_counts(arrays, record.n_worlds), record.counts)
+    assert stored_impulses_known(arrays, len(record.rows)) == int((~np.isnan(record.impulse)).sum())
+
+
+def _lazy(record, decoded):
+  """A LazyEvents of ``record`` that appends to ``decoded`` when it decodes
+  (its counts and known impulses told apart, as a shard's headers tell them)."""
+  return LazyEvents(lambda: decoded.append(1) or record, lambda: record.counts, record.ticks_per_frame,
+                    lambda: int((~np.isnan(record.impulse)).sum()))
+
+
+def test_merging_undecoded_records_is_the_merge_of_the_records():
+  """Parts naming different actors, in different ticks: the lazy merge tells
+  counts, bytes and ticks without decoding, then decodes each part once into
+  what merging the decoded parts gives; taking worlds stays lazy too."""
+  rng = np.random.default_rng(3)
+  for _ in range(50):
+    (one, _), (two, _) = _random_record(rng, 3), _random_record(rng, 2)
+    parts = [(tuple("abcdefg"), one), (tuple("chaibjk"), two)]  # actor indices up to 6
+    names, expected = merge(parts)
+    decoded = []
+    lazy_names, record = merge([(actors, _lazy(r, decoded)) for actors, r in parts])
+    assert lazy_names == names == tuple("abcdefghijk") and isinstance(record, LazyEvents)
+    assert record.ticks_per_frame == expected.ticks_per_frame == 6 and record.n_worlds == expected.n_worlds
+    assert record.nbytes == expected.nbytes and impulses_known(record) == impulses_known(expected)
+    np.testing.assert_array_equal(record.offsets, expected.offsets)
+    worlds = rng.permutation(record.n_worlds)[: record.n_worlds // 2]
+    taken = record.take(worlds)
+    assert decoded == [] and not taken.decoded
+    np.testing.assert_array_equal(taken.rows, expected.take(worlds).rows)
+    np.testing.assert_array_equal(record.rows, expected.rows)
+    np.testing.assert_array_equal(record.strength, expected.strength)
+    assert decoded == [1, 1] and record.decoded  # each part decoded once, the merge kept

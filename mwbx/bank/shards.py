@@ -51,6 +51,7 @@ from mwbx.bank import npy
 from mwbx.bank import runs
 from mwbx.bank.stores import store_class
 from mwbx.codec import polyline
+from mwbx.events import lazy as events_lazy
 from mwbx.events import record as events_lib
 from mwbx.errors import MwbxError
 from mwbx.progress import NOTICE
@@ -93,6 +94,25 @@ def com_step(config: dict) -> float | None:
 
 def has_manifest(path: pathlib.Path) -> bool:
   return (pathlib.Path(path) / MANIFEST).is_file()
+
+
+def disk_bytes(path: str | pathlib.Path) -> int:
+  """Bytes of the files under a bank folder: a shard's from its manifest
+  entry where it says (written since banks keep it: no file of it stat'ed,
+  thousands of files at a million worlds), every other file stat'ed."""
+  path = pathlib.Path(path)
+  said = {}
+  if has_manifest(path):
+    said = {e["name"]: e["bytes"] for e in read_manifest(path)["shards"]
+            if isinstance(e.get("bytes"), int) and not isinstance(e.get("bytes"), bool)}
+  total = 0
+  for folder, dirs, names in os.walk(path):
+    if pathlib.Path(folder) == path / SHARDS:
+      total += sum(said[d] for d in dirs if d in said)
+      dirs[:] = [d for d in dirs if d not in said]
+    total += sum(os.lstat(os.path.join(folder, n)).st_size for n in names
+                 if not os.path.islink(os.path.join(folder, n)))
+  return total
 
 
 def scene_meta(bank) -> dict:
@@ -349,6 +369,7 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
         os.fsync(f.fileno())
     files.write_fsynced(tmp / "lineage.json", lineage_bytes)
     files.fsync_dir(tmp)
+    shard_bytes = sum(f.stat().st_size for f in tmp.iterdir())
     os.rename(tmp, shards / name)
     files.fsync_dir(shards)
   except OSError as err:  # e.g. a full disk: no half shard stays behind
@@ -358,10 +379,11 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   entry = {"name": name, "worlds": int(part.n_worlds), "id_ranges": runs.id_ranges(part.world_ids),
           "com_row_shape": [int(x) for x in part.com.shape[1:]],
           "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
-          "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8))}
+          "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8)), "bytes": shard_bytes}
   if part.events is not None:  # the names the events' actor indices refer to
     entry["events"] = {"version": events_lib.EVENTS_VERSION, "actors": list(part.event_actors),
-                       "ticks_per_frame": int(part.events.ticks_per_frame)}
+                       "ticks_per_frame": int(part.events.ticks_per_frame),
+                       "with_impulse": events_lazy.impulses_known(part.events)}
   return entry
 
 
@@ -439,19 +461,30 @@ def _read_small(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
     raise MwbxError(f"{where}: corrupt lineage.json ({checks.first_line(err)})") from None
 
 
-def _shard_events(path: pathlib.Path, entry: dict, arrays: dict):
-  """(actor names, EventRecord) of one shard; ((), None) for a shard written
-  before contact events were recorded (or of a later events version). Version
-  1 held frames and no strength: one tick a frame, strength unknown."""
+def _shard_events(path: pathlib.Path, entry: dict, arrays: dict, lazy: bool):
+  """(actor names, EventRecord) of one shard, or with ``lazy`` a
+  :class:`~mwbx.events.lazy.LazyEvents` decoded when first used; ((), None)
+  for a shard written before contact events were recorded (or of a later
+  events version). Version 1 held frames and no strength: one tick a frame,
+  strength unknown."""
   meta = entry.get("events")
   if not meta or meta.get("version") not in (1, 2, events_lib.EVENTS_VERSION) or "events_rows" not in arrays:
     return (), None
-  ticks = meta.get("ticks_per_frame", 1) if meta["version"] > 1 else 1
+  where, version, n_worlds = str(path / SHARDS / entry["name"]), meta["version"], int(entry["worlds"])
+  arrays = {k: arrays[k] for k in (*events_lib.STORED_ARRAYS, "frame_count") if k in arrays}  # all a decode keeps alive
+  ticks = meta.get("ticks_per_frame", 1) if version > 1 else 1
   if not isinstance(ticks, int) or isinstance(ticks, bool):
-    raise MwbxError(f"{path / SHARDS / entry['name']}: corrupt contact events (ticks_per_frame {ticks!r})")
-  record = events_lib.EventRecord.from_arrays(arrays, int(entry["worlds"]), str(path / SHARDS / entry["name"]),
-                                              ticks_per_frame=ticks, version=meta["version"])
-  return tuple(meta["actors"]), record
+    raise MwbxError(f"{where}: corrupt contact events (ticks_per_frame {ticks!r})")
+  decode = lambda: events_lib.EventRecord.from_arrays(arrays, n_worlds, where, ticks_per_frame=ticks, version=version)
+  if not lazy:
+    return tuple(meta["actors"]), decode()
+  known = meta.get("with_impulse")  # written since version 3's shards say it
+  if known is not None and (not isinstance(known, int) or isinstance(known, bool) or known < 0):
+    raise MwbxError(f"{where}: corrupt contact events (with_impulse {known!r})")
+  counts = lambda: events_lib.stored_counts(arrays, n_worlds, where, version)
+  with_impulse = (lambda: known) if known is not None else (
+      lambda: events_lib.stored_impulses_known(arrays, int(counts().sum(dtype=np.int64)), where, version))
+  return tuple(meta["actors"]), events_lazy.LazyEvents(decode, counts, ticks, with_impulse)
 
 
 def _read_com(path: pathlib.Path, entry: dict) -> np.ndarray:
@@ -561,7 +594,8 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
   small_names = [n for n in cls.ROW_ARRAYS if n != "com"]
   for arrays, _ in smalls:  # shards written before scene versions: all of version 0
     arrays.setdefault("scene_version", np.zeros(len(arrays["world_ids"]), np.int16))
-  event_actors, events = events_lib.merge([_shard_events(path, e, arrays) for e, (arrays, _) in zip(entries, smalls)])
+  event_actors, events = events_lib.merge([_shard_events(path, e, arrays, lazy and not skip_corrupt)
+                                           for e, (arrays, _) in zip(entries, smalls)])
   bank = cls(
       **{name: np.concatenate([arrays[name] for arrays, _ in smalls]) for name in small_names},
       com=com, qpos_store=store, body_names=tuple(scene["body_names"]),
@@ -573,7 +607,8 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       mjcf_text=scene["mjcf_text"], mjcf_includes=scene.get("mjcf_includes", {}), mjcf_assets=stored,
       digest=scene["digest"], lineage=lineage, run=run, next_id=int(manifest["next_id"]),
       versions=list(scene.get("versions", [])), events=events, event_actors=event_actors)
-  if events is not None and events.ticks_per_frame == 1 and np.isnan(events.strength).all() and len(events.rows):
+  if events is not None and events.ticks_per_frame == 1 and events_lazy.episodes(events) \
+      and not events_lazy.impulses_known(events):
     NOTICE.info(f"{path}: contact events known at the stored frames only (sampled before they were found at every"
                 " physics step): touch times to a frame, no impulses; sample again for both")
   ids, counts = np.unique(bank.world_ids, return_counts=True)

@@ -27,10 +27,12 @@ import zlib
 import numpy as np
 
 from mwbx.errors import MwbxError
+from mwbx.events import lazy
 
 EVENTS_VERSION = 3  # the record's layout; a bank's manifest names it (see :func:`EventRecord.from_arrays`)
 ROW = {"a": 0, "b": 1, "first": 2, "last": 3}  # columns of a row
 STRENGTH = {"peak_force": 0, "impulse": 1}  # columns of ``strength``: N, N·s
+STORED_ARRAYS = ("events_counts", "events_rows", "events_strength")  # a shard's arrays of the record (:func:`pack`)
 
 # A strength is kept as the nearest power of RATIO above FLOOR (within
 # STRENGTH_RELATIVE_ERROR; below FLOOR it reads 0): a u16 code, alike for
@@ -214,6 +216,32 @@ class EventRecord(NamedTuple):
                int(ticks_per_frame))
 
 
+def stored_counts(arrays: dict, n_worlds: int, where: str = "bank", version: int = EVENTS_VERSION) -> np.ndarray:
+  """i32[W] a shard's episodes per world from its ``events_counts`` alone (the
+  rows and strengths not decoded); MwbxError naming ``where`` if corrupt."""
+  try:
+    counts = _unpack_counts(arrays["events_counts"], n_worlds) if version >= 3 else np.asarray(arrays["events_counts"])
+  except (ValueError, KeyError, lzma.LZMAError) as err:
+    raise MwbxError(f"{where}: corrupt contact events ({err})") from None
+  if counts.shape != (n_worlds,) or (counts < 0).any():
+    raise MwbxError(f"{where}: corrupt contact events (counts {counts.shape} for {n_worlds} worlds)")
+  return counts.astype(np.int32)
+
+
+def stored_impulses_known(arrays: dict, n_rows: int, where: str = "bank", version: int = EVENTS_VERSION) -> int:
+  """How many of a shard's ``n_rows`` episodes have a known impulse, from its
+  ``events_strength`` alone (the rows not decoded); MwbxError naming ``where`` if corrupt."""
+  if version < 2 or "events_strength" not in arrays:
+    return 0  # version 1 kept no strengths
+  try:
+    if version >= 3:
+      peak, relative = _unpack_columns(arrays["events_strength"], 2, n_rows)
+      return int(((peak + relative) % (1 << 16) != _STRENGTH_CODE["nan"]).sum())
+    return int((~np.isnan(_unpack_strength_v2(arrays["events_strength"], n_rows)[:, STRENGTH["impulse"]])).sum())
+  except (ValueError, zlib.error, lzma.LZMAError) as err:
+    raise MwbxError(f"{where}: corrupt contact events ({err})") from None
+
+
 # A record as a shard keeps it (version 3). Each world's rows are sorted by
 # pair, so a row is stored as its pair, the ticks since the pair's previous
 # episode ended (since 0 for its first), and its length (0 for one lasting to
@@ -349,19 +377,35 @@ def merge(parts: Sequence[tuple[tuple[str, ...], "EventRecord | None"]]):
   Returns:
     (actor names: the first part's, then names only later parts have;
     the record, its rows relabelled to those names), or ((), None) if any
-    part has no record.
+    part has no record. Parts not decoded yet (:class:`~mwbx.events.lazy.LazyEvents`)
+    give a record decoded when first used.
   """
   if not parts or any(record is None for _, record in parts):
     return (), None
+  names: list[str] = []
+  for actors, _ in parts:
+    names.extend(name for name in actors if name not in names)
+  names = tuple(names)
+  records = [record for _, record in parts]
+  if not any(isinstance(record, lazy.LazyEvents) for record in records):
+    return names, _merged(parts, names)
+
+  def with_impulse():
+    known = [lazy.known_without_decoding(record) for record in records]
+    return None if None in known else sum(known)
+
+  return names, lazy.LazyEvents(lambda: _merged(parts, names),
+                                lambda: np.concatenate([np.asarray(r.counts, np.int32) for r in records]),
+                                int(np.lcm.reduce([record.ticks_per_frame for record in records])), with_impulse)
+
+
+def _merged(parts, names: tuple[str, ...]) -> EventRecord:
+  """:func:`merge`'s record, decoded."""
   ticks = int(np.lcm.reduce([record.ticks_per_frame for _, record in parts]))
-  parts = [(actors, record.in_ticks(ticks)) for actors, record in parts]
-  names: list[str] = list(parts[0][0])
   records = []
   for actors, record in parts:
-    for name in actors:
-      if name not in names:
-        names.append(name)
-    if tuple(actors) == tuple(names[:len(actors)]):
+    record = record.in_ticks(ticks)
+    if tuple(actors) == names[:len(actors)]:
       records.append(record)
       continue
     mapping = np.array([names.index(n) for n in actors], np.int32)
@@ -372,4 +416,4 @@ def merge(parts: Sequence[tuple[tuple[str, ...], "EventRecord | None"]]):
     world = np.repeat(np.arange(record.n_worlds), record.counts)
     order = np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0], world))
     records.append(record._replace(rows=rows[order], strength=record.strength[order]))
-  return tuple(names), EventRecord.concat(records)
+  return EventRecord.concat(records)

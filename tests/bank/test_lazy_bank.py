@@ -202,3 +202,74 @@ def test_lazy_rows_index_like_numpy():
   assert rows.shape == a.shape and rows.nbytes == a.nbytes and len(rows) == 10
   with pytest.raises(IndexError):
     rows[10]
+
+
+def test_contact_events_are_decoded_when_first_used(sharded, tmp_path, monkeypatch, capsys):
+  """Opening, `mwbx info` (from the shards' headers, or their counts and
+  strengths where older shards do not say), the summary and taking worlds
+  decode no episode; the first use decodes them, equal to the bank in
+  memory's; an events blob whose checksum holds but whose bytes do not is
+  named then, and by an eager open."""
+  import json
+  import shutil
+  from mwbx.bank import checks
+  from mwbx.events import lazy as events_lazy
+  from mwbx.events.record import EventRecord
+  path, memory = sharded
+  assert len(memory.events.rows) and (~np.isnan(memory.events.impulse)).all()
+  older = tmp_path / "older"  # shards whose headers do not count known impulses
+  shutil.copytree(path, older)
+  manifest = json.loads((older / "manifest.json").read_text())
+  for entry in manifest["shards"]:
+    del entry["events"]["with_impulse"]
+  (older / "manifest.json").write_text(json.dumps(manifest))
+  rows = np.array([9, 2, 30, 3])
+  with monkeypatch.context() as m:
+    m.setattr(EventRecord, "from_arrays", classmethod(lambda *a, **k: pytest.fail("decoded the episodes")))
+    for folder in (path, older):
+      bank = mwbx.Bank.load(folder)
+      assert isinstance(bank.events, events_lazy.LazyEvents) and not bank.events.decoded
+      assert bank.events.nbytes == memory.events.nbytes and bank.summary() == memory.summary() | {
+          "storage_bytes": bank.nbytes}
+      taken = bank._take(rows).events
+      assert cli.main(["info", str(folder)]) == 0
+      assert f"contact events      {len(memory.events.rows):,} episodes, found at every physics step, with" \
+             " impulses" in capsys.readouterr().out
+  for got, want in ((bank.events, memory.events), (taken, memory.events.take(rows))):
+    np.testing.assert_array_equal(got.rows, want.rows)
+    np.testing.assert_array_equal(got.counts, want.counts)
+    np.testing.assert_array_equal(got.strength, want.strength)
+  target = older / "shards" / "00003" / "events_rows.npy"
+  blob = np.load(target)[:-7]  # cut short, checksum made to agree
+  np.save(target, blob)
+  manifest["shards"][3]["checksums"]["events_rows"] = checks.crc32(blob)
+  (older / "manifest.json").write_text(json.dumps(manifest))
+  bank = mwbx.Bank.load(older)
+  with pytest.raises(mwbx.MwbxError, match=r"shards/00003: corrupt contact events"):
+    bank.events.world(0)
+  with pytest.raises(mwbx.MwbxError, match=r"shards/00003: corrupt contact events"):
+    mwbx.Bank.load(older, lazy=False)
+
+
+def test_bytes_on_disk_are_the_files_bytes_without_a_stat_per_shard_file(sharded, tmp_path, monkeypatch):
+  """``mwbx info``'s bytes on disk: each shard's from its manifest entry
+  (none of its files stat'ed), equal to every file's size summed; stray
+  files and shards whose entries do not say are stat'ed."""
+  import json
+  import os
+  import shutil
+  path = tmp_path / "bank"
+  shutil.copytree(sharded[0], path)
+  (path / "shards" / ".tmp-left-by-a-killed-run").mkdir()
+  (path / "shards" / ".tmp-left-by-a-killed-run" / "com_grid.npy").write_bytes(b"x" * 1000)
+  (path / "notes.txt").write_bytes(b"y" * 10)
+  files = lambda: sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+  lstat = os.lstat
+  stat_in_shards = lambda p, *a, **k: (pytest.fail(f"stat'ed {p}") if "/shards/0" in str(p) else lstat(p, *a, **k))
+  with monkeypatch.context() as m:
+    m.setattr(os, "lstat", stat_in_shards)
+    assert shards.disk_bytes(path) == files()
+  manifest = json.loads((path / "manifest.json").read_text())
+  del manifest["shards"][2]["bytes"]  # a shard of a bank written before entries said
+  (path / "manifest.json").write_text(json.dumps(manifest))
+  assert shards.disk_bytes(path) == files()
