@@ -1,7 +1,7 @@
 """The scale benchmark: the paper's trebuchet and tower at its dataset size,
 and a synthetic 100 k-world bank.
 
-Phases (``--phases``, default all but ``million``; results merge into
+Phases (``--phases``, default all but ``million`` and ``hundred_k``; results merge into
 out/bench/scale.json, so phases can run at different times):
 
 - ``sample``: ``mwbx sample configs/trebuchet_tower.yaml --worlds 1549`` (the
@@ -26,11 +26,14 @@ out/bench/scale.json, so phases can run at different times):
   ``mwbx info`` and ``mwbx query BANK configs/queries/quickstart.yaml`` as a
   user runs them (fresh processes: wall with Python's start and imports, peak
   memory), and opening and querying lazily and streamed as above.
+- ``hundred_k``: as ``million``, ``--hundred-k-worlds`` (default 100,000)
+  full-length quickstart worlds (4 s, the shipped config).
 
 Usage:
 
   .venv/bin/python scripts/bench_scale.py [--phases sample,tower,synthetic]
       [--worlds 1549] [--synthetic-worlds 100000] [--million-worlds 1000000]
+      [--hundred-k-worlds 100000]
 """
 
 from __future__ import annotations
@@ -240,19 +243,21 @@ def _command(args: list[str]) -> dict:
   return dict(result, wall_seconds=time.perf_counter() - t0)
 
 
-def phase_million(n_worlds: int, end_time: float) -> dict:
-  """``n_worlds`` short quickstart worlds, each sampled by mwbx, then browsed
-  from fresh processes."""
+def phase_quickstart(name: str, n_worlds: int, end_time: float) -> dict:
+  """``n_worlds`` quickstart worlds of ``end_time`` s, each sampled by mwbx,
+  then browsed from fresh processes (bank ``quickstart_<name>``)."""
   import shutil
 
-  path = BANKS / "quickstart_million"
+  path = BANKS / f"quickstart_{name}"
   if path.exists():
     shutil.rmtree(path)
-  config = BANKS / "quickstart_short.yaml"
+  config = QUICKSTART
   text = QUICKSTART.read_text()
   if "end_time: 4.0" not in text:
-    raise SystemExit(f"{QUICKSTART}: no 'end_time: 4.0' to shorten")
-  config.write_text(text.replace("end_time: 4.0", f"end_time: {end_time}"))  # the packaged quickstart.xml
+    raise SystemExit(f"{QUICKSTART}: no 'end_time: 4.0' to change")
+  if end_time != 4.0:
+    config = BANKS / f"quickstart_{name}.yaml"
+    config.write_text(text.replace("end_time: 4.0", f"end_time: {end_time}"))  # the packaged quickstart.xml
   load_before = os.getloadavg()[0]
   run = _sample(config, n_worlds, path)  # this phase's first child: its peak is the sampler's
   result = open_and_query(path, QUICKSTART_QUERIES, eager_baseline=False)
@@ -274,6 +279,7 @@ def main() -> None:
   parser.add_argument("--synthetic-worlds", type=int, default=100_000)
   parser.add_argument("--million-worlds", type=int, default=1_000_000)
   parser.add_argument("--million-end-time", type=float, default=0.5)
+  parser.add_argument("--hundred-k-worlds", type=int, default=100_000)
   args = parser.parse_args()
   OUT.mkdir(parents=True, exist_ok=True)
   BANKS.mkdir(parents=True, exist_ok=True)
@@ -289,7 +295,9 @@ def main() -> None:
     elif phase == "synthetic":
       results["synthetic"] = phase_synthetic(args.synthetic_worlds)
     elif phase == "million":
-      results["million"] = phase_million(args.million_worlds, args.million_end_time)
+      results["million"] = phase_quickstart("million", args.million_worlds, args.million_end_time)
+    elif phase == "hundred_k":
+      results["hundred_k"] = phase_quickstart("hundred_k", args.hundred_k_worlds, 4.0)
     else:
       raise SystemExit(f"--phases: unknown phase {phase!r}")
     results[phase]["machine"] = _machine()

@@ -578,6 +578,8 @@ def scale(d: dict) -> tuple[list[str], list[str]]:
     table += rows(d["tower"], "tower, 1549 worlds")
   if "synthetic" in d:
     table += rows(d["synthetic"], f"synthetic pachinko, {d['synthetic']['worlds']:,} worlds")
+  if "hundred_k" in d:
+    table += rows(d["hundred_k"], f"sampled quickstart, {d['hundred_k']['worlds']:,} worlds of 4 s")
   if "million" in d:
     table += rows(d["million"], f"sampled quickstart, {d['million']['worlds']:,} worlds")
   if len(table) > 2:
@@ -593,19 +595,23 @@ def scale(d: dict) -> tuple[list[str], list[str]]:
               f"{y['peak_memory_ratio_streamed_to_float32_com']:.2f}).", ""]
     head.append(f"a {y['worlds']:,}-world bank opens in {y['lazy']['open']['open_seconds']:.2f} s and is "
                 f"queried a shard at a time in {y['streamed']['query']['peak_rss_mb'] / 1024:.1f} GiB")
-  if "million" in d:
-    z = d["million"]
+  def sampled(z, phase, after):
     info, query = z["info"], z["query"]
-    lines += [f"The sampled bank (`--phases million`): {z['worlds']:,} quickstart worlds of {z['end_time']:g} s, "
-              f"every one sampled by `mwbx sample` in {z['sample_wall_seconds'] / 60:.1f} min "
-              f"({z['world_steps_per_second']:,.0f} world-steps/s, peak {z['sample_peak_rss_mb'] / 1024:.1f} GiB; "
-              f"commit {z['machine']['commit']}, load average {z['load_average_before']:.1f} before, "
-              f"{z['load_average_after']:.1f} after), {z['bank_bytes'] / 1e6:,.0f} MB on disk in {z['shards']:,} "
-              f"shards ({z['bank_bytes_per_world']:,.0f} bytes a world). As a user runs them, each in a fresh "
-              f"process: `mwbx info` {info['wall_seconds']:.1f} s (peak {info['peak_rss_mb']:,.0f} MB), "
-              f"`mwbx query BANK configs/queries/quickstart.yaml` {query['wall_seconds']:.1f} s "
-              f"(peak {query['peak_rss_mb']:,.0f} MB). Its first query's window starts at 3.5 s, after "
-              f"these worlds end: none matches all three, each is evaluated over every world all the same.", ""]
+    return [f"The sampled bank (`--phases {phase}`): {z['worlds']:,} quickstart worlds of {z['end_time']:g} s, "
+            f"every one sampled by `mwbx sample` in {z['sample_wall_seconds'] / 60:.1f} min "
+            f"({z['world_steps_per_second']:,.0f} world-steps/s, peak {z['sample_peak_rss_mb'] / 1024:.1f} GiB; "
+            f"commit {z['machine']['commit']}, load average {z['load_average_before']:.1f} before, "
+            f"{z['load_average_after']:.1f} after), {z['bank_bytes'] / 1e6:,.0f} MB on disk in {z['shards']:,} "
+            f"shards ({z['bank_bytes_per_world']:,.0f} bytes a world). As a user runs them, each in a fresh "
+            f"process: `mwbx info` {info['wall_seconds']:.1f} s (peak {info['peak_rss_mb']:,.0f} MB), "
+            f"`mwbx query BANK configs/queries/quickstart.yaml` {query['wall_seconds']:.1f} s "
+            f"(peak {query['peak_rss_mb']:,.0f} MB).{after}", ""]
+
+  if "hundred_k" in d:
+    lines += sampled(d["hundred_k"], "hundred_k", "")
+  if "million" in d:
+    lines += sampled(d["million"], "million", " Its first query's window starts at 3.5 s, after these worlds "
+                     "end: none matches all three, each is evaluated over every world all the same.")
     # No README headline for it: the README stays within 12 KB.
   return lines, ([f"**scale**: {'; '.join(head)}"] if head else [])
 
