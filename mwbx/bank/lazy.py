@@ -27,8 +27,12 @@ from typing import Iterator
 
 import numpy as np
 
+from mwbx import host_pool
+
 # Decoded pieces each lazy array keeps (least recently used first out).
 CACHED_PIECES = 2
+# Reads the pieces of one request, a thread per core.
+_READERS = host_pool.LazyPool("mwbx-shard-read")
 
 
 class _Pieces:
@@ -135,17 +139,29 @@ class LazyRows:
     return f"LazyRows(shape={self.shape}, dtype={self.dtype}, pieces={len(self._map.pieces.sources)})"
 
   def rows(self, rows) -> np.ndarray:
-    """[k, ...] the given rows (i64[k]), in that order."""
+    """[k, ...] the given rows (i64[k]), in that order. Rows of several
+    pieces are read a piece per core at once (reading a shard's files,
+    checking and inflating them let go of the GIL)."""
     rows = np.asarray(rows, np.int64).reshape(-1)
     if self._all is not None:
       return self._all[rows]
     out = np.empty((rows.size,) + self.row_shape, self.dtype)
-    for p, where, local in self._map.groups(rows):
+
+    def fill(group):  # each piece fills its own rows of ``out``
+      p, where, local = group
       piece = self._map.pieces.get(p)
       if _is_run(where) and _is_run(local):  # a piece's rows in order: one copy, no temporary
         out[where[0]:where[0] + where.size] = piece[local[0]:local[0] + local.size]
       else:
         out[where] = piece[local]
+
+    groups = list(self._map.groups(rows))
+    if len(groups) > 1:
+      for _ in _READERS.get().map(fill, groups):
+        pass
+    else:
+      for group in groups:
+        fill(group)
     return out
 
   def __getitem__(self, key):
