@@ -74,23 +74,14 @@ class LazyEvents:
     return len(self.counts)
 
   @property
-  def n_episodes(self) -> int:
-    return int(self.counts.sum(dtype=np.int64))
-
-  @property
   def nbytes(self) -> int:
     """Bytes the decoded record takes: i32 rows of 4, i32 counts, f32 strengths of 2."""
-    return int(24 * self.n_episodes + 4 * self.n_worlds)
+    return int(24 * episodes(self) + 4 * self.n_worlds)
 
   @property
   def offsets(self) -> np.ndarray:
     """i64[W + 1] where each world's rows start."""
     return np.concatenate([[0], np.cumsum(self.counts, dtype=np.int64)])
-
-  def impulses_known(self) -> int:
-    """How many episodes have a known impulse (from the shards' headers where they say)."""
-    known = known_without_decoding(self)
-    return known if known is not None else impulses_known(self.record())
 
   def take(self, worlds) -> "LazyEvents":
     """The record of bank rows ``worlds``, still undecoded."""
@@ -107,10 +98,10 @@ class LazyEvents:
 
 
 def impulses_known(record) -> int:
-  """How many episodes of ``record`` (an EventRecord or LazyEvents) have a known impulse."""
-  if isinstance(record, LazyEvents):
-    return record.impulses_known()
-  return int((~np.isnan(record.impulse)).sum())
+  """How many episodes of ``record`` (an EventRecord or LazyEvents) have a
+  known impulse: from the shards' headers where they say, else decoded."""
+  known = known_without_decoding(record)
+  return known if known is not None else _impulses_known(record.record())
 
 
 def known_without_decoding(record) -> int | None:
@@ -121,6 +112,11 @@ def known_without_decoding(record) -> int | None:
     if pending is not None:
       return pending()
     record = record.record()
+  return _impulses_known(record)
+
+
+def _impulses_known(record) -> int:
+  """Episodes of a decoded EventRecord whose impulse is not NaN."""
   return int((~np.isnan(record.impulse)).sum())
 
 
