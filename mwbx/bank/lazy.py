@@ -36,12 +36,20 @@ _READERS = host_pool.LazyPool("mwbx-shard-read")
 
 
 class _Pieces:
-  """Pieces (an object, or a loader called once per use) with a small LRU cache."""
+  """Pieces (an object, or a loader called once per use) with a small LRU
+  cache, and per piece an optional companion loader (a small summary stored
+  beside it, e.g. the COM paths' boxes)."""
 
-  def __init__(self, sources: list):
+  def __init__(self, sources: list, companions: list | None = None):
     self.sources = list(sources)
+    self.companions = list(companions) if companions is not None else [None] * len(self.sources)
     self._cache: collections.OrderedDict = collections.OrderedDict()
     self._lock = threading.Lock()
+
+  def companion(self, p: int, compute):
+    """The companion of piece ``p``: its loader's value, else ``compute(piece)``."""
+    loader = self.companions[p]
+    return loader() if loader is not None else compute(self.get(p))
 
   def get(self, p: int):
     source = self.sources[p]
@@ -68,11 +76,11 @@ class _RowMap:
     self.local = np.asarray(local, np.int64)
 
   @classmethod
-  def of(cls, sources: list, counts: list[int]) -> "_RowMap":
+  def of(cls, sources: list, counts: list[int], companions: list | None = None) -> "_RowMap":
     counts = np.asarray(counts, np.int64)
     piece = np.repeat(np.arange(len(counts), dtype=np.int32), counts)
     local = np.concatenate([np.arange(n) for n in counts]) if len(counts) else np.zeros(0, np.int64)
-    return cls(_Pieces(sources), piece, local)
+    return cls(_Pieces(sources, companions), piece, local)
 
   def take(self, rows) -> "_RowMap":
     rows = np.asarray(rows, np.int64).reshape(-1)
@@ -80,12 +88,13 @@ class _RowMap:
 
   @staticmethod
   def concat(maps: list["_RowMap"]) -> "_RowMap":
-    sources, piece, local = [], [], []
+    sources, companions, piece, local = [], [], [], []
     for m in maps:
       piece.append(m.piece + len(sources))
       local.append(m.local)
       sources.extend(m.pieces.sources)
-    return _RowMap(_Pieces(sources), np.concatenate(piece), np.concatenate(local))
+      companions.extend(m.pieces.companions)
+    return _RowMap(_Pieces(sources, companions), np.concatenate(piece), np.concatenate(local))
 
   def groups(self, rows: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """(piece, positions in ``rows``, local rows) for the pieces ``rows`` touch, in piece order."""
@@ -106,10 +115,13 @@ class LazyRows:
     sources: per piece, an array or a loader returning one.
     counts: rows per piece.
     row_shape: the shape of one row; dtype: the element type.
+    companions: per piece, None or a loader of a summary stored beside it
+      (:meth:`companions`).
   """
 
-  def __init__(self, sources: list, counts: list[int], row_shape: tuple, dtype, rowmap: _RowMap | None = None):
-    self._map = rowmap if rowmap is not None else _RowMap.of(sources, counts)
+  def __init__(self, sources: list, counts: list[int], row_shape: tuple, dtype, rowmap: _RowMap | None = None,
+               companions: list | None = None):
+    self._map = rowmap if rowmap is not None else _RowMap.of(sources, counts, companions)
     self.row_shape = tuple(row_shape)
     self.dtype = np.dtype(dtype)
     self._all = None
@@ -196,6 +208,24 @@ class LazyRows:
     if self._all is None:
       self._all = np.asarray(self)
     return self._all
+
+  def companions_stored(self) -> bool:
+    """Whether every piece read from disk has its companion stored beside it
+    (in-memory pieces compute theirs cheaply)."""
+    pieces = self._map.pieces
+    used = np.unique(self._map.piece)
+    return all(pieces.companions[p] is not None or not callable(pieces.sources[p]) for p in used)
+
+  def companions(self, compute) -> list[tuple[np.ndarray, np.ndarray, object]]:
+    """(i64[k] bank rows, i64[k] their rows in the piece, the piece's companion)
+    for every piece holding rows, in piece order: each companion read (a piece
+    per core), or ``compute(piece array)`` for a piece without one (which reads
+    and decodes it)."""
+    rows = np.arange(len(self))
+    groups = list(self._map.groups(rows))
+    get = lambda group: self._map.pieces.companion(group[0], compute)
+    values = list(_READERS.get().map(get, groups)) if len(groups) > 1 else [get(g) for g in groups]
+    return [(rows[where], local, value) for (_, where, local), value in zip(groups, values)]
 
   def blocks(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """(i64[k] bank rows, [k, ...] their values) a piece at a time: every row once."""

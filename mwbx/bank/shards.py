@@ -38,6 +38,7 @@ import json
 import os
 import pathlib
 import re
+import threading
 import typing
 import uuid
 
@@ -55,6 +56,7 @@ from mwbx.events import lazy as events_lazy
 from mwbx.events import record as events_lib
 from mwbx.errors import MwbxError
 from mwbx.progress import NOTICE
+from mwbx.queries import path_boxes
 from mwbx.yaml_input import short_repr
 
 FORMAT = 3
@@ -338,6 +340,34 @@ class BankDirectory:
       raise
     self._written = []
 
+  def add_boxes(self, packed: dict[str, np.ndarray]) -> None:
+    """Writes the path boxes (:data:`BOXES`) of shards saved without them,
+    beside their arrays, and records them in one manifest write; a shard
+    dropped or boxed by another process meanwhile is left as it is."""
+    with self._locked():
+      entries = {e["name"]: e for e in self.manifest["shards"]}
+      for name, array in packed.items():
+        entry = entries.get(name)
+        if entry is None or BOXES in entry["checksums"]:
+          continue
+        file = self.path / SHARDS / name / f"{BOXES}.npy"
+        tmp = file.with_name(f".tmp-{uuid.uuid4().hex}.npy")
+        try:
+          with open(tmp, "wb") as f:
+            np.save(f, array, allow_pickle=False)
+            f.flush()
+            os.fsync(f.fileno())
+          os.rename(tmp, file)
+        except OSError:
+          files.remove_quietly(tmp)
+          raise
+        entry["checksums"][BOXES] = checks.crc32(array)
+        entry["index"] = {"version": path_boxes.VERSION, "chunk": path_boxes.DEFAULT_CHUNK}
+        if "bytes" in entry:
+          entry["bytes"] += file.stat().st_size
+      files.fsync_dir(self.path / SHARDS)
+      self.commit()
+
   def _next_shard_name(self) -> str:
     taken = {e["name"] for e in self.manifest["shards"]}
     n = len(self.manifest["shards"])
@@ -351,7 +381,9 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   part = bank._take(rows)
   store_arrays, _ = part.qpos_store.state()
   arrays = {n: np.ascontiguousarray(getattr(part, n)) for n in bank.ROW_ARRAYS if n != "com"}
-  arrays["com_grid"] = polyline.encode(part.com, com_step(bank.config))
+  com = np.asarray(part.com)
+  arrays["com_grid"] = polyline.encode(com, com_step(bank.config))
+  arrays[BOXES] = path_boxes.pack(path_boxes.build(com))
   arrays.update({f"qpos_{k}": np.ascontiguousarray(v) for k, v in store_arrays.items()})
   if part.events is not None:
     arrays.update(part.events.arrays(part.frame_count))
@@ -379,7 +411,8 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
   entry = {"name": name, "worlds": int(part.n_worlds), "id_ranges": runs.id_ranges(part.world_ids),
           "com_row_shape": [int(x) for x in part.com.shape[1:]],
           "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
-          "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8)), "bytes": shard_bytes}
+          "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8)), "bytes": shard_bytes,
+          "index": {"version": path_boxes.VERSION, "chunk": path_boxes.DEFAULT_CHUNK}}
   if part.events is not None:  # the names the events' actor indices refer to
     entry["events"] = {"version": events_lib.EVENTS_VERSION, "actors": list(part.event_actors),
                        "ticks_per_frame": int(part.events.ticks_per_frame),
@@ -426,9 +459,13 @@ def _some(ids) -> str:
   return ", ".join(map(str, ids[:10])) + (f" … ({len(ids)} in all)" if len(ids) > 10 else "")
 
 
-# Arrays of a shard read only when used (lazy banks): the COM polylines and the qpos streams.
+# Arrays of a shard read only when used (lazy banks): the COM polylines, the
+# qpos streams and the paths' boxes (`index_boxes`, what a query reads first).
+BOXES = "index_boxes"
+
+
 def _is_big(name: str) -> bool:
-  return name == "com_grid" or name.startswith("qpos_")
+  return name == "com_grid" or name.startswith(("qpos_", "index_"))
 
 
 def _load_arrays(path: pathlib.Path, entry: dict, names) -> dict:
@@ -496,6 +533,56 @@ def _read_com(path: pathlib.Path, entry: dict) -> np.ndarray:
     raise MwbxError(f"{path / SHARDS / entry['name']}: {err}") from None
 
 
+def _boxes_loader(path: pathlib.Path, entry: dict, n_points: int):
+  """A loader of one shard's path boxes (:mod:`mwbx.queries.path_boxes`), or
+  None for a shard saved without them (or in a layout this version does not read)."""
+  meta = entry.get("index")
+  if not (isinstance(meta, dict) and meta.get("version") == path_boxes.VERSION and BOXES in entry["checksums"]
+          and type(meta.get("chunk")) is int and meta["chunk"] > 0):
+    return None
+
+  def load():
+    stored = _load_arrays(path, entry, [BOXES])[BOXES]
+    try:
+      return path_boxes.unpack(stored, max(n_points - 1, 1), meta["chunk"])
+    except ValueError as err:
+      raise MwbxError(f"{path / SHARDS / entry['name']}: corrupt {BOXES}.npy ({err})") from None
+
+  return load
+
+
+class _BoxesToWrite:
+  """The path boxes of a bank's shards saved without them: computed from their
+  decoded paths when first asked (each loader below) and written into the
+  bank together once every such shard's are known (a first query reads them
+  all), so the next opening reads them as stored."""
+
+  def __init__(self, path: pathlib.Path, entries: list[dict]):
+    self.path, self.names = path, {e["name"] for e in entries}
+    self._pending: dict[str, np.ndarray] = {}
+    self._lock = threading.Lock()
+
+  def loader(self, entry: dict):
+    def load():
+      boxes = path_boxes.build(_read_com(self.path, entry))
+      self._add(entry["name"], path_boxes.pack(boxes))
+      return boxes
+    return load
+
+  def _add(self, name: str, packed: np.ndarray) -> None:
+    with self._lock:
+      self._pending[name] = packed
+      if set(self._pending) != self.names:
+        return
+      pending, self._pending, self.names = self._pending, {}, set()
+    try:
+      BankDirectory(self.path).add_boxes(pending)
+      NOTICE.info(f"{self.path}: query index written for {len(pending)} shards")
+    except (MwbxError, OSError) as err:  # e.g. a read-only bank: answered all the same
+      NOTICE.info(f"{self.path}: cannot write its query index ({checks.first_line(err)}); each first query decodes"
+                  f" those {len(pending)} shards")
+
+
 def _read_qpos(path: pathlib.Path, entry: dict, kind, meta: dict):
   """The qpos store of one shard, checked."""
   arrays = _load_arrays(path, entry, [k for k in entry["checksums"] if k.startswith("qpos_")])
@@ -536,7 +623,7 @@ def verify(path: str | pathlib.Path) -> list[str]:
     try:
       _read_small(path, entry)
       _read_com(path, entry)
-      _load_arrays(path, entry, [k for k in entry["checksums"] if k.startswith("qpos_")])
+      _load_arrays(path, entry, [k for k in entry["checksums"] if k.startswith(("qpos_", "index_"))])
     except MwbxError as err:
       problems.append(str(err))
   return problems
@@ -579,8 +666,15 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
     store.extend(*[arrays["qpos"] for arrays, _ in smalls[1:]])
   else:
     row_shape = entries[0].get("com_row_shape") or list(_read_com(path, entries[0]).shape[1:])
+    boxes = [_boxes_loader(path, e, row_shape[0]) for e in entries]
+    unboxed = [e for e, loader in zip(entries, boxes) if loader is None]
+    if unboxed:
+      NOTICE.info(f"{path}: {len(unboxed)} of {len(entries)} shards saved without a query index; the first query"
+                  f" decodes them once and writes it")
+      to_write = _BoxesToWrite(path, unboxed)
+      boxes = [loader or to_write.loader(e) for e, loader in zip(entries, boxes)]
     com = lazy_lib.LazyRows([lambda e=e: _read_com(path, e) for e in entries], counts, tuple(row_shape),
-                            np.float32)
+                            np.float32, companions=boxes)
     disk = sum((path / SHARDS / e["name"] / f"{k}.npy").stat().st_size
                for e in entries for k in e["checksums"] if k.startswith("qpos_"))
     store = lazy_lib.LazyQposStore(kind.kind, [_ShardQpos(path, e, kind, store_meta) for e in entries], counts,

@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 
 from mwbx.queries import index as index_lib
+from mwbx.queries import path_boxes
 from mwbx.queries import segments
 from mwbx.queries.bank_cache import PerBank
 from mwbx.queries.frustum import Frustum
@@ -44,7 +45,6 @@ def window_points(bank, window) -> np.ndarray:
 class _BankState:
   key: tuple
   index: index_lib.PathIndex
-  radii: np.ndarray | None = None
 
 
 _CACHE = PerBank()
@@ -53,6 +53,17 @@ _CACHE = PerBank()
 # cached: browsing asks again and again. A lazily opened bank beyond it is
 # indexed a shard at a time in each evaluation, in the memory of one shard.
 IN_MEMORY_COM_BYTES = 1 << 30
+# Worlds left undecided by the stored boxes are decoded and tested in blocks of
+# about this many bytes of decoded polylines.
+DECODED_BLOCK_BYTES = 256 << 20
+# Path chunks whose boxes are tested at once (float64 temporaries of about 200
+# bytes each).
+BOXED_CHUNKS = 1 << 18
+# Evaluations of a lazily opened bank (that fits in memory) answered from its
+# stored boxes before it is decoded and indexed whole: one, so a fresh
+# `mwbx query` decodes only what its boxes leave open, and the page, asking
+# again and again, gets the full index from its second box on.
+BOX_ANSWERED_EVALUATIONS = 1
 
 
 def streams(bank) -> bool:
@@ -68,21 +79,100 @@ def _lazy(com) -> bool:
 
 def blocks(bank, valid: np.ndarray):
   """(i64[k] rows, _BankState of those rows) a shard at a time: the whole bank."""
-  radii = None
   for rows, com in bank.com.blocks():
-    state = _BankState(None, index_lib.build_index(com, valid[rows]), radii)
-    yield rows, state
-    radii = state.radii  # body radii are the bank's: computed once
+    yield rows, _BankState(None, index_lib.build_index(com, valid[rows]))
 
 
 def bank_state(bank) -> _BankState:
-  """The bank's index state (bounds hierarchy, body radii), built on first use and cached per bank."""
+  """The bank's index state (bounds hierarchy), built on first use and cached per bank."""
   com = bank.com
   if _lazy(com):  # small enough to index whole: read every shard once
     com = com.materialized()
   valid = np.asarray(bank.valid, bool)
   key = (id(com), com.shape, valid.tobytes())
   return _CACHE.get(bank, "index", key, lambda: _BankState(key, index_lib.build_index(com, valid)))
+
+
+def answered_from_boxes(bank) -> bool:
+  """Whether this evaluation of volume queries starts from the bank's stored
+  path boxes (:mod:`.path_boxes`): a lazily opened bank whose shards hold
+  them, too big to keep decoded or answered from them fewer than
+  ``BOX_ANSWERED_EVALUATIONS`` times."""
+  com = bank.com
+  if not (_lazy(com) and com.companions_stored()):
+    return False
+  return streams(bank) or _box_answered(bank)[0] < BOX_ANSWERED_EVALUATIONS
+
+
+def _box_answered(bank) -> list[int]:
+  """[evaluations of this bank answered from its boxes] (kept per bank)."""
+  return _CACHE.get(bank, "box_answered", id(bank.com), lambda: [0])
+
+
+def stored_boxes(bank) -> path_boxes.PathBoxes:
+  """The path boxes of every world of a lazily opened bank, in row order: each
+  shard's as stored (computed from its decoded paths where a shard has none)."""
+  com = bank.com
+
+  def gather():
+    parts = com.companions(path_boxes.build)
+    chunk = parts[0][2].chunk  # a piece boxed otherwise (computed here) is boxed again alike
+    boxes = path_boxes.concat([path_boxes.build(com.rows(rows), chunk) if value.chunk != chunk
+                               else value if np.array_equal(local, np.arange(value.n_worlds)) else value.take(local)
+                               for rows, local, value in parts])
+    rows = np.concatenate([rows for rows, _, _ in parts])
+    return boxes if np.array_equal(rows, np.arange(len(rows))) else boxes.take(np.argsort(rows))
+
+  return _CACHE.get(bank, "boxes", id(com), gather)
+
+
+def box_answers(bank, queries, valid: np.ndarray) -> np.ndarray:
+  """bool[W, k] answers of COM volume queries, from the stored path boxes
+  where they decide a world, else from the world's decoded paths (the same
+  answers as the full test: the boxes decide only what it would).
+
+  Args:
+    bank: a lazily opened bank (``answered_from_boxes``).
+    queries: volume queries with ``shape`` "com".
+    valid: bool[W] worlds that may match.
+  """
+  _box_answered(bank)[0] += 1
+  boxes = stored_boxes(bank)
+  n_worlds = len(valid)
+  met = np.zeros((n_worlds, len(queries)), bool)  # before each query's sign
+  undecided = np.zeros((n_worlds, len(queries)), bool)
+  resolved = []
+  per_block = max(1, BOXED_CHUNKS // int(np.prod(boxes.chunk_lo.shape[1:3])))
+  for j, query in enumerate(queries):
+    resolved.append(resolve(bank, query, boxes.n_segments))
+    for start in range(0, n_worlds, per_block):  # bounded temporaries
+      part = slice(start, start + per_block)
+      state = path_boxes.classify(boxes.take(part), *resolved[j])
+      known, met[part, j] = path_boxes.world_answers(state, resolved[j][2], query.mode)
+      undecided[part, j] = ~known & valid[part]
+  rows = np.flatnonzero(undecided.any(axis=1))
+  row_bytes = max(1, int(np.prod(bank.com.shape[1:], dtype=np.int64)) * 4)
+  per_block = max(1, DECODED_BLOCK_BYTES // row_bytes)
+  for start in range(0, rows.size, per_block):
+    block = rows[start:start + per_block]
+    index = _padded_index(bank.com.rows(block))
+    for j, query in enumerate(queries):
+      open_ = undecided[block, j]
+      if open_.any():
+        hits = np.asarray(index_lib.path_hits(index, *resolved[j]))[:block.size]
+        met[block[open_], j] = met_by(hits, resolved[j][2], query.mode)[open_]
+  include = np.array([query.include for query in queries], bool)
+  return np.where(include, met, ~met) & valid[:, None]
+
+
+def _padded_index(com: np.ndarray) -> index_lib.PathIndex:
+  """The index of some worlds' paths, padded with invalid copies of the first
+  to a power of two (at least 64): the kernels compile for a few sizes, not
+  for every count of undecided worlds."""
+  n = len(com)
+  size = max(64, 1 << (n - 1).bit_length())
+  padded = np.concatenate([com, np.repeat(com[:1], size - n, axis=0)]) if size > n else com
+  return index_lib.build_index(padded, np.arange(size) < n)
 
 
 def path_index(bank) -> index_lib.PathIndex:
@@ -117,10 +207,10 @@ def body_radii(model: mujoco.MjModel, body_ids) -> np.ndarray:
   return radii
 
 
-def _radii(bank, state: _BankState) -> np.ndarray:
-  if state.radii is None:
-    state.radii = body_radii(bank.model, bank.body_ids)
-  return state.radii
+def bank_radii(bank) -> np.ndarray:
+  """f64[B] the bank's tracked bodies' bounding radii (:func:`body_radii`), kept per bank."""
+  ids = np.asarray(bank.body_ids)
+  return _CACHE.get(bank, "radii", ids.tobytes(), lambda: body_radii(bank.model, ids))
 
 
 def window_units(bank, window, n_segments: int) -> np.ndarray:
@@ -137,36 +227,39 @@ def plane_offsets(frustum: Frustum, radius: np.ndarray) -> np.ndarray:
   return frustum.offsets[None, :] + np.asarray(radius, np.float64)[:, None]
 
 
-def resolve(bank, query, state: _BankState | None = None):
+def resolve(bank, query, n_segments: int):
   """A volume query's arrays for the kernels on this bank.
 
   Args:
     bank: the bank.
     query: its ``frustum``, ``radius`` (metres or ``auto``), ``bodies`` and
       ``window`` (a :class:`~mwbx.queries.query.VolumeQuery`).
-    state: the bank's (or a block's) index state; None: the bank's, cached.
+    n_segments: segments per stored path (the index's ``n_segments``).
 
   Returns:
     (normals f32[F, 3], offsets f64[B, F], body_mask bool[B], window f64[2]).
   """
-  state = state or bank_state(bank)
   n_bodies = len(bank.body_names)
   if query.radius == "auto":
-    radius = _radii(bank, state)
+    radius = bank_radii(bank)
   else:
     radius = np.full(n_bodies, float(query.radius))
-  n_segments = int(state.index.n_segments)
   return (query.frustum.normals, plane_offsets(query.frustum, radius),
-          selection_mask(bank, query.bodies), window_units(bank, query.window, n_segments))
+          selection_mask(bank, query.bodies), window_units(bank, query.window, int(n_segments)))
+
+
+def met_by(hits: np.ndarray, body_mask: np.ndarray, mode: str) -> np.ndarray:
+  """Per-world answer before the sign from per-path hits bool[W, B]: one
+  selected body met the volume ("any") or every one did ("all")."""
+  if mode == "any":
+    return np.any(hits & body_mask, axis=1)
+  return np.all(hits | ~body_mask, axis=1)
 
 
 def combine(hits: np.ndarray, body_mask: np.ndarray, query) -> np.ndarray:
   """Per-world answer from per-path hits bool[W, B] -> bool[W] (by the
   query's ``mode`` and ``sign``)."""
-  if query.mode == "any":
-    met = np.any(hits & body_mask, axis=1)
-  else:
-    met = np.all(hits | ~body_mask, axis=1)
+  met = met_by(hits, body_mask, query.mode)
   return met if query.include else ~met
 
 
@@ -200,7 +293,7 @@ def first_entry(bank, world: int, bodies, frustum: Frustum, *,
     row = 0
   else:
     state = bank_state(bank)
-  normals, offsets, mask, win = resolve(bank, query, state)
+  normals, offsets, mask, win = resolve(bank, query, int(state.index.n_segments))
   chosen = np.flatnonzero(mask)
   if chosen.size == 0:
     return None

@@ -325,11 +325,14 @@ class VolumeQuery(Query):
         out[:, i] = paths.combine(hits, mask, query) & valid
     if not com_queries:
       return out
+    if paths.answered_from_boxes(bank):
+      out[:, com_queries] = paths.box_answers(bank, [queries[i] for i in com_queries], valid)
+      return out
     blocks = paths.blocks(bank, valid) if paths.streams(bank) else [(slice(None), paths.bank_state(bank))]
     for rows, state in blocks:
       for i in com_queries:
         query = queries[i]
-        normals, offsets, mask, window = paths.resolve(bank, query, state)
+        normals, offsets, mask, window = paths.resolve(bank, query, int(state.index.n_segments))
         hits = np.asarray(index_lib.path_hits(state.index, normals, offsets, mask, window))
         out[rows, i] = paths.combine(hits, mask, query) & valid[rows]
     return out

@@ -5,6 +5,7 @@ answers as a bank in memory; a corrupt shard is named when it is read."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 import pathlib
 import tracemalloc
 
@@ -15,6 +16,7 @@ import pytest
 import mwbx
 from mwbx import cli
 from mwbx.bank import lazy, shards
+from mwbx.progress import NOTICE
 from mwbx.queries import paths as query_lib
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -113,12 +115,19 @@ def _peak_of_streamed_evaluation(memory, path: pathlib.Path, n_shards: int, per_
 
 
 def test_streamed_queries_hold_a_few_shards_at_a_time(sharded, tmp_path, monkeypatch):
-  """Peak numpy memory of a streamed evaluation does not grow with the bank."""
+  """Peak numpy memory of a streamed evaluation grows with the bank by its
+  stored path boxes only (the index, kept whole: a fraction of the bank)."""
   monkeypatch.setattr(query_lib, "IN_MEMORY_COM_BYTES", 0)
-  small, small_whole = _peak_of_streamed_evaluation(sharded[1], tmp_path / "small", 4)
-  big, big_whole = _peak_of_streamed_evaluation(sharded[1], tmp_path / "big", 32)
+  memory = sharded[1]
+  # Boxes tested and undecided worlds decoded a shard's worth at a time.
+  monkeypatch.setattr(query_lib, "DECODED_BLOCK_BYTES", 512 * int(np.prod(memory.com.shape[1:])) * 4)
+  monkeypatch.setattr(query_lib, "BOXED_CHUNKS", 512 * memory.com.shape[2])
+  small, small_whole = _peak_of_streamed_evaluation(memory, tmp_path / "small", 4)
+  big, big_whole = _peak_of_streamed_evaluation(memory, tmp_path / "big", 32)
   assert big_whole == 8 * small_whole
-  assert big < 1.3 * small, (small, big)
+  boxes = sum(x.nbytes for x in query_lib.stored_boxes(mwbx.Bank.load(tmp_path / "big"))[:4])
+  assert boxes < big_whole / 4
+  assert big < 1.3 * small + 2 * boxes, (small, big, boxes)  # the boxes, and their pieces while joined
   assert big < big_whole / 2, (big, big_whole)
 
 
@@ -273,3 +282,69 @@ def test_bytes_on_disk_are_the_files_bytes_without_a_stat_per_shard_file(sharded
   del manifest["shards"][2]["bytes"]  # a shard of a bank written before entries said
   (path / "manifest.json").write_text(json.dumps(manifest))
   assert shards.disk_bytes(path) == files()
+
+
+def test_queries_start_from_the_stored_path_boxes(sharded, tmp_path, monkeypatch):
+  """Shards hold their paths' boxes; a fresh bank's first query reads them
+  and decodes only the shards holding worlds they leave open, with the
+  answers of the bank in memory; a bank saved before them is boxed by its
+  first query (said once, written into the bank, read as stored after); a
+  damaged box file is named."""
+  import json
+  import shutil
+  from mwbx.queries import path_boxes
+  path, memory = sharded
+  queries = _queries(memory)
+  # A box about the body that rests (its boxes lie inside: every world met) and one
+  # beside it (its boxes lie outside): answered without decoding a path.
+  rest = np.asarray(memory.com[0, 0, 2])
+  small = [mwbx.Query.region(rest - 0.1, rest + 0.1, bodies=["far"]),
+           mwbx.Query.region(rest + 0.2, rest + 0.3, bodies=["far"], sign="exclude")]
+  assert mwbx.evaluate_each(memory, small).all()
+  manifest = json.loads((path / "manifest.json").read_text())
+  assert all(e["index"] == {"version": path_boxes.VERSION, "chunk": path_boxes.DEFAULT_CHUNK} for e in manifest["shards"])
+  read = []
+  real = shards._read_com
+  monkeypatch.setattr(shards, "_read_com", lambda p, e: read.append(e["name"]) or real(p, e))
+  bank = mwbx.Bank.load(path)
+  assert query_lib.answered_from_boxes(bank)
+  np.testing.assert_array_equal(mwbx.evaluate_each(bank, small), mwbx.evaluate_each(memory, small))
+  assert read == []
+  bank = mwbx.Bank.load(path)
+  np.testing.assert_array_equal(mwbx.evaluate_each(bank, queries), mwbx.evaluate_each(memory, queries))
+
+  older = tmp_path / "older"
+  shutil.copytree(path, older)
+  for entry in manifest["shards"]:
+    del entry["index"], entry["checksums"][shards.BOXES]
+    (older / "shards" / entry["name"] / f"{shards.BOXES}.npy").unlink()
+  (older / "manifest.json").write_text(json.dumps(manifest))
+  seen = []
+  handler = logging.Handler()
+  handler.emit = lambda record: seen.append(record.getMessage())
+  monkeypatch.setattr(NOTICE, "level", logging.INFO)
+  NOTICE.addHandler(handler)
+  try:
+    bank = mwbx.Bank.load(older)
+    assert seen == [f"{older}: {N_SHARDS} of {N_SHARDS} shards saved without a query index; the first query decodes"
+                    " them once and writes it"]
+    np.testing.assert_array_equal(mwbx.evaluate_each(bank, queries), mwbx.evaluate_each(memory, queries))
+    assert seen[1:] == [f"{older}: query index written for {N_SHARDS} shards"]
+    assert shards.verify(older) == []
+    read.clear()
+    bank = mwbx.Bank.load(older)
+    assert len(seen) == 2
+  finally:
+    NOTICE.removeHandler(handler)
+  np.testing.assert_array_equal(mwbx.evaluate_each(bank, small), mwbx.evaluate_each(memory, small))
+  assert read == []
+  assert sorted(p.name for p in (older / "shards" / "00002").iterdir()) == sorted(
+      p.name for p in (path / "shards" / "00002").iterdir())
+
+  target = older / "shards" / "00002" / f"{shards.BOXES}.npy"
+  data = bytearray(target.read_bytes())
+  data[-3] ^= 0x01
+  target.write_bytes(bytes(data))
+  with pytest.raises(mwbx.MwbxError, match=rf"shards/00002: corrupt bank: checksum mismatch in {shards.BOXES}"):
+    mwbx.evaluate_each(mwbx.Bank.load(older), queries)
+  assert any("00002" in p and shards.BOXES in p for p in shards.verify(older))

@@ -122,3 +122,43 @@ def test_index_is_cached_and_rebuilt_when_the_bank_changes(bank):
   assert query_lib.path_index(other) is not first
   other.flags = other.flags | queries_bank.FLAG_UNSTABLE
   assert not np.asarray(query_lib.path_index(other).valid).any()
+
+
+@pytest.fixture
+def boxed_bank(bank, monkeypatch):
+  """The bank read as a lazy bank is: pieces of a few worlds with their path
+  boxes stored beside them (packed and unpacked, chunks of 4 segments), and
+  one in memory (new worlds: boxed when first asked, in those chunks too);
+  answered from the boxes every time."""
+  from mwbx.bank.lazy import LazyRows
+  from mwbx.queries import path_boxes
+
+  com = np.asarray(bank.com)
+  edges = [0, 5, 10, 17, W]
+  pieces = [com[a:b] for a, b in zip(edges, edges[1:])]
+  stored = lambda piece: path_boxes.unpack(path_boxes.pack(path_boxes.build(piece, 4)), P - 1, 4)
+  lazy = LazyRows([lambda piece=piece: piece for piece in pieces[:-1]] + pieces[-1:], [len(x) for x in pieces],
+                  com.shape[1:],
+                  np.float32, companions=[lambda piece=piece: stored(piece) for piece in pieces[:-1]] + [None])
+  monkeypatch.setattr(query_lib, "BOX_ANSWERED_EVALUATIONS", 10**9)
+  return queries_bank.make_bank(com, flags=bank.flags.copy()).__class__(
+      lazy, bank.flags.copy(), bank.metrics, bank.com_count)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(qs=st.lists(queries(), min_size=1, max_size=3))
+def test_answers_from_stored_boxes_match_reference(boxed_bank, qs):
+  assert query_lib.answered_from_boxes(boxed_bank)
+  np.testing.assert_array_equal(evaluate_each(boxed_bank, qs), ref.evaluate_each(boxed_bank, qs))
+
+
+def test_stored_boxes_decide_most_worlds_of_a_small_box(boxed_bank, monkeypatch):
+  decoded = []
+  rows = boxed_bank.com.rows
+  monkeypatch.setattr(boxed_bank.com, "rows", lambda r: decoded.append(len(r)) or rows(r))
+  q = Query.region([-0.5, -0.5, 0.0], [0.0, 0.0, 0.6], bodies=["b0"])
+  got = evaluate_each(boxed_bank, [q])
+  assert 0 < sum(decoded) < W // 2  # most worlds' b0 path boxes decide this box
+  want = ref.evaluate_each(boxed_bank, [q])
+  np.testing.assert_array_equal(got, want)
+  assert 0 < want.sum() < W
