@@ -15,7 +15,9 @@ out/bench/scale.json, so phases can run at different times):
   time and peak memory, opened lazily (the default: indexed whole below
   ``paths.IN_MEMORY_COM_BYTES``), lazily and streamed a shard at a time, and
   -- the baseline -- eagerly (``Bank.load(path, lazy=False)``); the answers
-  must be equal.
+  must be equal; whether the first evaluation started from the stored path
+  boxes, and their bytes against the bank's; then ``mwbx info`` and ``mwbx
+  query`` as a user runs them (fresh processes).
 - ``synthetic``: a pachinko-size bank of 100 k worlds (sampled worlds of
   configs/pachinko.yaml written again under new ids, shard after shard), then
   opened and queried as above but for eagerly; baseline: its COM polylines
@@ -148,10 +150,11 @@ if {streamed}:
   query.IN_MEMORY_COM_BYTES = 0  # a shard at a time, whatever the bank's size
 t0 = time.perf_counter(); bank = mwbx.Bank.load({path!r}{lazy}); t_open = time.perf_counter() - t0
 qs = mwbx.load_queries({queries!r}, bank)
+from_boxes = query.answered_from_boxes(bank)
 t0 = time.perf_counter(); each = mwbx.evaluate_each(bank, qs); t_first = time.perf_counter() - t0
 t0 = time.perf_counter(); each = mwbx.evaluate_each(bank, qs); t_second = time.perf_counter() - t0
 RESULT = dict(open_seconds=t_open, query_seconds=t_first, query_again_seconds=t_second,
-              streamed=query.streams(bank),
+              streamed=query.streams(bank), from_boxes=from_boxes,
               matches=[int(x) for x in each.sum(0)], all_match=int(each.all(1).sum()),
               answers_sha=hashlib.sha256(each.tobytes()).hexdigest()[:16], worlds=bank.n_worlds)
 """
@@ -178,6 +181,8 @@ def open_and_query(path: pathlib.Path, queries: pathlib.Path, eager_baseline: bo
     out["peak_memory_ratio_streamed_to_eager"] = (out["streamed"]["query"]["peak_rss_mb"]
                                                   / out["eager"]["query"]["peak_rss_mb"])
   out["bank_bytes"] = _disk_bytes(path)
+  out["index_bytes"] = sum(f.stat().st_size for f in path.glob("shards/*/index_boxes.npy"))
+  out["index_fraction_of_bank"] = out["index_bytes"] / out["bank_bytes"]
   return out
 
 
@@ -187,6 +192,8 @@ def phase_tower() -> dict:
     raise SystemExit(f"{bank}: run the sample phase first")
   result = open_and_query(bank, TOWER_QUERIES, eager_baseline=True)
   result["bank_bytes_per_world"] = result["bank_bytes"] / result["lazy"]["open"]["worlds"]
+  result["info"] = _command(["info", str(bank)])
+  result["query"] = _command(["query", str(bank), str(TOWER_QUERIES)])
   return result
 
 

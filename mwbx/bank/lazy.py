@@ -150,14 +150,17 @@ class LazyRows:
   def __repr__(self) -> str:
     return f"LazyRows(shape={self.shape}, dtype={self.dtype}, pieces={len(self._map.pieces.sources)})"
 
-  def rows(self, rows) -> np.ndarray:
-    """[k, ...] the given rows (i64[k]), in that order. Rows of several
-    pieces are read a piece per core at once (reading a shard's files,
-    checking and inflating them let go of the GIL)."""
+  def rows(self, rows, out: np.ndarray | None = None) -> np.ndarray:
+    """[k, ...] the given rows (i64[k]), in that order (written into ``out``
+    when given, an array of that shape and dtype). Rows of several pieces are
+    read a piece per core at once (reading a shard's files, checking and
+    inflating them let go of the GIL)."""
     rows = np.asarray(rows, np.int64).reshape(-1)
+    if out is None:
+      out = np.empty((rows.size,) + self.row_shape, self.dtype)
     if self._all is not None:
-      return self._all[rows]
-    out = np.empty((rows.size,) + self.row_shape, self.dtype)
+      np.take(self._all, rows, axis=0, out=out)
+      return out
 
     def fill(group):  # each piece fills its own rows of ``out``
       p, where, local = group

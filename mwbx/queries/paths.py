@@ -59,6 +59,9 @@ DECODED_BLOCK_BYTES = 256 << 20
 # Path chunks whose boxes are tested at once (float64 temporaries of about 200
 # bytes each).
 BOXED_CHUNKS = 1 << 18
+# A bank that fits in memory whose boxes leave more than this fraction of its
+# worlds open is decoded whole instead (and its index kept, for the next question).
+OPEN_FRACTION = 0.5
 # Evaluations of a lazily opened bank (that fits in memory) answered from its
 # stored boxes before it is decoded and indexed whole: one, so a fresh
 # `mwbx query` decodes only what its boxes leave open, and the page, asking
@@ -129,7 +132,8 @@ def stored_boxes(bank) -> path_boxes.PathBoxes:
 def box_answers(bank, queries, valid: np.ndarray) -> np.ndarray:
   """bool[W, k] answers of COM volume queries, from the stored path boxes
   where they decide a world, else from the world's decoded paths (the same
-  answers as the full test: the boxes decide only what it would).
+  answers as the full test: the boxes decide only what it would); None when
+  they leave most worlds of a bank that fits in memory open.
 
   Args:
     bank: a lazily opened bank (``answered_from_boxes``).
@@ -151,11 +155,13 @@ def box_answers(bank, queries, valid: np.ndarray) -> np.ndarray:
       known, met[part, j] = path_boxes.world_answers(state, resolved[j][2], query.mode)
       undecided[part, j] = ~known & valid[part]
   rows = np.flatnonzero(undecided.any(axis=1))
+  if not streams(bank) and rows.size > OPEN_FRACTION * n_worlds:
+    return None  # decoded whole, once, and indexed: what the next question wants too
   row_bytes = max(1, int(np.prod(bank.com.shape[1:], dtype=np.int64)) * 4)
   per_block = max(1, DECODED_BLOCK_BYTES // row_bytes)
   for start in range(0, rows.size, per_block):
     block = rows[start:start + per_block]
-    index = _padded_index(bank.com.rows(block))
+    index = _padded_index(bank.com, block)
     for j, query in enumerate(queries):
       open_ = undecided[block, j]
       if open_.any():
@@ -165,13 +171,15 @@ def box_answers(bank, queries, valid: np.ndarray) -> np.ndarray:
   return np.where(include, met, ~met) & valid[:, None]
 
 
-def _padded_index(com: np.ndarray) -> index_lib.PathIndex:
+def _padded_index(com, rows: np.ndarray) -> index_lib.PathIndex:
   """The index of some worlds' paths, padded with invalid copies of the first
   to a power of two (at least 64): the kernels compile for a few sizes, not
   for every count of undecided worlds."""
-  n = len(com)
+  n = rows.size
   size = max(64, 1 << (n - 1).bit_length())
-  padded = np.concatenate([com, np.repeat(com[:1], size - n, axis=0)]) if size > n else com
+  padded = np.empty((size,) + tuple(com.shape[1:]), np.float32)
+  com.rows(rows, out=padded[:n])
+  padded[n:] = padded[:1]
   return index_lib.build_index(padded, np.arange(size) < n)
 
 
