@@ -14,9 +14,14 @@ a 20-body scene (tests/scenes/twenty.yaml, ``--play-worlds`` worlds): decode,
 forward kinematics and poses sent (in process), and with ``--browser`` from
 the click in Chromium to the page saying the world plays.
 
-Writes out/bench/browse.json and prints a table. Usage:
+With ``--bank PATH`` it browses that bank on disk instead, opened as ``mwbx
+browse`` opens it (lazily): page ready, box -> counts (boxes that split the
+bank apart), re-sort, click -> poses sent, and the ``mwbx query`` round trip.
+
+Writes out/bench/browse.json (or ``--out``) and prints a table. Usage:
 
   .venv/bin/python scripts/bench_browse.py [--worlds 4096] [--sample 256] [--boxes 20]
+  .venv/bin/python scripts/bench_browse.py --bank out/bench/scale/quickstart_hundred_k --out out/bench/browse_100k.json
 """
 
 from __future__ import annotations
@@ -239,7 +244,13 @@ def main() -> None:
   parser.add_argument("--play-key", default="play",
                       help="with --only-play: the entry of --out it writes (e.g. play_cloth)")
   parser.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "bench" / "browse.json")
+  parser.add_argument("--bank", type=pathlib.Path,
+                      help="browse this bank on disk instead (boxes through --camera; writes only that part)")
+  parser.add_argument("--camera", default="front", help="with --bank: the scene's camera the boxes are drawn in")
   args = parser.parse_args()
+  if args.bank:
+    _saved_bank(args)
+    return
   if args.only_play:
     _only_play(args)
     return
@@ -329,6 +340,71 @@ def main() -> None:
         + (f", in Chromium {play['browser_click_to_playing_ms']['median']:.0f} ms median (of which click to"
            f" server {play['browser_click_to_playing_ms']['click_to_server_median']:.0f} ms)"
            if play["browser_click_to_playing_ms"] else ""))
+  args.out.parent.mkdir(parents=True, exist_ok=True)
+  args.out.write_text(json.dumps(result, indent=2))
+  print(f"wrote {args.out}")
+
+
+def _saved_bank(args) -> None:
+  """Browsing a bank on disk (``--bank``) as ``mwbx browse BANK`` opens it
+  (lazily): the page ready (opened, first refresh sent), box -> counts for
+  ``--boxes`` include boxes through the scene camera, those that split the bank
+  (5-95 % of its worlds kept) apart, re-sorts, and a sorter click -> the
+  world's poses sent; baseline in the same run: ``mwbx query`` with the page's
+  last queries, in a fresh process."""
+  load = os.getloadavg()[0]
+  start = time.perf_counter()
+  bank = mwbx.Bank.load(args.bank)
+  page = Browser(Session(bank))
+  page.server.flush()
+  ready_s = time.perf_counter() - start
+  camera = mq.Camera.from_model(bank.model, args.camera)
+  rng = np.random.default_rng(0)
+  boxes, sort_s, play_s = [], [], []
+  try:
+    for k in range(args.boxes):
+      u0, v0 = rng.uniform(0.05, 0.75, 2)
+      box = mq.ScreenBox(u0, v0, u0 + rng.uniform(0.05, 0.3), v0 + rng.uniform(0.05, 0.3))
+      start = time.perf_counter()
+      page.session.add(mq.Query.screen(camera, box))
+      page.refresh()
+      page.server.flush()
+      seconds = time.perf_counter() - start
+      boxes.append((seconds, page.session.counts().per_query[-1] / bank.n_worlds))
+      page.session.remove(len(page.session.entries) - 1)
+      start = time.perf_counter()
+      page.ui.metric.value = bank.metric_names[k % len(bank.metric_names)]
+      page.refresh()
+      page.server.flush()
+      sort_s.append(time.perf_counter() - start)
+    for k in range(args.clicks + 1):
+      world = int(bank.world_ids[rng.integers(bank.n_worlds)])
+      start = time.perf_counter()
+      page.play(world)
+      page.server.flush()
+      if k:  # (the first uploads the slot's meshes)
+        play_s.append(time.perf_counter() - start)
+    with tempfile.TemporaryDirectory() as tmp:
+      page.session.workdir = pathlib.Path(tmp)
+      page.session.add(mq.Query.screen(camera, mq.ScreenBox(0.3, 0.3, 0.6, 0.6)))
+      qfile = page.session.save_queries("q.yaml")
+      start = time.perf_counter()
+      subprocess.run([sys.executable, "-m", "mwbx.cli", "query", str(args.bank), qfile], check=True,
+                     capture_output=True, timeout=1200)
+      cli_s = time.perf_counter() - start
+  finally:
+    page.close()
+  seconds = np.array([b[0] for b in boxes])
+  kept = np.array([b[1] for b in boxes])
+  split = (kept > 0.05) & (kept < 0.95)
+  ms = lambda x: {"median": float(1e3 * np.median(x)), "p95": float(1e3 * np.percentile(x, 95)), "n": len(x)}
+  result = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "bank": str(args.bank),
+            "worlds": bank.n_worlds, "bodies": len(bank.body_names), "load_average": load,
+            "page_ready_s": ready_s, "box_to_counts_ms": ms(seconds),
+            "splitting_box_to_counts_ms": ms(seconds[split]) if split.any() else None,
+            "first_box_s": float(seconds[0]), "kept_fractions": [float(x) for x in kept],
+            "resort_ms": ms(sort_s), "click_to_poses_sent_ms": ms(play_s), "cli_query_round_trip_s": cli_s}
+  print(json.dumps(result, indent=1))
   args.out.parent.mkdir(parents=True, exist_ok=True)
   args.out.write_text(json.dumps(result, indent=2))
   print(f"wrote {args.out}")

@@ -173,10 +173,12 @@ def box_answers(bank, queries, valid: np.ndarray) -> np.ndarray:
 
 def _padded_index(com, rows: np.ndarray) -> index_lib.PathIndex:
   """The index of some worlds' paths, padded with invalid copies of the first
-  to a power of two (at least 64): the kernels compile for a few sizes, not
-  for every count of undecided worlds."""
+  to 64·√2^k worlds: the kernels compile for a few sizes, not for every count
+  of undecided worlds, and at most 42 % of the index is padding."""
   n = rows.size
-  size = max(64, 1 << (n - 1).bit_length())
+  size = 64
+  while size < n:
+    size = int(round(size * 2**0.5)) if size == 1 << (size.bit_length() - 1) else 1 << size.bit_length()
   padded = np.empty((size,) + tuple(com.shape[1:]), np.float32)
   com.rows(rows, out=padded[:n])
   padded[n:] = padded[:1]

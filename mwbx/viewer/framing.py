@@ -32,7 +32,7 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
   played-back worlds (all bodies, widened by the largest moving geom) and of
   the drawn paths, and the boxes of the visible static geoms other than planes
   and height fields."""
-  com = np.asarray(bank.com)
+  com = bank.com  # (a lazily opened bank's: only the rows asked for are read)
   pts = [_finite_extent(com, worlds, np.arange(com.shape[2]))]
   visible = np.isin(model.geom_group, visible_groups) & (model.geom_rgba[:, 3] > 0)
   moving = visible & (model.body_weldid[model.geom_bodyid] != 0)
