@@ -155,7 +155,7 @@ def test_answers_from_stored_boxes_match_reference(boxed_bank, qs):
 def test_stored_boxes_decide_most_worlds_of_a_small_box(boxed_bank, monkeypatch):
   decoded = []
   rows = boxed_bank.com.rows
-  monkeypatch.setattr(boxed_bank.com, "rows", lambda r: decoded.append(len(r)) or rows(r))
+  monkeypatch.setattr(boxed_bank.com, "rows", lambda r, **kw: decoded.append(len(r)) or rows(r, **kw))
   q = Query.region([-0.5, -0.5, 0.0], [0.0, 0.0, 0.6], bodies=["b0"])
   got = evaluate_each(boxed_bank, [q])
   assert 0 < sum(decoded) < W // 2  # most worlds' b0 path boxes decide this box
