@@ -350,7 +350,7 @@ def _saved_bank(args) -> None:
   (lazily): the page ready (opened, first refresh sent), box -> counts for
   ``--boxes`` include boxes through the scene camera, those that split the bank
   (5-95 % of its worlds kept) apart, re-sorts, and a sorter click -> the
-  world's poses sent; baseline in the same run: ``mwbx query`` with the page's
+  world's poses sent (with ``--browser``, also in headless Chromium); baseline in the same run: ``mwbx query`` with the page's
   last queries, in a fresh process."""
   load = os.getloadavg()[0]
   start = time.perf_counter()
@@ -384,6 +384,7 @@ def _saved_bank(args) -> None:
       page.server.flush()
       if k:  # (the first uploads the slot's meshes)
         play_s.append(time.perf_counter() - start)
+    browser_ms = _play_in_browser(page, bank, args.clicks) if args.browser else None
     with tempfile.TemporaryDirectory() as tmp:
       page.session.workdir = pathlib.Path(tmp)
       page.session.add(mq.Query.screen(camera, mq.ScreenBox(0.3, 0.3, 0.6, 0.6)))
@@ -403,7 +404,8 @@ def _saved_bank(args) -> None:
             "page_ready_s": ready_s, "box_to_counts_ms": ms(seconds),
             "splitting_box_to_counts_ms": ms(seconds[split]) if split.any() else None,
             "first_box_s": float(seconds[0]), "kept_fractions": [float(x) for x in kept],
-            "resort_ms": ms(sort_s), "click_to_poses_sent_ms": ms(play_s), "cli_query_round_trip_s": cli_s}
+            "resort_ms": ms(sort_s), "click_to_poses_sent_ms": ms(play_s), "cli_query_round_trip_s": cli_s,
+            "browser_click_to_playing_ms": browser_ms}
   print(json.dumps(result, indent=1))
   args.out.parent.mkdir(parents=True, exist_ok=True)
   args.out.write_text(json.dumps(result, indent=2))

@@ -357,6 +357,33 @@ def bank(d: dict) -> tuple[list[str], list[str]]:
   return lines, [f"**bank on disk**: {'; '.join(head)}"]
 
 
+def browse_bank(d: dict) -> tuple[list[str], list[str]]:
+  ms = lambda x: f"{x['median']:.0f} / {x['p95']:.0f} ms" if x else "–"
+  split = d["splitting_box_to_counts_ms"]
+  lines = ["## Browsing a bank on disk", "",
+           f"`scripts/bench_browse.py --bank {d['bank']}`: {d['worlds']:,} worlds of {d['bodies']} bodies opened "
+           "in the page as `mwbx browse` opens them (lazily, from their shards); screen boxes through the "
+           "scene camera, each put on the query stack alone; the boxes that split the bank (keep 5–95 % of "
+           "its worlds) are counted apart from those that keep all or none. Baseline in the same run: the "
+           f"`mwbx query` round trip for one box. Machine: {d['machine']}, load average {d['load_average']:.1f}.",
+           "",
+           "| page ready | first box | box → counts median / p95 | splitting boxes | re-sort | click → poses sent "
+           "| `mwbx query` round trip |",
+           "|---:|---:|---:|---:|---:|---:|---:|",
+           f"| {d['page_ready_s']:.1f} s | {d['first_box_s']:.1f} s | {ms(d['box_to_counts_ms'])} "
+           f"({d['box_to_counts_ms']['n']} boxes) | {ms(split)} ({split['n'] if split else 0} boxes) | "
+           f"{ms(d['resort_ms'])} | {ms(d['click_to_poses_sent_ms'])} | {d['cli_query_round_trip_s']:.1f} s |", "",
+           "The first box answers from the stored path boxes and the worlds they leave open; the next ones "
+           "from the bank's decoded paths, indexed once (kept while the page is open)."]
+  b = d.get("browser_click_to_playing_ms")
+  if b:
+    lines += ["", f"In headless Chromium, a click on a sorter row → the page says the world plays: "
+              f"{b['median']:.0f} ms median, p95 {b['p95']:.0f} ms ({b['clicks']} clicks; on the page's own clock, "
+              f"press → text shown {b['in_page_shown_median']:.0f} ms, → next frame drawn "
+              f"{b['in_page_drawn_median']:.0f} ms)."]
+  return lines, []
+
+
 def browse(d: dict) -> tuple[list[str], list[str]]:
   a, r = d["box_to_update_ms"], d["resort_ms"]
   lines = ["## Browse", "",
@@ -567,7 +594,8 @@ def scale(d: dict) -> tuple[list[str], list[str]]:
     for mode in ("eager", "lazy", "streamed"):
       if mode in r:
         o, q = r[mode]["open"], r[mode]["query"]
-        out.append(f"| {label} | {mode} | {o['open_seconds']:.2f} | {o['peak_rss_mb']:,.0f} | "
+        how = mode + (", from its boxes" if q.get("from_boxes") else "")
+        out.append(f"| {label} | {how} | {o['open_seconds']:.2f} | {o['peak_rss_mb']:,.0f} | "
                    f"{q['query_seconds']:.2f} | {q['query_again_seconds']:.2f} | {q['peak_rss_mb']:,.0f} | "
                    f"{q['all_match']:,} of {q['worlds']:,} |")
     return out
@@ -587,6 +615,15 @@ def scale(d: dict) -> tuple[list[str], list[str]]:
               "the baseline; *lazy*: the default, indexed whole below `IN_MEMORY_COM_BYTES`; *streamed*: "
               "a shard at a time; the answers are identical in every mode). *query* includes reading the "
               "shards and compiling; *again* is a second evaluation in the same process.", ""] + table + [""]
+  t = d.get("tower", {})
+  if "query" in t and "index_bytes" in t:
+    lines += [f"The tower bank as a user queries it, each in a fresh process: `mwbx info` "
+              f"{t['info']['wall_seconds']:.1f} s (peak {t['info']['peak_rss_mb']:,.0f} MB), `mwbx query BANK "
+              f"configs/queries/trebuchet_tower.yaml` {t['query']['wall_seconds']:.1f} s (peak "
+              f"{t['query']['peak_rss_mb']:,.0f} MB; commit {t['machine']['commit']}). Its stored path boxes "
+              f"(the first level of a volume query, [queries](queries.md#stored-path-boxes)) take "
+              f"{t['index_bytes'] / 1e6:.1f} MB, {t['index_bytes'] / (t['bank_bytes'] - t['index_bytes']):.0%} "
+              "of the rest of the bank.", ""]
   if "synthetic" in d:
     y = d["synthetic"]
     lines += [f"The synthetic bank: {y['bank_bytes'] / 1e6:.0f} MB on disk, "
@@ -1122,7 +1159,8 @@ def steps(d: dict) -> tuple[list[str], list[str]]:
 
 
 SECTIONS = (("setup", setup), ("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
-            ("refine", refinement), ("bank", bank), ("browse", browse), ("geometry", geometry),
+            ("refine", refinement), ("bank", bank), ("browse", browse), ("browse_100k", browse_bank),
+            ("geometry", geometry),
             ("geometry_tightness", geometry_tightness), ("scale", scale),
             ("scenes", scenes), ("backends", backends), ("gpu", gpu),
             ("solve", solve), ("events", events), ("flex", flex), ("tower", tower), ("page_refine", page_refine), ("steps", steps))

@@ -96,13 +96,18 @@ def bank_state(bank) -> _BankState:
   return _CACHE.get(bank, "index", key, lambda: _BankState(key, index_lib.build_index(com, valid)))
 
 
+def has_stored_boxes(bank) -> bool:
+  """Whether ``stored_boxes`` reads the bank's path boxes without decoding a
+  path: a lazily opened bank whose shards hold them."""
+  return _lazy(bank.com) and bank.com.companions_stored()
+
+
 def answered_from_boxes(bank) -> bool:
   """Whether this evaluation of volume queries starts from the bank's stored
   path boxes (:mod:`.path_boxes`): a lazily opened bank whose shards hold
   them, too big to keep decoded or answered from them fewer than
   ``BOX_ANSWERED_EVALUATIONS`` times."""
-  com = bank.com
-  if not (_lazy(com) and com.companions_stored()):
+  if not has_stored_boxes(bank):
     return False
   return streams(bank) or _box_answered(bank)[0] < BOX_ANSWERED_EVALUATIONS
 

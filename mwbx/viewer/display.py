@@ -257,8 +257,10 @@ class PathSimplifier:
     self._com = self._bodies = None
     self._keep = self._done = None
 
-  def __call__(self, com: np.ndarray, count: np.ndarray, worlds: np.ndarray, bodies: np.ndarray) -> np.ndarray:
-    """bool[len(worlds), P, K]: the points of ``com[worlds][:, :, bodies]`` to join."""
+  def __call__(self, com: np.ndarray, count: np.ndarray, worlds: np.ndarray, bodies: np.ndarray,
+               points: np.ndarray | None = None) -> np.ndarray:
+    """bool[len(worlds), P, K]: the points of ``com[worlds][:, :, bodies]`` to join
+    (``points``: those, when the caller has read them already)."""
     bodies = tuple(np.asarray(bodies).reshape(-1).tolist())
     if com is not self._com or bodies != self._bodies:  # (the array itself is held: its id is never reused)
       self._com, self._bodies = com, bodies
@@ -267,8 +269,12 @@ class PathSimplifier:
     worlds = np.asarray(worlds, np.int64)
     todo = np.unique(worlds[~self._done[worlds]])
     if todo.size:
-      self._keep[todo] = simplify_polylines(np.asarray(com[todo])[:, :, list(bodies)], np.asarray(count)[todo],
-                                            self.tolerance)
+      if points is None:
+        todo_points = np.asarray(com[todo])[:, :, list(bodies)]
+      else:  # the caller's rows: a lazily opened bank's paths are not read twice
+        seen, first = np.unique(worlds, return_index=True)
+        todo_points = np.asarray(points)[first[np.searchsorted(seen, todo)]]
+      self._keep[todo] = simplify_polylines(todo_points, np.asarray(count)[todo], self.tolerance)
       self._done[todo] = True
     return self._keep[worlds]
 
@@ -289,7 +295,7 @@ def path_layers(com: np.ndarray, count: np.ndarray, bodies: np.ndarray, classes:
     kept, left_out = thin(worlds, per_world, budget.get(name))
     if kept.size and bodies.size and com.shape[1] >= 2:
       points, counts = np.asarray(com[kept])[:, :, bodies], np.asarray(count)[kept]
-      keep = None if simplify is None else simplify(com, count, kept, bodies)
+      keep = None if simplify is None else simplify(com, count, kept, bodies, points)
       segments = polyline_segments(points, counts, keep)
     else:
       segments = np.zeros((0, 2, 3), np.float32)

@@ -16,6 +16,7 @@ import numpy as np
 from mwbx.bank import versions
 from mwbx.errors import MwbxError
 from mwbx.queries import Camera
+from mwbx.queries import paths
 from mwbx.viewer.display import DEFAULT_VISIBLE_GROUPS, PathClasses, ViewSpec, camera_pose
 from mwbx.viewer.errors import ViewerError
 
@@ -33,14 +34,14 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
   the drawn paths, and the boxes of the visible static geoms other than planes
   and height fields."""
   com = bank.com  # (a lazily opened bank's: only the rows asked for are read)
-  pts = [_finite_extent(com, worlds, np.arange(com.shape[2]))]
+  pts = [_finite_extent(bank, worlds, np.arange(com.shape[2]))]
   visible = np.isin(model.geom_group, visible_groups) & (model.geom_rgba[:, 3] > 0)
   moving = visible & (model.body_weldid[model.geom_bodyid] != 0)
   if pts[0].size and moving.any():
     margin = float(model.geom_rbound[moving].max())
     pts[0] = pts[0] + np.array([[-margin], [margin]])
   if path_classes is not None and bodies is not None:
-    pts.append(_finite_extent(com, np.concatenate(list(path_classes)), bodies))
+    pts.append(_finite_extent(bank, np.concatenate(list(path_classes)), bodies))
   data = mujoco.MjData(model)
   mujoco.mj_kinematics(model, data)
   # Grounds (planes, height fields) can be far larger than where anything goes.
@@ -60,12 +61,25 @@ def scene_bounds(bank, model: mujoco.MjModel, worlds: np.ndarray,
   return pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64)
 
 
-def _finite_extent(com: np.ndarray, worlds: np.ndarray, bodies: np.ndarray,
-                   chunk: int = 1024) -> np.ndarray:
-  """f64[k, 3] (k = 0 or 2) finite min and max over com[worlds][:, :, bodies]
+def _finite_extent(bank, worlds: np.ndarray, bodies: np.ndarray, chunk: int = 1024) -> np.ndarray:
+  """f64[k, 3] (k = 0 or 2) finite min and max over bank.com[worlds][:, :, bodies]
   (objects parked while absent from a world left out), in chunks of worlds so a
-  large bank is never copied whole."""
+  large bank is never copied whole; from the stored path boxes of a lazily
+  opened bank, reading only the worlds whose boxes hold a point not finite or
+  may hold a parked one."""
+  com = bank.com
+  worlds, bodies = np.asarray(worlds, np.int64), np.asarray(bodies, np.int64)
   lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+  if worlds.size and bodies.size and paths.has_stored_boxes(bank):
+    boxes = paths.stored_boxes(bank)
+    box_lo = boxes.lo[worlds][:, bodies].astype(np.float64)  # [k, b, 3]
+    box_hi = boxes.hi[worlds][:, bodies].astype(np.float64)
+    nearest = np.clip(versions.PARKED_POSITION, box_lo, box_hi)  # the box's point nearest the parking place
+    plain = (np.isfinite(box_lo).all(axis=-1) & np.isfinite(box_hi).all(axis=-1)
+             & ~versions.is_parked(nearest)).all(axis=1)  # [k]
+    if plain.any():
+      lo, hi = box_lo[plain].min(axis=(0, 1)), box_hi[plain].max(axis=(0, 1))
+    worlds = worlds[~plain]
   for start in range(0, len(worlds), chunk):
     part = com[worlds[start:start + chunk]][:, :, bodies].reshape(-1, 3).astype(np.float64)
     part = part[np.all(np.isfinite(part), axis=1) & ~versions.is_parked(part)]

@@ -348,3 +348,29 @@ def test_queries_start_from_the_stored_path_boxes(sharded, tmp_path, monkeypatch
   with pytest.raises(mwbx.MwbxError, match=rf"shards/00002: corrupt bank: checksum mismatch in {shards.BOXES}"):
     mwbx.evaluate_each(mwbx.Bank.load(older), queries)
   assert any("00002" in p and shards.BOXES in p for p in shards.verify(older))
+
+
+def test_the_page_frames_a_lazy_bank_from_its_boxes(sharded, monkeypatch):
+  """The view's bounds from the stored path boxes equal those from every
+  decoded path, and read none (a world whose boxes hold a point not finite
+  is read)."""
+  from mwbx.queries import path_boxes
+  from mwbx.viewer import framing
+  path, memory = sharded
+  bank = mwbx.Bank.load(path)
+  rows = np.arange(memory.n_worlds)
+  read = []
+  real = shards._read_com
+  monkeypatch.setattr(shards, "_read_com", lambda p, e: read.append(e["name"]) or real(p, e))
+  want = framing.scene_bounds(memory, memory.model, rows, None, None)
+  np.testing.assert_array_equal(framing.scene_bounds(bank, bank.model, rows, None, None), want)
+  assert read == []
+  com = np.asarray(memory.com).copy()
+  com[9, 3, 1] = np.nan
+  com[9, 4, 1] = np.nanmax(com[:, :, 1], axis=(0, 1)) + 5.0  # beyond the others: seen only by reading world 9
+  odd = lazy.LazyRows([lambda: com], [len(com)], com.shape[1:], np.float32,
+                      companions=[lambda: path_boxes.build(com)])
+  lo, hi = framing.scene_bounds(dataclasses.replace(memory, com=odd), memory.model, rows, None, None)
+  np.testing.assert_array_equal(hi, framing.scene_bounds(dataclasses.replace(memory, com=com), memory.model, rows,
+                                                         None, None)[1])
+  assert hi[1] >= com[9, 4, 1, 1]
