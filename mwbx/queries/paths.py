@@ -122,12 +122,14 @@ def stored_boxes(bank) -> path_boxes.PathBoxes:
   shard's as stored (computed from its decoded paths where a shard has none)."""
   com = bank.com
 
+  def piece(rows, local, boxes, chunk):
+    if boxes.chunk != chunk:  # boxed otherwise (in-memory worlds beside stored ones): boxed again alike
+      return path_boxes.build(com.rows(rows), chunk)
+    return boxes if np.array_equal(local, np.arange(boxes.n_worlds)) else boxes.take(local)
+
   def gather():
     parts = com.companions(path_boxes.build)
-    chunk = parts[0][2].chunk  # a piece boxed otherwise (computed here) is boxed again alike
-    boxes = path_boxes.concat([path_boxes.build(com.rows(rows), chunk) if value.chunk != chunk
-                               else value if np.array_equal(local, np.arange(value.n_worlds)) else value.take(local)
-                               for rows, local, value in parts])
+    boxes = path_boxes.concat([piece(*part, parts[0][2].chunk) for part in parts])
     rows = np.concatenate([rows for rows, _, _ in parts])
     return boxes if np.array_equal(rows, np.arange(len(rows))) else boxes.take(np.argsort(rows))
 

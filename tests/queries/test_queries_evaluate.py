@@ -141,6 +141,7 @@ def boxed_bank(bank, monkeypatch):
                   com.shape[1:],
                   np.float32, companions=[lambda piece=piece: stored(piece) for piece in pieces[:-1]] + [None])
   monkeypatch.setattr(query_lib, "BOX_ANSWERED_EVALUATIONS", 10**9)
+  monkeypatch.setattr(query_lib, "OPEN_FRACTION", 1.0)  # however many worlds the boxes leave open
   return queries_bank.make_bank(com, flags=bank.flags.copy()).__class__(
       lazy, bank.flags.copy(), bank.metrics, bank.com_count)
 
