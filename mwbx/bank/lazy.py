@@ -264,8 +264,7 @@ def concat_stores(stores: list):
   of them is a :class:`LazyQposStore`, else a concrete copy."""
   if any(isinstance(s, LazyQposStore) for s in stores):
     maps = [_store_map(s) for s in stores]
-    nbytes = sum(s.nbytes for s in stores)
-    return LazyQposStore(stores[0].kind, [], [], nbytes, _RowMap.concat(maps))
+    return LazyQposStore(stores[0].kind, [], [], lambda: sum(s.nbytes for s in stores), _RowMap.concat(maps))
   out = stores[0].copy()
   out.extend(*stores[1:])
   return out
@@ -286,14 +285,14 @@ class LazyQposStore:
 
   Args:
     kind: the stores' kind; sources: per piece, a store or a loader returning
-      one; counts: worlds per piece; nbytes: bytes the pieces take on disk.
+      one; counts: worlds per piece; nbytes: bytes the pieces take on disk, or
+      a function counting them (called when first asked: a stat per file).
   """
 
-  def __init__(self, kind: str, sources: list, counts: list[int], nbytes: int = 0,
-               rowmap: _RowMap | None = None):
+  def __init__(self, kind: str, sources: list, counts: list[int], nbytes=0, rowmap: _RowMap | None = None):
     self.kind = kind
     self._map = rowmap if rowmap is not None else _RowMap.of(sources, counts)
-    self._nbytes = int(nbytes)
+    self._nbytes = nbytes
 
   def _with(self, rowmap: _RowMap) -> "LazyQposStore":
     return LazyQposStore(self.kind, [], [], self._nbytes, rowmap)
@@ -351,7 +350,9 @@ class LazyQposStore:
   @property
   def nbytes(self) -> int:
     """Bytes of the stored streams on disk (none of them is in memory until read)."""
-    return self._nbytes
+    if callable(self._nbytes):
+      self._nbytes = int(self._nbytes())
+    return int(self._nbytes)
 
   def stats(self) -> dict:
     """The concrete store's stats, from each piece's per-world figures: a

@@ -470,11 +470,11 @@ def _is_big(name: str) -> bool:
 
 def _load_arrays(path: pathlib.Path, entry: dict, names) -> dict:
   """The named arrays of one shard, checked against its manifest entry."""
-  where = path / SHARDS / entry["name"]
+  where = f"{path}/{SHARDS}/{entry['name']}"  # (a string: pathlib's joins cost more than the reads of small arrays)
   arrays = {}
   try:
     for key in names:
-      arrays[key] = npy.read(where / f"{key}.npy")
+      arrays[key] = npy.read(f"{where}/{key}.npy")
   except Exception as err:  # noqa: BLE001 - np.load of a damaged header raises many kinds
     raise MwbxError(f"{where}: corrupt or missing shard ({type(err).__name__}: "
                     f"{checks.first_line(err)})") from None
@@ -484,10 +484,11 @@ def _load_arrays(path: pathlib.Path, entry: dict, names) -> dict:
 
 def _read_small(path: pathlib.Path, entry: dict) -> tuple[dict, dict]:
   """(arrays but the big ones, lineage) of one shard, checked."""
-  where = path / SHARDS / entry["name"]
+  where = f"{path}/{SHARDS}/{entry['name']}"
   arrays = _load_arrays(path, entry, [k for k in entry["checksums"] if not _is_big(k)])
   try:
-    lineage_bytes = (where / "lineage.json").read_bytes()
+    with open(f"{where}/lineage.json", "rb") as f:
+      lineage_bytes = f.read()
   except OSError as err:
     raise MwbxError(f"{where}: corrupt or missing shard ({checks.first_line(err)})") from None
   if checks.crc32(np.frombuffer(lineage_bytes, np.uint8)) != int(entry["lineage_crc"]):
@@ -675,8 +676,8 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       boxes = [loader or to_write.loader(e) for e, loader in zip(entries, boxes)]
     com = lazy_lib.LazyRows([lambda e=e: _read_com(path, e) for e in entries], counts, tuple(row_shape),
                             np.float32, companions=boxes)
-    disk = sum((path / SHARDS / e["name"] / f"{k}.npy").stat().st_size
-               for e in entries for k in e["checksums"] if k.startswith("qpos_"))
+    disk = lambda: sum(os.stat(f"{path}/{SHARDS}/{e['name']}/{k}.npy").st_size  # when first asked
+                       for e in entries for k in e["checksums"] if k.startswith("qpos_"))
     store = lazy_lib.LazyQposStore(kind.kind, [_ShardQpos(path, e, kind, store_meta) for e in entries], counts,
                                    disk)
   lineage = {}
