@@ -31,6 +31,9 @@ out/bench/scale.json, so phases can run at different times):
 - ``hundred_k``: as ``million``, ``--hundred-k-worlds`` (default 100,000)
   full-length quickstart worlds (4 s, the shipped config).
 
+With ``--reuse``, ``million`` and ``hundred_k`` browse the bank their last run
+sampled again (its sampling figures kept, with the commit that sampled it).
+
 Usage:
 
   .venv/bin/python scripts/bench_scale.py [--phases sample,tower,synthetic]
@@ -250,12 +253,26 @@ def _command(args: list[str]) -> dict:
   return dict(result, wall_seconds=time.perf_counter() - t0)
 
 
-def phase_quickstart(name: str, n_worlds: int, end_time: float) -> dict:
+def phase_quickstart(name: str, n_worlds: int, end_time: float, before: dict | None = None) -> dict:
   """``n_worlds`` quickstart worlds of ``end_time`` s, each sampled by mwbx,
-  then browsed from fresh processes (bank ``quickstart_<name>``)."""
+  then browsed from fresh processes (bank ``quickstart_<name>``). With
+  ``before`` (this phase's last results, ``--reuse``), the bank that run
+  sampled is browsed again and its sampling figures are kept."""
   import shutil
 
   path = BANKS / f"quickstart_{name}"
+  if before is not None:
+    if not path.exists() or before.get("worlds") != n_worlds:
+      raise SystemExit(f"--reuse: no bank of {n_worlds} worlds from an earlier {name} phase at {path}")
+    result = open_and_query(path, QUICKSTART_QUERIES, eager_baseline=False)
+    kept = ("worlds", "end_time", "sample_wall_seconds", "sample_peak_rss_mb", "world_steps_per_second",
+            "shards", "load_average_before", "load_average_after", "summary")
+    result.update({k: before[k] for k in kept if k in before},
+                  sampled_at_commit=before.get("sampled_at_commit", before["machine"]["commit"]),
+                  bank_bytes_per_world=result["bank_bytes"] / n_worlds,
+                  info=_command(["info", str(path)]),
+                  query=_command(["query", str(path), str(QUICKSTART_QUERIES)]))
+    return result
   if path.exists():
     shutil.rmtree(path)
   config = QUICKSTART
@@ -287,6 +304,8 @@ def main() -> None:
   parser.add_argument("--million-worlds", type=int, default=1_000_000)
   parser.add_argument("--million-end-time", type=float, default=0.5)
   parser.add_argument("--hundred-k-worlds", type=int, default=100_000)
+  parser.add_argument("--reuse", action="store_true",
+                      help="million, hundred_k: browse the bank the last such phase sampled again, without sampling")
   args = parser.parse_args()
   OUT.mkdir(parents=True, exist_ok=True)
   BANKS.mkdir(parents=True, exist_ok=True)
@@ -302,9 +321,11 @@ def main() -> None:
     elif phase == "synthetic":
       results["synthetic"] = phase_synthetic(args.synthetic_worlds)
     elif phase == "million":
-      results["million"] = phase_quickstart("million", args.million_worlds, args.million_end_time)
+      results["million"] = phase_quickstart("million", args.million_worlds, args.million_end_time,
+                                            results.get("million") if args.reuse else None)
     elif phase == "hundred_k":
-      results["hundred_k"] = phase_quickstart("hundred_k", args.hundred_k_worlds, 4.0)
+      results["hundred_k"] = phase_quickstart("hundred_k", args.hundred_k_worlds, 4.0,
+                                              results.get("hundred_k") if args.reuse else None)
     else:
       raise SystemExit(f"--phases: unknown phase {phase!r}")
     results[phase]["machine"] = _machine()

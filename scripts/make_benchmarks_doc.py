@@ -563,6 +563,15 @@ def setup(d: dict) -> tuple[list[str], list[str]]:
   return lines, []  # the README shows its own set-up commands
 
 
+def _index_share(z: dict) -> str:
+  """", of which N for its stored path boxes (P % of the rest)" where measured."""
+  if not z.get("index_bytes"):
+    return ""
+  rest = z["bank_bytes"] - z["index_bytes"]
+  return (f", of which {z['index_bytes'] / z['bank_bytes'] * z['bank_bytes_per_world']:,.0f} its stored path boxes, "
+          f"{z['index_bytes'] / rest:.0%} of the rest")
+
+
 def scale(d: dict) -> tuple[list[str], list[str]]:
   lines = ["## Scale", "",
            "`scripts/bench_scale.py`: the paper's trebuchet and 192-block tower "
@@ -637,10 +646,11 @@ def scale(d: dict) -> tuple[list[str], list[str]]:
     return [f"The sampled bank (`--phases {phase}`): {z['worlds']:,} quickstart worlds of {z['end_time']:g} s, "
             f"every one sampled by `mwbx sample` in {z['sample_wall_seconds'] / 60:.1f} min "
             f"({z['world_steps_per_second']:,.0f} world-steps/s, peak {z['sample_peak_rss_mb'] / 1024:.1f} GiB; "
-            f"commit {z['machine']['commit']}, load average {z['load_average_before']:.1f} before, "
-            f"{z['load_average_after']:.1f} after), {z['bank_bytes'] / 1e6:,.0f} MB on disk in {z['shards']:,} "
-            f"shards ({z['bank_bytes_per_world']:,.0f} bytes a world). As a user runs them, each in a fresh "
-            f"process: `mwbx info` {info['wall_seconds']:.1f} s (peak {info['peak_rss_mb']:,.0f} MB), "
+            f"commit {z.get('sampled_at_commit', z['machine']['commit'])}, load average "
+            f"{z['load_average_before']:.1f} before, {z['load_average_after']:.1f} after), "
+            f"{z['bank_bytes'] / 1e6:,.0f} MB on disk in {z['shards']:,} shards ({z['bank_bytes_per_world']:,.0f} "
+            f"bytes a world{_index_share(z)}). As a user runs them at commit {z['machine']['commit']}, each in a "
+            f"fresh process: `mwbx info` {info['wall_seconds']:.1f} s (peak {info['peak_rss_mb']:,.0f} MB), "
             f"`mwbx query BANK configs/queries/quickstart.yaml` {query['wall_seconds']:.1f} s "
             f"(peak {query['peak_rss_mb']:,.0f} MB).{after}", ""]
 
