@@ -161,9 +161,9 @@ def box_answers(bank, queries, valid: np.ndarray) -> np.ndarray:
       state = path_boxes.classify(boxes.take(part), *resolved[j])
       known, met[part, j] = path_boxes.world_answers(state, resolved[j][2], query.mode)
       undecided[part, j] = ~known & valid[part]
+    if not streams(bank) and undecided.any(axis=1).sum() > OPEN_FRACTION * n_worlds:
+      return None  # decoded whole, once, and indexed: what the next question wants too
   rows = np.flatnonzero(undecided.any(axis=1))
-  if not streams(bank) and rows.size > OPEN_FRACTION * n_worlds:
-    return None  # decoded whole, once, and indexed: what the next question wants too
   row_bytes = max(1, int(np.prod(bank.com.shape[1:], dtype=np.int64)) * 4)
   per_block = max(1, DECODED_BLOCK_BYTES // row_bytes)
   for start in range(0, rows.size, per_block):
