@@ -208,6 +208,11 @@ class LazyRows:
     out = self.rows(np.arange(len(self)))
     return out if dtype is None else out.astype(dtype)
 
+  @property
+  def is_materialized(self) -> bool:
+    """Whether every row is in memory (:meth:`materialized` was called)."""
+    return self._all is not None
+
   def materialized(self) -> np.ndarray:
     """Every row in memory, read once and kept (this object is immutable)."""
     if self._all is None:

@@ -107,7 +107,7 @@ def answered_from_boxes(bank) -> bool:
   path boxes (:mod:`.path_boxes`): a lazily opened bank whose shards hold
   them, too big to keep decoded or answered from them fewer than
   ``BOX_ANSWERED_EVALUATIONS`` times."""
-  if not has_stored_boxes(bank):
+  if not has_stored_boxes(bank) or bank.com.is_materialized:  # (decoded whole already: its index is cheap)
     return False
   return streams(bank) or _box_answered(bank)[0] < BOX_ANSWERED_EVALUATIONS
 
