@@ -360,7 +360,7 @@ def bank(d: dict) -> tuple[list[str], list[str]]:
 def browse_bank(d: dict) -> tuple[list[str], list[str]]:
   ms = lambda x: f"{x['median']:.0f} / {x['p95']:.0f} ms" if x else "–"
   split = d["splitting_box_to_counts_ms"]
-  lines = ["## Browsing a bank on disk", "",
+  lines = [f"## Browsing {d['worlds']:,} worlds on disk", "",
            f"`scripts/bench_browse.py --bank {d['bank']}`: {d['worlds']:,} worlds of {d['bodies']} bodies opened "
            "in the page as `mwbx browse` opens them (lazily, from their shards); screen boxes through the "
            "scene camera, each put on the query stack alone; the boxes that split the bank (keep 5–95 % of "
@@ -623,7 +623,11 @@ def scale(d: dict) -> tuple[list[str], list[str]]:
     lines += ["**Opening and querying** (each in a fresh process; *eager*: `Bank.load(path, lazy=False)`, "
               "the baseline; *lazy*: the default, indexed whole below `IN_MEMORY_COM_BYTES`; *streamed*: "
               "a shard at a time; the answers are identical in every mode). *query* includes reading the "
-              "shards and compiling; *again* is a second evaluation in the same process.", ""] + table + [""]
+              "shards and compiling; *again* is a second evaluation in the same process. *From its boxes*: the "
+              "first evaluation starts from the bank's stored path boxes and decodes only the worlds they leave "
+              "open (the whole bank, indexed, where that is most of a bank that fits in memory, as the 100,000 "
+              "4-s worlds' ball grazing a box is); a lazy bank's second evaluation then decodes and indexes it "
+              "whole, for the evaluations after it (the page's next boxes).", ""] + table + [""]
   t = d.get("tower", {})
   if "query" in t and "index_bytes" in t:
     lines += [f"The tower bank as a user queries it, each in a fresh process: `mwbx info` "
@@ -1169,7 +1173,7 @@ def steps(d: dict) -> tuple[list[str], list[str]]:
 
 
 SECTIONS = (("setup", setup), ("sampler", sampler), ("codec", codec), ("queries", queries), ("viewer", viewer),
-            ("refine", refinement), ("bank", bank), ("browse", browse), ("browse_100k", browse_bank),
+            ("refine", refinement), ("bank", bank), ("browse", browse), ("browse_100k", browse_bank), ("browse_1m", browse_bank),
             ("geometry", geometry),
             ("geometry_tightness", geometry_tightness), ("scale", scale),
             ("scenes", scenes), ("backends", backends), ("gpu", gpu),
