@@ -127,6 +127,7 @@ class LazyRows:
     self.row_shape = tuple(row_shape)
     self.dtype = np.dtype(dtype)
     self._all = None
+    self._companions_stored = None
 
   @classmethod
   def of(cls, array: np.ndarray) -> "LazyRows":
@@ -222,9 +223,12 @@ class LazyRows:
   def companions_stored(self) -> bool:
     """Whether every piece read from disk has its companion stored beside it
     (in-memory pieces compute theirs cheaply)."""
-    pieces = self._map.pieces
-    used = np.unique(self._map.piece)
-    return all(pieces.companions[p] is not None or not callable(pieces.sources[p]) for p in used)
+    if self._companions_stored is None:  # (the row map never changes: asked once)
+      pieces = self._map.pieces
+      used = np.flatnonzero(np.bincount(self._map.piece, minlength=len(pieces.sources)))
+      self._companions_stored = all(pieces.companions[p] is not None or not callable(pieces.sources[p])
+                                    for p in used)
+    return self._companions_stored
 
   def companions(self, compute) -> list[tuple[np.ndarray, np.ndarray, object]]:
     """(i64[k] bank rows, i64[k] their rows in the piece, the piece's companion)

@@ -671,7 +671,7 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
     unboxed = [e for e, loader in zip(entries, boxes) if loader is None]
     if unboxed:
       NOTICE.info(f"{path}: {len(unboxed)} of {len(entries)} shards saved without a query index; the first query"
-                  f" decodes them once and writes it")
+                  f" computes it from their decoded paths and writes it")
       to_write = _BoxesToWrite(path, unboxed)
       boxes = [loader or to_write.loader(e) for e, loader in zip(entries, boxes)]
     com = lazy_lib.LazyRows([lambda e=e: _read_com(path, e) for e in entries], counts, tuple(row_shape),

@@ -329,8 +329,8 @@ def test_queries_start_from_the_stored_path_boxes(sharded, tmp_path, monkeypatch
   NOTICE.addHandler(handler)
   try:
     bank = mwbx.Bank.load(older)
-    assert seen == [f"{older}: {N_SHARDS} of {N_SHARDS} shards saved without a query index; the first query decodes"
-                    " them once and writes it"]
+    assert seen == [f"{older}: {N_SHARDS} of {N_SHARDS} shards saved without a query index; the first query computes"
+                    " it from their decoded paths and writes it"]
     np.testing.assert_array_equal(mwbx.evaluate_each(bank, queries), mwbx.evaluate_each(memory, queries))
     assert seen[1:] == [f"{older}: query index written for {N_SHARDS} shards"]
     assert shards.verify(older) == []
