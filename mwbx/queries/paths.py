@@ -1,6 +1,8 @@
 """Where stored COM paths meet volumes: the bank's bounds hierarchy (built
-once and cached per bank, or a shard at a time for a big bank on disk), the
-per-path hits of a volume and the time a path first enters one.
+once and cached per bank, or a shard at a time for a big bank on disk), a
+lazily opened bank's answers from its stored path boxes first
+(:func:`box_answers`), the per-path hits of a volume and the time a path
+first enters one.
 
 What :class:`~mwbx.queries.query.VolumeQuery` answers with; the kernels are
 in :mod:`.index` and :mod:`.segments`.

@@ -325,11 +325,11 @@ class VolumeQuery(Query):
         out[:, i] = paths.combine(hits, mask, query) & valid
     if not com_queries:
       return out
-    answers = paths.box_answers(bank, [queries[i] for i in com_queries], valid) \
-        if paths.answered_from_boxes(bank) else None
-    if answers is not None:
-      out[:, com_queries] = answers
-      return out
+    if paths.answered_from_boxes(bank):
+      answers = paths.box_answers(bank, [queries[i] for i in com_queries], valid)
+      if answers is not None:  # (None: the boxes left most worlds open; the bank is indexed whole below)
+        out[:, com_queries] = answers
+        return out
     blocks = paths.blocks(bank, valid) if paths.streams(bank) else [(slice(None), paths.bank_state(bank))]
     for rows, state in blocks:
       for i in com_queries:
