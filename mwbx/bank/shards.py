@@ -34,6 +34,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import fcntl
+import functools
+import io
 import json
 import os
 import pathlib
@@ -350,22 +352,14 @@ class BankDirectory:
         entry = entries.get(name)
         if entry is None or BOXES in entry["checksums"]:
           continue
-        file = self.path / SHARDS / name / f"{BOXES}.npy"
-        tmp = file.with_name(f".tmp-{uuid.uuid4().hex}.npy")
-        try:
-          with open(tmp, "wb") as f:
-            np.save(f, array, allow_pickle=False)
-            f.flush()
-            os.fsync(f.fileno())
-          os.rename(tmp, file)
-        except OSError:
-          files.remove_quietly(tmp)
-          raise
+        buffer = io.BytesIO()
+        np.save(buffer, array, allow_pickle=False)
+        blob = buffer.getvalue()
+        files.write_atomic(self.path / SHARDS / name / f"{BOXES}.npy", blob, "query index")
         entry["checksums"][BOXES] = checks.crc32(array)
-        entry["index"] = {"version": path_boxes.VERSION, "chunk": path_boxes.DEFAULT_CHUNK}
+        entry["index"] = _index_meta()
         if "bytes" in entry:
-          entry["bytes"] += file.stat().st_size
-      files.fsync_dir(self.path / SHARDS)
+          entry["bytes"] += len(blob)
       self.commit()
 
   def _next_shard_name(self) -> str:
@@ -412,7 +406,7 @@ def _write_shard(path: pathlib.Path, bank, rows: np.ndarray, name: str) -> dict:
           "com_row_shape": [int(x) for x in part.com.shape[1:]],
           "checksums": {k: checks.crc32(v) for k, v in arrays.items()},
           "lineage_crc": checks.crc32(np.frombuffer(lineage_bytes, np.uint8)), "bytes": shard_bytes,
-          "index": {"version": path_boxes.VERSION, "chunk": path_boxes.DEFAULT_CHUNK}}
+          "index": _index_meta()}
   if part.events is not None:  # the names the events' actor indices refer to
     entry["events"] = {"version": events_lib.EVENTS_VERSION, "actors": list(part.event_actors),
                        "ticks_per_frame": int(part.events.ticks_per_frame),
@@ -462,6 +456,11 @@ def _some(ids) -> str:
 # Arrays of a shard read only when used (lazy banks): the COM polylines, the
 # qpos streams and the paths' boxes (`index_boxes`, what a query reads first).
 BOXES = "index_boxes"
+
+
+def _index_meta() -> dict:
+  """A shard entry's ``index``: the layout its :data:`BOXES` are stored in."""
+  return {"version": path_boxes.VERSION, "chunk": path_boxes.DEFAULT_CHUNK}
 
 
 def _is_big(name: str) -> bool:
@@ -676,8 +675,8 @@ def load(cls, path: pathlib.Path, *, skip_corrupt: bool = False, lazy: bool = Tr
       boxes = [loader or to_write.loader(e) for e, loader in zip(entries, boxes)]
     com = lazy_lib.LazyRows([lambda e=e: _read_com(path, e) for e in entries], counts, tuple(row_shape),
                             np.float32, companions=boxes)
-    disk = lambda: sum(os.stat(f"{path}/{SHARDS}/{e['name']}/{k}.npy").st_size  # when first asked
-                       for e in entries for k in e["checksums"] if k.startswith("qpos_"))
+    disk = functools.cache(lambda: sum(os.stat(f"{path}/{SHARDS}/{e['name']}/{k}.npy").st_size  # when first asked
+                                       for e in entries for k in e["checksums"] if k.startswith("qpos_")))
     store = lazy_lib.LazyQposStore(kind.kind, [_ShardQpos(path, e, kind, store_meta) for e in entries], counts,
                                    disk)
   lineage = {}

@@ -138,7 +138,7 @@ def stored_boxes(bank) -> path_boxes.PathBoxes:
   return _CACHE.get(bank, "boxes", id(com), gather)
 
 
-def box_answers(bank, queries, valid: np.ndarray) -> np.ndarray:
+def box_answers(bank, queries, valid: np.ndarray) -> np.ndarray | None:
   """bool[W, k] answers of COM volume queries, from the stored path boxes
   where they decide a world, else from the world's decoded paths (the same
   answers as the full test: the boxes decide only what it would); None when
