@@ -130,7 +130,7 @@ def _codes(lo, hi, corner, finite, lower: bool) -> np.ndarray:
     scaled = np.where(span > 0, (corner - lo64) / np.where(span > 0, span, 1.0) * CODE_MAX, 0.0)
   code = np.floor(scaled) if lower else np.ceil(scaled)
   code = np.clip(np.nan_to_num(code, nan=0.0), 0, CODE_MAX)
-  decoded = lo64 + span * (code / float(CODE_MAX))
+  decoded = decode_corner(lo, hi, code)  # as classify decodes it
   if lower:  # one step outwards wherever rounding put the decoded corner inside
     code = np.where(decoded > corner, np.maximum(code - 1, 0), code)
   else:
