@@ -7,10 +7,18 @@ import pathlib
 import shutil
 import tempfile
 
-import jax
-import pytest
+# XLA compiles the suite's programs with its optimizations mostly off: most
+# of the suite's CPU time is compiling MJX steps that then run a few hundred
+# steps (the MJX events test: 89 s against 64 s). Set before jax reads it, so
+# that the `mwbx` commands the tests start inherit it too; a module whose
+# programs run long, or whose checks depend on the shipped code's rounding,
+# asks for `xla_optimized`.
+os.environ.setdefault("JAX_DISABLE_MOST_OPTIMIZATIONS", "1")
 
-import mwbx
+import jax  # noqa: E402
+import pytest  # noqa: E402
+
+import mwbx  # noqa: E402
 
 # One on-disk compilation cache for this test session, shared with the `mwbx`
 # commands the CLI tests start and the session's workers (they read
@@ -31,6 +39,15 @@ def load_script(name: str):
   module = importlib.util.module_from_spec(spec)
   spec.loader.exec_module(module)
   return module
+
+
+@pytest.fixture(scope="module")
+def xla_optimized():
+  """XLA's full optimizations, as users run, for one module's compiles."""
+  before = jax.config.read("jax_disable_most_optimizations")
+  jax.config.update("jax_disable_most_optimizations", False)
+  yield
+  jax.config.update("jax_disable_most_optimizations", before)
 
 
 @pytest.fixture(scope="session")

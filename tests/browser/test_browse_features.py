@@ -23,6 +23,16 @@ from mwbx.browser.session import ORIENTATION_ERROR
 from test_browse import QUERY_LINE, WAIT, Server, _arm, _camera, _drag
 from mwbx.testing.headless import CHROMIUM_BINARY, WEBGL_ARGS
 
+
+def _tick(checkbox) -> None:
+  """Ticks a page checkbox and waits until it shows ticked. Playwright's
+  ``check()`` reads the box right after its click, and the page's React
+  renders the tick a frame later, late on a busy machine ("Clicking the
+  checkbox did not change its state" with three test workers on 2 cores)."""
+  from playwright.sync_api import expect
+  checkbox.click()
+  expect(checkbox).to_be_checked(timeout=WAIT * 1000)
+
 ORIENTATION_LINE = re.compile(r"mwbx browse: query (\d+) orientation upright axis=(\S+) within_deg=(\S+) "
                               r"bodies=(.+) mode=(\w+) window=(\S+) -> (\d+) worlds, all queries (\d+) of (\d+)")
 
@@ -99,9 +109,9 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       # Several bodies at once, and whole geometry: the page's count is
       # mwbx.queries' for the same box, bodies and shape.
       page.get_by_text("Several bodies").click()
-      page.get_by_label("cube", exact=True).check()
-      page.get_by_label("ball", exact=True).check()
-      page.get_by_label("Whole geometry").check()
+      _tick(page.get_by_label("cube", exact=True))
+      _tick(page.get_by_label("ball", exact=True))
+      _tick(page.get_by_label("Whole geometry"))
       time.sleep(0.5)
       _arm(page, "include")
       _drag(page, 420, 300, 700, 520)
@@ -141,7 +151,7 @@ def test_page_geometry_orientation_several_bodies_side_by_side_add_remove(browse
       world = ids[0]
       page.get_by_text(re.compile(rf"^world {world} · ")).click()
       server.expect(rf"playing world {world}$")
-      page.get_by_label("Pause").check()
+      _tick(page.get_by_label("Pause"))
       _type_number(page, "Samples", "2")
       _fill(page, "Remove objects", "ball")
       page.get_by_text("Refine playing world").click()
