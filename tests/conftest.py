@@ -9,7 +9,7 @@ import tempfile
 
 # XLA compiles the suite's programs with its optimizations mostly off: most
 # of the suite's CPU time is compiling MJX steps that then run a few hundred
-# steps (the MJX events test: 89 s against 64 s). Set before jax reads it, so
+# steps (the MJX events test: 89 s against 66 s). Set before jax reads it, so
 # that the `mwbx` commands the tests start inherit it too; a module whose
 # programs run long, or whose checks depend on the shipped code's rounding,
 # asks for `xla_optimized`.
